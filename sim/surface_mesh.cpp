@@ -1,0 +1,1 @@
+#include "sim/surface_mesh.h"

@@ -1,0 +1,1 @@
+#include "sim/voxel_model.h"

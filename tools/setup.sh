@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Installs the Debian packages divvox needs (only the missing ones) and builds it.
+# Idempotent: quiet and fast when everything is already there.
+#   tools/setup.sh            -> install + configure + build (Release) into build/
+#   DIVVOX_NO_BUILD=1 tools/setup.sh -> install only
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+# Packages (DESIGN §6). libgl1-mesa-dri is the software rasterizer; xvfb-run needs xauth.
+packages=(
+  build-essential cmake pkg-config ninja-build
+  libeigen3-dev libassimp-dev nlohmann-json3-dev libcli11-dev doctest-dev
+  libglfw3-dev libimgui-dev libstb-dev libglvnd-dev libegl-dev libegl-mesa0 libgl1-mesa-dri
+  xvfb xauth
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "setup: installing ${missing[*]}"
+  sudo_cmd=()
+  [[ $(id -u) -ne 0 ]] && sudo_cmd=(sudo)
+  export DEBIAN_FRONTEND=noninteractive
+  "${sudo_cmd[@]}" apt-get update -qq
+  "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+[[ "${DIVVOX_NO_BUILD:-0}" == 1 ]] && exit 0
+
+# Configure once, then incremental builds.
+build="${DIVVOX_BUILD_DIR:-$here/build}"
+if [[ ! -f "$build/CMakeCache.txt" ]]; then
+  cmake -S "$here" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
+fi
+cmake --build "$build" --parallel "$(nproc)" | grep -v -E '^\[[0-9]+/[0-9]+\] ' || true
+test "${PIPESTATUS[0]}" -eq 0
