@@ -29,10 +29,13 @@ fi
 
 [[ "${DIVVOX_NO_BUILD:-0}" == 1 ]] && exit 0
 
-# Configure once, then incremental builds.
+# Configure once, then incremental builds (output shown only when something fails).
 build="${DIVVOX_BUILD_DIR:-$here/build}"
 if [[ ! -f "$build/CMakeCache.txt" ]]; then
-  cmake -S "$here" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
+  cmake -S "$here" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release ${DIVVOX_CMAKE_ARGS:-} >"$build.configure.log" 2>&1 ||
+    { cat "$build.configure.log"; exit 1; }
 fi
-cmake --build "$build" --parallel "$(nproc)" | grep -v -E '^\[[0-9]+/[0-9]+\] ' || true
-test "${PIPESTATUS[0]}" -eq 0
+if ! cmake --build "$build" --parallel "$(nproc)" >"$build.build.log" 2>&1; then
+  cat "$build.build.log"
+  exit 1
+fi

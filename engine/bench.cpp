@@ -1,0 +1,177 @@
+#include "engine/bench.h"
+
+#include "engine/errors.h"
+#include "engine/output.h"
+#include "engine/resources.h"
+#include "engine/voxelize_job.h"
+
+#include <nlohmann/json.hpp>
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <sstream>
+
+namespace dvx {
+namespace {
+
+double median(std::vector<double> values) {
+  if (values.empty()) return 0.0;
+  std::sort(values.begin(), values.end());
+  const size_t n = values.size();
+  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
+// One benchmark row: medians over the repeats of one (mesh, resolution).
+struct VoxelizeRow {
+  double load_ms = 0, voxelize_ms = 0, contour_ms = 0, total_ms = 0;
+  uint32_t nx = 0, ny = 0, nz = 0;
+  uint64_t occupied_voxels = 0, crossing_edges = 0, model_bytes = 0, peak_rss = 0, surface_triangles = 0;
+  uint64_t boundary_edges = 0, components = 0;
+};
+
+// Runs the repeats in this (child) process and returns the row.
+VoxelizeRow measure(const std::string& mesh, int resolution, int repeats) {
+  std::vector<double> load, vox, contour, total;
+  VoxelizeRow row;
+  for (int r = 0; r < repeats; ++r) {
+    VoxelizeJobOptions options;
+    options.mesh_path = mesh;
+    options.resolution = resolution;
+    options.error_samples = 0;
+    const VoxelizeJobResult result = run_voxelize(options);
+    load.push_back(result.ms.load);
+    vox.push_back(result.ms.voxelize);
+    contour.push_back(result.ms.contour);
+    total.push_back(result.ms.load + result.ms.voxelize + result.ms.contour);
+    row.nx = uint32_t(result.model.lattice.nx);
+    row.ny = uint32_t(result.model.lattice.ny);
+    row.nz = uint32_t(result.model.lattice.nz);
+    row.occupied_voxels = result.model.occupied_voxels;
+    row.crossing_edges = result.model.crossings.size();
+    row.model_bytes = result.model.memory_bytes();
+    row.surface_triangles = result.stats.triangles;
+    row.boundary_edges = result.stats.boundary_edges;
+    row.components = result.stats.components;
+  }
+  row.load_ms = median(load);
+  row.voxelize_ms = median(vox);
+  row.contour_ms = median(contour);
+  row.total_ms = median(total);
+  row.peak_rss = peak_rss_bytes();
+  return row;
+}
+
+// Runs measure() in a child so each row's peak memory is its own; false when it failed.
+bool measure_in_child(const std::string& mesh, int resolution, int repeats, VoxelizeRow& row, std::string& error) {
+  int fds[2];
+  if (pipe(fds) != 0) throw std::runtime_error("bench: pipe() failed");
+  std::fflush(nullptr);
+  const pid_t pid = fork();
+  if (pid < 0) throw std::runtime_error("bench: fork() failed");
+  if (pid == 0) {
+    close(fds[0]);
+    int code = 0;
+    std::string text;
+    try {
+      const VoxelizeRow r = measure(mesh, resolution, repeats);
+      text = std::string(reinterpret_cast<const char*>(&r), sizeof r);
+    } catch (const std::exception& e) {
+      text = e.what();
+      code = 3;
+    }
+    size_t written = 0;
+    while (written < text.size()) {
+      const ssize_t n = write(fds[1], text.data() + written, text.size() - written);
+      if (n <= 0) break;
+      written += size_t(n);
+    }
+    close(fds[1]);
+    _exit(code);
+  }
+  close(fds[1]);
+  std::string bytes;
+  char buffer[4096];
+  for (ssize_t n; (n = read(fds[0], buffer, sizeof buffer)) > 0;) bytes.append(buffer, size_t(n));
+  close(fds[0]);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  if (WIFEXITED(status) && WEXITSTATUS(status) == 0 && bytes.size() == sizeof row) {
+    std::copy(bytes.begin(), bytes.end(), reinterpret_cast<char*>(&row));
+    return true;
+  }
+  error = bytes.empty() ? "child process failed" : bytes;
+  return false;
+}
+
+}  // namespace
+
+std::vector<std::string> default_bench_meshes() {
+  const std::filesystem::path shared = DIVVOX_SHARED_ASSETS_DEFAULT;
+  std::vector<std::string> meshes;
+  for (const char* name : {"bunny_closed_70k.obj", "armadillo_100k.obj", "liver_sofa_smooth.obj"}) {
+    if (std::filesystem::exists(shared / name)) meshes.push_back((shared / name).string());
+  }
+  if (meshes.empty()) {
+    meshes.push_back((std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/meshes/bunny_npm.obj").string());
+  }
+  return meshes;
+}
+
+std::string bench_voxelize(const BenchVoxelizeOptions& options) {
+  const std::vector<std::string> meshes = options.meshes.empty() ? default_bench_meshes() : options.meshes;
+  make_output_dir(options.out_dir);
+  for (const std::string& mesh : meshes) {
+    if (!std::filesystem::exists(mesh)) throw_input(mesh, "no such file");
+  }
+
+  std::ostringstream csv;
+  csv << "mesh,resolution,nx,ny,nz,repeats,load_ms,voxelize_ms,contour_ms,total_ms,occupied_voxels,crossing_edges,"
+         "model_bytes,bytes_per_occupied_voxel,peak_rss_bytes,surface_triangles,boundary_edges,components,status\n";
+  nlohmann::json rows = nlohmann::json::array();
+  for (const std::string& mesh : meshes) {
+    for (int resolution : options.resolutions) {
+      const std::string name = std::filesystem::path(mesh).filename().string();
+      if (options.progress) std::fprintf(stderr, "divvox bench: %s at %d\n", name.c_str(), resolution);
+      VoxelizeRow row;
+      std::string error;
+      const bool ok = measure_in_child(mesh, resolution, options.repeats, row, error);
+      const double per_voxel = row.occupied_voxels ? double(row.model_bytes) / double(row.occupied_voxels) : 0.0;
+      std::string status = ok ? "ok" : error;
+      for (char& c : status) {
+        if (c == ',' || c == '\n') c = ';';
+      }
+      csv << name << ',' << resolution << ',' << row.nx << ',' << row.ny << ',' << row.nz << ',' << options.repeats
+          << ',' << row.load_ms << ',' << row.voxelize_ms << ',' << row.contour_ms << ',' << row.total_ms << ','
+          << row.occupied_voxels << ',' << row.crossing_edges << ',' << row.model_bytes << ',' << per_voxel << ','
+          << row.peak_rss << ',' << row.surface_triangles << ',' << row.boundary_edges << ',' << row.components
+          << ',' << status << '\n';
+      rows.push_back({{"mesh", name},
+                      {"resolution", resolution},
+                      {"lattice", {row.nx, row.ny, row.nz}},
+                      {"time_ms",
+                       {{"load", row.load_ms},
+                        {"voxelize", row.voxelize_ms},
+                        {"contour", row.contour_ms},
+                        {"total", row.total_ms}}},
+                      {"occupied_voxels", row.occupied_voxels},
+                      {"crossing_edges", row.crossing_edges},
+                      {"model_bytes", row.model_bytes},
+                      {"bytes_per_occupied_voxel", per_voxel},
+                      {"peak_rss_bytes", row.peak_rss},
+                      {"surface_triangles", row.surface_triangles},
+                      {"status", status}});
+    }
+  }
+  const std::string csv_path = (std::filesystem::path(options.out_dir) / "bench_voxelize.csv").string();
+  write_text_file(csv_path, csv.str());
+  write_json_file((std::filesystem::path(options.out_dir) / "bench_voxelize.json").string(),
+                  {{"benchmark", "voxelize"}, {"repeats", options.repeats}, {"statistic", "median"}, {"rows", rows}});
+  return csv_path;
+}
+
+}  // namespace dvx

@@ -1,0 +1,24 @@
+// Errors that leave the program with a one-line message and an exit code:
+// 2 for bad input (a file, a flag, a value), 1 for internal failures.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+
+namespace dvx {
+
+enum ExitCode : int { kExitOk = 0, kExitInternal = 1, kExitBadInput = 2 };
+
+// Bad input: the message names the file (or flag) and the problem, on one line.
+struct InputError : std::runtime_error {
+  explicit InputError(const std::string& message) : std::runtime_error(message) {}
+};
+
+// "FILE: problem" with newlines folded so the message stays on one line.
+std::string input_message(const std::string& file, const std::string& problem);
+
+[[noreturn]] inline void throw_input(const std::string& file, const std::string& problem) {
+  throw InputError(input_message(file, problem));
+}
+
+}  // namespace dvx

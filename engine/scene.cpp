@@ -1,0 +1,170 @@
+#include "engine/scene.h"
+
+#include "engine/errors.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <initializer_list>
+#include <sstream>
+
+namespace dvx {
+namespace {
+
+using json = nlohmann::json;
+
+// Reads one object's keys, checking each against the allowed set, with a path for messages.
+struct Reader {
+  const std::string& file;
+
+  [[noreturn]] void fail(const std::string& key, const std::string& problem) const {
+    throw_input(file, key + ": " + problem);
+  }
+
+  void check_keys(const json& object, const std::string& where, std::initializer_list<const char*> allowed) const {
+    if (!object.is_object()) fail(where.empty() ? "scene" : where, "must be an object");
+    for (auto it = object.begin(); it != object.end(); ++it) {
+      bool known = false;
+      for (const char* name : allowed) known = known || it.key() == name;
+      if (!known) {
+        std::string list;
+        for (const char* name : allowed) list += std::string(list.empty() ? "" : ", ") + name;
+        fail(where + (where.empty() ? "" : ".") + it.key(), "unknown key (allowed: " + list + ")");
+      }
+    }
+  }
+
+  double number(const json& value, const std::string& key, double lo, double hi) const {
+    if (!value.is_number()) fail(key, "must be a number");
+    const double x = value.get<double>();
+    if (!std::isfinite(x) || x < lo || x > hi) {
+      std::ostringstream range;
+      range << "must be in [" << lo << ", " << hi << "], got " << value.dump();
+      fail(key, range.str());
+    }
+    return x;
+  }
+
+  int integer(const json& value, const std::string& key, int lo, int hi) const {
+    if (!value.is_number_integer()) fail(key, "must be an integer");
+    const auto x = value.get<int64_t>();
+    if (x < lo || x > hi) {
+      fail(key, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + value.dump());
+    }
+    return int(x);
+  }
+
+  Vec3d vec3(const json& value, const std::string& key, double bound) const {
+    if (!value.is_array() || value.size() != 3) fail(key, "must be an array of 3 numbers");
+    return Vec3d(number(value[0], key + "[0]", -bound, bound), number(value[1], key + "[1]", -bound, bound),
+                 number(value[2], key + "[2]", -bound, bound));
+  }
+};
+
+bool is_power_of_two(int x) { return x > 0 && (x & (x - 1)) == 0; }
+
+}  // namespace
+
+Scene parse_scene(const json& root, const std::string& file) {
+  const Reader r{file};
+  r.check_keys(root, "",
+               {"mesh", "resolution", "sim_resolution", "material", "solver", "gravity", "fixed", "scalpel"});
+  Scene scene;
+  scene.file = file;
+
+  // Mesh path, relative to the scene file.
+  if (!root.contains("mesh")) r.fail("mesh", "missing (the scene needs a mesh file)");
+  if (!root["mesh"].is_string() || root["mesh"].get<std::string>().empty()) r.fail("mesh", "must be a non-empty string");
+  scene.mesh = root["mesh"].get<std::string>();
+  const std::filesystem::path mesh_path(scene.mesh);
+  const std::filesystem::path base = file.empty() ? std::filesystem::path() : std::filesystem::path(file).parent_path();
+  scene.mesh_path = (mesh_path.is_absolute() ? mesh_path : base / mesh_path).lexically_normal().string();
+
+  if (root.contains("resolution")) scene.resolution = r.integer(root["resolution"], "resolution", 1, kMaxResolution);
+  if (root.contains("sim_resolution")) {
+    scene.sim_resolution = r.integer(root["sim_resolution"], "sim_resolution", 1, kMaxResolution);
+  } else if (scene.sim_resolution > scene.resolution) {
+    scene.sim_resolution = scene.resolution;
+  }
+  // Simulation voxels hold (2^l)^3 fine voxels.
+  if (scene.resolution % scene.sim_resolution != 0 || !is_power_of_two(scene.resolution / scene.sim_resolution)) {
+    r.fail("sim_resolution", "resolution / sim_resolution must be a power of two (resolution " +
+                                 std::to_string(scene.resolution) + ", sim_resolution " +
+                                 std::to_string(scene.sim_resolution) + ")");
+  }
+
+  if (root.contains("material")) {
+    const json& m = root["material"];
+    r.check_keys(m, "material", {"density", "stretch_compliance", "shape_stiffness"});
+    if (m.contains("density")) scene.material.density = r.number(m["density"], "material.density", 1e-9, 1e9);
+    if (m.contains("stretch_compliance")) {
+      scene.material.stretch_compliance = r.number(m["stretch_compliance"], "material.stretch_compliance", 0.0, 1e6);
+    }
+    if (m.contains("shape_stiffness")) {
+      scene.material.shape_stiffness = r.number(m["shape_stiffness"], "material.shape_stiffness", 0.0, 1.0);
+    }
+  }
+  if (root.contains("solver")) {
+    const json& s = root["solver"];
+    r.check_keys(s, "solver", {"dt", "substeps", "iterations"});
+    if (s.contains("dt")) scene.solver.dt = r.number(s["dt"], "solver.dt", 1e-6, 1.0);
+    if (s.contains("substeps")) scene.solver.substeps = r.integer(s["substeps"], "solver.substeps", 1, 1000);
+    if (s.contains("iterations")) scene.solver.iterations = r.integer(s["iterations"], "solver.iterations", 1, 10000);
+  }
+  if (root.contains("gravity")) scene.gravity = r.vec3(root["gravity"], "gravity", 1e6);
+  if (root.contains("fixed")) {
+    const json& fixed = root["fixed"];
+    if (!fixed.is_array()) r.fail("fixed", "must be an array of {\"box\": [[min],[max]]}");
+    for (size_t i = 0; i < fixed.size(); ++i) {
+      const std::string key = "fixed[" + std::to_string(i) + "]";
+      r.check_keys(fixed[i], key, {"box"});
+      const json& box = fixed[i].contains("box") ? fixed[i]["box"] : json();
+      if (!box.is_array() || box.size() != 2) r.fail(key + ".box", "must be [[xmin,ymin,zmin],[xmax,ymax,zmax]]");
+      FixedBox b{r.vec3(box[0], key + ".box[0]", 1e30), r.vec3(box[1], key + ".box[1]", 1e30)};
+      if ((b.min.array() > b.max.array()).any()) r.fail(key + ".box", "min is greater than max");
+      scene.fixed.push_back(b);
+    }
+  }
+  if (root.contains("scalpel")) {
+    const json& s = root["scalpel"];
+    r.check_keys(s, "scalpel", {"length"});
+    if (s.contains("length")) scene.scalpel.length = r.number(s["length"], "scalpel.length", 1e-9, 1e9);
+  }
+  return scene;
+}
+
+Scene load_scene(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) throw_input(path, "no such file");
+  std::ifstream in(path);
+  if (!in) throw_input(path, "cannot be opened for reading");
+  json root;
+  try {
+    root = json::parse(in, nullptr, true, /*ignore_comments=*/true);
+  } catch (const json::parse_error& e) {
+    throw_input(path, std::string("malformed JSON: ") + e.what());
+  }
+  return parse_scene(root, path);
+}
+
+json scene_to_json(const Scene& scene) {
+  json fixed = json::array();
+  for (const FixedBox& b : scene.fixed) {
+    fixed.push_back({{"box", {{b.min.x(), b.min.y(), b.min.z()}, {b.max.x(), b.max.y(), b.max.z()}}}});
+  }
+  return {{"mesh", scene.mesh},
+          {"resolution", scene.resolution},
+          {"sim_resolution", scene.sim_resolution},
+          {"material",
+           {{"density", scene.material.density},
+            {"stretch_compliance", scene.material.stretch_compliance},
+            {"shape_stiffness", scene.material.shape_stiffness}}},
+          {"solver", {{"dt", scene.solver.dt}, {"substeps", scene.solver.substeps}, {"iterations", scene.solver.iterations}}},
+          {"gravity", {scene.gravity.x(), scene.gravity.y(), scene.gravity.z()}},
+          {"fixed", fixed},
+          {"scalpel", {{"length", scene.scalpel.length}}}};
+}
+
+}  // namespace dvx

@@ -1,0 +1,152 @@
+#include "engine/voxelize_job.h"
+
+#include "engine/errors.h"
+#include "engine/resources.h"
+#include "engine/scene.h"
+#include "sim/contour.h"
+#include "sim/voxelize.h"
+
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+#include <cstdio>
+#include <limits>
+
+namespace dvx {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+void progress_line(bool enabled, const char* text) {
+  if (enabled) std::fprintf(stderr, "divvox: %s\n", text);
+}
+
+}  // namespace
+
+void check_voxelize_memory(const std::string& file, const Aabb& box, uint64_t triangles, int resolution) {
+  if (resolution < 1 || resolution > kMaxResolution) {
+    throw_input(file, "resolution " + std::to_string(resolution) + " is outside [1, " +
+                          std::to_string(kMaxResolution) + "]");
+  }
+  VoxelizeParams params;
+  params.resolution = resolution;
+  const uint64_t estimate = estimate_voxelize_bytes(box, triangles, params);
+  if (estimate == std::numeric_limits<uint64_t>::max()) {
+    throw_input(file, "resolution " + std::to_string(resolution) +
+                          " gives a lattice too large to index with 32 bits; use a lower resolution");
+  }
+  // The surface and the error measurement roughly double the peak of voxelization.
+  const uint64_t needed = estimate + estimate / 2;
+  const uint64_t available = available_memory_bytes();
+  if (available != 0 && needed > available / 10 * 8) {
+    throw_input(file, "resolution " + std::to_string(resolution) + " needs about " + format_bytes(needed) +
+                          " but only " + format_bytes(available) + " is available; use a lower resolution");
+  }
+}
+
+VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
+  VoxelizeJobResult result;
+  const Clock::time_point start = Clock::now();
+
+  // Load and validate the input.
+  progress_line(options.progress, "loading mesh");
+  Clock::time_point t = Clock::now();
+  result.input = load_mesh(options.mesh_path);
+  result.ms.load = ms_since(t);
+  const Aabb box = mesh_bounds(result.input.mesh);
+  check_voxelize_memory(options.mesh_path, box, result.input.mesh.triangles.size(), options.resolution);
+
+  // Signs and Hermite data.
+  progress_line(options.progress, "voxelizing");
+  t = Clock::now();
+  VoxelizeParams params;
+  params.resolution = options.resolution;
+  std::string error;
+  if (!voxelize(result.input.mesh, params, result.model, error)) throw_input(options.mesh_path, error);
+  result.ms.voxelize = ms_since(t);
+  if (result.model.occupied_voxels == 0 || result.model.crossings.empty()) {
+    throw_input(options.mesh_path, "no lattice node lies inside the mesh at resolution " +
+                                       std::to_string(options.resolution) +
+                                       " (is it closed, or thinner than a voxel?)");
+  }
+
+  // Surface.
+  progress_line(options.progress, "dual contouring");
+  t = Clock::now();
+  result.surface = dual_contour(result.model);
+  result.ms.contour = ms_since(t);
+
+  // Checks of the surface and of the input.
+  t = Clock::now();
+  result.stats = surface_stats(result.surface);
+  result.input_volume = std::abs(signed_volume(result.input.mesh));
+  result.input_watertight = is_watertight(result.input.mesh);
+  result.ms.metrics = ms_since(t);
+
+  // Two-sided sampled error, in voxel units.
+  if (options.error_samples > 0) {
+    progress_line(options.progress, "measuring error to the input");
+    t = Clock::now();
+    const ErrorStats e = two_sided_error(to_trimesh(result.surface), result.input.mesh, options.error_samples,
+                                         options.seed);
+    const double h = result.model.lattice.voxel_size;
+    result.error = {e.max / h, e.mean / h, e.rms / h, e.samples};
+    result.ms.error = ms_since(t);
+  }
+  result.ms.total = ms_since(start);
+  return result;
+}
+
+nlohmann::json voxelize_report(const VoxelizeJobOptions& options, const VoxelizeJobResult& r) {
+  const Lattice& l = r.model.lattice;
+  const uint64_t model_bytes = r.model.memory_bytes();
+  nlohmann::json report = {
+      {"mesh", options.mesh_path},
+      {"requested_resolution", options.resolution},
+      {"resolution", {l.nx, l.ny, l.nz}},
+      {"voxel_size", l.voxel_size},
+      {"origin", {l.origin.x(), l.origin.y(), l.origin.z()}},
+      {"occupied_voxels", r.model.occupied_voxels},
+      {"crossing_edges", r.model.crossings.size()},
+      {"model_bytes", model_bytes},
+      {"bytes_per_occupied_voxel", r.model.occupied_voxels ? double(model_bytes) / r.model.occupied_voxels : 0.0},
+      {"time_ms",
+       {{"load", r.ms.load},
+        {"voxelize", r.ms.voxelize},
+        {"contour", r.ms.contour},
+        {"metrics", r.ms.metrics},
+        {"error", r.ms.error},
+        {"total", r.ms.total}}},
+      {"surface",
+       {{"vertices", r.stats.vertices},
+        {"triangles", r.stats.triangles},
+        {"boundary_edges", r.stats.boundary_edges},
+        {"nonmanifold_edges", r.stats.nonmanifold_edges},
+        {"misoriented_edges", r.stats.misoriented_edges},
+        {"components", r.stats.components},
+        {"euler", r.stats.euler},
+        {"volume", r.stats.volume},
+        {"area", r.stats.area}}},
+      {"input",
+       {{"triangles", r.input.mesh.triangles.size()},
+        {"vertices", r.input.mesh.positions.size()},
+        {"dropped_degenerate_triangles", r.input.dropped_triangles},
+        {"volume", r.input_volume},
+        {"watertight", r.input_watertight}}},
+      {"volume_relative_error", r.input_volume > 0 ? (r.stats.volume - r.input_volume) / r.input_volume : 0.0},
+  };
+  if (options.error_samples > 0) {
+    report["error_to_input"] = {{"max", r.error.max},
+                                {"mean", r.error.mean},
+                                {"rms", r.error.rms},
+                                {"samples", r.error.samples},
+                                {"unit", "voxel"}};
+  }
+  return report;
+}
+
+}  // namespace dvx

@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# Command-line contract of divvox: bad input -> one-line message naming the file/flag, exit 2;
+# --help -> exit 0; a valid run writes its outputs. Usage: cli_test.sh DIVVOX REPO SHARED_ASSETS
+set -u
+divvox=$1
+repo=$2
+shared=${3:-}
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+failures=0
+count=0
+
+# expect CODE PATTERN -- command...: exit code CODE and stderr matching PATTERN (one line).
+expect() {
+  local code=$1 pattern=$2
+  shift 3
+  count=$((count + 1))
+  "$@" >"$tmp/out" 2>"$tmp/err"
+  local got=$?
+  local lines
+  lines=$(grep -c . "$tmp/err")
+  if [[ $got -ne $code ]] || ! grep -q -E -- "$pattern" "$tmp/err" || { [[ $code -eq 2 ]] && [[ $lines -ne 1 ]]; }; then
+    echo "FAIL: $* -> exit $got (want $code), stderr:"
+    sed 's/^/    /' "$tmp/err"
+    failures=$((failures + 1))
+  fi
+}
+
+# Bad meshes, each written here.
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\n' >"$tmp/points_only.obj"
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n' >"$tmp/out_of_range.obj"
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 -7\n' >"$tmp/relative_out_of_range.obj"
+printf 'v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n' >"$tmp/nan.obj"
+printf 'v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n' >"$tmp/inf.obj"
+printf 'v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n' >"$tmp/zero_box.obj"
+: >"$tmp/empty.obj"
+head -c 4096 /dev/urandom >"$tmp/garbage.stl" 2>/dev/null || printf '\x01\x02garbage' >"$tmp/garbage.stl"
+printf 'solid x\n' >"$tmp/broken.stl"
+printf 'hello' >"$tmp/mesh.xyz123"
+printf '{"mesh": "m.obj", "resolutoin": 64}' >"$tmp/typo.json"
+printf '{"mesh": "m.obj",\n "resolution": }' >"$tmp/malformed.json"
+printf '{"mesh": "missing.obj"}' >"$tmp/missing_mesh.json"
+
+bunny="$repo/assets/meshes/bunny_npm.obj"
+expect 0 '' -- "$divvox" --help
+expect 0 '' -- "$divvox" voxelize --help
+expect 0 '' -- "$divvox" bench voxelize --help
+expect 2 'no-such.obj: no such file' -- "$divvox" voxelize "$tmp/no-such.obj" --out "$tmp/o"
+expect 2 'mesh.xyz123: unknown mesh format' -- "$divvox" voxelize "$tmp/mesh.xyz123" --out "$tmp/o"
+expect 2 'points_only.obj: .*(no triangles|cannot be read)' -- "$divvox" voxelize "$tmp/points_only.obj" --out "$tmp/o"
+expect 2 'out_of_range.obj: .*(index|vertex|cannot be read)' -- "$divvox" voxelize "$tmp/out_of_range.obj" --out "$tmp/o"
+expect 2 'relative_out_of_range.obj: .*(index|vertex|cannot be read)' -- "$divvox" voxelize "$tmp/relative_out_of_range.obj" --out "$tmp/o"
+expect 2 'nan.obj: .*(NaN|cannot be read)' -- "$divvox" voxelize "$tmp/nan.obj" --out "$tmp/o"
+expect 2 'inf.obj: .*(infinite|cannot be read)' -- "$divvox" voxelize "$tmp/inf.obj" --out "$tmp/o"
+expect 2 'zero_box.obj: .*(zero size|degenerate)' -- "$divvox" voxelize "$tmp/zero_box.obj" --out "$tmp/o"
+expect 2 'empty.obj: empty file' -- "$divvox" voxelize "$tmp/empty.obj" --out "$tmp/o"
+expect 2 'garbage.stl: ' -- "$divvox" voxelize "$tmp/garbage.stl" --out "$tmp/o"
+expect 2 'broken.stl: ' -- "$divvox" voxelize "$tmp/broken.stl" --out "$tmp/o"
+expect 2 'resolution' -- "$divvox" voxelize "$bunny" --resolution 100000 --out "$tmp/o"
+expect 2 'bunny_npm.obj: resolution 3000 .*(too large|needs about)' -- "$divvox" voxelize "$bunny" --resolution 3000 --out "$tmp/o"
+expect 2 'typo.json: resolutoin: unknown key' -- "$divvox" voxelize --scene "$tmp/typo.json" --out "$tmp/o"
+expect 2 'malformed.json: malformed JSON.*line 2' -- "$divvox" voxelize --scene "$tmp/malformed.json" --out "$tmp/o"
+expect 2 'missing.obj: no such file' -- "$divvox" voxelize --scene "$tmp/missing_mesh.json" --out "$tmp/o"
+expect 2 'resolution' -- "$divvox" voxelize "$bunny" --resolution banana --out "$tmp/o"
+expect 2 'subcommand' -- "$divvox" frobnicate
+expect 2 'resolutions' -- "$divvox" bench voxelize --resolutions 64,x --out "$tmp/b"
+
+# A valid run writes report.json and surface.ply.
+expect 0 '' -- "$divvox" voxelize "$bunny" --resolution 32 --error-samples 2000 --out "$tmp/ok"
+count=$((count + 1))
+if [[ ! -s "$tmp/ok/report.json" || ! -s "$tmp/ok/surface.ply" ]] || ! grep -q '"boundary_edges": 0' "$tmp/ok/report.json"; then
+  echo "FAIL: voxelize did not write a closed surface report"
+  failures=$((failures + 1))
+fi
+
+echo "$((count - failures)) passed, $failures failed"
+[[ $failures -eq 0 ]]
