@@ -4,6 +4,7 @@
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
+#include "engine/replay.h"
 #include "engine/resources.h"
 #include "engine/scene.h"
 #include "engine/voxelize_job.h"
@@ -137,6 +138,26 @@ int run_cli(int argc, char** argv) {
       ->capture_default_str();
   bench_voxelize_cmd->add_option("--out,-o", bench_vox.out_dir, "Output folder")->capture_default_str();
 
+  // divvox replay
+  ReplayOptions replay_options;
+  bool headless = false, no_physics = false;
+  CLI::App* replay = app.add_subcommand(
+      "replay",
+      "Replay a recording (JSON Lines) headlessly: the blade poses drive the cutter step by step.\n"
+      "Writes DIR/summary.json (steps, dt, scene, final_hash, hash_checks, timing_ms per phase with\n"
+      "mean/p50/p95/p99/max over cutting steps, cut counts, final surface counts incl. boundary edges and\n"
+      "components, nonfinite_values), DIR/timings.csv (one row per step) and DIR/final.ply.\n"
+      "A state hash mismatch with the recording exits 1 naming the first differing step.");
+  replay->add_option("recording", replay_options.recording, "Recording file (.jsonl)")->required();
+  replay->add_flag("--headless", headless, "Run without a window (the only mode in this build)");
+  replay->add_flag("--no-physics", no_physics, "Cut only, no deformation (required in this build)");
+  replay->add_option("--out,-o", replay_options.out_dir, "Output folder")->capture_default_str();
+  replay->add_option("--record", replay_options.record_path,
+                     "Also write the replayed session (poses + state hashes) to this recording");
+  replay->add_option("--hash-every", replay_options.hash_every, "With --record: a state hash every N steps")
+      ->check(CLI::Range(1u, 1000000u))
+      ->capture_default_str();
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -152,6 +173,20 @@ int run_cli(int argc, char** argv) {
 
   try {
     if (voxelize->parsed()) return run_voxelize_command(vox);
+    if (replay->parsed()) {
+      replay_options.physics = !no_physics;
+      replay_options.progress = stderr_is_tty();
+      const ReplayResult r = run_replay(replay_options);
+      std::printf("replayed %u steps: final hash %s, %u hash checks, %u mismatched\n", r.steps, r.final_hash.c_str(),
+                  r.hash_checked, r.hash_mismatched);
+      std::printf("wrote %s, timings.csv and final.ply in %s\n", r.summary_path.c_str(), replay_options.out_dir.c_str());
+      if (r.hash_mismatched > 0) {
+        std::fprintf(stderr, "divvox: error: %s: replay diverged from the recording at step %lld\n",
+                     replay_options.recording.c_str(), static_cast<long long>(r.first_mismatch_step));
+        return kExitInternal;
+      }
+      return kExitOk;
+    }
     if (bench_voxelize_cmd->parsed()) {
       bench_vox.resolutions = parse_int_list("--resolutions", bench_resolutions);
       bench_vox.progress = stderr_is_tty();

@@ -19,7 +19,7 @@ expect() {
   local got=$?
   local lines
   lines=$(grep -c . "$tmp/err")
-  if [[ $got -ne $code ]] || ! grep -q -E -- "$pattern" "$tmp/err" || { [[ $code -eq 2 ]] && [[ $lines -ne 1 ]]; }; then
+  if [[ $got -ne $code ]] || { [[ -n $pattern ]] && ! grep -q -E -- "$pattern" "$tmp/err"; } || { [[ $code -eq 2 ]] && [[ $lines -ne 1 ]]; }; then
     echo "FAIL: $* -> exit $got (want $code), stderr:"
     sed 's/^/    /' "$tmp/err"
     failures=$((failures + 1))

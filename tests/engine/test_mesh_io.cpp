@@ -8,6 +8,7 @@
 #include <doctest/doctest.h>
 
 #include <assimp/Exporter.hpp>
+#include <assimp/Importer.hpp>
 #include <assimp/scene.h>
 
 #include <cmath>

@@ -1,0 +1,31 @@
+// `divvox replay`: feeds a recording's blade poses through the cutter (geometry only until the
+// physics layer exists) and writes summary.json, timings.csv and final.ply.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+namespace dvx {
+
+struct ReplayOptions {
+  std::string recording;
+  std::string out_dir = "out/replay";
+  bool physics = false;          // only --no-physics is implemented in this build
+  std::string record_path;       // when set: write the replayed session (poses + hashes) here
+  uint32_t hash_every = 60;      // with record_path: a state hash every N steps
+  bool progress = false;
+};
+
+// What replay found; exit code 0 when hashes matched, 1 when the replay diverged.
+struct ReplayResult {
+  uint32_t steps = 0;
+  uint32_t hash_checked = 0, hash_mismatched = 0;
+  int64_t first_mismatch_step = -1;
+  std::string final_hash;
+  std::string summary_path;
+};
+
+// Throws InputError for bad input (recording, scene, mesh).
+ReplayResult run_replay(const ReplayOptions& options);
+
+}  // namespace dvx

@@ -1,0 +1,164 @@
+// Progressive cutting with the divide operator on a non-manifold voxel grid, and the
+// dual-contoured surface kept up to date as the blade moves (paper sections 3-4, DESIGN §3).
+//
+// Model and state. The VoxelModel (signs + Hermite data of the uncut organ) is immutable; a
+// CutState holds everything cutting adds, explicitly and only where cuts happen:
+//
+// - EdgeCut: a lattice edge crossed by the blade, with its lowest and highest crossing. Material
+//   does not connect across a cut edge. Each inside end of an edge sees the nearest boundary along
+//   the edge (mesh crossing or cut): that "half-edge" carries the Hermite data dual contouring uses.
+//   An edge crossed twice by one cut keeps both ends' nearest crossings; the sliver between them is
+//   dropped (thinner than a voxel, never corrupting).
+//
+// - DividedVoxel: a voxel with at least one cut edge. Its inside corner nodes are grouped into
+//   *pieces*: the connected components of the voxel's material graph (inside corners joined by
+//   uncut edges). Each piece is one of the paper's divided voxels; a voxel completely cut has two or
+//   more pieces, a partially cut voxel has a piece holding both ends of a cut edge. Sides are kept
+//   per piece, not per node, so crossing cuts, helices and blades that turn back need no special
+//   case. An uncut voxel is one implicit piece with all its inside corners (as plain dual contouring).
+//
+// - Edge-sharing is derived, never stored stale: the half-edge (edge e, inside end n) is shared by
+//   the piece holding n in each of the four voxels around e. An uncut material edge is shared by 4
+//   pieces; a cut edge by up to 8 (4 per side) — the non-manifold connectivity of the paper.
+//
+// Surface. One vertex per piece that has a half-edge; one quad (two triangles) per half-edge,
+// joining the four sharing pieces, oriented from the inside end outward. A fully cut piece's vertex
+// minimises the QEF of its half-edges; a partially cut piece's vertex is the average of the cut
+// front's face points in that voxel (paper Fig. 5) — all partial pieces of a voxel share it, which
+// keeps the singular vertices synchronised and closes the slit at the front. Vertex and triangle
+// slots are stable (free lists), and each step reports dirty slot ranges for the renderer.
+#pragma once
+
+#include "sim/blade_sweep.h"
+#include "sim/flat_map.h"
+#include "sim/surface_mesh.h"
+#include "sim/voxel_model.h"
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace dvx {
+
+constexpr uint8_t kNoPiece = 0xFF;
+constexpr uint32_t kDeadIndex = ~0u;  // triangle slots not in use hold {kDeadIndex x3}
+
+// A lattice edge the blade has crossed. 32 bytes.
+struct EdgeCut {
+  uint32_t edge;
+  float t_lo, t_hi;  // lowest / highest crossing parameter along the edge (from its lower node)
+  Vec3f normal_lo;   // blade normal at t_lo (unit; oriented by the reader)
+  Vec3f normal_hi;   // blade normal at t_hi
+};
+
+// A voxel with at least one cut edge, split into pieces (the paper's divided voxels).
+struct DividedVoxel {
+  uint32_t voxel;
+  uint8_t corner_piece[8];  // piece of each corner node (corner c = dx | dy<<1 | dz<<2), kNoPiece outside
+  uint8_t piece_count;
+  uint8_t partial_mask;     // bit p: piece p holds both ends of a cut edge (the voxel is partly cut)
+  uint8_t pad;
+};
+
+// Points where the cut front crosses the faces of one voxel (paper Fig. 5: the "face vertices").
+// The front is the blade's current edge plus the trails its two ends leave; trail crossings are
+// kept for good (they do not depend on how the motion was split into steps), crossings of the
+// blade's edge are replaced whenever the blade moves on.
+struct VoxelFront {
+  uint32_t voxel;
+  uint32_t trail_count;
+  uint32_t blade_count;
+  Vec3f trail_sum;  // sum of trail face points (scene coordinates)
+  Vec3f blade_sum;  // sum of the current blade edge's face points and of its ends inside the voxel
+};
+
+// The incrementally maintained dual-contoured surface with stable slots.
+struct CutSurface {
+  std::vector<Vec3f> positions;        // (vertex slots)
+  std::vector<uint64_t> vertex_piece;  // (vertex slots) piece key voxel*8+piece, kFreeKey when free
+  std::vector<Tri> triangles;          // (triangle slots) two per quad slot: 2q, 2q+1
+  std::vector<uint64_t> quad_half_edge;  // (quad slots) half-edge key edge*2+side, kFreeKey when free
+  std::vector<uint32_t> free_vertices;
+  std::vector<uint32_t> free_quads;
+  FlatMap vertex_of_piece;   // piece key -> vertex slot
+  FlatMap quad_of_half_edge;  // half-edge key -> quad slot
+  // Slots written since the last clear_dirty(): [begin, end) (empty when begin >= end).
+  uint32_t dirty_vertex_begin = 0, dirty_vertex_end = 0;
+  uint32_t dirty_triangle_begin = 0, dirty_triangle_end = 0;
+
+  static constexpr uint64_t kFreeKey = ~uint64_t(0);
+  uint32_t live_vertices() const { return uint32_t(positions.size() - free_vertices.size()); }
+  uint32_t live_triangles() const { return uint32_t(triangles.size() - 2 * free_quads.size()); }
+  void clear_dirty() { dirty_vertex_begin = dirty_vertex_end = dirty_triangle_begin = dirty_triangle_end = 0; }
+};
+
+struct CutState {
+  std::vector<EdgeCut> edge_cuts;        // (cut edges)
+  FlatMap edge_cut_of;                   // lattice edge -> index in edge_cuts
+  std::vector<DividedVoxel> divided;     // (divided voxels)
+  FlatMap divided_of;                    // lattice voxel -> index in divided
+  std::vector<VoxelFront> fronts;        // (voxels the cut front has passed)
+  FlatMap front_of;                      // lattice voxel -> index in fronts
+  std::vector<uint32_t> blade_voxels;    // voxels holding points of the current blade edge
+  std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
+  CutSurface surface;
+  uint64_t steps = 0;                    // cut steps applied
+  // Scratch reused between steps (no allocation in steady state).
+  std::vector<EdgeHit> scratch_hits;
+  std::vector<uint32_t> scratch_voxels, scratch_edges;
+  std::vector<double> scratch_params;
+};
+
+// What one cut step did.
+struct CutStepStats {
+  uint32_t edges_hit = 0;           // lattice edges crossed by the swept quad (with repeats)
+  uint32_t edges_cut = 0;           // material or surface edges whose cut state changed
+  uint32_t voxels_cut = 0;          // voxels whose pieces were recomputed (newly or further divided)
+  uint32_t voxels_divided = 0;      // divided voxels in total after the step
+  uint32_t vertices_changed = 0;    // vertex slots written or freed
+  uint32_t triangles_changed = 0;   // triangle slots written or freed
+};
+
+// Builds the initial state: no cuts, the closed dual-contoured surface of the uncut model.
+void init_cut_state(const VoxelModel& model, CutState& state);
+
+// Cuts with the quad swept by the blade from `from` to `to` and updates pieces and surface:
+// cut_divide then cut_update_surface (split so callers can time the two phases).
+CutStepStats cut_step(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to);
+
+// Phase 1: finds the crossed edges, records the cuts, divides the voxels around them and moves the
+// cut front. Leaves the voxels whose pieces or vertices must be refreshed in state.pending_voxels.
+void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to,
+                CutStepStats& stats);
+// Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (and clears it).
+void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats);
+
+// The surface as a compact mesh (live slots only; vertex_voxel filled).
+SurfaceMesh compact_surface(const CutSurface& surface);
+
+// Pieces of a voxel: for uncut voxels the single implicit piece (0) of all inside corners.
+void voxel_pieces(const VoxelModel& model, const CutState& state, uint32_t voxel, uint8_t corner_piece[8],
+                  uint8_t& piece_count);
+
+// The half-edge at end `side` (0: lower node, 1: upper node) of lattice edge `edge`: false when that
+// end is outside or the material runs through the whole edge; otherwise the boundary point and the
+// outward normal (pointing from the end node toward the boundary).
+bool half_edge(const VoxelModel& model, const CutState& state, uint32_t edge, int side, Vec3d& point,
+               Vec3d& normal);
+
+// The pieces sharing a half-edge: the voxel and piece in each of the 4 voxels around the edge, in
+// counter-clockwise order about the edge axis. Returns false at the lattice border.
+bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t edge, int side,
+                       uint32_t voxels[4], uint8_t pieces[4]);
+
+// Full consistency check of the state (tests call it after every step): divided voxels hold a cut
+// edge and their pieces equal the material graph's components; every half-edge has exactly one live
+// quad whose vertices are the sharing pieces' vertices, and no quad outlives its half-edge; vertex
+// slots map one-to-one to live pieces with a half-edge; free lists hold only free slots; all
+// positions are finite. Returns false with the first problem in `error`.
+bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error);
+
+// Bytes held by the explicit cut elements (edge cuts, divided voxels, their maps).
+uint64_t cut_memory_bytes(const CutState& state);
+
+}  // namespace dvx

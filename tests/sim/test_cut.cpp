@@ -1,0 +1,347 @@
+// Progressive cutting: the divide operator, pieces, and the incrementally updated surface.
+// After every step of every test: the surface is closed and consistently oriented, finite, and the
+// state's own consistency check passes.
+#include "sim/cut.h"
+#include "sim/mesh_distance.h"
+#include "sim/shapes.h"
+#include "sim/surface_metrics.h"
+#include "sim/voxelize.h"
+
+#include <doctest/doctest.h>
+
+#include <Eigen/Geometry>
+
+#include <cmath>
+
+using namespace dvx;
+
+namespace {
+
+VoxelModel voxelized(const TriMesh& mesh, int resolution) {
+  VoxelModel model;
+  std::string error;
+  VoxelizeParams params;
+  params.resolution = resolution;
+  REQUIRE_MESSAGE(voxelize(mesh, params, model, error), error);
+  return model;
+}
+
+SurfaceStats stats_of(const CutState& state) { return surface_stats(compact_surface(state.surface)); }
+
+// Checks every invariant; returns the stats.
+SurfaceStats check_invariants(const VoxelModel& model, const CutState& state) {
+  std::string error;
+  const bool ok = check_cut_state(model, state, error);
+  CHECK_MESSAGE(ok, error);
+  const SurfaceStats stats = stats_of(state);
+  CHECK(stats.boundary_edges == 0);
+  CHECK(stats.misoriented_edges == 0);
+  return stats;
+}
+
+// Moves the blade from `from` to `to` in `steps` equal steps, checking invariants every
+// `check_every` steps (and at the end).
+void sweep(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to, int steps,
+           int check_every = 1) {
+  BladePose previous = from;
+  for (int s = 1; s <= steps; ++s) {
+    const double f = double(s) / steps;
+    const BladePose next{from.a + f * (to.a - from.a), from.b + f * (to.b - from.b)};
+    cut_step(model, state, previous, next);
+    previous = next;
+    if (s % check_every == 0 || s == steps) check_invariants(model, state);
+  }
+}
+
+// A blade along z at x = x0, swept along y from y0 to y1.
+BladePose z_blade(double x0, double y, double z_half = 3.0) { return {Vec3d(x0, y, -z_half), Vec3d(x0, y, z_half)}; }
+
+const Vec3d kBoxCentre(0.0123, 0.0071, -0.0093);
+TriMesh test_box() { return make_box(kBoxCentre, Vec3d(1.0, 0.6, 0.8), Eigen::Matrix3d::Identity(), 2); }
+
+double component_volume_sum(const CutState& state) { return stats_of(state).volume; }
+
+}  // namespace
+
+TEST_SUITE("cut") {
+  TEST_CASE("the initial state is the closed dual-contoured surface") {
+    const VoxelModel model = voxelized(test_box(), 24);
+    CutState state;
+    init_cut_state(model, state);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 1);
+    CHECK(stats.euler == 2);
+    CHECK(stats.volume == doctest::Approx(2.0 * 1.2 * 1.6).epsilon(0.01));
+  }
+
+  TEST_CASE("planar through-cut of a box: two closed pieces, volume kept, cut vertices on the plane") {
+    const VoxelModel model = voxelized(test_box(), 32);
+    const double h = model.lattice.voxel_size;
+    CutState state;
+    init_cut_state(model, state);
+    const double uncut = stats_of(state).volume;
+    const double x0 = 0.137;
+    sweep(model, state, z_blade(x0, -1.0), z_blade(x0, 1.0), 60);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 2);
+    CHECK(std::abs(stats.volume - uncut) / uncut < 0.005);
+    // Vertices of divided voxels away from the box surface lie on the cutting plane.
+    const SurfaceMesh mesh = compact_surface(state.surface);
+    int on_plane = 0;
+    for (size_t v = 0; v < mesh.positions.size(); ++v) {
+      const Vec3d p = mesh.positions[v].cast<double>();
+      const Vec3d d = (p - kBoxCentre).cwiseAbs();
+      if (d.x() > 0.9 || d.y() > 0.6 - 2 * h || d.z() > 0.8 - 2 * h) continue;
+      if (state.divided_of.get(mesh.vertex_voxel[v]) == kDeadIndex) continue;
+      CHECK(std::abs(p.x() - x0) <= 0.01 * h);
+      ++on_plane;
+    }
+    CHECK(on_plane > 100);
+  }
+
+  TEST_CASE("a partial cut that stops mid-object and mid-voxel: one closed piece with both slit faces") {
+    const VoxelModel model = voxelized(test_box(), 32);
+    const double h = model.lattice.voxel_size;
+    CutState state;
+    init_cut_state(model, state);
+    const uint32_t triangles_before = stats_of(state).triangles;
+    // Stop inside the box, in the middle of a voxel.
+    const double y_stop = model.lattice.origin.y() + (std::floor((0.1 - model.lattice.origin.y()) / h) + 0.5) * h;
+    const double x0 = 0.137;
+    sweep(model, state, z_blade(x0, -1.0, 0.5), z_blade(x0, y_stop, 0.5), 40);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 1);
+    CHECK(stats.triangles > triangles_before + 100);
+    // Both faces of the slit: triangles facing -x and +x on the cutting plane, inside the box.
+    const SurfaceMesh mesh = compact_surface(state.surface);
+    int facing_minus = 0, facing_plus = 0;
+    for (const Tri& t : mesh.triangles) {
+      const Vec3d a = mesh.positions[t[0]].cast<double>(), b = mesh.positions[t[1]].cast<double>(),
+                  c = mesh.positions[t[2]].cast<double>();
+      const Vec3d centroid = (a + b + c) / 3.0;
+      if (std::abs(centroid.x() - x0) > 0.01 * h || std::abs(centroid.z() - kBoxCentre.z()) > 0.3) continue;
+      if (centroid.y() > y_stop - h) continue;
+      const Vec3d n = (b - a).cross(c - a).normalized();
+      facing_minus += n.x() < -0.99;
+      facing_plus += n.x() > 0.99;
+    }
+    CHECK(facing_minus > 20);
+    CHECK(facing_plus > 20);
+    CHECK(std::abs(facing_minus - facing_plus) <= facing_minus / 10 + 2);
+  }
+
+  TEST_CASE("the same cut in 1 step and in 200 steps gives the same surface") {
+    const VoxelModel model = voxelized(test_box(), 24);
+    CutState one, many;
+    init_cut_state(model, one);
+    init_cut_state(model, many);
+    const BladePose from = z_blade(0.071, -1.0, 0.55), to = z_blade(0.071, 0.2, 0.55);  // partial: ends inside
+    sweep(model, one, from, to, 1);
+    sweep(model, many, from, to, 200, 20);
+    const SurfaceStats a = stats_of(one), b = stats_of(many);
+    CHECK(a.components == b.components);
+    CHECK(a.vertices == b.vertices);
+    CHECK(a.triangles == b.triangles);
+    CHECK(a.euler == b.euler);
+    const ErrorStats e = two_sided_error(to_trimesh(compact_surface(one.surface)),
+                                         to_trimesh(compact_surface(many.surface)), 20000, 5);
+    CHECK(e.max / model.lattice.voxel_size < 0.05);
+  }
+
+  TEST_CASE("a blade crossing 20 voxels in one step equals small steps") {
+    const VoxelModel model = voxelized(test_box(), 32);
+    const double h = model.lattice.voxel_size;
+    CutState big, small;
+    init_cut_state(model, big);
+    init_cut_state(model, small);
+    const BladePose from = z_blade(-0.211, -1.0), mid = z_blade(-0.211, -1.0 + 20 * h), to = z_blade(-0.211, 1.0);
+    sweep(model, big, from, mid, 1);
+    sweep(model, big, mid, to, 1);
+    sweep(model, small, from, to, 100, 25);
+    CHECK(stats_of(big).triangles == stats_of(small).triangles);
+    CHECK(stats_of(big).components == 2);
+    CHECK(stats_of(small).components == 2);
+  }
+
+  TEST_CASE("a blade that pauses 50 steps inside a voxel and resumes") {
+    const VoxelModel model = voxelized(test_box(), 24);
+    const double h = model.lattice.voxel_size;
+    CutState paused, straight;
+    init_cut_state(model, paused);
+    init_cut_state(model, straight);
+    const BladePose from = z_blade(0.05, -1.0, 0.5), stop = z_blade(0.05, -0.2 + 0.37 * h, 0.5),
+                    to = z_blade(0.05, 0.3, 0.5);
+    sweep(model, paused, from, stop, 30);
+    for (int i = 0; i < 50; ++i) {
+      cut_step(model, paused, stop, stop);  // parked: sweeps nothing
+    }
+    check_invariants(model, paused);
+    // Jitter inside the voxel while parked.
+    const BladePose nudge = z_blade(0.05, -0.2 + 0.41 * h, 0.5);
+    cut_step(model, paused, stop, nudge);
+    cut_step(model, paused, nudge, stop);
+    check_invariants(model, paused);
+    sweep(model, paused, stop, to, 30);
+    sweep(model, straight, from, to, 60);
+    CHECK(stats_of(paused).triangles == stats_of(straight).triangles);
+    CHECK(stats_of(paused).components == 1);
+  }
+
+  TEST_CASE("degenerate: a cut exactly through lattice nodes and a cut lying in a lattice plane") {
+    const VoxelModel model = voxelized(test_box(), 20);
+    const Lattice& l = model.lattice;
+    SUBCASE("plane through a column of nodes") {
+      const double x_nodes = l.origin.x() + 11 * l.voxel_size;  // exactly on lattice nodes
+      CutState state;
+      init_cut_state(model, state);
+      sweep(model, state, z_blade(x_nodes, -1.0), z_blade(x_nodes, 1.0), 37);
+      CHECK(check_invariants(model, state).components == 2);
+    }
+    SUBCASE("sweep inside the lattice plane z = k") {
+      const double z_nodes = l.origin.z() + 10 * l.voxel_size;
+      const BladePose from{Vec3d(-2, -1, z_nodes), Vec3d(2, -1, z_nodes)};
+      const BladePose to{Vec3d(-2, 1, z_nodes), Vec3d(2, 1, z_nodes)};
+      CutState state;
+      init_cut_state(model, state);
+      sweep(model, state, from, to, 23);
+      CHECK(check_invariants(model, state).components == 2);
+    }
+    SUBCASE("inclined plane through many nodes (x + y = const on nodes)") {
+      const Vec3d node = l.node_position(9, 9, 0);
+      const double c = node.x() + node.y();
+      // Blade along z on the line x + y = c, moving along (1, -1).
+      const BladePose from{Vec3d(c + 2, -2, -3), Vec3d(c + 2, -2, 3)};
+      const BladePose to{Vec3d(c - 2, 2, -3), Vec3d(c - 2, 2, 3)};
+      CutState state;
+      init_cut_state(model, state);
+      sweep(model, state, from, to, 41);
+      CHECK(check_invariants(model, state).components == 2);
+    }
+  }
+
+  TEST_CASE("a cut that isolates a single voxel corner") {
+    const VoxelModel model = voxelized(test_box(), 20);
+    const Lattice& l = model.lattice;
+    // The inside node nearest the box's (-,-,-) corner; a plane across its three edges cuts it off.
+    int32_t best[3] = {0, 0, 0};
+    for (int k = 0; k <= l.nz && best[0] == 0; ++k) {
+      for (int j = 0; j <= l.ny && best[0] == 0; ++j) {
+        for (int i = 0; i <= l.nx && best[0] == 0; ++i) {
+          if (model.is_inside(l.node(i, j, k))) {
+            best[0] = i;
+            best[1] = j;
+            best[2] = k;
+          }
+        }
+      }
+    }
+    REQUIRE(best[0] > 0);
+    const Vec3d corner = l.node_position(best[0], best[1], best[2]);
+    const double h = l.voxel_size;
+    // Plane x + y + z = corner sum + 0.6 h (only this node lies below it among inside nodes).
+    const Vec3d n = Vec3d(1, 1, 1).normalized();
+    const Vec3d centre = corner + Vec3d::Constant(0.2 * h);
+    const Vec3d u = Vec3d(1, -1, 0).normalized(), w = n.cross(u);
+    const BladePose from{centre - 3 * h * u - 3 * h * w, centre + 3 * h * u - 3 * h * w};
+    const BladePose to{centre - 3 * h * u + 3 * h * w, centre + 3 * h * u + 3 * h * w};
+    CutState state;
+    init_cut_state(model, state);
+    sweep(model, state, from, to, 5);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 2);
+  }
+
+  TEST_CASE("two crossing cuts separate four pieces") {
+    const VoxelModel model = voxelized(test_box(), 28);
+    CutState state;
+    init_cut_state(model, state);
+    const double uncut = stats_of(state).volume;
+    sweep(model, state, z_blade(0.093, -1.0), z_blade(0.093, 1.0), 40, 4);
+    CHECK(stats_of(state).components == 2);
+    // Second blade along x at z = -0.117, swept along y.
+    const BladePose from{Vec3d(-3, -1, -0.117), Vec3d(3, -1, -0.117)}, to{Vec3d(-3, 1, -0.117), Vec3d(3, 1, -0.117)};
+    sweep(model, state, from, to, 40, 4);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 4);
+    CHECK(std::abs(component_volume_sum(state) - uncut) / uncut < 0.01);
+  }
+
+  TEST_CASE("a U-shaped object cut once across both arms gives three pieces") {
+    // Arms point up (+y); the blade along z sweeps along x across both arms at mid height.
+    const TriMesh u = make_u_shape(Vec3d(0.01, 0.02, 0.03), 2.0, 2.0, 1.0, 0.6);
+    REQUIRE(!u.triangles.empty());
+    const VoxelModel model = voxelized(u, 40);
+    CutState state;
+    init_cut_state(model, state);
+    const BladePose from{Vec3d(-2, 0.61, -2), Vec3d(-2, 0.61, 2)}, to{Vec3d(2, 0.61, -2), Vec3d(2, 0.61, 2)};
+    sweep(model, state, from, to, 50, 5);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 3);
+  }
+
+  TEST_CASE("an edge crossed twice by one cut (the blade turns back inside a voxel)") {
+    const VoxelModel model = voxelized(test_box(), 24);
+    const double h = model.lattice.voxel_size;
+    CutState state;
+    init_cut_state(model, state);
+    const double x0 = model.lattice.origin.x() + 21.3 * h;
+    sweep(model, state, z_blade(x0, -1.0), z_blade(x0, 1.0), 30, 3);
+    // Step sideways within the voxel and come back: every x-edge there is crossed twice.
+    cut_step(model, state, z_blade(x0, 1.0), z_blade(x0 + 0.4 * h, 1.0));
+    sweep(model, state, z_blade(x0 + 0.4 * h, 1.0), z_blade(x0 + 0.4 * h, -1.0), 30, 3);
+    const SurfaceStats stats = check_invariants(model, state);
+    CHECK(stats.components == 2);
+    bool twice = false;
+    for (const EdgeCut& c : state.edge_cuts) twice = twice || c.t_hi - c.t_lo > 0.3f;
+    CHECK(twice);
+  }
+
+  TEST_CASE("a helix-shaped cut stays closed and consistent") {
+    const TriMesh cylinder_like = make_box(Vec3d(0.003, 0.002, 0.001), Vec3d(0.7, 0.7, 1.0), Eigen::Matrix3d::Identity(), 2);
+    const VoxelModel model = voxelized(cylinder_like, 24);
+    CutState state;
+    init_cut_state(model, state);
+    BladePose previous;
+    for (int s = 0; s <= 120; ++s) {
+      const double angle = 0.08 * s, z = -0.9 + 0.015 * s;
+      const Vec3d dir(std::cos(angle), std::sin(angle), 0.0);
+      const BladePose pose{Vec3d(0, 0, z) + 0.1 * dir, Vec3d(0, 0, z) + 1.5 * dir};
+      if (s > 0) cut_step(model, state, previous, pose);
+      previous = pose;
+      if (s % 10 == 0) check_invariants(model, state);
+    }
+    check_invariants(model, state);
+  }
+
+  TEST_CASE("a blade far outside the grid, of zero length, or moving a whole object length in one step") {
+    const VoxelModel model = voxelized(test_box(), 16);
+    CutState state;
+    init_cut_state(model, state);
+    const uint32_t before = stats_of(state).triangles;
+    cut_step(model, state, {Vec3d(1e6, 1e6, 1e6), Vec3d(1e6, 1e6, 1e6 + 1)}, {Vec3d(2e6, 1e6, 1e6), Vec3d(2e6, 1e6, 1e6 + 1)});
+    cut_step(model, state, {Vec3d(0.1, 0, 0), Vec3d(0.1, 0, 0)}, {Vec3d(0.1, 0.5, 0), Vec3d(0.1, 0.5, 0)});
+    CHECK(stats_of(state).triangles == before);
+    cut_step(model, state, z_blade(0.2, -5.0), z_blade(0.2, 5.0));
+    CHECK(check_invariants(model, state).components == 2);
+  }
+
+  TEST_CASE("dirty ranges cover every slot a step changes") {
+    const VoxelModel model = voxelized(test_box(), 20);
+    CutState state;
+    init_cut_state(model, state);
+    const std::vector<Vec3f> positions_before = state.surface.positions;
+    const std::vector<Tri> triangles_before = state.surface.triangles;
+    state.surface.clear_dirty();
+    cut_step(model, state, z_blade(0.1, -1.0), z_blade(0.1, -0.5));
+    const CutSurface& s = state.surface;
+    for (uint32_t i = 0; i < positions_before.size(); ++i) {
+      const bool same = (positions_before[i].array() == s.positions[i].array()).all() ||
+                        (!positions_before[i].allFinite() && !s.positions[i].allFinite());
+      if (!same) CHECK((i >= s.dirty_vertex_begin && i < s.dirty_vertex_end));
+    }
+    for (uint32_t i = 0; i < triangles_before.size(); ++i) {
+      if (triangles_before[i] != s.triangles[i]) CHECK((i >= s.dirty_triangle_begin && i < s.dirty_triangle_end));
+    }
+    CHECK((s.positions.size() == positions_before.size() || s.dirty_vertex_end == s.positions.size()));
+  }
+}
