@@ -140,7 +140,7 @@ void snapped_triangle_hits(const Lattice& lattice, const int64_t v[3][3], std::v
           lo = std::max(lo, ceil_div(-beta, alpha[i] * kOne));
         } else if (alpha[i] < 0) {
           hi = std::min(hi, floor_div(beta, -alpha[i] * kOne));
-        } else if (beta < 0) {
+        } else if (beta < 0) {  // an edge along b: already implied by the row range, kept for clarity
           empty = true;
         }
       }

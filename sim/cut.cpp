@@ -9,12 +9,28 @@
 namespace dvx {
 namespace {
 
+}  // namespace
+
+// The pieces around a half-edge given the voxels around its edge (see half_edge_sharing).
+bool sharing_pieces(const VoxelModel& model, const CutState& state, uint32_t edge, int side,
+                    const uint32_t voxels[4], const uint8_t lower_corner[4], uint8_t pieces[4]);
+
+namespace {
+
 // One of the 12 edges of a voxel: its two corners and its axis.
 struct VoxelEdge {
   uint8_t c0, c1, axis;
 };
 constexpr VoxelEdge kVoxelEdges[12] = {{0, 1, 0}, {2, 3, 0}, {4, 5, 0}, {6, 7, 0}, {0, 2, 1}, {1, 3, 1},
                                        {4, 6, 1}, {5, 7, 1}, {0, 4, 2}, {1, 5, 2}, {2, 6, 2}, {3, 7, 2}};
+
+// Index in kVoxelEdges of the edge along `axis` starting at corner c0 (c0 has bit `axis` clear).
+int voxel_edge_index(int axis, int c0) {
+  for (int e = 0; e < 12; ++e) {
+    if (kVoxelEdges[e].axis == axis && kVoxelEdges[e].c0 == c0) return e;
+  }
+  return -1;
+}
 
 uint64_t piece_key(uint32_t voxel, uint32_t piece) { return uint64_t(voxel) * 8 + piece; }
 uint64_t half_edge_key(uint32_t edge, int side) { return uint64_t(edge) * 2 + uint64_t(side); }
@@ -53,6 +69,24 @@ void voxels_around_edge(const Lattice& l, uint32_t edge, uint32_t voxels[4], uin
   }
 }
 
+// The same for edge e of the voxel at vc, without divisions (the hot path of the surface update).
+void voxels_around_voxel_edge(const Lattice& l, const int32_t vc[3], int e, uint32_t voxels[4],
+                              uint8_t lower_corner[4]) {
+  const VoxelEdge& ve = kVoxelEdges[e];
+  const int axis = ve.axis, u = (axis + 1) % 3, v = (axis + 2) % 3;
+  const int32_t n[3] = {vc[0] + (ve.c0 & 1), vc[1] + ((ve.c0 >> 1) & 1), vc[2] + ((ve.c0 >> 2) & 1)};
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  static constexpr int kOffsets[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+  for (int q = 0; q < 4; ++q) {
+    int32_t c[3] = {n[0], n[1], n[2]};
+    c[u] -= kOffsets[q][0];
+    c[v] -= kOffsets[q][1];
+    const bool inside = c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] < dims[0] && c[1] < dims[1] && c[2] < dims[2];
+    voxels[q] = inside ? l.voxel(c[0], c[1], c[2]) : kDeadIndex;
+    lower_corner[q] = uint8_t((kOffsets[q][0] << u) | (kOffsets[q][1] << v));
+  }
+}
+
 // Inserts into a sorted vector if absent.
 void sorted_unique(std::vector<uint32_t>& v) {
   std::sort(v.begin(), v.end());
@@ -65,8 +99,8 @@ const EdgeCut* find_cut(const CutState& state, uint32_t edge) {
 }
 
 // Components of the voxel's material graph (inside corners joined by uncut edges).
-void material_components(const VoxelModel& model, const CutState& state, const int32_t vc[3],
-                         uint8_t corner_piece[8], uint8_t& piece_count, uint8_t& partial_mask) {
+void material_components(const VoxelModel& model, uint16_t cut_edges, const int32_t vc[3], uint8_t corner_piece[8],
+                         uint8_t& piece_count, uint8_t& partial_mask) {
   const Lattice& l = model.lattice;
   uint8_t parent[8];
   bool inside[8];
@@ -81,7 +115,7 @@ void material_components(const VoxelModel& model, const CutState& state, const i
   bool cut[12];
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
-    cut[e] = find_cut(state, voxel_edge_id(l, vc, e)) != nullptr;
+    cut[e] = (cut_edges >> e) & 1u;
     if (inside[ve.c0] && inside[ve.c1] && !cut[e]) {
       const int a = find(ve.c0), b = find(ve.c1);
       if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
@@ -229,19 +263,87 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4]) {
 
 // ---- Vertices of pieces --------------------------------------------------------------------
 
-// Position of piece p's vertex; false when the piece has no half-edge (no surface in it).
-bool piece_vertex_position(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
-                           const uint8_t corner_piece[8], uint8_t partial_mask, uint8_t p, Vec3f& out) {
-  const Lattice& l = model.lattice;
-  Vec3d points[24], normals[24];
+// The half-edge at end `side` of `edge` as a parameter along the edge (see half_edge()).
+// `cut` is the edge's EdgeCut (nullptr when uncut), looked up by the caller.
+bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge, int side, double& t,
+                     Vec3d& normal) {
+  const int axis = int(edge % 3);
+  const uint32_t n0 = edge / 3;
+  const uint32_t n1 = n0 + node_stride(model.lattice, axis);
+  const bool in0 = model.is_inside(n0), in1 = model.is_inside(n1);
+  if (!(side ? in1 : in0)) return false;
+  if (in0 == in1 && cut == nullptr) return false;  // material runs through the whole edge
+  // Nearest boundary from the end node: the mesh crossing and the cuts.
+  double best = side ? -1.0 : 2.0;
+  const auto consider = [&](double candidate, const Vec3d& n) {
+    if (side ? candidate > best : candidate < best) {
+      best = candidate;
+      normal = n;
+    }
+  };
+  if (in0 != in1) {
+    const EdgeCrossing* c = model.find_crossing(edge);
+    if (c != nullptr) {
+      consider(c->t, decode_normal(c->normal));
+    } else {
+      Vec3d n = Vec3d::Zero();
+      n[axis] = in0 ? 1.0 : -1.0;
+      consider(0.5, n);
+    }
+  }
+  if (cut != nullptr) {
+    if (side == 0) {
+      consider(cut->t_lo, cut->normal_lo.cast<double>());
+    } else {
+      consider(cut->t_hi, cut->normal_hi.cast<double>());
+    }
+  }
+  if (best < 0.0 || best > 1.0) return false;
+  t = best;
+  // Outward: from the end node toward the boundary.
+  if (normal[axis] * (side ? -1.0 : 1.0) < 0.0) normal = -normal;
+  return true;
+}
+
+// The half-edges of a voxel's 12 edges (up to 24), each with the corner it starts from.
+struct VoxelHalfEdges {
   int count = 0;
+  uint8_t corner[24];
+  Vec3d point[24], normal[24];
+};
+
+void voxel_half_edges(const VoxelModel& model, const CutState& state, const int32_t vc[3], uint16_t cut_edges,
+                      VoxelHalfEdges& out) {
+  out.count = 0;
+  const Lattice& l = model.lattice;
+  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
     const uint32_t edge = voxel_edge_id(l, vc, e);
+    const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
     for (int side = 0; side < 2; ++side) {
-      if (corner_piece[side ? ve.c1 : ve.c0] != p) continue;
-      if (half_edge(model, state, edge, side, points[count], normals[count])) ++count;
+      double t = 0.0;
+      if (!half_edge_param(model, cut, edge, side, t, out.normal[out.count])) continue;
+      // The edge starts at corner c0 of this voxel.
+      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
+      p[ve.axis] += t * l.voxel_size;
+      out.point[out.count] = p;
+      out.corner[out.count++] = side ? ve.c1 : ve.c0;
     }
+  }
+}
+
+// Position of piece p's vertex; false when the piece has no half-edge (no surface in it).
+bool piece_vertex_position(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                           const VoxelHalfEdges& half_edges, const uint8_t corner_piece[8], uint8_t partial_mask,
+                           uint8_t p, Vec3f& out) {
+  const Lattice& l = model.lattice;
+  Vec3d points[24], normals[24];
+  int count = 0;
+  for (int i = 0; i < half_edges.count; ++i) {
+    if (corner_piece[half_edges.corner[i]] != p) continue;
+    points[count] = half_edges.point[i];
+    normals[count++] = half_edges.normal[i];
   }
   if (count == 0) return false;
   const Vec3d lo = l.node_position(vc[0], vc[1], vc[2]);
@@ -278,17 +380,23 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
     uint8_t corner_piece[8], piece_count = 0, partial_mask = 0;
+    // Pieces before and after: slots of pieces that no longer exist are freed.
+    uint8_t old_count = 8;
     const uint32_t d = state.divided_of.get(voxel);
     if (d != kDeadIndex) {
       DividedVoxel& dv = state.divided[d];
-      material_components(model, state, vc, dv.corner_piece, dv.piece_count, dv.partial_mask);
+      old_count = dv.piece_count;
+      material_components(model, dv.cut_edges, vc, dv.corner_piece, dv.piece_count, dv.partial_mask);
     }
     pieces_of(model, state, voxel, corner_piece, piece_count, partial_mask);
-    for (uint8_t p = 0; p < 8; ++p) {
+    VoxelHalfEdges half_edges;
+    voxel_half_edges(model, state, vc, d != kDeadIndex ? state.divided[d].cut_edges : 0, half_edges);
+    const uint8_t visit = std::max(old_count, piece_count);
+    for (uint8_t p = 0; p < visit; ++p) {
       const uint64_t key = piece_key(voxel, p);
       Vec3f position;
       if (p < piece_count &&
-          piece_vertex_position(model, state, voxel, vc, corner_piece, partial_mask, p, position)) {
+          piece_vertex_position(model, state, voxel, vc, half_edges, corner_piece, partial_mask, p, position)) {
         bool created = false;
         const uint32_t slot = ensure_vertex(s, key, created);
         if (created || s.positions[slot] != position) {
@@ -302,36 +410,43 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
     }
   }
 
-  // Edges of these voxels: one quad per existing half-edge.
-  std::vector<uint32_t>& edges = state.scratch_edges;
-  edges.clear();
+  // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
+  // lowest voxel of the list around it (the list is sorted).
   for (uint32_t voxel : voxels) {
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
-    for (int e = 0; e < 12; ++e) edges.push_back(voxel_edge_id(l, vc, e));
-  }
-  sorted_unique(edges);
-  for (uint32_t edge : edges) {
-    for (int side = 0; side < 2; ++side) {
-      const uint64_t key = half_edge_key(edge, side);
-      Vec3d point, normal;
+    const uint32_t d = state.divided_of.get(voxel);
+    const uint16_t cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
+    for (int e = 0; e < 12; ++e) {
+      const uint32_t edge = voxel_edge_id(l, vc, e);
       uint32_t around[4];
-      uint8_t pieces[4];
-      if (half_edge(model, state, edge, side, point, normal) &&
-          half_edge_sharing(model, state, edge, side, around, pieces)) {
-        uint32_t v[4];
-        bool ok = true;
-        for (int q = 0; q < 4; ++q) {
-          v[q] = s.vertex_of_piece.get(piece_key(around[q], pieces[q]));
-          ok = ok && v[q] != kDeadIndex;
+      uint8_t corners[4];
+      voxels_around_voxel_edge(l, vc, e, around, corners);
+      bool owner = true;
+      for (int q = 0; q < 4 && owner; ++q) {
+        owner = !(around[q] < voxel && std::binary_search(voxels.begin(), voxels.end(), around[q]));
+      }
+      if (!owner) continue;
+      const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
+      for (int side = 0; side < 2; ++side) {
+        const uint64_t key = half_edge_key(edge, side);
+        double t;
+        Vec3d normal;
+        uint8_t pieces[4];
+        if (half_edge_param(model, cut, edge, side, t, normal) &&
+            sharing_pieces(model, state, edge, side, around, corners, pieces)) {
+          uint32_t v[4];
+          bool ok = true;
+          for (int q = 0; q < 4; ++q) {
+            v[q] = s.vertex_of_piece.get(piece_key(around[q], pieces[q]));
+            ok = ok && v[q] != kDeadIndex;
+          }
+          if (!ok) continue;  // cannot happen for a consistent state; check_cut_state reports it
+          if (side == 1) std::swap(v[1], v[3]);  // outward normal along -axis: reverse the winding
+          if (write_quad(s, key, v)) stats.triangles_changed += 2;
+        } else if (free_quad(s, key)) {
+          stats.triangles_changed += 2;
         }
-        if (!ok) continue;  // cannot happen for a consistent state; check_cut_state reports it
-        if (side == 1) {
-          std::swap(v[1], v[3]);  // outward normal along -axis: reverse the winding
-        }
-        if (write_quad(s, key, v)) stats.triangles_changed += 2;
-      } else if (free_quad(s, key)) {
-        stats.triangles_changed += 2;
       }
     }
   }
@@ -491,47 +606,13 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
 
 bool half_edge(const VoxelModel& model, const CutState& state, uint32_t edge, int side, Vec3d& point,
                Vec3d& normal) {
+  double t = 0.0;
+  if (!half_edge_param(model, find_cut(state, edge), edge, side, t, normal)) return false;
   const Lattice& l = model.lattice;
-  const int axis = int(edge % 3);
-  const uint32_t n0 = edge / 3;
-  const uint32_t n1 = n0 + node_stride(l, axis);
-  const bool in0 = model.is_inside(n0), in1 = model.is_inside(n1);
-  if (!(side ? in1 : in0)) return false;
-  // Nearest boundary from the end node: the mesh crossing and the cuts.
-  double best = side ? -1.0 : 2.0;
-  Vec3d best_normal = Vec3d::Zero();
-  const auto consider = [&](double t, const Vec3d& n) {
-    if (side ? t > best : t < best) {
-      best = t;
-      best_normal = n;
-    }
-  };
-  if (in0 != in1) {
-    const EdgeCrossing* c = model.find_crossing(edge);
-    if (c != nullptr) {
-      consider(c->t, decode_normal(c->normal));
-    } else {
-      Vec3d n = Vec3d::Zero();
-      n[axis] = in0 ? 1.0 : -1.0;
-      consider(0.5, n);
-    }
-  }
-  if (const EdgeCut* cut = find_cut(state, edge)) {
-    if (side == 0) {
-      consider(cut->t_lo, cut->normal_lo.cast<double>());
-    } else {
-      consider(cut->t_hi, cut->normal_hi.cast<double>());
-    }
-  }
-  if (best < 0.0 || best > 1.0) return false;
   int32_t c[3];
-  l.node_coords(n0, c);
+  l.node_coords(edge / 3, c);
   point = l.node_position(c[0], c[1], c[2]);
-  point[axis] += best * l.voxel_size;
-  // Outward: from the end node toward the boundary.
-  const double direction = side ? -1.0 : 1.0;
-  normal = best_normal;
-  if (normal[axis] * direction < 0.0) normal = -normal;
+  point[edge % 3] += t * l.voxel_size;
   return true;
 }
 
@@ -539,13 +620,20 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
                        uint32_t voxels[4], uint8_t pieces[4]) {
   uint8_t lower_corner[4];
   voxels_around_edge(model.lattice, edge, voxels, lower_corner);
+  return sharing_pieces(model, state, edge, side, voxels, lower_corner, pieces);
+}
+
+bool sharing_pieces(const VoxelModel& model, const CutState& state, uint32_t edge, int side,
+                    const uint32_t voxels[4], const uint8_t lower_corner[4], uint8_t pieces[4]) {
   const int axis = int(edge % 3);
+  const uint32_t node = side ? edge / 3 + node_stride(model.lattice, axis) : edge / 3;
+  const bool node_inside = model.is_inside(node);
   for (int q = 0; q < 4; ++q) {
     if (voxels[q] == kDeadIndex) return false;
-    uint8_t corner_piece[8], count, partial;
-    pieces_of(model, state, voxels[q], corner_piece, count, partial);
+    // Uncut voxels are one piece of all their inside corners; divided ones say which piece.
+    const uint32_t d = state.divided_of.get(voxels[q]);
     const int corner = side ? (lower_corner[q] | (1 << axis)) : lower_corner[q];
-    pieces[q] = corner_piece[corner];
+    pieces[q] = d == kDeadIndex ? (node_inside ? 0 : kNoPiece) : state.divided[d].corner_piece[corner];
     if (pieces[q] == kNoPiece) return false;
   }
   return true;
@@ -571,8 +659,15 @@ void init_cut_state(const VoxelModel& model, CutState& state) {
     }
   }
   sorted_unique(voxels);
-  state.surface.vertex_of_piece.reserve(uint32_t(voxels.size()));
-  state.surface.quad_of_half_edge.reserve(uint32_t(model.crossings.size()));
+  // Headroom for cuts, so a step rarely pays for growing a table (a p99 spike otherwise).
+  const uint32_t vertices = uint32_t(voxels.size()), quads = uint32_t(model.crossings.size());
+  state.surface.vertex_of_piece.reserve(vertices + vertices / 2 + 1024);
+  state.surface.quad_of_half_edge.reserve(quads + quads / 2 + 1024);
+  state.surface.positions.reserve(vertices + vertices / 2 + 1024);
+  state.surface.vertex_piece.reserve(vertices + vertices / 2 + 1024);
+  state.surface.quad_half_edge.reserve(quads + quads / 2 + 1024);
+  state.surface.triangles.reserve(2 * (quads + quads / 2 + 1024));
+
   CutStepStats stats;
   refresh_voxels(model, state, voxels, stats);
   state.surface.clear_dirty();
@@ -596,15 +691,21 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
     uint32_t around[4];
     uint8_t corners[4];
     voxels_around_edge(l, hit.edge, around, corners);
-    for (uint32_t v : around) {
+    const int axis = int(hit.edge % 3);
+    for (int q = 0; q < 4; ++q) {
+      const uint32_t v = around[q];
       if (v == kDeadIndex) continue;
       voxels.push_back(v);
-      if (state.divided_of.get(v) == kDeadIndex) {
-        state.divided_of.set(v, uint32_t(state.divided.size()));
+      uint32_t d = state.divided_of.get(v);
+      if (d == kDeadIndex) {
+        d = uint32_t(state.divided.size());
+        state.divided_of.set(v, d);
         DividedVoxel dv{};
         dv.voxel = v;
+        dv.piece_count = 8;  // unknown until refreshed: visit every piece slot once
         state.divided.push_back(dv);
       }
+      state.divided[d].cut_edges |= uint16_t(1u << voxel_edge_index(axis, corners[q]));
     }
   }
   sorted_unique(voxels);
@@ -615,7 +716,8 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   front_changed.clear();
   update_front(model, state, from, to, front_changed);
   for (uint32_t v : front_changed) {
-    if (state.divided_of.get(v) != kDeadIndex) voxels.push_back(v);
+    const uint32_t d = state.divided_of.get(v);
+    if (d != kDeadIndex && state.divided[d].partial_mask != 0) voxels.push_back(v);
   }
   sorted_unique(voxels);
   stats.voxels_divided = uint32_t(state.divided.size());
@@ -677,7 +779,10 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
     for (int e = 0; e < 12; ++e) has_cut = has_cut || find_cut(state, voxel_edge_id(l, vc, e)) != nullptr;
     if (!has_cut) return fail("divided voxel " + std::to_string(dv.voxel) + " has no cut edge");
     uint8_t pieces[8], count = 0, partial = 0;
-    material_components(model, state, vc, pieces, count, partial);
+    uint16_t mask = 0;
+    for (int e = 0; e < 12; ++e) mask |= uint16_t(find_cut(state, voxel_edge_id(l, vc, e)) ? 1u << e : 0u);
+    if (mask != dv.cut_edges) return fail("divided voxel " + std::to_string(dv.voxel) + " has a stale cut-edge mask");
+    material_components(model, mask, vc, pieces, count, partial);
     if (count != dv.piece_count || partial != dv.partial_mask || !std::equal(pieces, pieces + 8, dv.corner_piece)) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " pieces differ from its material graph");
     }
@@ -698,7 +803,10 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
     Vec3f position;
-    if (!piece_vertex_position(model, state, voxel, vc, pieces, partial, uint8_t(key % 8), position)) {
+    VoxelHalfEdges half_edges;
+    const uint32_t d = state.divided_of.get(voxel);
+    voxel_half_edges(model, state, vc, d != kDeadIndex ? state.divided[d].cut_edges : 0, half_edges);
+    if (!piece_vertex_position(model, state, voxel, vc, half_edges, pieces, partial, uint8_t(key % 8), position)) {
       return fail("vertex of a piece without surface in voxel " + std::to_string(voxel));
     }
     if ((position - s.positions[slot]).norm() > 1e-5f * float(l.voxel_size)) {

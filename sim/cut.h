@@ -57,7 +57,7 @@ struct DividedVoxel {
   uint8_t corner_piece[8];  // piece of each corner node (corner c = dx | dy<<1 | dz<<2), kNoPiece outside
   uint8_t piece_count;
   uint8_t partial_mask;     // bit p: piece p holds both ends of a cut edge (the voxel is partly cut)
-  uint8_t pad;
+  uint16_t cut_edges;       // bit e: voxel edge e (see kVoxelEdges in cut.cpp) is cut
 };
 
 // Points where the cut front crosses the faces of one voxel (paper Fig. 5: the "face vertices").

@@ -74,9 +74,11 @@ TEST_SUITE("mesh_io") {
     const aiScene* scene = importer.ReadFile(ply, 0);
     REQUIRE(scene != nullptr);
     Assimp::Exporter exporter;
-    for (const auto& [format, extension] : {std::pair{"stl", ".stl"}, std::pair{"stlb", ".stl"},
-                                            std::pair{"obj", ".obj"}, std::pair{"gltf2", ".gltf"},
-                                            std::pair{"glb2", ".glb"}}) {
+    for (const auto& entry : {std::pair{"stl", ".stl"}, std::pair{"stlb", ".stl"}, std::pair{"obj", ".obj"},
+                              std::pair{"gltf2", ".gltf"}, std::pair{"glb2", ".glb"}}) {
+      // Plain variables, not a structured binding: clang < 16 cannot capture one in CAPTURE's lambda.
+      const char* const format = entry.first;
+      const char* const extension = entry.second;
       CAPTURE(format);
       const std::string path = (dir.path / (std::string("box_") + format + extension)).string();
       REQUIRE(exporter.Export(scene, format, path) == aiReturn_SUCCESS);
@@ -115,7 +117,7 @@ TEST_SUITE("mesh_io") {
     expect(dir.file("negative.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -9\n"), "");
     expect(dir.file("nan.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n"), "");
     expect(dir.file("zero.obj", "v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n"), "");
-    expect(dir.file("garbage.stl", std::string("\x01\x02\x03 not a mesh at all \xff\xfe", 26)), "");
+    expect(dir.file("garbage.stl", std::string("\x01\x02\x03 not a mesh at all \xff\xfe")), "");
     expect(dir.path.string(), "is a directory");
   }
 }

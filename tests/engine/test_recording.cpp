@@ -317,7 +317,10 @@ TEST_SUITE("recording") {
         {R"({"step":1,"hash":"0123456789abcdef0123456789abcdef0"})", "line 2: step 1: \"hash\""},
         {R"({"step":1,"hash":12})", "line 2: step 1: \"hash\""},
     };
-    for (const auto& [line, expected] : cases) {
+    for (const auto& entry : cases) {
+      // Plain variables, not a structured binding: clang < 16 cannot capture one in CAPTURE's lambda.
+      const auto& line = entry.first;
+      const auto& expected = entry.second;
       CAPTURE(line);
       CHECK(contains(read_error(with_header({line})), expected));
     }

@@ -336,6 +336,45 @@ TEST_SUITE("blade_sweep") {
     CHECK(rs.flat_axes > 300);
   }
 
+  TEST_CASE("huge triangles (up to and beyond the 2^23-voxel clamp window) match the brute force") {
+    // Magnitudes near the window exercise the widest products (about 2^123); coordinates beyond it
+    // are clamped onto the window before snapping, which the reference reproduces.
+    std::mt19937_64 rng(99);
+    auto rnd = [&](int64_t lo, int64_t hi) { return lo + int64_t(rng() % uint64_t(hi - lo + 1)); };
+    const Lattice l = grid(6, 7, 5);
+    const int64_t limit = (int64_t(1) << 23) * F;
+    uint64_t hits = 0, mismatched = 0;
+    for (int trial = 0; trial < 1500; ++trial) {
+      double in[3][3];
+      int64_t v[3][3];
+      for (int a = 0; a < 3; ++a) {
+        in[0][a] = double(rnd(0, count_of(l, a) * F)) / F;  // one vertex in the lattice
+        for (int p = 1; p < 3; ++p) {
+          const int kind = int(rnd(0, 3));
+          in[p][a] = kind == 0   ? double(rnd(-limit, limit)) / F          // anywhere in the window
+                     : kind == 1 ? double(rnd(-limit, limit) / F)          // whole voxels
+                     : kind == 2 ? (rnd(0, 1) ? 1.0 : -1.0) * double(int64_t(1) << 23)  // on the window
+                                 : (rnd(0, 1) ? 1e9 : -3e12);               // clamped
+        }
+      }
+      for (int p = 0; p < 3; ++p) {
+        for (int a = 0; a < 3; ++a) v[p][a] = std::clamp<int64_t>(int64_t(std::llround(std::clamp(in[p][a], -1e13, 1e13) * F)), -limit, limit);
+      }
+      const auto ref = reference_hits(l, v);
+      const auto got = triangle_map(l, Vec3d(in[0][0], in[0][1], in[0][2]), Vec3d(in[1][0], in[1][1], in[1][2]),
+                                    Vec3d(in[2][0], in[2][1], in[2][2]));
+      hits += got.size();
+      bool same = ref.size() == got.size();
+      for (const auto& [e, t] : ref) {
+        auto it = got.find(e);
+        if (it == got.end() || std::abs((long double)it->second - t) > 1e-6L) same = false;
+      }
+      mismatched += !same;
+    }
+    CHECK(mismatched == 0);
+    CHECK(hits > 5000);
+  }
+
   TEST_CASE("the hit normal is the unit normal of the triangle") {
     const Lattice l = grid(8, 8, 8, Vec3d(1, 2, 3), 0.25);
     const Vec3d p0 = at(l, Vec3d(0.5, 0.25, 1)), p1 = at(l, Vec3d(7, 2, 3.5)), p2 = at(l, Vec3d(2, 7.5, 6));

@@ -22,10 +22,9 @@ void check_equal(const FlatMap& m, const std::map<uint64_t, uint32_t>& ref) {
   });
   CHECK_FALSE(twice);
   CHECK(seen == ref);
-  for (const auto& [k, v] : ref) {
-    CHECK(m.contains(k));
-    CHECK(m.get(k, 7u) == v);
-  }
+  size_t wrong = 0;  // one assertion for the whole table keeps the churn test fast
+  for (const auto& [k, v] : ref) wrong += !m.contains(k) || m.get(k, 7u) != v;
+  CHECK(wrong == 0);
   // Load factor stays at most 3/4, so probing always ends on an empty slot.
   CHECK(uint64_t(m.size()) * 4 <= m.capacity() * 3);
 }
@@ -92,7 +91,7 @@ TEST_SUITE("flat_map") {
           CHECK(m.get(key, 0xdeadu) == (it != ref.end() ? it->second : 0xdeadu));
         }
         REQUIRE(m.size() == ref.size());
-        if (op % 997 == 0) check_equal(m, ref);
+        if (op % (universe <= 1000 ? 997 : 49999) == 0) check_equal(m, ref);  // full scans cost O(size)
       }
       check_equal(m, ref);
       CHECK(erased > 10000);

@@ -1,0 +1,45 @@
+#!/usr/bin/env python3
+"""Writes the blade poses of the default recording (assets/recordings/bunny_cut.jsonl).
+
+Two cuts of the default bunny (y up, about 10 units across):
+  1. a horizontal blade along z sweeps along x at y = 6.8 through the whole head: it separates the
+     top of the head and the ears from the body;
+  2. a vertical blade along z comes down from above at x = 0.7 and stops at y = 4.0, inside the body:
+     a partial cut (a slit that ends inside the bunny).
+The poses are written without state hashes; `divvox replay POSES --no-physics --record OUT` replays
+them and writes the final recording with a hash every 60 steps (tools/make_default_recording.sh).
+"""
+import json
+import sys
+
+dt = 1.0 / 60.0
+scene = json.load(open("assets/scenes/bunny.json"))
+scene["mesh"] = "../meshes/bunny_npm.obj"  # relative to assets/recordings/
+
+lines = [{"format": "divvox-recording", "version": 1, "scene": scene, "dt": dt}]
+step = 0
+
+def pose(a, b, cutting):
+    global step
+    lines.append({"step": step, "blade": [a, b], "cutting": cutting})
+    step += 1
+
+# Cut 1: horizontal sweep through the head at y = 6.8.
+y, z = 6.8, 5.0
+for i in range(121):
+    x = -7.0 + 14.0 * i / 120
+    pose([x, y, -z], [x, y, z], i > 0)
+# Lift the blade and move it above the bunny.
+for i in range(20):
+    pose([0.7, 11.0, -z], [0.7, 11.0, z], False)
+# Cut 2: vertical sweep from above, stopping inside the body at y = 4.0.
+for i in range(1, 91):
+    yy = 11.0 - 7.0 * i / 90
+    pose([0.7, yy, -z], [0.7, yy, z], True)
+# Rest.
+for i in range(30):
+    pose([0.7, 4.0, -z], [0.7, 4.0, z], False)
+
+out = open(sys.argv[1], "w") if len(sys.argv) > 1 else sys.stdout
+for line in lines:
+    out.write(json.dumps(line, separators=(",", ":")) + "\n")
