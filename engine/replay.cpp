@@ -141,7 +141,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   if (options.progress) std::fprintf(stderr, "\n");
   result.steps = recording.steps.empty() ? 0 : last + 1;
   result.final_hash = hash_hex(cut_state_hash(state));
-  if (writer) writer->write_hash(last, result.final_hash);
+  if (writer && (options.hash_every == 0 || last % options.hash_every != 0)) writer->write_hash(last, result.final_hash);
 
   // Final surface and its checks.
   const SurfaceMesh final_surface = compact_surface(state.surface);

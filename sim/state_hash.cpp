@@ -4,22 +4,50 @@
 
 namespace dvx {
 
-uint64_t cut_state_hash(const CutState& state) {
+namespace {
+
+// splitmix64 finaliser: spreads a 64-bit value over all bits.
+uint64_t mix(uint64_t x) {
+  x ^= x >> 30;
+  x *= 0xbf58476d1ce4e5b9ull;
+  x ^= x >> 27;
+  x *= 0x94d049bb133111ebull;
+  x ^= x >> 31;
+  return x;
+}
+
+uint64_t position_hash(const Vec3f& p) {
   Fnv1a h;
+  h.bytes(p.data(), 3 * sizeof(float));
+  return mix(h.value);
+}
+
+}  // namespace
+
+uint64_t cut_state_hash(const CutState& state) {
   const CutSurface& s = state.surface;
-  // Topology counts first: a difference there shows even when positions happen to agree.
+  // Topology counts: a difference there shows even when positions happen to agree.
+  Fnv1a h;
   h.add(uint64_t(state.edge_cuts.size()));
   h.add(uint64_t(state.divided.size()));
   h.add(uint64_t(s.live_vertices()));
   h.add(uint64_t(s.live_triangles()));
+  // Vertices and triangles are summed as mixed hashes of their geometry, so the hash depends on
+  // the surface itself, not on which slots hold it (slot order is an implementation detail).
+  uint64_t vertices = 0, triangles = 0;
   for (size_t slot = 0; slot < s.positions.size(); ++slot) {
-    if (s.vertex_piece[slot] == CutSurface::kFreeKey) continue;
-    h.add(uint32_t(slot));
-    h.bytes(s.positions[slot].data(), 3 * sizeof(float));
+    if (s.vertex_piece[slot] != CutSurface::kFreeKey) vertices += position_hash(s.positions[slot]);
   }
   for (const Tri& t : s.triangles) {
-    if (t[0] != kDeadIndex) h.bytes(t.data(), sizeof t);
+    if (t[0] == kDeadIndex) continue;
+    // Rotate so the smallest corner hash comes first (keeps the orientation).
+    uint64_t c[3] = {position_hash(s.positions[t[0]]), position_hash(s.positions[t[1]]),
+                     position_hash(s.positions[t[2]])};
+    const int first = c[0] <= c[1] && c[0] <= c[2] ? 0 : (c[1] <= c[2] ? 1 : 2);
+    triangles += mix(c[first] ^ mix(c[(first + 1) % 3] ^ mix(c[(first + 2) % 3])));
   }
+  h.add(vertices);
+  h.add(triangles);
   return h.value;
 }
 

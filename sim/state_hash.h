@@ -24,8 +24,8 @@ struct Fnv1a {
   }
 };
 
-// Hash of the cut state: topology counts, then live surface vertex positions and triangles in slot
-// order (slot order is deterministic, so equal inputs give equal hashes).
+// Hash of the cut state: topology counts, then the live surface's vertex positions and oriented
+// triangles, combined independently of the slots that hold them (bit-exact positions count).
 uint64_t cut_state_hash(const CutState& state);
 
 // 16 lowercase hex digits.

@@ -65,6 +65,23 @@ expect 2 'resolution' -- "$divvox" voxelize "$bunny" --resolution banana --out "
 expect 2 'subcommand' -- "$divvox" frobnicate
 expect 2 'resolutions' -- "$divvox" bench voxelize --resolutions 64,x --out "$tmp/b"
 
+# Recordings: a truncated last line is a warning; a corrupted middle line is an error naming it.
+rec="$repo/assets/recordings/bunny_cut.jsonl"
+head -c -7 "$rec" | sed 's|"mesh":"../meshes/bunny_npm.obj"|"mesh":"'"$repo"'/assets/meshes/bunny_npm.obj"|' >"$tmp/truncated.jsonl"
+sed '5s/.*/{"step":4,"blade":[[0,0/' "$rec" | sed 's|"mesh":"../meshes/bunny_npm.obj"|"mesh":"'"$repo"'/assets/meshes/bunny_npm.obj"|' >"$tmp/corrupt.jsonl"
+sed '5s/.*/{"step":4,"blade":[[0,0,NaN],[0,0,0]],"cutting":true}/' "$rec" | sed 's|"mesh":"../meshes/bunny_npm.obj"|"mesh":"'"$repo"'/assets/meshes/bunny_npm.obj"|' >"$tmp/nan.jsonl"
+expect 0 'truncated last line' -- "$divvox" replay "$tmp/truncated.jsonl" --headless --no-physics --out "$tmp/r1"
+expect 2 'corrupt.jsonl: line 5' -- "$divvox" replay "$tmp/corrupt.jsonl" --headless --no-physics --out "$tmp/r2"
+expect 2 'nan.jsonl: line 5: step 4' -- "$divvox" replay "$tmp/nan.jsonl" --headless --no-physics --out "$tmp/r3"
+expect 2 'no-such.jsonl: no such file' -- "$divvox" replay "$tmp/no-such.jsonl" --headless --no-physics --out "$tmp/r4"
+expect 2 'no-physics' -- "$divvox" replay "$rec" --headless --out "$tmp/r5"
+expect 0 '' -- "$divvox" replay "$rec" --headless --no-physics --out "$tmp/r6"
+count=$((count + 1))
+if ! grep -q '"mismatched": 0' "$tmp/r6/summary.json"; then
+  echo "FAIL: the shipped recording's hashes do not match"
+  failures=$((failures + 1))
+fi
+
 # A valid run writes report.json and surface.ply.
 expect 0 '' -- "$divvox" voxelize "$bunny" --resolution 32 --error-samples 2000 --out "$tmp/ok"
 count=$((count + 1))

@@ -192,7 +192,7 @@ TEST_SUITE("recording") {
     CHECK(rec.steps[1].blade.b == Vec3d(1, 2, 3));
   }
 
-  TEST_CASE("the writer re-anchors the scene's mesh at the recording's folder; the header dt wins") {
+  TEST_CASE("the writer re-anchors the scene's mesh at the recording's folder, the header dt wins") {
     TempDir dir;
     fs::create_directories(dir.path / "a" / "scenes");
     fs::create_directories(dir.path / "recs");
@@ -205,7 +205,7 @@ TEST_SUITE("recording") {
     CHECK(rec.scene.solver.dt == 0.005);
   }
 
-  TEST_CASE("a truncated last line is dropped with a warning; everything before it is kept") {
+  TEST_CASE("a truncated last line is dropped with a warning, everything before it is kept") {
     TempDir dir;
     const std::string file = dir.file("crash.jsonl");
     {
@@ -328,7 +328,7 @@ TEST_SUITE("recording") {
     CHECK(read_error(with_header({R"({"step":2147483647})"})).empty());
   }
 
-  TEST_CASE("unknown keys in step lines are kept in extra; hashes are read in lower case") {
+  TEST_CASE("unknown keys in step lines are kept in extra, hashes are read in lower case") {
     TempDir dir;
     const std::string file = dir.file("extra.jsonl");
     write_text(file, with_header({R"({"step":0,"blade":[[0,0,0],[1,1,1]],"camera":{"fov":45},"future":[1,2]})",

@@ -35,7 +35,7 @@ TEST_SUITE("scene") {
     CHECK(scene.gravity.y() == doctest::Approx(-9.81));
   }
 
-  TEST_CASE("only mesh is required; defaults fill the rest") {
+  TEST_CASE("only mesh is required, defaults fill the rest") {
     const Scene scene = parse_scene(json{{"mesh", "m.obj"}}, "dir/s.json");
     CHECK(scene.mesh_path == "dir/m.obj");
     CHECK(scene.resolution == 128);

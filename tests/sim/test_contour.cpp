@@ -284,7 +284,7 @@ TEST_SUITE("contour") {
     CHECK(std::abs(n.dot(x2 - p0)) < 1e-9);
   }
 
-  TEST_CASE("solve_qef: clamps to the box; empty input gives its centre") {
+  TEST_CASE("solve_qef: clamps to the box, empty input gives its centre") {
     const Vec3d corner(1.4, -0.2, 0.5);
     std::vector<Vec3d> pts = {corner + Vec3d(0, 0.3, 0.1), corner + Vec3d(0.2, 0, 0.3), corner + Vec3d(0.1, 0.2, 0)};
     std::vector<Vec3d> nrm = {Vec3d::UnitX(), Vec3d::UnitY(), Vec3d::UnitZ()};
@@ -374,7 +374,7 @@ TEST_SUITE("contour") {
     }
   }
 
-  TEST_CASE("one inside node: an octahedron; border crossings are skipped without harm") {
+  TEST_CASE("one inside node: an octahedron, border crossings are skipped without harm") {
     Lattice l = cube_lattice(2, 1.0, Vec3d::Zero());
     VoxelModel m;
     m.lattice = l;

@@ -81,7 +81,7 @@ TEST_SUITE("surface_metrics") {
     CHECK(s.euler == 5 - 7 + 3);
   }
 
-  TEST_CASE("components: triangles sharing only a vertex are one component; ids in first-triangle order") {
+  TEST_CASE("components: triangles sharing only a vertex are one component, ids in first-triangle order") {
     TriMesh a = tetrahedron();
     TriMesh m;
     // Component A: tetrahedron at vertices 4..7; component B: tetrahedron at 0..3;

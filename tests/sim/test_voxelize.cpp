@@ -368,7 +368,7 @@ TEST_SUITE("voxelize") {
                                  << " bytes per occupied voxel; worst crossing error " << worst << " voxel");
   }
 
-  TEST_CASE("inward winding gives identical signs and Hermite data; repeated runs are identical") {
+  TEST_CASE("inward winding gives identical signs and Hermite data, repeated runs are identical") {
     const TriMesh mesh = icosphere(Vec3d(0.3, 0.1, -0.2), 0.8, 3);
     const VoxelModel a = voxelize_ok(mesh, 40);
     const VoxelModel b = voxelize_ok(reversed(mesh), 40);

@@ -1,0 +1,183 @@
+// Cutting real meshes and replaying recordings through the cutter (geometry only).
+#include "engine/errors.h"
+#include "engine/mesh_io.h"
+#include "engine/recording.h"
+#include "engine/replay.h"
+#include "engine/scene.h"
+#include "sim/cut.h"
+#include "sim/mesh_distance.h"
+#include "sim/surface_metrics.h"
+#include "sim/voxelize.h"
+#include "support.h"
+
+#include <doctest/doctest.h>
+#include <nlohmann/json.hpp>
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+using namespace dvx;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    static int counter = 0;
+    path = fs::temp_directory_path() / ("divvox_replay_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    fs::create_directories(path);
+  }
+  ~TempDir() { fs::remove_all(path); }
+};
+
+std::string read_file(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+const std::string kBunny = dvx_test::source_path("assets/meshes/bunny_npm.obj");
+
+// A scripted session: a blade along z sweeping along x at height y, then a partial vertical cut.
+void write_session(const std::string& path, int resolution) {
+  Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
+  scene.resolution = resolution;
+  scene.sim_resolution = resolution / 8;
+  RecordingWriter writer(path, scene, 1.0 / 60.0);
+  uint32_t step = 0;
+  for (int i = 0; i <= 60; ++i, ++step) {
+    const double x = -6.0 + 12.0 * i / 60;
+    writer.write_blade(step, {Vec3d(x, 5.3, -5), Vec3d(x, 5.3, 5)}, i > 0);
+  }
+  for (int i = 1; i <= 40; ++i, ++step) {
+    const double y = 11.0 - 8.0 * i / 40;
+    writer.write_blade(step, {Vec3d(-1.1, y, -5), Vec3d(-1.1, y, 5)}, true);
+  }
+}
+
+}  // namespace
+
+TEST_SUITE("replay") {
+  TEST_CASE("planar through-cut of the bunny: two closed pieces, volume kept, cut vertices on the plane") {
+    const LoadedMesh input = load_mesh(kBunny);
+    VoxelModel model;
+    std::string error;
+    VoxelizeParams params;
+    params.resolution = 64;
+    REQUIRE(voxelize(input.mesh, params, model, error));
+    const double h = model.lattice.voxel_size;
+    CutState state;
+    init_cut_state(model, state);
+    const double uncut = surface_stats(compact_surface(state.surface)).volume;
+    const double y0 = 4.137;
+    BladePose previous{Vec3d(-6, y0, -5), Vec3d(-6, y0, 5)};
+    for (int i = 1; i <= 80; ++i) {
+      const double x = -6.0 + 12.0 * i / 80;
+      const BladePose pose{Vec3d(x, y0, -5), Vec3d(x, y0, 5)};
+      cut_step(model, state, previous, pose);
+      previous = pose;
+      if (i % 10 == 0) {
+        std::string problem;
+        CHECK_MESSAGE(check_cut_state(model, state, problem), problem);
+        CHECK(surface_stats(compact_surface(state.surface)).boundary_edges == 0);
+      }
+    }
+    const SurfaceMesh mesh = compact_surface(state.surface);
+    const SurfaceStats stats = surface_stats(mesh);
+    CHECK(stats.components == 2);
+    CHECK(stats.boundary_edges == 0);
+    CHECK(stats.misoriented_edges == 0);
+    CHECK(std::abs(stats.volume - uncut) / uncut < 0.005);
+    // Vertices of divided voxels farther than two voxels from the bunny's own surface lie on the plane.
+    const TriangleBvh bvh = build_bvh(input.mesh);
+    int on_plane = 0;
+    for (size_t v = 0; v < mesh.positions.size(); ++v) {
+      if (state.divided_of.get(mesh.vertex_voxel[v]) == kDeadIndex) continue;
+      const Vec3d p = mesh.positions[v].cast<double>();
+      if (closest_point(bvh, p) < 2.0 * h) continue;
+      CHECK(std::abs(p.y() - y0) <= 0.01 * h);
+      ++on_plane;
+    }
+    CHECK(on_plane > 200);
+  }
+
+  TEST_CASE("the shipped recording replays with every state hash matching") {
+    TempDir dir;
+    ReplayOptions options;
+    options.recording = dvx_test::source_path("assets/recordings/bunny_cut.jsonl");
+    options.out_dir = dir.path.string();
+    const ReplayResult r = run_replay(options);
+    CHECK(r.hash_checked >= 4);
+    CHECK(r.hash_mismatched == 0);
+    const nlohmann::json summary = nlohmann::json::parse(read_file(dir.path / "summary.json"));
+    CHECK(summary["surface"]["boundary_edges"] == 0);
+    CHECK(summary["surface"]["components"] == 2);  // the top of the head comes off; the second cut is partial
+    CHECK(summary["nonfinite_values"] == 0);
+    CHECK(summary["hash_checks"]["mismatched"] == 0);
+    for (const char* phase : {"cut", "surface", "total"}) {
+      for (const char* stat : {"mean", "p50", "p95", "p99", "max"}) CHECK(summary["timing_ms"][phase].contains(stat));
+    }
+    CHECK(fs::file_size(dir.path / "final.ply") > 1000);
+    CHECK(fs::file_size(dir.path / "timings.csv") > 1000);
+  }
+
+  TEST_CASE("record, replay and replay again: identical hashes and identical final mesh") {
+    TempDir dir;
+    const std::string session = (dir.path / "session.jsonl").string();
+    write_session(session, 48);
+    // First replay writes a recording with hashes every 10 steps.
+    ReplayOptions first;
+    first.recording = session;
+    first.out_dir = (dir.path / "a").string();
+    first.record_path = (dir.path / "hashed.jsonl").string();
+    first.hash_every = 10;
+    const ReplayResult a = run_replay(first);
+    // Replaying that recording checks every hash.
+    ReplayOptions second;
+    second.recording = first.record_path;
+    second.out_dir = (dir.path / "b").string();
+    const ReplayResult b = run_replay(second);
+    CHECK(b.hash_checked >= 10);
+    CHECK(b.hash_mismatched == 0);
+    CHECK(a.final_hash == b.final_hash);
+    CHECK(read_file(dir.path / "a" / "final.ply") == read_file(dir.path / "b" / "final.ply"));
+  }
+
+  TEST_CASE("a tampered hash is reported as a divergence at its step") {
+    TempDir dir;
+    const std::string session = (dir.path / "session.jsonl").string();
+    write_session(session, 32);
+    ReplayOptions first;
+    first.recording = session;
+    first.out_dir = (dir.path / "a").string();
+    first.record_path = (dir.path / "hashed.jsonl").string();
+    first.hash_every = 20;
+    run_replay(first);
+    // Change the hash recorded at step 80.
+    std::string text = read_file(first.record_path);
+    const std::string key = "\",\"step\":80}";  // the end of the hash line (keys are sorted)
+    const size_t at = text.find(key);
+    REQUIRE(at != std::string::npos);
+    const size_t hash_at = text.rfind("\"hash\":\"", at) + 8;
+    text[hash_at] = text[hash_at] == '0' ? '1' : '0';
+    std::ofstream(first.record_path, std::ios::binary | std::ios::trunc) << text;
+    ReplayOptions second;
+    second.recording = first.record_path;
+    second.out_dir = (dir.path / "b").string();
+    const ReplayResult r = run_replay(second);
+    CHECK(r.hash_mismatched == 1);
+    CHECK(r.first_mismatch_step == 80);
+  }
+
+  TEST_CASE("physics replay is refused clearly until the physics layer exists") {
+    ReplayOptions options;
+    options.recording = dvx_test::source_path("assets/recordings/bunny_cut.jsonl");
+    options.physics = true;
+    CHECK_THROWS_AS(run_replay(options), InputError);
+  }
+}
