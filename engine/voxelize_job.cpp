@@ -10,6 +10,8 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cctype>
+#include <cstdlib>
 #include <limits>
 
 namespace dvx {
@@ -36,15 +38,31 @@ void check_voxelize_memory(const std::string& file, const Aabb& box, uint64_t tr
   params.resolution = resolution;
   const uint64_t estimate = estimate_voxelize_bytes(box, triangles, params);
   if (estimate == std::numeric_limits<uint64_t>::max()) {
-    throw_input(file, "resolution " + std::to_string(resolution) +
-                          " gives a lattice too large to index with 32 bits; use a lower resolution");
+    Lattice lattice;
+    make_lattice(box, resolution, params.padding, lattice);
+    throw_input(file, "resolution " + std::to_string(resolution) + " needs a lattice of " +
+                          std::to_string(lattice.node_count()) + " nodes, more than the " +
+                          std::to_string(kMaxLatticeNodes) + " that 32-bit edge ids allow; use a lower resolution");
   }
   // The surface and the error measurement roughly double the peak of voxelization.
   const uint64_t needed = estimate + estimate / 2;
-  const uint64_t available = available_memory_bytes();
-  if (available != 0 && needed > available / 10 * 8) {
+  // Budget: 80 % of the memory available now, or DIVVOX_MEMORY_LIMIT (bytes, or with a K/M/G suffix).
+  uint64_t budget = available_memory_bytes() / 10 * 8;
+  std::string budget_name = "80% of available memory";
+  if (const char* limit = std::getenv("DIVVOX_MEMORY_LIMIT")) {
+    char* end = nullptr;
+    double value = std::strtod(limit, &end);
+    const char suffix = end != nullptr ? char(std::toupper(static_cast<unsigned char>(*end))) : '\0';
+    value *= suffix == 'K' ? 1024.0 : suffix == 'M' ? 1048576.0 : suffix == 'G' ? 1073741824.0 : 1.0;
+    if (value > 0.0) {
+      budget = uint64_t(value);
+      budget_name = "DIVVOX_MEMORY_LIMIT";
+    }
+  }
+  if (budget != 0 && needed > budget) {
     throw_input(file, "resolution " + std::to_string(resolution) + " needs about " + format_bytes(needed) +
-                          " but only " + format_bytes(available) + " is available; use a lower resolution");
+                          " but the budget is " + format_bytes(budget) + " (" + budget_name +
+                          "); use a lower resolution");
   }
 }
 
