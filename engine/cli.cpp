@@ -143,14 +143,18 @@ int run_cli(int argc, char** argv) {
   bool headless = false, no_physics = false;
   CLI::App* replay = app.add_subcommand(
       "replay",
-      "Replay a recording (JSON Lines) headlessly: the blade poses drive the cutter step by step.\n"
+      "Replay a recording (JSON Lines) headlessly: blade poses and grab commands drive the cutter and\n"
+      "the PBD model step by step.\n"
       "Writes DIR/summary.json (steps, dt, scene, final_hash, hash_checks, timing_ms per phase with\n"
       "mean/p50/p95/p99/max over cutting steps, cut counts, final surface counts incl. boundary edges and\n"
-      "components, nonfinite_values), DIR/timings.csv (one row per step) and DIR/final.ply.\n"
+      "components, mass, nonfinite_values), DIR/timings.csv (one row per step) and DIR/final.ply (deformed).\n"
       "A state hash mismatch with the recording exits 1 naming the first differing step.");
   replay->add_option("recording", replay_options.recording, "Recording file (.jsonl)")->required();
   replay->add_flag("--headless", headless, "Run without a window (the only mode in this build)");
-  replay->add_flag("--no-physics", no_physics, "Cut only, no deformation (required in this build)");
+  replay->add_flag("--no-physics", no_physics, "Cut only: no deformation (geometry-only replay)");
+  replay->add_option("--workers", replay_options.workers, "Threads for the PBD loops (results do not depend on it)")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
   replay->add_option("--out,-o", replay_options.out_dir, "Output folder")->capture_default_str();
   replay->add_option("--record", replay_options.record_path,
                      "Also write the replayed session (poses + state hashes) to this recording");

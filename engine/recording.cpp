@@ -151,6 +151,8 @@ void read_header(const json& h, const std::string& path, uint32_t line, Recordin
   }
   rec.dt = h["dt"].get<double>();
   rec.scene.solver.dt = rec.dt;
+  // Whether the hashes were taken with the physics on (optional; absent: unknown).
+  if (h.contains("physics") && h["physics"].is_boolean()) rec.physics = h["physics"].get<bool>() ? 1 : 0;
 }
 
 // A finite 3D point from [x, y, z].
@@ -329,11 +331,13 @@ Recording read_recording(const std::string& path) {
   return rec;
 }
 
-RecordingWriter::RecordingWriter(const std::string& path, const Scene& scene, double dt) : path_(path) {
+RecordingWriter::RecordingWriter(const std::string& path, const Scene& scene, double dt, int physics)
+    : path_(path) {
   // Header first: the scene inline, its mesh path re-anchored at the recording's folder.
   json scene_json = scene_to_json(scene);
   scene_json["mesh"] = mesh_for_recording(scene, path);
-  const json header = {{"format", "divvox-recording"}, {"version", kRecordingVersion}, {"scene", scene_json}, {"dt", dt}};
+  json header = {{"format", "divvox-recording"}, {"version", kRecordingVersion}, {"scene", scene_json}, {"dt", dt}};
+  if (physics >= 0) header["physics"] = physics != 0;
 
   fd_ = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd_ < 0) throw_input(path, std::string("cannot create recording: ") + std::strerror(errno));

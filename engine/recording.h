@@ -39,6 +39,7 @@ struct Recording {
   std::string file;
   Scene scene;                    // from the header's inline scene (mesh resolved against the file's folder)
   double dt = 1.0 / 60.0;
+  int physics = -1;               // header "physics": 1 / 0 when the hashes were taken with / without it, -1 unknown
   std::vector<RecordedStep> steps;  // in file order; step numbers non-decreasing (pose and hash may share a step)
   std::vector<std::string> warnings;  // e.g. the truncated last line
   uint32_t last_step() const { return steps.empty() ? 0 : steps.back().step; }
@@ -56,8 +57,9 @@ Recording read_recording(const std::string& path);
 // being written.
 class RecordingWriter {
  public:
-  // Creates/truncates `path` and writes the header. Throws InputError when it cannot be created.
-  RecordingWriter(const std::string& path, const Scene& scene, double dt);
+  // Creates/truncates `path` and writes the header (with "physics": bool when physics >= 0: the mode
+  // the state hashes are taken in). Throws InputError when it cannot be created.
+  RecordingWriter(const std::string& path, const Scene& scene, double dt, int physics = -1);
   ~RecordingWriter();
   RecordingWriter(const RecordingWriter&) = delete;
   RecordingWriter& operator=(const RecordingWriter&) = delete;

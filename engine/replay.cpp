@@ -4,8 +4,10 @@
 #include "engine/mesh_io.h"
 #include "engine/output.h"
 #include "engine/recording.h"
+#include "engine/task_pool.h"
 #include "engine/voxelize_job.h"
 #include "sim/cut.h"
+#include "sim/pbd.h"
 #include "sim/state_hash.h"
 #include "sim/surface_metrics.h"
 #include "sim/voxelize.h"
@@ -33,8 +35,9 @@ double ms_between(Clock::time_point a, Clock::time_point b) {
 struct StepRow {
   uint32_t step;
   bool cutting;
-  double cut_ms, surface_ms, total_ms;
+  double cut_ms, surface_ms, deform_ms, total_ms;
   CutStepStats stats;
+  uint32_t sim_voxels_cut;
 };
 
 // {"mean","p50","p95","p99","max"} of a sample (empty: zeros).
@@ -57,13 +60,75 @@ nlohmann::json percentiles(std::vector<double> values) {
 
 bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.b == b.b; }
 
+// PBD parameters of a scene.
+PbdParams pbd_params(const Scene& scene, double dt) {
+  PbdParams p;
+  p.resolution = scene.resolution;
+  p.sim_resolution = scene.sim_resolution;
+  p.density = scene.material.density;
+  p.stretch_compliance = scene.material.stretch_compliance;
+  p.shape_stiffness = scene.material.shape_stiffness;
+  p.dt = dt;
+  p.substeps = scene.solver.substeps;
+  p.iterations = scene.solver.iterations;
+  p.damping = scene.solver.damping;
+  p.gravity = scene.gravity;
+  for (const FixedBox& b : scene.fixed) {
+    Aabb box;
+    box.grow(b.min);
+    box.grow(b.max);
+    p.fixed.push_back(box);
+  }
+  return p;
+}
+
+// The state hash: the cut surface, and the particles when the physics runs.
+uint64_t state_hash(const CutState& cut, const PbdState* pbd) {
+  uint64_t h = cut_state_hash(cut);
+  if (pbd != nullptr) {
+    Fnv1a f;
+    f.add(h);
+    for (size_t p = 0; p < pbd->position.size(); ++p) {
+      if (pbd->mass[p] > 0.0) f.bytes(pbd->position[p].data(), 3 * sizeof(double));
+    }
+    h = f.value;
+  }
+  return h;
+}
+
+// A grab command from a step line: {"target": [x,y,z], "compliance": c} starts (nearest particle) or
+// moves the grab; "release" ends it. Anything else is an error naming the line.
+void apply_grab(const nlohmann::json& grab, PbdState& pbd, const std::string& file, uint32_t line) {
+  if (grab.is_string() && grab.get<std::string>() == "release") {
+    grab_end(pbd);
+    return;
+  }
+  const auto bad = [&] {
+    throw_input(file, "line " + std::to_string(line) +
+                          ": grab must be {\"target\": [x,y,z], \"compliance\": c} or \"release\"");
+  };
+  if (!grab.is_object() || !grab.contains("target") || !grab["target"].is_array() || grab["target"].size() != 3) bad();
+  Vec3d target;
+  for (int a = 0; a < 3; ++a) {
+    if (!grab["target"][a].is_number()) bad();
+    target[a] = grab["target"][a].get<double>();
+  }
+  if (!target.allFinite()) bad();
+  double compliance = 1e-4;
+  if (grab.contains("compliance")) {
+    if (!grab["compliance"].is_number() || !(grab["compliance"].get<double>() >= 0.0)) bad();
+    compliance = grab["compliance"].get<double>();
+  }
+  if (pbd.grab_particle == ~0u) {
+    grab_begin(pbd, target, compliance);
+  } else {
+    grab_move(pbd, target);
+  }
+}
+
 }  // namespace
 
 ReplayResult run_replay(const ReplayOptions& options) {
-  if (options.physics) {
-    throw_input(options.recording,
-                "physics is not part of this build yet; replay with --no-physics (geometry-only cutting)");
-  }
   const Recording recording = read_recording(options.recording);
   for (const std::string& warning : recording.warnings) std::fprintf(stderr, "divvox: warning: %s\n", warning.c_str());
 
@@ -82,9 +147,28 @@ ReplayResult run_replay(const ReplayOptions& options) {
   const double init_ms = ms_between(init_start, Clock::now());
   const SurfaceStats initial = surface_stats(compact_surface(state.surface));
 
+  // The PBD model and its worker threads.
+  std::unique_ptr<PbdState> pbd;
+  std::unique_ptr<TaskPool> pool;
+  double initial_mass = 0.0;
+  if (options.physics) {
+    pbd = std::make_unique<PbdState>();
+    if (!init_pbd(model, state, pbd_params(scene, recording.dt), *pbd, error)) throw_input(options.recording, error);
+    pool = std::make_unique<TaskPool>(options.workers);
+    initial_mass = total_mass(*pbd);
+  }
+
   make_output_dir(options.out_dir);
   std::unique_ptr<RecordingWriter> writer;
-  if (!options.record_path.empty()) writer = std::make_unique<RecordingWriter>(options.record_path, scene, recording.dt);
+  if (!options.record_path.empty()) {
+    writer = std::make_unique<RecordingWriter>(options.record_path, scene, recording.dt, options.physics ? 1 : 0);
+  }
+  // Hashes taken in the other mode cannot match: say so instead of reporting a divergence.
+  const bool check_hashes = recording.physics < 0 || recording.physics == (options.physics ? 1 : 0);
+  if (!check_hashes) {
+    std::fprintf(stderr, "divvox: warning: %s: its state hashes were taken with the physics %s; not checked\n",
+                 options.recording.c_str(), recording.physics ? "on" : "off");
+  }
 
   // Step through the recording: a line sets the pose (kept until the next line); the sweep from the
   // previous step's pose to this step's cuts when this step is cutting.
@@ -106,27 +190,37 @@ ReplayResult run_replay(const ReplayOptions& options) {
         cutting = r.cutting;
         have_pose = true;
       }
-      if (r.has_hash) recorded_hash = r.hash;
+      if (r.has_hash && check_hashes) recorded_hash = r.hash;
+      if (pbd && r.extra.is_object() && r.extra.contains("grab")) {
+        apply_grab(r.extra["grab"], *pbd, options.recording, r.line);
+        if (writer) writer->write_line({{"step", step}, {"grab", r.extra["grab"]}});
+      }
     }
-    StepRow row{step, cutting, 0, 0, 0, {}};
+    StepRow row{step, cutting, 0, 0, 0, 0, {}, 0};
+    const Clock::time_point t0 = Clock::now();
     if (cutting && had_pose && !same_pose(previous, pose)) {
-      const Clock::time_point t0 = Clock::now();
       cut_divide(model, state, previous, pose, row.stats);
       const Clock::time_point t1 = Clock::now();
       cut_update_surface(model, state, row.stats);
       const Clock::time_point t2 = Clock::now();
-      row.cut_ms = ms_between(t0, t1);
+      if (pbd) row.sim_voxels_cut = pbd_apply_cut(model, state, *pbd);
+      row.cut_ms = ms_between(t0, t1) + ms_between(t2, Clock::now());  // divide, fine and coarse
       row.surface_ms = ms_between(t1, t2);
-      row.total_ms = ms_between(t0, t2);
       totals_voxels_cut += row.stats.voxels_cut;
     }
+    if (pbd) {
+      const Clock::time_point t3 = Clock::now();
+      pbd_step(state, *pbd, pool->runner());
+      row.deform_ms = ms_between(t3, Clock::now());
+    }
+    row.total_ms = ms_between(t0, Clock::now());
     rows.push_back(row);
     if (writer && have_pose) writer->write_blade(step, pose, cutting);
 
     // Determinism: compare with the recorded hash, write ours.
     const bool want_hash = !recorded_hash.empty() || (writer && options.hash_every > 0 && step % options.hash_every == 0);
     if (want_hash) {
-      const std::string hash = hash_hex(cut_state_hash(state));
+      const std::string hash = hash_hex(state_hash(state, pbd.get()));
       if (!recorded_hash.empty()) {
         ++result.hash_checked;
         if (hash != recorded_hash) {
@@ -140,24 +234,38 @@ ReplayResult run_replay(const ReplayOptions& options) {
   }
   if (options.progress) std::fprintf(stderr, "\n");
   result.steps = recording.steps.empty() ? 0 : last + 1;
-  result.final_hash = hash_hex(cut_state_hash(state));
+  result.final_hash = hash_hex(state_hash(state, pbd.get()));
   if (writer && (options.hash_every == 0 || last % options.hash_every != 0)) writer->write_hash(last, result.final_hash);
 
   // Final surface and its checks.
+  // (The topology checks run on the rest-space surface; final.ply is the deformed one.)
   const SurfaceMesh final_surface = compact_surface(state.surface);
   const SurfaceStats stats = surface_stats(final_surface);
   uint64_t nonfinite = 0;
   for (const Vec3f& p : final_surface.positions) nonfinite += p.allFinite() ? 0 : 1;
+  SurfaceMesh deformed_surface = final_surface;
+  if (pbd) {
+    nonfinite += count_nonfinite(*pbd);
+    CutSurface deformed = state.surface;
+    for (size_t slot = 0; slot < deformed.positions.size() && slot < pbd->deformed.size(); ++slot) {
+      if (deformed.vertex_piece[slot] != CutSurface::kFreeKey) deformed.positions[slot] = pbd->deformed[slot];
+    }
+    deformed_surface = compact_surface(deformed);
+  }
 
   // timings.csv
   std::ostringstream csv;
   csv << "step,cut_ms,surface_ms,deform_ms,total_ms,cut_voxels,edges_hit,edges_cut,voxels_divided,"
-         "vertices_changed,triangles_changed,cutting\n";
-  std::vector<double> cut_ms, surface_ms, total_ms;
+         "vertices_changed,triangles_changed,cutting,sim_voxels_cut\n";
+  std::vector<double> cut_ms, surface_ms, total_ms, deform_ms, step_ms;
   for (const StepRow& r : rows) {
-    csv << r.step << ',' << r.cut_ms << ',' << r.surface_ms << ",0," << r.total_ms << ',' << r.stats.voxels_cut << ','
+    if (pbd) deform_ms.push_back(r.deform_ms);
+    step_ms.push_back(r.total_ms);
+    csv << r.step << ',' << r.cut_ms << ',' << r.surface_ms << ',' << r.deform_ms << ',' << r.total_ms << ','
+        << r.stats.voxels_cut << ','
         << r.stats.edges_hit << ',' << r.stats.edges_cut << ',' << r.stats.voxels_divided << ','
-        << r.stats.vertices_changed << ',' << r.stats.triangles_changed << ',' << (r.cutting ? 1 : 0) << '\n';
+        << r.stats.vertices_changed << ',' << r.stats.triangles_changed << ',' << (r.cutting ? 1 : 0) << ','
+        << r.sim_voxels_cut << '\n';
     if (r.stats.edges_hit > 0) {
       cut_ms.push_back(r.cut_ms);
       surface_ms.push_back(r.surface_ms);
@@ -166,13 +274,14 @@ ReplayResult run_replay(const ReplayOptions& options) {
   }
   const std::filesystem::path out(options.out_dir);
   write_text_file((out / "timings.csv").string(), csv.str());
-  save_ply((out / "final.ply").string(), final_surface);
+  save_ply((out / "final.ply").string(), deformed_surface);
 
   // summary.json (DESIGN §1 contract: the fields that apply without physics).
-  const nlohmann::json summary = {
+  nlohmann::json summary = {
       {"recording", options.recording},
       {"scene", scene_to_json(scene)},
-      {"physics", false},
+      {"physics", bool(pbd)},
+      {"workers", pbd ? pool->workers() : 1},
       {"steps", result.steps},
       {"dt", recording.dt},
       {"final_hash", result.final_hash},
@@ -181,14 +290,19 @@ ReplayResult run_replay(const ReplayOptions& options) {
         {"mismatched", result.hash_mismatched},
         {"first_mismatch_step", result.first_mismatch_step}}},
       {"timing_ms",
-       {{"cut", percentiles(cut_ms)}, {"surface", percentiles(surface_ms)}, {"total", percentiles(total_ms)}}},
-      {"timing_note", "over steps whose blade sweep crossed lattice edges"},
+       {{"cut", percentiles(cut_ms)},
+        {"surface", percentiles(surface_ms)},
+        {"deform", percentiles(deform_ms)},
+        {"total", percentiles(total_ms)},
+        {"step", percentiles(step_ms)}}},
+      {"timing_note", "cut, surface, total: over steps whose blade sweep crossed lattice edges; deform and step: every step"},
       {"init_ms", init_ms},
       {"lattice", {model.lattice.nx, model.lattice.ny, model.lattice.nz}},
       {"cut",
        {{"voxels_cut", totals_voxels_cut},
         {"voxels_divided", state.divided.size()},
         {"edges_cut", state.edge_cuts.size()},
+        {"sim_voxels_divided", pbd ? sim_voxels_divided(*pbd) : 0},
         {"explicit_bytes", cut_memory_bytes(state)}}},
       {"surface",
        {{"vertices", stats.vertices},
@@ -201,6 +315,13 @@ ReplayResult run_replay(const ReplayOptions& options) {
         {"initial_volume", initial.volume}}},
       {"nonfinite_values", nonfinite},
   };
+  if (pbd) {
+    summary["mass"] = {{"initial", initial_mass}, {"final", total_mass(*pbd)}};
+    summary["kinetic_energy"] = kinetic_energy(*pbd);
+    summary["particles"] = pbd->position.size() - pbd->free_particles.size();
+    summary["shape_constraints"] = pbd->pieces.size();
+    summary["stretch_constraints"] = pbd->stretch.size();
+  }
   result.summary_path = (out / "summary.json").string();
   write_json_file(result.summary_path, summary);
   return result;

@@ -1,5 +1,5 @@
-// `divvox replay`: feeds a recording's blade poses through the cutter (geometry only until the
-// physics layer exists) and writes summary.json, timings.csv and final.ply.
+// `divvox replay`: feeds a recording's blade poses and grab commands through the cutter and the PBD
+// model step by step and writes summary.json, timings.csv and final.ply.
 #pragma once
 
 #include <cstdint>
@@ -10,7 +10,8 @@ namespace dvx {
 struct ReplayOptions {
   std::string recording;
   std::string out_dir = "out/replay";
-  bool physics = false;          // only --no-physics is implemented in this build
+  bool physics = true;           // PBD deformation (false: --no-physics, geometry-only cutting)
+  int workers = 2;               // threads for the PBD loops (results do not depend on it)
   std::string record_path;       // when set: write the replayed session (poses + hashes) here
   uint32_t hash_every = 60;      // with record_path: a state hash every N steps
   bool progress = false;

@@ -108,10 +108,11 @@ Scene parse_scene(const json& root, const std::string& file) {
   }
   if (root.contains("solver")) {
     const json& s = root["solver"];
-    r.check_keys(s, "solver", {"dt", "substeps", "iterations"});
+    r.check_keys(s, "solver", {"dt", "substeps", "iterations", "damping"});
     if (s.contains("dt")) scene.solver.dt = r.number(s["dt"], "solver.dt", 1e-6, 1.0);
     if (s.contains("substeps")) scene.solver.substeps = r.integer(s["substeps"], "solver.substeps", 1, 1000);
     if (s.contains("iterations")) scene.solver.iterations = r.integer(s["iterations"], "solver.iterations", 1, 10000);
+    if (s.contains("damping")) scene.solver.damping = r.number(s["damping"], "solver.damping", 0.0, 1.0);
   }
   if (root.contains("gravity")) scene.gravity = r.vec3(root["gravity"], "gravity", 1e6);
   if (root.contains("fixed")) {
@@ -161,7 +162,8 @@ json scene_to_json(const Scene& scene) {
            {{"density", scene.material.density},
             {"stretch_compliance", scene.material.stretch_compliance},
             {"shape_stiffness", scene.material.shape_stiffness}}},
-          {"solver", {{"dt", scene.solver.dt}, {"substeps", scene.solver.substeps}, {"iterations", scene.solver.iterations}}},
+          {"solver", {{"dt", scene.solver.dt}, {"substeps", scene.solver.substeps}, {"iterations", scene.solver.iterations},
+                      {"damping", scene.solver.damping}}},
           {"gravity", {scene.gravity.x(), scene.gravity.y(), scene.gravity.z()}},
           {"fixed", fixed},
           {"scalpel", {{"length", scene.scalpel.length}}}};

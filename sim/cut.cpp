@@ -402,10 +402,15 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
         if (created || s.positions[slot] != position) {
           s.positions[slot] = position;
           mark_vertex_dirty(s, slot);
+          state.changed_vertices.push_back(slot);
           ++stats.vertices_changed;
         }
-      } else if (free_vertex(s, key)) {
-        ++stats.vertices_changed;
+      } else {
+        const uint32_t slot = s.vertex_of_piece.get(key);
+        if (free_vertex(s, key)) {
+          state.changed_vertices.push_back(slot);
+          ++stats.vertices_changed;
+        }
       }
     }
   }
@@ -725,7 +730,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 }
 
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats) {
+  state.changed_vertices.clear();
   refresh_voxels(model, state, state.pending_voxels, stats);
+  state.changed_voxels.swap(state.pending_voxels);
   state.pending_voxels.clear();
 }
 

@@ -101,6 +101,8 @@ struct CutState {
   FlatMap front_of;                      // lattice voxel -> index in fronts
   std::vector<uint32_t> blade_voxels;    // voxels holding points of the current blade edge
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
+  std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
+  std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
   CutSurface surface;
   uint64_t steps = 0;                    // cut steps applied
   // Scratch reused between steps (no allocation in steady state).
@@ -130,7 +132,7 @@ CutStepStats cut_step(const VoxelModel& model, CutState& state, const BladePose&
 // cut front. Leaves the voxels whose pieces or vertices must be refreshed in state.pending_voxels.
 void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to,
                 CutStepStats& stats);
-// Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (and clears it).
+// Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (moves them to changed_voxels).
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats);
 
 // The surface as a compact mesh (live slots only; vertex_voxel filled).

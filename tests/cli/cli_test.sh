@@ -75,8 +75,13 @@ expect 0 'truncated last line' -- "$divvox" replay "$tmp/truncated.jsonl" --head
 expect 2 'corrupt.jsonl: line 5' -- "$divvox" replay "$tmp/corrupt.jsonl" --headless --no-physics --out "$tmp/r2"
 expect 2 'nan.jsonl: line 5: step 4' -- "$divvox" replay "$tmp/nan.jsonl" --headless --no-physics --out "$tmp/r3"
 expect 2 'no-such.jsonl: no such file' -- "$divvox" replay "$tmp/no-such.jsonl" --headless --no-physics --out "$tmp/r4"
-expect 2 'no-physics' -- "$divvox" replay "$rec" --headless --out "$tmp/r5"
-expect 0 '' -- "$divvox" replay "$rec" --headless --no-physics --out "$tmp/r6"
+expect 0 '' -- "$divvox" replay "$rec" --headless --out "$tmp/r5" --workers 2
+count=$((count + 1))
+if ! grep -q '"nonfinite_values": 0' "$tmp/r5/summary.json" || ! grep -q '"mass"' "$tmp/r5/summary.json"; then
+  echo "FAIL: the physics replay has non-finite values or no mass"
+  failures=$((failures + 1))
+fi
+expect 0 '' -- "$divvox" replay "$rec" --headless --out "$tmp/r6"
 count=$((count + 1))
 if ! grep -q '"mismatched": 0' "$tmp/r6/summary.json"; then
   echo "FAIL: the shipped recording's hashes do not match"

@@ -136,11 +136,13 @@ TEST_SUITE("replay") {
     first.out_dir = (dir.path / "a").string();
     first.record_path = (dir.path / "hashed.jsonl").string();
     first.hash_every = 10;
+    first.physics = false;
     const ReplayResult a = run_replay(first);
     // Replaying that recording checks every hash.
     ReplayOptions second;
     second.recording = first.record_path;
     second.out_dir = (dir.path / "b").string();
+    second.physics = false;
     const ReplayResult b = run_replay(second);
     CHECK(b.hash_checked >= 10);
     CHECK(b.hash_mismatched == 0);
@@ -157,6 +159,7 @@ TEST_SUITE("replay") {
     first.out_dir = (dir.path / "a").string();
     first.record_path = (dir.path / "hashed.jsonl").string();
     first.hash_every = 20;
+    first.physics = false;
     run_replay(first);
     // Change the hash recorded at step 80.
     std::string text = read_file(first.record_path);
@@ -169,15 +172,37 @@ TEST_SUITE("replay") {
     ReplayOptions second;
     second.recording = first.record_path;
     second.out_dir = (dir.path / "b").string();
+    second.physics = false;
     const ReplayResult r = run_replay(second);
     CHECK(r.hash_mismatched == 1);
     CHECK(r.first_mismatch_step == 80);
   }
 
-  TEST_CASE("physics replay is refused clearly until the physics layer exists") {
-    ReplayOptions options;
-    options.recording = dvx_test::source_path("assets/recordings/bunny_cut.jsonl");
-    options.physics = true;
-    CHECK_THROWS_AS(run_replay(options), InputError);
+  TEST_CASE("physics replay: recorded hashes match with 1 and with 2 workers, mass is conserved") {
+    TempDir dir;
+    const std::string session = (dir.path / "session.jsonl").string();
+    write_session(session, 32);
+    ReplayOptions first;
+    first.recording = session;
+    first.out_dir = (dir.path / "a").string();
+    first.record_path = (dir.path / "hashed.jsonl").string();
+    first.hash_every = 10;
+    first.workers = 2;
+    const ReplayResult a = run_replay(first);
+    for (int workers : {1, 2}) {
+      ReplayOptions again;
+      again.recording = first.record_path;
+      again.out_dir = (dir.path / ("w" + std::to_string(workers))).string();
+      again.workers = workers;
+      const ReplayResult r = run_replay(again);
+      CHECK(r.hash_checked >= 10);
+      CHECK(r.hash_mismatched == 0);
+      CHECK(r.final_hash == a.final_hash);
+    }
+    const nlohmann::json summary = nlohmann::json::parse(read_file(dir.path / "a" / "summary.json"));
+    CHECK(summary["nonfinite_values"] == 0);
+    const double m0 = summary["mass"]["initial"], m1 = summary["mass"]["final"];
+    CHECK(std::abs(m1 - m0) <= 1e-12 * m0);
+    CHECK(summary["cut"]["sim_voxels_divided"].get<int>() > 0);
   }
 }

@@ -8,7 +8,7 @@
 using namespace dvx;
 
 TEST_SUITE("state_hash") {
-  TEST_CASE("equal states hash equal; a moved vertex, a different cut or a freed slot change it") {
+  TEST_CASE("equal states hash equal, a moved vertex, a different cut or a freed slot change it") {
     const TriMesh box = make_box(Vec3d(0.01, 0.02, 0.03), Vec3d(1, 0.7, 0.6), Eigen::Matrix3d::Identity(), 1);
     VoxelModel model;
     std::string error;

@@ -1,0 +1,461 @@
+#include "render/renderer.h"
+
+#include <glad/gl.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
+
+namespace dvx {
+
+static_assert(sizeof(Vec3f) == 3 * sizeof(float), "positions are uploaded as packed float triples");
+static_assert(sizeof(Tri) == 3 * sizeof(uint32_t), "triangles are uploaded as packed uint32 triples");
+
+namespace {
+
+// Smallest buffer capacities (slots), so an empty mesh still has vertex 0 for dead triangles to use.
+constexpr uint32_t kMinVertexCapacity = 1024;
+constexpr uint32_t kMinTriangleCapacity = 2048;
+
+// Shared vertex stage: positions and normals to eye space (the view matrix is rigid, so its 3x3
+// part transforms normals too).
+const char* kVertexShader = R"(#version 450 core
+layout(location = 0) in vec3 a_position;
+layout(location = 1) in vec3 a_normal;
+layout(location = 0) uniform mat4 u_view_projection;
+layout(location = 1) uniform mat4 u_view;
+out vec3 v_eye_position;
+out vec3 v_eye_normal;
+void main() {
+  vec4 p = vec4(a_position, 1.0);
+  v_eye_position = (u_view * p).xyz;
+  v_eye_normal = mat3(u_view) * a_normal;
+  gl_Position = u_view_projection * p;
+}
+)";
+
+// Per-triangle flags: one byte per triangle slot, four to a word, indexed by gl_PrimitiveID
+// (the slot, since every slot is drawn in one call from 0).
+#define DVX_FLAG_BLOCK                                                        \
+  "layout(std430, binding = 0) readonly buffer TriangleFlags { uint words[]; };\n" \
+  "uint triangle_flags() {\n"                                                 \
+  "  uint id = uint(gl_PrimitiveID);\n"                                       \
+  "  return (words[id >> 2] >> (8u * (id & 3u))) & 0xFFu;\n"                  \
+  "}\n"
+
+// Lit surface: two directional lights fixed to the camera (key from the upper left, weak fill from
+// the right) plus ambient, Blinn-Phong highlights (wet tissue is glossy). Two-sided: back faces
+// flip the normal, so views into a cut or through a hole are lit too. Without vertex normals (or
+// where a normal is zero) the face normal from screen-space derivatives gives flat shading.
+const char* kSurfaceFragmentShader = "#version 450 core\n" DVX_FLAG_BLOCK R"(
+in vec3 v_eye_position;
+in vec3 v_eye_normal;
+layout(location = 2) uniform vec3 u_surface_color;
+layout(location = 3) uniform vec3 u_cut_color;
+layout(location = 4) uniform int u_flat;
+out vec4 frag_color;
+void main() {
+  vec3 base = (triangle_flags() & 1u) != 0u ? u_cut_color : u_surface_color;
+  vec3 face = cross(dFdx(v_eye_position), dFdy(v_eye_position));  // always faces the eye
+  vec3 n = v_eye_normal;
+  if (u_flat != 0 || dot(n, n) < 1e-12) {
+    n = face;
+  } else if (!gl_FrontFacing) {
+    n = -n;
+  }
+  n = dot(n, n) > 0.0 ? normalize(n) : vec3(0.0, 0.0, 1.0);
+  vec3 v = normalize(-v_eye_position);
+  const vec3 key = normalize(vec3(-0.4, 0.6, 0.7));
+  const vec3 fill = normalize(vec3(0.7, -0.1, 0.4));
+  float diffuse = 0.75 * max(dot(n, key), 0.0) + 0.30 * max(dot(n, fill), 0.0);
+  float specular = 0.30 * pow(max(dot(n, normalize(key + v)), 0.0), 48.0);
+  vec3 color = base * (0.22 + diffuse) + vec3(specular);
+  frag_color = vec4(min(color, vec3(1.0)), 1.0);
+}
+)";
+
+// Wireframe overlay: a flat colour; dead slots (degenerate, but a zero-length edge could still
+// light a pixel in line mode) are discarded.
+const char* kWireFragmentShader = "#version 450 core\n" DVX_FLAG_BLOCK R"(
+layout(location = 5) uniform vec3 u_wire_color;
+out vec4 frag_color;
+void main() {
+  if ((triangle_flags() & 2u) != 0u) discard;
+  frag_color = vec4(u_wire_color, 1.0);
+}
+)";
+
+// First line of a shader or program info log, for one-line errors.
+std::string first_line(const std::string& log) {
+  const size_t end = log.find('\n');
+  return end == std::string::npos ? log : log.substr(0, end);
+}
+
+// Compiles one stage; 0 with the log's first line in `error` on failure.
+GLuint compile_shader(GLenum stage, const char* source, std::string& error) {
+  GLuint shader = glCreateShader(stage);
+  glShaderSource(shader, 1, &source, nullptr);
+  glCompileShader(shader);
+  GLint ok = 0;
+  glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    GLint length = 0;
+    glGetShaderiv(shader, GL_INFO_LOG_LENGTH, &length);
+    std::string log(size_t(std::max(length, 1)), '\0');
+    glGetShaderInfoLog(shader, length, nullptr, log.data());
+    error = std::string("GL: ") + (stage == GL_VERTEX_SHADER ? "vertex" : "fragment") +
+            " shader does not compile: " + first_line(log.c_str());
+    glDeleteShader(shader);
+    return 0;
+  }
+  return shader;
+}
+
+// Links a vertex + fragment program; 0 with a reason on failure.
+GLuint link_program(const char* vertex_source, const char* fragment_source, std::string& error) {
+  GLuint vs = compile_shader(GL_VERTEX_SHADER, vertex_source, error);
+  if (!vs) return 0;
+  GLuint fs = compile_shader(GL_FRAGMENT_SHADER, fragment_source, error);
+  if (!fs) {
+    glDeleteShader(vs);
+    return 0;
+  }
+  GLuint program = glCreateProgram();
+  glAttachShader(program, vs);
+  glAttachShader(program, fs);
+  glLinkProgram(program);
+  glDeleteShader(vs);
+  glDeleteShader(fs);
+  GLint ok = 0;
+  glGetProgramiv(program, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    GLint length = 0;
+    glGetProgramiv(program, GL_INFO_LOG_LENGTH, &length);
+    std::string log(size_t(std::max(length, 1)), '\0');
+    glGetProgramInfoLog(program, length, nullptr, log.data());
+    error = "GL: program does not link: " + first_line(log.c_str());
+    glDeleteProgram(program);
+    return 0;
+  }
+  return program;
+}
+
+// Deletes the offscreen target's objects.
+void destroy_target(Renderer& r) {
+  if (r.resolve_framebuffer && r.resolve_framebuffer != r.framebuffer) glDeleteFramebuffers(1, &r.resolve_framebuffer);
+  if (r.framebuffer) glDeleteFramebuffers(1, &r.framebuffer);
+  if (r.color_renderbuffer) glDeleteRenderbuffers(1, &r.color_renderbuffer);
+  if (r.depth_renderbuffer) glDeleteRenderbuffers(1, &r.depth_renderbuffer);
+  if (r.resolve_renderbuffer) glDeleteRenderbuffers(1, &r.resolve_renderbuffer);
+  r.framebuffer = r.resolve_framebuffer = 0;
+  r.color_renderbuffer = r.depth_renderbuffer = r.resolve_renderbuffer = 0;
+}
+
+// Creates the offscreen target at r.width x r.height with r.samples.
+bool create_target(Renderer& r, std::string& error) {
+  GLint max_size = 0, max_samples = 0;
+  glGetIntegerv(GL_MAX_RENDERBUFFER_SIZE, &max_size);
+  glGetIntegerv(GL_MAX_SAMPLES, &max_samples);
+  if (r.width < 1 || r.height < 1 || r.width > max_size || r.height > max_size) {
+    error = "GL: image size " + std::to_string(r.width) + "x" + std::to_string(r.height) +
+            " outside 1.." + std::to_string(max_size);
+    return false;
+  }
+  r.samples = std::clamp(r.samples, 0, int(max_samples));
+  // Drawn-into framebuffer: RGBA8 colour + 24-bit depth, multisampled when asked.
+  glCreateRenderbuffers(1, &r.color_renderbuffer);
+  glCreateRenderbuffers(1, &r.depth_renderbuffer);
+  glNamedRenderbufferStorageMultisample(r.color_renderbuffer, r.samples, GL_RGBA8, r.width, r.height);
+  glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH_COMPONENT24, r.width, r.height);
+  glCreateFramebuffers(1, &r.framebuffer);
+  glNamedFramebufferRenderbuffer(r.framebuffer, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, r.color_renderbuffer);
+  glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
+  // Single-sample copy for readback when multisampled.
+  r.resolve_framebuffer = r.framebuffer;
+  if (r.samples > 0) {
+    glCreateRenderbuffers(1, &r.resolve_renderbuffer);
+    glNamedRenderbufferStorage(r.resolve_renderbuffer, GL_RGBA8, r.width, r.height);
+    glCreateFramebuffers(1, &r.resolve_framebuffer);
+    glNamedFramebufferRenderbuffer(r.resolve_framebuffer, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER,
+                                   r.resolve_renderbuffer);
+  }
+  const GLenum status = glCheckNamedFramebufferStatus(r.framebuffer, GL_FRAMEBUFFER);
+  const GLenum resolve_status = glCheckNamedFramebufferStatus(r.resolve_framebuffer, GL_FRAMEBUFFER);
+  if (status != GL_FRAMEBUFFER_COMPLETE || resolve_status != GL_FRAMEBUFFER_COMPLETE) {
+    char code[16];
+    std::snprintf(code, sizeof code, "0x%04X", status != GL_FRAMEBUFFER_COMPLETE ? status : resolve_status);
+    error = std::string("GL: offscreen framebuffer incomplete (status ") + code + ")";
+    destroy_target(r);
+    return false;
+  }
+  return true;
+}
+
+// (Re)allocates the vertex buffers for `capacity` slots (contents undefined until uploaded).
+void allocate_vertex_buffers(Renderer& r, uint32_t capacity) {
+  r.vertex_capacity = capacity;
+  glNamedBufferData(r.position_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.normal_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+}
+
+// (Re)allocates the index and flag buffers for `capacity` triangle slots.
+void allocate_triangle_buffers(Renderer& r, uint32_t capacity) {
+  r.triangle_capacity = capacity;
+  glNamedBufferData(r.index_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.flag_buffer, (GLsizeiptr(capacity) + 3) / 4 * 4, nullptr, GL_DYNAMIC_DRAW);
+}
+
+// Capacity for `needed` slots: geometric growth so a growing cut re-uploads rarely.
+uint32_t grown_capacity(uint32_t current, uint32_t needed, uint32_t minimum) {
+  const uint64_t grown = std::max<uint64_t>({uint64_t(needed), uint64_t(current) + current / 2, minimum});
+  return uint32_t(std::min<uint64_t>(grown, UINT32_MAX));
+}
+
+}  // namespace
+
+RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* normals,
+                          const std::vector<uint8_t>* flags) {
+  RenderMesh m;
+  m.positions = mesh.positions.data();
+  m.vertex_count = uint32_t(mesh.positions.size());
+  m.normals = normals && normals->size() == mesh.positions.size() ? normals->data() : nullptr;
+  m.triangles = mesh.triangles.data();
+  m.triangle_count = uint32_t(mesh.triangles.size());
+  m.triangle_flags = flags && flags->size() == mesh.triangles.size() ? flags->data() : nullptr;
+  m.full = true;
+  return m;
+}
+
+RenderMesh render_mesh_of(const CutSurface& surface, const std::vector<Vec3f>* normals,
+                          const std::vector<uint8_t>* flags) {
+  RenderMesh m;
+  m.positions = surface.positions.data();
+  m.vertex_count = uint32_t(surface.positions.size());
+  m.normals = normals && normals->size() == surface.positions.size() ? normals->data() : nullptr;
+  m.triangles = surface.triangles.data();
+  m.triangle_count = uint32_t(surface.triangles.size());
+  m.triangle_flags = flags && flags->size() == surface.triangles.size() ? flags->data() : nullptr;
+  m.vertex_begin = surface.dirty_vertex_begin;
+  m.vertex_end = surface.dirty_vertex_end;
+  m.triangle_begin = surface.dirty_triangle_begin;
+  m.triangle_end = surface.dirty_triangle_end;
+  m.full = false;
+  return m;
+}
+
+bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples) {
+  renderer_destroy(r);
+  r.width = width;
+  r.height = height;
+  r.samples = samples;
+  if (!create_target(r, error)) return false;
+
+  r.surface_program = link_program(kVertexShader, kSurfaceFragmentShader, error);
+  if (r.surface_program) r.wire_program = link_program(kVertexShader, kWireFragmentShader, error);
+  if (!r.surface_program || !r.wire_program) {
+    renderer_destroy(r);
+    return false;
+  }
+
+  // Mesh buffers: positions on binding 0, normals on binding 1, indices in the vertex array.
+  glCreateBuffers(1, &r.position_buffer);
+  glCreateBuffers(1, &r.normal_buffer);
+  glCreateBuffers(1, &r.index_buffer);
+  glCreateBuffers(1, &r.flag_buffer);
+  allocate_vertex_buffers(r, kMinVertexCapacity);
+  allocate_triangle_buffers(r, kMinTriangleCapacity);
+  glCreateVertexArrays(1, &r.vertex_array);
+  glVertexArrayVertexBuffer(r.vertex_array, 0, r.position_buffer, 0, 12);
+  glVertexArrayVertexBuffer(r.vertex_array, 1, r.normal_buffer, 0, 12);
+  for (GLuint a = 0; a < 2; ++a) {
+    glVertexArrayAttribFormat(r.vertex_array, a, 3, GL_FLOAT, GL_FALSE, 0);
+    glVertexArrayAttribBinding(r.vertex_array, a, a);
+  }
+  glEnableVertexArrayAttrib(r.vertex_array, 0);
+  glVertexArrayElementBuffer(r.vertex_array, r.index_buffer);
+
+  std::string gl_error;
+  if (!gl_check_errors(gl_error)) {
+    error = "GL: renderer setup failed: " + gl_error;
+    renderer_destroy(r);
+    return false;
+  }
+  return true;
+}
+
+bool renderer_resize(Renderer& r, int width, int height, std::string& error) {
+  destroy_target(r);
+  r.width = width;
+  r.height = height;
+  return create_target(r, error);
+}
+
+void renderer_upload(Renderer& r, const RenderMesh& mesh) {
+  r.last_upload_bytes = 0;
+  const bool has_normals = mesh.normals != nullptr;
+  // The first upload, growth, or a switch between smooth and flat shading re-sends everything.
+  bool vertices_full = mesh.full || !r.uploaded || has_normals != r.has_normals;
+  bool triangles_full = mesh.full || !r.uploaded;
+  if (mesh.vertex_count > r.vertex_capacity) {
+    allocate_vertex_buffers(r, grown_capacity(r.vertex_capacity, mesh.vertex_count, kMinVertexCapacity));
+    vertices_full = true;
+  }
+  if (mesh.triangle_count > r.triangle_capacity) {
+    allocate_triangle_buffers(r, grown_capacity(r.triangle_capacity, mesh.triangle_count, kMinTriangleCapacity));
+    triangles_full = true;
+  }
+
+  // Vertex slots: positions (and normals) copied as they are.
+  const uint32_t vb = vertices_full ? 0 : std::min(mesh.vertex_begin, mesh.vertex_count);
+  const uint32_t ve = vertices_full ? mesh.vertex_count : std::min(mesh.vertex_end, mesh.vertex_count);
+  if (vb < ve && mesh.positions) {
+    const GLintptr offset = GLintptr(vb) * 12;
+    const GLsizeiptr size = GLsizeiptr(ve - vb) * 12;
+    glNamedBufferSubData(r.position_buffer, offset, size, mesh.positions + vb);
+    if (has_normals) glNamedBufferSubData(r.normal_buffer, offset, size, mesh.normals + vb);
+    r.last_upload_bytes += uint64_t(size) * (has_normals ? 2 : 1);
+  }
+
+  // Triangle slots: dead ones (or ones naming a vertex that does not exist) become {0,0,0} with
+  // the dead flag, so they rasterise nothing and every slot keeps its gl_PrimitiveID.
+  const uint32_t tb = triangles_full ? 0 : std::min(mesh.triangle_begin, mesh.triangle_count);
+  const uint32_t te = triangles_full ? mesh.triangle_count : std::min(mesh.triangle_end, mesh.triangle_count);
+  if (tb < te && mesh.triangles) {
+    const uint32_t n = te - tb;
+    r.scratch_triangles.resize(n);
+    r.scratch_flags.resize(n);
+    for (uint32_t i = 0; i < n; ++i) {
+      const Tri& t = mesh.triangles[tb + i];
+      const bool dead = t[0] >= mesh.vertex_count || t[1] >= mesh.vertex_count || t[2] >= mesh.vertex_count;
+      const uint8_t flags = mesh.triangle_flags ? uint8_t(mesh.triangle_flags[tb + i] & kTriangleCut) : 0;
+      r.scratch_triangles[i] = dead ? Tri{0, 0, 0} : t;
+      r.scratch_flags[i] = dead ? kTriangleDead : flags;
+    }
+    glNamedBufferSubData(r.index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_triangles.data());
+    glNamedBufferSubData(r.flag_buffer, GLintptr(tb), GLsizeiptr(n), r.scratch_flags.data());
+    r.last_upload_bytes += uint64_t(n) * 13;
+  }
+
+  r.vertex_count = mesh.vertex_count;
+  r.triangle_count = mesh.triangle_count;
+  r.has_normals = has_normals;
+  r.uploaded = true;
+}
+
+void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
+  glBindFramebuffer(GL_FRAMEBUFFER, r.framebuffer);
+  glViewport(0, 0, r.width, r.height);
+  glClearColor(options.background.x(), options.background.y(), options.background.z(), 1.0f);
+  glClearDepth(1.0);
+  glDepthMask(GL_TRUE);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  if (r.triangle_count == 0 || !r.surface_program) return;
+
+  // Camera and colours (the wire program uses only the view-projection and its colour).
+  const Eigen::Matrix4f view = view_matrix(camera);
+  const Eigen::Matrix4f view_projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect()) * view;
+  glProgramUniformMatrix4fv(r.surface_program, 0, 1, GL_FALSE, view_projection.data());
+  glProgramUniformMatrix4fv(r.surface_program, 1, 1, GL_FALSE, view.data());
+  glProgramUniformMatrix4fv(r.wire_program, 0, 1, GL_FALSE, view_projection.data());
+  glProgramUniform3fv(r.surface_program, 2, 1, options.surface_color.data());
+  glProgramUniform3fv(r.surface_program, 3, 1, options.cut_color.data());
+  glProgramUniform1i(r.surface_program, 4, r.has_normals ? 0 : 1);
+  glProgramUniform3fv(r.wire_program, 5, 1, options.wire_color.data());
+
+  // Both sides drawn and lit (no culling); normals only when the caller gave them.
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LEQUAL);
+  glDisable(GL_CULL_FACE);
+  glDisable(GL_BLEND);
+  if (r.samples > 0) glEnable(GL_MULTISAMPLE);
+  if (r.has_normals) {
+    glEnableVertexArrayAttrib(r.vertex_array, 1);
+  } else {
+    glDisableVertexArrayAttrib(r.vertex_array, 1);
+    glVertexAttrib3f(1, 0.0f, 0.0f, 0.0f);
+  }
+  glBindVertexArray(r.vertex_array);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, r.flag_buffer);
+  const GLsizei index_count = GLsizei(uint64_t(r.triangle_count) * 3);
+
+  // Pass 1: the lit surface.
+  glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
+  glUseProgram(r.surface_program);
+  glDrawElements(GL_TRIANGLES, index_count, GL_UNSIGNED_INT, nullptr);
+
+  // Pass 2: edges on top, pulled toward the eye so they win the depth test against their own faces.
+  if (options.wireframe) {
+    glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
+    glEnable(GL_POLYGON_OFFSET_LINE);
+    glPolygonOffset(-1.0f, -1.0f);
+    glUseProgram(r.wire_program);
+    glDrawElements(GL_TRIANGLES, index_count, GL_UNSIGNED_INT, nullptr);
+    glDisable(GL_POLYGON_OFFSET_LINE);
+    glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
+  }
+  glUseProgram(0);
+  glBindVertexArray(0);
+}
+
+bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
+  if (!r.framebuffer) return false;
+  // Resolve the multisampled image first.
+  if (r.resolve_framebuffer != r.framebuffer) {
+    glBlitNamedFramebuffer(r.framebuffer, r.resolve_framebuffer, 0, 0, r.width, r.height, 0, 0, r.width, r.height,
+                           GL_COLOR_BUFFER_BIT, GL_NEAREST);
+  }
+  const size_t row = size_t(r.width) * 4;
+  rgba.resize(row * size_t(r.height));
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, r.resolve_framebuffer);
+  glNamedFramebufferReadBuffer(r.resolve_framebuffer, GL_COLOR_ATTACHMENT0);
+  glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  glReadPixels(0, 0, r.width, r.height, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+  // GL's row 0 is the bottom; images start at the top.
+  std::vector<uint8_t> tmp(row);
+  for (int y = 0; y < r.height / 2; ++y) {
+    uint8_t* a = rgba.data() + size_t(y) * row;
+    uint8_t* b = rgba.data() + size_t(r.height - 1 - y) * row;
+    std::memcpy(tmp.data(), a, row);
+    std::memcpy(a, b, row);
+    std::memcpy(b, tmp.data(), row);
+  }
+  std::string error;
+  return gl_check_errors(error);
+}
+
+void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height) {
+  if (!r.framebuffer) return;
+  glBlitNamedFramebuffer(r.framebuffer, target_framebuffer, 0, 0, r.width, r.height, 0, 0, width, height,
+                         GL_COLOR_BUFFER_BIT, (width == r.width && height == r.height) ? GL_NEAREST : GL_LINEAR);
+}
+
+void renderer_destroy(Renderer& r) {
+  destroy_target(r);
+  if (r.surface_program) glDeleteProgram(r.surface_program);
+  if (r.wire_program) glDeleteProgram(r.wire_program);
+  if (r.vertex_array) glDeleteVertexArrays(1, &r.vertex_array);
+  const GLuint buffers[] = {r.position_buffer, r.normal_buffer, r.index_buffer, r.flag_buffer};
+  for (GLuint b : buffers)
+    if (b) glDeleteBuffers(1, &b);
+  r = Renderer{};
+}
+
+bool gl_check_errors(std::string& error) {
+  error.clear();
+  for (int i = 0; i < 16; ++i) {  // bounded: a lost context can report errors forever
+    const GLenum e = glGetError();
+    if (e == GL_NO_ERROR) break;
+    const char* name = e == GL_INVALID_ENUM        ? "GL_INVALID_ENUM"
+                       : e == GL_INVALID_VALUE     ? "GL_INVALID_VALUE"
+                       : e == GL_INVALID_OPERATION ? "GL_INVALID_OPERATION"
+                       : e == GL_OUT_OF_MEMORY     ? "GL_OUT_OF_MEMORY"
+                       : e == GL_INVALID_FRAMEBUFFER_OPERATION ? "GL_INVALID_FRAMEBUFFER_OPERATION"
+                                                               : "GL error";
+    if (!error.empty()) error += ", ";
+    error += name;
+  }
+  return error.empty();
+}
+
+}  // namespace dvx

@@ -1,0 +1,118 @@
+// The surface renderer shared by the headless (EGL) and window (GLFW) modes: draws the organ
+// surface into an offscreen framebuffer (lit, two-sided, cut faces in their own colour, optional
+// wireframe) and reads the image back. Needs a current GL 4.5 context (egl_context.h or GLFW);
+// it never creates one.
+//
+// Usage: renderer_init once, renderer_upload whenever the surface changed (only the dirty slot
+// ranges travel), renderer_draw per frame, then renderer_read_pixels (headless) or
+// renderer_blit (window), renderer_destroy with the context still current.
+#pragma once
+
+#include "render/camera.h"
+#include "sim/cut.h"
+#include "sim/surface_mesh.h"
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace dvx {
+
+// Per-triangle flags (RenderMesh::triangle_flags).
+constexpr uint8_t kTriangleCut = 1;   // the triangle lies on a cut surface (drawn in cut_color)
+constexpr uint8_t kTriangleDead = 2;  // set by the renderer for unused slots; callers need not set it
+
+// The surface to draw, borrowed for the duration of renderer_upload: a plain view over the
+// caller's arrays (a SurfaceMesh, a CutSurface or a deformed snapshot), so the renderer knows
+// nothing of how they were made.
+//
+// Triangle slots may be dead (kDeadIndex x3, as CutSurface keeps freed slots): they draw nothing.
+// The dirty ranges say which slots changed since the previous upload; `full` (or a count beyond
+// what the GPU buffers hold) uploads everything.
+struct RenderMesh {
+  const Vec3f* positions = nullptr;       // (vertex_count)
+  const Vec3f* normals = nullptr;         // (vertex_count) unit vertex normals; nullptr: flat shading
+  uint32_t vertex_count = 0;
+  const Tri* triangles = nullptr;         // (triangle_count) counter-clockwise seen from outside
+  uint32_t triangle_count = 0;
+  const uint8_t* triangle_flags = nullptr;  // (triangle_count) kTriangleCut bits; nullptr: none cut
+  uint32_t vertex_begin = 0, vertex_end = 0;      // dirty vertex slots [begin, end)
+  uint32_t triangle_begin = 0, triangle_end = 0;  // dirty triangle slots [begin, end)
+  bool full = true;                               // ignore the ranges, upload every slot
+};
+
+// A whole SurfaceMesh (full upload). `normals` / `flags` may be null or sized like the mesh.
+RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* normals = nullptr,
+                          const std::vector<uint8_t>* flags = nullptr);
+// A CutSurface with its dirty ranges (full = false); `normals` / `flags` sized like its slot arrays.
+RenderMesh render_mesh_of(const CutSurface& surface, const std::vector<Vec3f>* normals = nullptr,
+                          const std::vector<uint8_t>* flags = nullptr);
+
+struct DrawOptions {
+  bool wireframe = false;                         // overlay the triangle edges
+  Vec3f surface_color = Vec3f(0.88f, 0.70f, 0.64f);  // pale organ capsule
+  Vec3f cut_color = Vec3f(0.80f, 0.17f, 0.20f);      // exposed tissue on the cut faces
+  Vec3f wire_color = Vec3f(0.20f, 0.12f, 0.12f);
+  Vec3f background = Vec3f(0.15f, 0.16f, 0.19f);
+};
+
+// GL object names and the capacities of the GPU buffers.
+//
+// Why this layout: vertex slots and triangle slots are stable (CutSurface reuses freed slots and
+// appends new ones), so the GPU buffers mirror the caller's slot arrays one to one and a cut step
+// only rewrites the few slots it touched. Buffers grow geometrically, and only a growth forces a
+// full upload. Dead triangle slots are written as {0,0,0} (zero area, no fragments), which keeps
+// every live triangle at its slot so gl_PrimitiveID equals the slot index; the fragment shader
+// reads the triangle's flags from a byte array in a shader storage buffer indexed by it (an SSBO
+// rather than a texture buffer: its guaranteed size, 128 MiB, covers any surface, where a texture
+// buffer is only guaranteed 64 Ki texels). Flat per-triangle data that way needs no duplicated
+// vertices along the rim of a cut, where a cut face and the outer surface share vertices.
+struct Renderer {
+  // Offscreen target: `framebuffer` is drawn into (multisampled when samples > 0), and
+  // `resolve_framebuffer` holds the single-sample image read back or blitted (== framebuffer
+  // when samples == 0).
+  int width = 0, height = 0, samples = 0;
+  uint32_t framebuffer = 0, color_renderbuffer = 0, depth_renderbuffer = 0;
+  uint32_t resolve_framebuffer = 0, resolve_renderbuffer = 0;
+  // Programs: lit surface, wireframe overlay.
+  uint32_t surface_program = 0, wire_program = 0;
+  // Mesh buffers, mirroring the caller's slots.
+  uint32_t vertex_array = 0;
+  uint32_t position_buffer = 0;  // (vertex_capacity x 3 floats)
+  uint32_t normal_buffer = 0;    // (vertex_capacity x 3 floats)
+  uint32_t index_buffer = 0;     // (triangle_capacity x 3 uint32)
+  uint32_t flag_buffer = 0;      // (triangle_capacity bytes, rounded up to 4) SSBO binding 0
+  uint32_t vertex_capacity = 0, triangle_capacity = 0;
+  uint32_t vertex_count = 0, triangle_count = 0;
+  bool has_normals = false;
+  bool uploaded = false;           // false until the first upload (which is always full)
+  uint64_t last_upload_bytes = 0;  // bytes sent by the last renderer_upload (tests, stats)
+  // Scratch for the converted triangle range (dead slots degenerated, flags with kTriangleDead).
+  std::vector<Tri> scratch_triangles;
+  std::vector<uint8_t> scratch_flags;
+};
+
+// Creates the programs, the mesh buffers and a width x height offscreen target (RGBA8 colour,
+// 24-bit depth; `samples` > 0 multisamples it). Returns false with a one-line reason.
+bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples = 0);
+// Recreates the offscreen target at a new size (window resize); the mesh stays.
+bool renderer_resize(Renderer& r, int width, int height, std::string& error);
+// Sends the changed slots of `mesh` to the GPU (see RenderMesh).
+void renderer_upload(Renderer& r, const RenderMesh& mesh);
+// Draws the uploaded surface into the offscreen target.
+void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
+// Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
+bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
+// Copies the last image into another framebuffer (0: the window's), scaled to w x h.
+void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height);
+// Deletes every GL object (the context must still be current).
+void renderer_destroy(Renderer& r);
+
+// Drains glGetError: false with the error names when there were any.
+bool gl_check_errors(std::string& error);
+
+// Writes an RGBA8 image (row 0 the top) as PNG. False with a one-line reason naming the file.
+bool write_png(const std::string& path, int width, int height, const std::vector<uint8_t>& rgba,
+               std::string& error);
+
+}  // namespace dvx

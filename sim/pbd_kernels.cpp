@@ -1,0 +1,245 @@
+#include "sim/pbd_kernels.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+
+namespace dvx {
+
+namespace {
+
+using Eigen::Matrix3d;
+using Eigen::Quaterniond;
+using Eigen::Vector3d;
+
+// Rotation extraction, on A scaled so that max |a_ij| = 1 (all thresholds below are then absolute).
+//
+// Why not plain Müller et al. 2016: their step omega = g / |tr(R^T A)| is the gradient of
+// f(R) = tr(R^T A) scaled by the trace only. It converges linearly with rate up to s_max / tr(S) per
+// iteration (S the stretch), so a stretched cluster or a start far from the answer needs far more than
+// 20 iterations to reach 1e-9, and it crawls near saddles (a start ~180 degrees away). We keep its
+// robustness (never a raw polar decomposition, warm start, no NaN on singular A) and take better steps:
+//   * f(exp([t u]) R) = f + c sin t - b (1 - cos t) along any unit axis u, with c = u.g and b = u^T B u,
+//     g = sum_i r_i x a_i (Müller's numerator), B = tr(R^T A) I - sym(A R^T) (minus the Hessian of f).
+//     Its exact maximum, t = atan2(c, b), gains hypot(c, b) - b >= 0: every iteration is an exact line
+//     search, so f never decreases, which is why warm-started calls cannot alternate between answers.
+//   * Axis: Newton's, B^-1 g, when B is clearly positive definite (the usual case near the answer:
+//     quadratic convergence, 1-2 iterations when warm-started). Otherwise (far from the answer, inverted
+//     or flattened A) the best of: the gradient (Müller's direction), the saddle-free Newton axis
+//     |B|^-1 g, and the eigenvector of B's most negative eigenvalue (escapes a saddle where g = 0).
+//   * tr(R^T A) has no local maxima other than the global one on SO(3), so ascent finds the rotation
+//     nearest to A (for det A < 0, the one that flips the smallest singular direction). A flat maximum
+//     (rank-1 A, or equal singular values with det A < 0) does not move once reached: steps that gain
+//     less than kMinGain are not taken.
+constexpr double kPivotMin = 1e-10;  // smallest Cholesky pivot of B (scaled A) for a Newton step
+constexpr double kMinGain = 1e-14;   // least gain of f (scaled A) for a step in the fallback branch
+constexpr double kMinAngle = 1e-15;  // a Newton step below this angle (radians) means converged
+constexpr double kSaddleFreeFloor = 1e-3;  // |eigenvalue| floor of B in the saddle-free Newton axis
+
+// Exact maximum of f along the unit axis u: returns the gain and writes the angle.
+inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d& b, double& angle) {
+  const double c = u.dot(g);
+  const double curvature = u.dot(b * u);
+  angle = std::atan2(c, curvature);
+  return std::hypot(c, curvature) - curvature;
+}
+
+// Masses, centres and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0)
+// need. Returns false when no particle of the cluster can move (then nothing is to be done).
+bool shape_matching_frame(const double* x, const double* inv_mass, const uint32_t* indices, const double* rest,
+                          int count, Quaterniond& rotation, Vector3d& centre, Vector3d& rest_centre,
+                          Matrix3d& rot) {
+  if (count <= 0) return false;
+  // Mean mass of the free particles; anchored ones weigh kAnchorWeight times that.
+  constexpr double kAnchorWeight = 1e6;
+  double free_mass = 0.0;
+  int free_count = 0;
+  for (int k = 0; k < count; ++k) {
+    const double w = inv_mass[indices[k]];
+    if (w > 0.0) {
+      free_mass += 1.0 / w;
+      ++free_count;
+    }
+  }
+  if (free_count == 0) return false;
+  const double anchored_mass = kAnchorWeight * free_mass / free_count;
+
+  // Mass centres, current and rest.
+  double total = 0.0;
+  Vector3d sum_x = Vector3d::Zero(), sum_r = Vector3d::Zero();
+  for (int k = 0; k < count; ++k) {
+    const double w = inv_mass[indices[k]];
+    const double m = w > 0.0 ? 1.0 / w : anchored_mass;
+    const double* xi = x + 3 * size_t(indices[k]);
+    const double* ri = rest + 3 * size_t(k);
+    sum_x += m * Vector3d(xi[0], xi[1], xi[2]);
+    sum_r += m * Vector3d(ri[0], ri[1], ri[2]);
+    total += m;
+  }
+  centre = sum_x / total;
+  rest_centre = sum_r / total;
+
+  // A = sum_i m_i (x_i - c)(r_i - c0)^T, its rotation warm-started from the previous one.
+  Matrix3d a = Matrix3d::Zero();
+  for (int k = 0; k < count; ++k) {
+    const double w = inv_mass[indices[k]];
+    const double m = w > 0.0 ? 1.0 / w : anchored_mass;
+    const double* xi = x + 3 * size_t(indices[k]);
+    const double* ri = rest + 3 * size_t(k);
+    const Vector3d p = Vector3d(xi[0], xi[1], xi[2]) - centre;
+    const Vector3d q = Vector3d(ri[0], ri[1], ri[2]) - rest_centre;
+    a += (m * p) * q.transpose();
+  }
+  rotation = extract_rotation(a, rotation);
+  rot = rotation.toRotationMatrix();
+  return true;
+}
+
+}  // namespace
+
+Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max_iterations) {
+  // Start from the warm start, repaired if it is not a usable quaternion.
+  Quaterniond q = q_in;
+  const double qn = q.norm();
+  if (!std::isfinite(qn) || qn < 1e-150) q = Quaterniond::Identity();
+  else q.coeffs() /= qn;
+  if (!a.allFinite()) return q;
+  // Scale A to max |a_ij| = 1: the rotation does not change, the thresholds become absolute.
+  const double scale = a.cwiseAbs().maxCoeff();
+  if (!(scale > 0.0)) return q;
+  const Matrix3d as = a / scale;
+
+  for (int iteration = 0; iteration < max_iterations; ++iteration) {
+    // Gradient g and curvature B of f = tr(R^T A) at the current rotation.
+    const Matrix3d r = q.toRotationMatrix();
+    const double f = r.col(0).dot(as.col(0)) + r.col(1).dot(as.col(1)) + r.col(2).dot(as.col(2));
+    const Vector3d g = r.col(0).cross(as.col(0)) + r.col(1).cross(as.col(1)) + r.col(2).cross(as.col(2));
+    const Matrix3d ar = as * r.transpose();
+    const Matrix3d b = f * Matrix3d::Identity() - 0.5 * (ar + ar.transpose());
+    const double g_norm = g.norm();
+
+    Vector3d axis;
+    double angle = 0.0;
+    Eigen::LLT<Matrix3d> llt(b);
+    if (llt.info() == Eigen::Success && llt.matrixLLT().diagonal().minCoeff() > std::sqrt(kPivotMin)) {
+      // Concave here: Newton axis, exact step along it; a negligible step means converged.
+      if (g_norm == 0.0) break;
+      axis = llt.solve(g);
+      const double axis_norm = axis.norm();
+      if (!(axis_norm > 0.0)) break;
+      axis /= axis_norm;
+      line_maximum(axis, g, b, angle);
+      if (!(std::fabs(angle) > kMinAngle)) break;
+    } else {
+      // Not concave (far away, inverted or flat): best of gradient, saddle-free Newton and the
+      // most negative curvature direction.
+      Eigen::SelfAdjointEigenSolver<Matrix3d> eigen;
+      eigen.computeDirect(b);
+      const Matrix3d& v = eigen.eigenvectors();
+      const Vector3d& lambda = eigen.eigenvalues();  // ascending
+      double best_gain = 0.0, candidate_angle = 0.0;
+      if (g_norm > 0.0) {
+        const Vector3d gradient_axis = g / g_norm;
+        double gain = line_maximum(gradient_axis, g, b, candidate_angle);
+        if (gain > best_gain) {
+          best_gain = gain;
+          axis = gradient_axis;
+          angle = candidate_angle;
+        }
+        Vector3d local = v.transpose() * g;
+        for (int k = 0; k < 3; ++k) local[k] /= std::max(std::fabs(lambda[k]), kSaddleFreeFloor);
+        const Vector3d saddle_free = v * local;
+        const double saddle_free_norm = saddle_free.norm();
+        if (saddle_free_norm > 0.0) {
+          const Vector3d saddle_free_axis = saddle_free / saddle_free_norm;
+          gain = line_maximum(saddle_free_axis, g, b, candidate_angle);
+          if (gain > best_gain) {
+            best_gain = gain;
+            axis = saddle_free_axis;
+            angle = candidate_angle;
+          }
+        }
+      }
+      if (lambda[0] < 0.0) {
+        const Vector3d negative_axis = v.col(0);
+        const double gain = line_maximum(negative_axis, g, b, candidate_angle);
+        if (gain > best_gain) {
+          best_gain = gain;
+          axis = negative_axis;
+          angle = candidate_angle;
+        }
+      }
+      if (!(best_gain > kMinGain)) break;
+    }
+
+    // q <- exp(angle * axis) q.
+    q = Quaterniond(Eigen::AngleAxisd(angle, axis)) * q;
+    q.normalize();
+  }
+  return q;
+}
+
+void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
+                    double dt, double& lambda) {
+  const double wi = inv_mass[i], wj = inv_mass[j];
+  const double w_sum = wi + wj;
+  if (!(w_sum > 0.0)) return;  // both anchored: nothing can move
+  // alpha~ = compliance / dt^2; a soft constraint without a time step does nothing.
+  double alpha = 0.0;
+  if (compliance > 0.0) {
+    if (!(dt > 0.0)) return;
+    alpha = compliance / (dt * dt);
+  }
+  double* xi = x + 3 * size_t(i);
+  double* xj = x + 3 * size_t(j);
+  const Vector3d d(xi[0] - xj[0], xi[1] - xj[1], xi[2] - xj[2]);
+  const double length = d.norm();
+  // Coincident (or non-finite) particles: no direction to push along.
+  if (!(length > std::max(1e-12 * rest, 1e-300)) || !std::isfinite(length)) return;
+  const Vector3d n = d / length;
+  const double c = length - rest;
+  const double dlambda = (-c - alpha * lambda) / (w_sum + alpha);
+  lambda += dlambda;
+  for (int k = 0; k < 3; ++k) {
+    xi[k] += wi * dlambda * n[k];
+    xj[k] -= wj * dlambda * n[k];
+  }
+}
+
+void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* indices, const double* rest,
+                          int count, double stiffness, Quaterniond& rotation) {
+  Vector3d centre, rest_centre;
+  Matrix3d rot;
+  if (!shape_matching_frame(x, inv_mass, indices, rest, count, rotation, centre, rest_centre, rot))
+    return;
+  // Goals depend only on the frame computed above, so moving particles one by one is the same as
+  // applying shape_matching_corrections' deltas.
+  for (int k = 0; k < count; ++k) {
+    if (!(inv_mass[indices[k]] > 0.0)) continue;
+    double* xi = x + 3 * size_t(indices[k]);
+    const double* ri = rest + 3 * size_t(k);
+    const Vector3d goal = centre + rot * (Vector3d(ri[0], ri[1], ri[2]) - rest_centre);
+    for (int e = 0; e < 3; ++e) xi[e] += stiffness * (goal[e] - xi[e]);
+  }
+}
+
+void shape_matching_corrections(const double* x, const double* inv_mass, const uint32_t* indices,
+                                const double* rest, int count, double stiffness, Quaterniond& rotation,
+                                double* delta) {
+  for (int k = 0; k < 3 * count; ++k) delta[k] = 0.0;
+  Vector3d centre, rest_centre;
+  Matrix3d rot;
+  if (!shape_matching_frame(x, inv_mass, indices, rest, count, rotation, centre, rest_centre, rot))
+    return;
+  for (int k = 0; k < count; ++k) {
+    if (!(inv_mass[indices[k]] > 0.0)) continue;
+    const double* xi = x + 3 * size_t(indices[k]);
+    const double* ri = rest + 3 * size_t(k);
+    const Vector3d goal = centre + rot * (Vector3d(ri[0], ri[1], ri[2]) - rest_centre);
+    for (int e = 0; e < 3; ++e) delta[3 * k + e] = stiffness * (goal[e] - xi[e]);
+  }
+}
+
+}  // namespace dvx
