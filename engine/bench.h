@@ -41,3 +41,28 @@ struct BenchCutOptions {
 std::string bench_cut(const BenchCutOptions& options);
 
 }  // namespace dvx
+
+namespace dvx {
+
+struct BenchDeformOptions {
+  std::string mesh;  // default: liver_sofa_smooth from ../shared/assets, else the shipped bunny
+  int resolution = 64;
+  std::vector<int> sim_resolutions = {8, 16, 32};
+  std::vector<int> iterations = {1, 2, 5, 10, 20, 50};
+  double seconds = 1.0;  // simulated time at which the surfaces are compared
+  int workers = 2;
+  // The speed target: PBD + embedding per step on a large surface.
+  std::string target_mesh;  // default: armadillo from ../shared/assets ("" and absent: skipped)
+  int target_resolution = 256, target_sim_resolution = 16, target_iterations = 10, target_steps = 120;
+  std::string out_dir;
+  bool progress = false;
+};
+
+// Speed against error of the deformation: sweeps simulation resolution x iterations on a mesh
+// anchored on one side under gravity (and on a through-cut copy). Error: relative L2 distance of the
+// surface vertices after `seconds` to the most refined, most converged run, divided by the
+// reference's mean displacement norm. Writes DIR/bench_deform.csv, bench_deform.svg (step time
+// against error) and bench_deform_target.csv (p50/p99 of PBD + embedding per step on the target).
+std::string bench_deform(const BenchDeformOptions& options);
+
+}  // namespace dvx

@@ -180,6 +180,27 @@ int run_cli(int argc, char** argv) {
       ->capture_default_str();
   bench_cut_cmd->add_option("--out,-o", bench_cut_options.out_dir, "Output folder")->capture_default_str();
 
+  // divvox bench deform
+  BenchDeformOptions bench_deform_options;
+  bench_deform_options.out_dir = "out/bench";
+  CLI::App* bench_deform_cmd = bench->add_subcommand(
+      "deform", "Speed against error of the PBD deformation: simulation resolution x iterations on a liver anchored\n"
+                "on one side (and a through-cut copy); plus the per-step time of PBD + embedding on a large surface.");
+  bench_deform_cmd->add_option("--mesh", bench_deform_options.mesh, "Mesh (default: liver from ../shared/assets)");
+  bench_deform_cmd->add_option("--resolution", bench_deform_options.resolution, "Fine resolution")->capture_default_str();
+  bench_deform_cmd->add_option("--sim-resolutions", bench_deform_options.sim_resolutions, "Simulation resolutions")
+      ->delimiter(',')
+      ->capture_default_str();
+  bench_deform_cmd->add_option("--iterations", bench_deform_options.iterations, "Iteration counts")
+      ->delimiter(',')
+      ->capture_default_str();
+  bench_deform_cmd->add_option("--seconds", bench_deform_options.seconds, "Simulated time compared")->capture_default_str();
+  bench_deform_cmd->add_option("--workers", bench_deform_options.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
+  bench_deform_cmd->add_option("--target-mesh", bench_deform_options.target_mesh, "Mesh of the speed target (default: armadillo)");
+  bench_deform_cmd->add_option("--target-resolution", bench_deform_options.target_resolution, "Resolution of the speed target")
+      ->capture_default_str();
+  bench_deform_cmd->add_option("--out,-o", bench_deform_options.out_dir, "Output folder")->capture_default_str();
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
@@ -207,6 +228,11 @@ int run_cli(int argc, char** argv) {
                      replay_options.recording.c_str(), static_cast<long long>(r.first_mismatch_step));
         return kExitInternal;
       }
+      return kExitOk;
+    }
+    if (bench_deform_cmd->parsed()) {
+      bench_deform_options.progress = stderr_is_tty();
+      std::printf("wrote %s\n", bench_deform(bench_deform_options).c_str());
       return kExitOk;
     }
     if (bench_cut_cmd->parsed()) {

@@ -199,7 +199,13 @@ ReplayResult run_replay(const ReplayOptions& options) {
     StepRow row{step, cutting, 0, 0, 0, 0, {}, 0};
     const Clock::time_point t0 = Clock::now();
     if (cutting && had_pose && !same_pose(previous, pose)) {
-      cut_divide(model, state, previous, pose, row.stats);
+      // The blade moves in world space; cuts are made in rest space.
+      BladePose from = previous, to = pose;
+      if (pbd) {
+        from = {pbd_world_to_rest(*pbd, previous.a), pbd_world_to_rest(*pbd, previous.b)};
+        to = {pbd_world_to_rest(*pbd, pose.a), pbd_world_to_rest(*pbd, pose.b)};
+      }
+      cut_divide(model, state, from, to, row.stats);
       const Clock::time_point t1 = Clock::now();
       cut_update_surface(model, state, row.stats);
       const Clock::time_point t2 = Clock::now();

@@ -292,6 +292,7 @@ bool renderer_resize(Renderer& r, int width, int height, std::string& error) {
 
 void renderer_upload(Renderer& r, const RenderMesh& mesh) {
   r.last_upload_bytes = 0;
+  if (!r.vertex_array) return;  // not initialised
   const bool has_normals = mesh.normals != nullptr;
   // The first upload, growth, or a switch between smooth and flat shading re-sends everything.
   bool vertices_full = mesh.full || !r.uploaded || has_normals != r.has_normals;
@@ -343,6 +344,7 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
 }
 
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
+  if (!r.framebuffer) return;  // not initialised, or a failed resize
   glBindFramebuffer(GL_FRAMEBUFFER, r.framebuffer);
   glViewport(0, 0, r.width, r.height);
   glClearColor(options.background.x(), options.background.y(), options.background.z(), 1.0f);
@@ -376,7 +378,7 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   }
   glBindVertexArray(r.vertex_array);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, r.flag_buffer);
-  const GLsizei index_count = GLsizei(uint64_t(r.triangle_count) * 3);
+  const GLsizei index_count = GLsizei(std::min<uint64_t>(uint64_t(r.triangle_count) * 3, INT32_MAX / 3 * 3));
 
   // Pass 1: the lit surface.
   glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
@@ -426,7 +428,14 @@ bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
 
 void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height) {
   if (!r.framebuffer) return;
-  glBlitNamedFramebuffer(r.framebuffer, target_framebuffer, 0, 0, r.width, r.height, 0, 0, width, height,
+  // A multisampled image resolves at its own size first (a resolving blit cannot scale).
+  GLuint source = r.framebuffer;
+  if (r.resolve_framebuffer != r.framebuffer) {
+    glBlitNamedFramebuffer(r.framebuffer, r.resolve_framebuffer, 0, 0, r.width, r.height, 0, 0, r.width, r.height,
+                           GL_COLOR_BUFFER_BIT, GL_NEAREST);
+    source = r.resolve_framebuffer;
+  }
+  glBlitNamedFramebuffer(source, target_framebuffer, 0, 0, r.width, r.height, 0, 0, width, height,
                          GL_COLOR_BUFFER_BIT, (width == r.width && height == r.height) ? GL_NEAREST : GL_LINEAR);
 }
 

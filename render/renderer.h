@@ -28,7 +28,8 @@ constexpr uint8_t kTriangleDead = 2;  // set by the renderer for unused slots; c
 //
 // Triangle slots may be dead (kDeadIndex x3, as CutSurface keeps freed slots): they draw nothing.
 // The dirty ranges say which slots changed since the previous upload; `full` (or a count beyond
-// what the GPU buffers hold) uploads everything.
+// what the GPU buffers hold, or the renderer's first upload) uploads everything. With normals, the
+// vertex range must also cover vertices whose normal changed because a neighbour moved.
 struct RenderMesh {
   const Vec3f* positions = nullptr;       // (vertex_count)
   const Vec3f* normals = nullptr;         // (vertex_count) unit vertex normals; nullptr: flat shading

@@ -673,7 +673,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       // Stretching, colour by colour.
       for (size_t c = 0; c + 1 < s.stretch_colour_begin.size(); ++c) {
         const uint32_t begin = s.stretch_colour_begin[c], end = s.stretch_colour_begin[c + 1];
-        parallel(tasks, end - begin, 256, [&](uint32_t i) {
+        parallel(tasks, end - begin, 2048, [&](uint32_t i) {
           const StretchConstraint& k = s.stretch[begin + i];
           solve_distance(x, w, k.a, k.b, k.rest, params.stretch_compliance, h, s.stretch_lambda[begin + i]);
         });
@@ -681,7 +681,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       // Shape matching, colour by colour.
       for (size_t c = 0; c + 1 < s.piece_colour_begin.size(); ++c) {
         const uint32_t begin = s.piece_colour_begin[c], end = s.piece_colour_begin[c + 1];
-        parallel(tasks, end - begin, 64, [&](uint32_t i) {
+        parallel(tasks, end - begin, 256, [&](uint32_t i) {
           SimPiece& piece = s.pieces[s.piece_order[begin + i]];
           double rest[24];
           for (int k = 0; k < 8; ++k) {
@@ -710,6 +710,32 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   }
   ++s.steps;
   pbd_embed(cut, s, tasks);
+}
+
+Vec3d pbd_world_to_rest(const PbdState& s, const Vec3d& world) {
+  // The piece whose current mass centre is nearest.
+  double best = std::numeric_limits<double>::infinity();
+  Vec3d centre = Vec3d::Zero(), rest_centre = Vec3d::Zero();
+  const SimPiece* nearest = nullptr;
+  for (const SimPiece& piece : s.pieces) {
+    Vec3d c = Vec3d::Zero(), c0 = Vec3d::Zero();
+    for (uint32_t p : piece.particles) {
+      c += s.position[p];
+      c0 += s.rest[p];
+    }
+    c /= 8.0;
+    c0 /= 8.0;
+    const double d = (c - world).squaredNorm();
+    if (d < best) {
+      best = d;
+      centre = c;
+      rest_centre = c0;
+      nearest = &piece;
+    }
+  }
+  if (nearest == nullptr) return world;
+  const Vec3d rest = rest_centre + nearest->rotation.conjugate() * (world - centre);
+  return rest.allFinite() ? rest : world;
 }
 
 void grab_begin(PbdState& s, const Vec3d& point, double compliance) {

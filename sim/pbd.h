@@ -150,6 +150,12 @@ void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}
 // Recomputes deformed positions of all live surface vertices (pbd_step calls it).
 void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
 
+// Maps a point in deformed (world) space to rest space, where cuts are made: through the inverse
+// rigid motion (centre and shape-matching rotation) of the sim piece whose current centre is nearest.
+// Exact for pieces that moved rigidly (a piece that fell or turned); first order for smooth
+// deformation. The blade's poses go through it before they cut.
+Vec3d pbd_world_to_rest(const PbdState& state, const Vec3d& world);
+
 // Grab tool: attach the live particle nearest to `point` (deformed space); move; release.
 void grab_begin(PbdState& state, const Vec3d& point, double compliance);
 void grab_move(PbdState& state, const Vec3d& target);

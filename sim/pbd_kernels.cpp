@@ -35,8 +35,27 @@ using Eigen::Vector3d;
 //     less than kMinGain are not taken.
 constexpr double kPivotMin = 1e-10;  // smallest Cholesky pivot of B (scaled A) for a Newton step
 constexpr double kMinGain = 1e-14;   // least gain of f (scaled A) for a step in the fallback branch
-constexpr double kMinAngle = 1e-15;  // a Newton step below this angle (radians) means converged
+constexpr double kMinAngle = 1e-15;  // a Newton step below this angle (radians) is not taken
+constexpr double kLastAngle = 1e-8;  // after a Newton step below this, the error is ~angle^2: stop
 constexpr double kSaddleFreeFloor = 1e-3;  // |eigenvalue| floor of B in the saddle-free Newton axis
+
+// q <- exp(angle * axis) q, for a unit axis (small angles without sin/cos: the series is exact in
+// double precision there).
+inline Quaterniond rotate(const Quaterniond& q, double angle, const Vector3d& axis) {
+  const double half = 0.5 * angle;
+  double c, s;
+  if (std::fabs(half) < 1e-4) {
+    const double h2 = half * half;
+    c = 1.0 - h2 * (0.5 - h2 * (1.0 / 24.0));
+    s = half * (1.0 - h2 * (1.0 / 6.0));
+  } else {
+    c = std::cos(half);
+    s = std::sin(half);
+  }
+  Quaterniond r = Quaterniond(c, s * axis.x(), s * axis.y(), s * axis.z()) * q;
+  r.normalize();
+  return r;
+}
 
 // Exact maximum of f along the unit axis u: returns the gain and writes the angle.
 inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d& b, double& angle) {
@@ -132,6 +151,10 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
       axis /= axis_norm;
       line_maximum(axis, g, b, angle);
       if (!(std::fabs(angle) > kMinAngle)) break;
+      if (std::fabs(angle) < kLastAngle) {
+        q = rotate(q, angle, axis);
+        break;
+      }
     } else {
       // Not concave (far away, inverted or flat): best of gradient, saddle-free Newton and the
       // most negative curvature direction.
@@ -174,9 +197,7 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
       if (!(best_gain > kMinGain)) break;
     }
 
-    // q <- exp(angle * axis) q.
-    q = Quaterniond(Eigen::AngleAxisd(angle, axis)) * q;
-    q.normalize();
+    q = rotate(q, angle, axis);
   }
   return q;
 }

@@ -161,7 +161,7 @@ TEST_CASE("camera: framing keeps every box corner inside the view frustum") {
   }
 }
 
-TEST_CASE("camera: view basis, eye and rays") {
+TEST_CASE("camera: view basis / eye / rays") {
   Camera camera;
   camera.target = Vec3f(1, 2, 3);
   camera.distance = 5.0f;
@@ -216,7 +216,7 @@ TEST_CASE("egl: context is GL 4.5 core or fails with a one-line reason") {
   destroy_egl_context(ctx);  // twice is harmless
 }
 
-TEST_CASE("renderer: lit surface fills part of the frame; PNG capture") {
+TEST_CASE("renderer: lit surface fills part of the frame / PNG capture") {
   GlScope gl;
   if (!gl.ok) return;
   const Shape shape = make_shape();
@@ -337,7 +337,7 @@ TEST_CASE("renderer: dirty-range uploads change only what they cover") {
   renderer_destroy(fresh);
 }
 
-TEST_CASE("renderer: dead triangle slots draw nothing, also in wireframe") {
+TEST_CASE("renderer: dead triangle slots draw nothing / also in wireframe") {
   GlScope gl;
   if (!gl.ok) return;
   Shape shape = make_shape();
@@ -373,7 +373,7 @@ TEST_CASE("renderer: dead triangle slots draw nothing, also in wireframe") {
   renderer_destroy(r);
 }
 
-TEST_CASE("renderer: wireframe overlay, flat shading, multisampling, empty mesh") {
+TEST_CASE("renderer: wireframe overlay / flat shading / multisampling / empty mesh") {
   GlScope gl;
   if (!gl.ok) return;
   const Shape shape = make_shape();
@@ -414,6 +414,14 @@ TEST_CASE("renderer: wireframe overlay, flat shading, multisampling, empty mesh"
   const std::vector<uint8_t> smooth = draw(msaa, camera, options);
   CHECK(coverage(smooth, options.background) == doctest::Approx(coverage(lit, options.background)).epsilon(0.05));
 
+  // Blit (the window mode's path): resolves and copies the image into another framebuffer.
+  Renderer target = make_renderer();
+  renderer_blit(msaa, target.framebuffer, target.width, target.height);
+  std::vector<uint8_t> copied;
+  REQUIRE(renderer_read_pixels(target, copied));
+  CHECK(copied == smooth);
+  renderer_destroy(target);
+
   // Resize keeps the mesh.
   std::string error;
   REQUIRE_MESSAGE(renderer_resize(msaa, 320, 200, error), error);
@@ -425,7 +433,7 @@ TEST_CASE("renderer: wireframe overlay, flat shading, multisampling, empty mesh"
   renderer_destroy(msaa);
 }
 
-TEST_CASE("renderer: buffers grow past their capacity; incremental cut uploads match a full upload") {
+TEST_CASE("renderer: buffers grow past capacity / incremental cut uploads match a full upload") {
   GlScope gl;
   if (!gl.ok) return;
   const Shape small_shape = make_shape(12);

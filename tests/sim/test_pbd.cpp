@@ -254,4 +254,25 @@ TEST_SUITE("pbd") {
     CHECK(particle_hash(a.pbd) == particle_hash(b.pbd));
     CHECK(a.pbd.deformed == b.pbd.deformed);
   }
+  TEST_CASE("a blade in world space cuts a block that has fallen away from its rest place") {
+    Scene s;
+    PbdParams free_fall;
+    free_fall.damping = 0.0;
+    make_scene(s, 24, 6, free_fall);
+    for (int i = 0; i < 30; ++i) pbd_step(s.cut, s.pbd);  // falls about 1.2 below its rest place
+    const double drop = centre_below(s.pbd, 5.0).y();
+    REQUIRE(drop < -1.0);
+    // A horizontal blade at the block's current middle, mapped to rest space before it cuts.
+    const double y = drop + 0.0137;
+    BladePose previous{Vec3d(-1.0, y, -2), Vec3d(-1.0, y, 2)};
+    for (int i = 1; i <= 10; ++i) {
+      const double x = -1.0 + 2.0 * i / 10;
+      const BladePose next{Vec3d(x, y, -2), Vec3d(x, y, 2)};
+      cut_step(s.model, s.cut, {pbd_world_to_rest(s.pbd, previous.a), pbd_world_to_rest(s.pbd, previous.b)},
+               {pbd_world_to_rest(s.pbd, next.a), pbd_world_to_rest(s.pbd, next.b)});
+      pbd_apply_cut(s.model, s.cut, s.pbd);
+      previous = next;
+    }
+    CHECK(surface_stats(compact_surface(s.cut.surface)).components == 2);
+  }
 }

@@ -1,0 +1,188 @@
+#include "engine/bench.h"
+#include "engine/errors.h"
+#include "engine/mesh_io.h"
+#include "engine/output.h"
+#include "engine/svg_plot.h"
+#include "engine/task_pool.h"
+#include "engine/voxelize_job.h"
+#include "sim/cut.h"
+#include "sim/pbd.h"
+#include "sim/voxelize.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+
+namespace dvx {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, size_t(std::ceil(q * double(v.size()))) - 1)];
+}
+
+std::string shared_or_bunny(const std::string& name) {
+  const std::filesystem::path shared = std::filesystem::path(DIVVOX_SHARED_ASSETS_DEFAULT) / name;
+  if (std::filesystem::exists(shared)) return shared.string();
+  return (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/meshes/bunny_npm.obj").string();
+}
+
+// The voxel model and cut state of a scenario: uncut, or cut through by a vertical plane.
+struct Scenario {
+  VoxelModel model;
+  CutState cut;
+  Aabb box;
+};
+
+void make_scenario(const TriMesh& mesh, const std::string& path, int resolution, bool through_cut, Scenario& s) {
+  s.box = mesh_bounds(mesh);
+  check_voxelize_memory(path, s.box, mesh.triangles.size(), resolution);
+  VoxelizeParams params;
+  params.resolution = resolution;
+  std::string error;
+  if (!voxelize(mesh, params, s.model, error)) throw_input(path, error);
+  init_cut_state(s.model, s.cut);
+  if (through_cut) {
+    // Blade along z at x = 55 % of the box, swept along y across the whole object.
+    const Vec3d e = s.box.extent();
+    const double x = s.box.min.x() + 0.55 * e.x(), m = 0.1 * e.maxCoeff();
+    const int steps = 40;
+    BladePose previous{Vec3d(x, s.box.min.y() - m, s.box.min.z() - m), Vec3d(x, s.box.min.y() - m, s.box.max.z() + m)};
+    for (int i = 1; i <= steps; ++i) {
+      const double y = s.box.min.y() - m + (e.y() + 2 * m) * i / steps;
+      const BladePose next{Vec3d(x, y, s.box.min.z() - m), Vec3d(x, y, s.box.max.z() + m)};
+      cut_step(s.model, s.cut, previous, next);
+      previous = next;
+    }
+  }
+}
+
+PbdParams anchored_params(const Scenario& s, int resolution, int sim_resolution, int iterations) {
+  PbdParams p;
+  p.resolution = resolution;
+  p.sim_resolution = sim_resolution;
+  p.iterations = iterations;
+  p.stretch_compliance = 1e-6;
+  // Anchored on one side: the particles within 15 % of the box on the -x side.
+  Aabb fixed = s.box;
+  const Vec3d e = s.box.extent();
+  fixed.min -= Vec3d::Constant(e.maxCoeff());
+  fixed.max.x() = s.box.min.x() + 0.15 * e.x();
+  fixed.max.y() += e.maxCoeff();
+  fixed.max.z() += e.maxCoeff();
+  p.fixed.push_back(fixed);
+  return p;
+}
+
+// Runs `steps` steps; returns per-step times (ms) and leaves the deformed surface in `pbd`.
+std::vector<double> simulate(const Scenario& s, const PbdParams& params, int steps, TaskPool& pool, PbdState& pbd) {
+  std::string error;
+  if (!init_pbd(s.model, s.cut, params, pbd, error)) throw std::runtime_error(error);
+  std::vector<double> times;
+  for (int i = 0; i < steps; ++i) {
+    const Clock::time_point t0 = Clock::now();
+    pbd_step(s.cut, pbd, pool.runner());
+    times.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+  }
+  return times;
+}
+
+// Relative L2 distance of the deformed surfaces: |p - ref| / |ref - rest| summed over live vertices.
+double relative_error(const CutState& cut, const PbdState& run, const PbdState& ref) {
+  double num = 0.0, den = 0.0;
+  for (size_t v = 0; v < cut.surface.positions.size(); ++v) {
+    if (cut.surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
+    num += (run.deformed[v] - ref.deformed[v]).cast<double>().squaredNorm();
+    den += (ref.deformed[v] - cut.surface.positions[v]).cast<double>().squaredNorm();
+  }
+  return den > 0.0 ? std::sqrt(num / den) : 0.0;
+}
+
+}  // namespace
+
+std::string bench_deform(const BenchDeformOptions& options) {
+  make_output_dir(options.out_dir);
+  const std::string mesh_path = options.mesh.empty() ? shared_or_bunny("liver_sofa_smooth.obj") : options.mesh;
+  const LoadedMesh input = load_mesh(mesh_path);
+  const std::string name = std::filesystem::path(mesh_path).filename().string();
+  TaskPool pool(options.workers);
+  const double dt = 1.0 / 60.0;
+  const int steps = std::max(1, int(std::lround(options.seconds / dt)));
+
+  std::ostringstream csv;
+  csv << "mesh,scenario,resolution,sim_resolution,iterations,steps,step_p50_ms,step_p99_ms,relative_error,particles,"
+         "shape_constraints,stretch_constraints\n";
+  Plot plot;
+  plot.title = "PBD: step time against error (" + name + ")";
+  plot.x_label = "step time p50 [ms]";
+  plot.y_label = "relative L2 error at t = " + std::to_string(options.seconds).substr(0, 4) + " s";
+  plot.log_x = plot.log_y = true;
+  for (const bool through : {false, true}) {
+    const std::string scenario = through ? "through_cut" : "anchored";
+    Scenario s;
+    make_scenario(input.mesh, mesh_path, options.resolution, through, s);
+    // The reference: the finest simulation level with the most iterations.
+    const int finest = *std::max_element(options.sim_resolutions.begin(), options.sim_resolutions.end());
+    const int most = *std::max_element(options.iterations.begin(), options.iterations.end());
+    PbdState reference;
+    simulate(s, anchored_params(s, options.resolution, finest, most), steps, pool, reference);
+    for (int sim : options.sim_resolutions) {
+      PlotSeries series;
+      series.name = scenario + " sim " + std::to_string(sim);
+      for (int iterations : options.iterations) {
+        if (options.progress) {
+          std::fprintf(stderr, "divvox bench deform: %s sim %d iterations %d\n", scenario.c_str(), sim, iterations);
+        }
+        PbdState run;
+        const std::vector<double> times = simulate(s, anchored_params(s, options.resolution, sim, iterations), steps, pool, run);
+        const double error = relative_error(s.cut, run, reference);
+        const double p50 = quantile(times, 0.5);
+        csv << name << ',' << scenario << ',' << options.resolution << ',' << sim << ',' << iterations << ',' << steps
+            << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ','
+            << run.position.size() - run.free_particles.size() << ',' << run.pieces.size() << ','
+            << run.stretch.size() << '\n';
+        series.x.push_back(p50);
+        series.y.push_back(error);
+      }
+      plot.series.push_back(series);
+    }
+  }
+  const std::filesystem::path out(options.out_dir);
+  write_text_file((out / "bench_deform.csv").string(), csv.str());
+  write_text_file((out / "bench_deform.svg").string(), plot_svg(plot));
+
+  // The speed target: PBD + embedding per step on a large surface.
+  std::string target = options.target_mesh;
+  if (target.empty()) {
+    const std::filesystem::path shared = std::filesystem::path(DIVVOX_SHARED_ASSETS_DEFAULT) / "armadillo_100k.obj";
+    if (std::filesystem::exists(shared)) target = shared.string();
+  }
+  if (!target.empty()) {
+    if (options.progress) std::fprintf(stderr, "divvox bench deform: target %s at %d\n", target.c_str(), options.target_resolution);
+    const LoadedMesh big = load_mesh(target);
+    Scenario s;
+    make_scenario(big.mesh, target, options.target_resolution, false, s);
+    PbdState run;
+    const std::vector<double> times = simulate(
+        s, anchored_params(s, options.target_resolution, options.target_sim_resolution, options.target_iterations),
+        options.target_steps, pool, run);
+    std::ostringstream t;
+    t << "mesh,resolution,sim_resolution,iterations,workers,steps,surface_vertices,particles,step_p50_ms,step_p99_ms,"
+         "step_max_ms\n";
+    t << std::filesystem::path(target).filename().string() << ',' << options.target_resolution << ','
+      << options.target_sim_resolution << ',' << options.target_iterations << ',' << pool.workers() << ','
+      << options.target_steps << ',' << s.cut.surface.live_vertices() << ','
+      << run.position.size() - run.free_particles.size() << ',' << quantile(times, 0.5) << ','
+      << quantile(times, 0.99) << ',' << quantile(times, 1.0) << '\n';
+    write_text_file((out / "bench_deform_target.csv").string(), t.str());
+  }
+  return (out / "bench_deform.csv").string();
+}
+
+}  // namespace dvx
