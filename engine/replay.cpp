@@ -176,6 +176,8 @@ ReplayResult run_replay(const ReplayOptions& options) {
   std::vector<StepRow> rows;
   BladePose pose;
   bool have_pose = false, cutting = false;
+  BladePose rest_pose;  // the blade in rest space after the last cutting step
+  bool rest_pose_valid = false;
   uint64_t totals_voxels_cut = 0;
   size_t line = 0;
   const uint32_t last = recording.last_step();
@@ -196,15 +198,20 @@ ReplayResult run_replay(const ReplayOptions& options) {
         if (writer) writer->write_line({{"step", step}, {"grab", r.extra["grab"]}});
       }
     }
+    if (!(cutting && had_pose)) rest_pose_valid = false;  // a new cut starts from the blade where it is
     StepRow row{step, cutting, 0, 0, 0, 0, {}, 0};
     const Clock::time_point t0 = Clock::now();
     if (cutting && had_pose && !same_pose(previous, pose)) {
-      // The blade moves in world space; cuts are made in rest space.
+      // The blade moves in world space; cuts are made in rest space. The sweep starts where the last
+      // one ended in rest space, so consecutive sweeps join even while the body moves.
       BladePose from = previous, to = pose;
       if (pbd) {
-        from = {pbd_world_to_rest(*pbd, previous.a), pbd_world_to_rest(*pbd, previous.b)};
+        from = rest_pose_valid ? rest_pose
+                               : BladePose{pbd_world_to_rest(*pbd, previous.a), pbd_world_to_rest(*pbd, previous.b)};
         to = {pbd_world_to_rest(*pbd, pose.a), pbd_world_to_rest(*pbd, pose.b)};
       }
+      rest_pose = to;
+      rest_pose_valid = true;
       cut_divide(model, state, from, to, row.stats);
       const Clock::time_point t1 = Clock::now();
       cut_update_surface(model, state, row.stats);

@@ -713,28 +713,37 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
 }
 
 Vec3d pbd_world_to_rest(const PbdState& s, const Vec3d& world) {
-  // The piece whose current mass centre is nearest.
-  double best = std::numeric_limits<double>::infinity();
-  Vec3d centre = Vec3d::Zero(), rest_centre = Vec3d::Zero();
-  const SimPiece* nearest = nullptr;
-  for (const SimPiece& piece : s.pieces) {
-    Vec3d c = Vec3d::Zero(), c0 = Vec3d::Zero();
-    for (uint32_t p : piece.particles) {
-      c += s.position[p];
-      c0 += s.rest[p];
-    }
-    c /= 8.0;
-    c0 /= 8.0;
-    const double d = (c - world).squaredNorm();
-    if (d < best) {
-      best = d;
-      centre = c;
-      rest_centre = c0;
-      nearest = &piece;
+  // Inverse-distance weighted displacement of the 8 nearest live particles (smooth in the point, so
+  // a blade sliding along the body maps to a blade sliding along its rest shape).
+  constexpr int k = 8;
+  double best_d[k];
+  uint32_t best_p[k];
+  int found = 0;
+  for (uint32_t p = 0; p < s.position.size(); ++p) {
+    if (s.mass[p] <= 0.0) continue;
+    const double d = (s.position[p] - world).squaredNorm();
+    if (found < k) {
+      best_d[found] = d;
+      best_p[found++] = p;
+    } else {
+      int worst = 0;
+      for (int i = 1; i < k; ++i) worst = best_d[i] > best_d[worst] ? i : worst;
+      if (d < best_d[worst]) {
+        best_d[worst] = d;
+        best_p[worst] = p;
+      }
     }
   }
-  if (nearest == nullptr) return world;
-  const Vec3d rest = rest_centre + nearest->rotation.conjugate() * (world - centre);
+  if (found == 0) return world;
+  Vec3d displacement = Vec3d::Zero();
+  double weight = 0.0;
+  const double eps = 1e-6 * s.sim_size * s.sim_size;
+  for (int i = 0; i < found; ++i) {
+    const double w = 1.0 / (best_d[i] + eps);
+    displacement += w * (s.position[best_p[i]] - s.rest[best_p[i]]);
+    weight += w;
+  }
+  const Vec3d rest = world - displacement / weight;
   return rest.allFinite() ? rest : world;
 }
 

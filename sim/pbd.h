@@ -150,10 +150,10 @@ void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}
 // Recomputes deformed positions of all live surface vertices (pbd_step calls it).
 void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
 
-// Maps a point in deformed (world) space to rest space, where cuts are made: through the inverse
-// rigid motion (centre and shape-matching rotation) of the sim piece whose current centre is nearest.
-// Exact for pieces that moved rigidly (a piece that fell or turned); first order for smooth
-// deformation. The blade's poses go through it before they cut.
+// Maps a point in deformed (world) space to rest space, where cuts are made: minus the inverse-distance
+// weighted displacement of the 8 nearest particles. Smooth in the point, exact for translated pieces,
+// first order for smooth deformation; a piece that turned far from its rest orientation is cut as if
+// it had only moved (a known limitation). The blade's poses go through it before they cut.
 Vec3d pbd_world_to_rest(const PbdState& state, const Vec3d& world);
 
 // Grab tool: attach the live particle nearest to `point` (deformed space); move; release.

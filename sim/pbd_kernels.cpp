@@ -1,6 +1,5 @@
 #include "sim/pbd_kernels.h"
 
-#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
@@ -55,6 +54,26 @@ inline Quaterniond rotate(const Quaterniond& q, double angle, const Vector3d& ax
   Quaterniond r = Quaterniond(c, s * axis.x(), s * axis.y(), s * axis.z()) * q;
   r.normalize();
   return r;
+}
+
+// Newton axis B^-1 g by an LDL^T factorisation of the symmetric 3x3 B; false when a pivot is not
+// above kPivotMin (B not clearly positive definite).
+inline bool newton_axis(const Matrix3d& b, const Vector3d& g, Vector3d& out) {
+  const double d0 = b(0, 0);
+  if (!(d0 > kPivotMin)) return false;
+  const double l10 = b(1, 0) / d0, l20 = b(2, 0) / d0;
+  const double d1 = b(1, 1) - l10 * l10 * d0;
+  if (!(d1 > kPivotMin)) return false;
+  const double l21 = (b(2, 1) - l20 * l10 * d0) / d1;
+  const double d2 = b(2, 2) - l20 * l20 * d0 - l21 * l21 * d1;
+  if (!(d2 > kPivotMin)) return false;
+  // Forward (L y = g), diagonal, backward (L^T x = z).
+  const double y0 = g[0], y1 = g[1] - l10 * y0, y2 = g[2] - l20 * y0 - l21 * y1;
+  const double x2 = y2 / d2;
+  const double x1 = y1 / d1 - l21 * x2;
+  const double x0 = y0 / d0 - l10 * x1 - l20 * x2;
+  out = Vector3d(x0, x1, x2);
+  return out.allFinite();
 }
 
 // Exact maximum of f along the unit axis u: returns the gain and writes the angle.
@@ -128,7 +147,8 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
   // Scale A to max |a_ij| = 1: the rotation does not change, the thresholds become absolute.
   const double scale = a.cwiseAbs().maxCoeff();
   if (!(scale > 0.0)) return q;
-  const Matrix3d as = a / scale;
+  const double inv_scale = 1.0 / scale;  // infinite only for a subnormal scale
+  const Matrix3d as = std::isfinite(inv_scale) ? Matrix3d(a * inv_scale) : Matrix3d(a / scale);
 
   for (int iteration = 0; iteration < max_iterations; ++iteration) {
     // Gradient g and curvature B of f = tr(R^T A) at the current rotation.
@@ -137,19 +157,23 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
     const Vector3d g = r.col(0).cross(as.col(0)) + r.col(1).cross(as.col(1)) + r.col(2).cross(as.col(2));
     const Matrix3d ar = as * r.transpose();
     const Matrix3d b = f * Matrix3d::Identity() - 0.5 * (ar + ar.transpose());
-    const double g_norm = g.norm();
 
     Vector3d axis;
     double angle = 0.0;
-    Eigen::LLT<Matrix3d> llt(b);
-    if (llt.info() == Eigen::Success && llt.matrixLLT().diagonal().minCoeff() > std::sqrt(kPivotMin)) {
-      // Concave here: Newton axis, exact step along it; a negligible step means converged.
-      if (g_norm == 0.0) break;
-      axis = llt.solve(g);
-      const double axis_norm = axis.norm();
+    Vector3d newton;
+    if (newton_axis(b, g, newton)) {
+      // Concave here: Newton axis, exact step along it (b > 0, so the step is atan(c / b)); a
+      // negligible step means converged, a tiny one leaves an error ~angle^2: take it and stop.
+      const double axis_norm = newton.norm();
       if (!(axis_norm > 0.0)) break;
-      axis /= axis_norm;
-      line_maximum(axis, g, b, angle);
+      axis = newton / axis_norm;
+      const double ratio = axis.dot(g) / axis.dot(b * axis);
+      if (std::fabs(ratio) < 1e-4) {
+        const double r2 = ratio * ratio;
+        angle = ratio * (1.0 - r2 * (1.0 / 3.0 - r2 * (1.0 / 5.0)));
+      } else {
+        angle = std::atan(ratio);
+      }
       if (!(std::fabs(angle) > kMinAngle)) break;
       if (std::fabs(angle) < kLastAngle) {
         q = rotate(q, angle, axis);
@@ -163,6 +187,7 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
       const Matrix3d& v = eigen.eigenvectors();
       const Vector3d& lambda = eigen.eigenvalues();  // ascending
       double best_gain = 0.0, candidate_angle = 0.0;
+      const double g_norm = g.norm();
       if (g_norm > 0.0) {
         const Vector3d gradient_axis = g / g_norm;
         double gain = line_maximum(gradient_axis, g, b, candidate_angle);

@@ -2,10 +2,10 @@
 """Writes the blade poses of the default recording (assets/recordings/bunny_cut.jsonl).
 
 Two cuts of the default bunny (y up, about 10 units across):
-  1. a horizontal blade along z sweeps along x at y = 6.8 through the whole head: it separates the
-     top of the head and the ears from the body;
-  2. a vertical blade along z comes down from above at x = 0.7 and stops at y = 4.0, inside the body:
-     a partial cut (a slit that ends inside the bunny).
+  1. a vertical blade along z comes down from above at x = 0.7 and stops at y = 4.0, inside the body:
+     a partial cut (a slit that ends inside the bunny);
+  2. a horizontal blade along z sweeps along x at y = 6.8 through the whole head: it separates the
+     top of the head and the ears from the body, which then fall (there is no collision).
 The poses are written without state hashes; `divvox replay POSES --no-physics --record OUT` replays
 them and writes the final recording with a hash every 60 steps (tools/make_default_recording.sh).
 """
@@ -24,21 +24,21 @@ def pose(a, b, cutting):
     lines.append({"step": step, "blade": [a, b], "cutting": cutting})
     step += 1
 
-# Cut 1: horizontal sweep through the head at y = 6.8.
+# Cut 1: vertical sweep from above, stopping inside the body at y = 4.0 (a partial cut).
 y, z = 6.8, 5.0
-for i in range(121):
-    x = -7.0 + 14.0 * i / 120
-    pose([x, y, -z], [x, y, z], i > 0)
-# Lift the blade and move it above the bunny.
-for i in range(20):
-    pose([0.7, 11.0, -z], [0.7, 11.0, z], False)
-# Cut 2: vertical sweep from above, stopping inside the body at y = 4.0.
-for i in range(1, 91):
+for i in range(91):
     yy = 11.0 - 7.0 * i / 90
-    pose([0.7, yy, -z], [0.7, yy, z], True)
-# Rest.
+    pose([0.7, yy, -z], [0.7, yy, z], i > 0)
+# Lift the blade and move it beside the head.
+for i in range(20):
+    pose([-7.0, y, -z], [-7.0, y, z], False)
+# Cut 2: horizontal sweep through the head at y = 6.8: the top of the head comes off and falls.
+for i in range(1, 121):
+    x = -7.0 + 14.0 * i / 120
+    pose([x, y, -z], [x, y, z], True)
+# Rest: watch the piece fall.
 for i in range(30):
-    pose([0.7, 4.0, -z], [0.7, 4.0, z], False)
+    pose([7.0, y, -z], [7.0, y, z], False)
 
 out = open(sys.argv[1], "w") if len(sys.argv) > 1 else sys.stdout
 for line in lines:
