@@ -142,11 +142,14 @@ bool create_egl_context(EglContext& ctx, std::string& error) {
 }
 
 void destroy_egl_context(EglContext& ctx) {
+  // The context goes; the display stays initialised (see EglContext).
   if (ctx.display) {
     EGLDisplay display = static_cast<EGLDisplay>(ctx.display);
-    eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
-    if (ctx.context) eglDestroyContext(display, static_cast<EGLContext>(ctx.context));
-    eglTerminate(display);
+    if (ctx.context) {
+      if (eglGetCurrentContext() == static_cast<EGLContext>(ctx.context))
+        eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+      eglDestroyContext(display, static_cast<EGLContext>(ctx.context));
+    }
     eglReleaseThread();
   }
   ctx = EglContext{};

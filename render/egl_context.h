@@ -13,8 +13,11 @@ namespace dvx {
 // not pull in <EGL/egl.h> (which drags X11 headers and their macros in on Linux).
 //
 // One display is shared by every context of a process (EGL returns the same handle for the same
-// platform), and destroy_egl_context terminates it: keep one EglContext per process at a time,
-// owned by the thread that renders.
+// platform), so destroy_egl_context releases its context but never terminates the display:
+// terminating would destroy the other contexts on it, and unload the driver (a reload costs the
+// next context tens of milliseconds, and the driver's allocations then show as leaks under LSan).
+// The display lives until the process exits. A context is current on one thread at a time: create
+// it on the thread that renders.
 struct EglContext {
   void* display = nullptr;  // EGLDisplay
   void* config = nullptr;   // EGLConfig
@@ -29,7 +32,8 @@ struct EglContext {
 // with a one-line reason (and `ctx` left empty) when EGL or GL 4.5 is not available; never aborts.
 bool create_egl_context(EglContext& ctx, std::string& error);
 
-// Releases the context and terminates the display; safe on an empty or half-made context.
+// Releases the context (made not current first when it is current on this thread); safe on an
+// empty or half-made context, and twice.
 void destroy_egl_context(EglContext& ctx);
 
 }  // namespace dvx

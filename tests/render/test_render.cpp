@@ -187,7 +187,7 @@ TEST_CASE("camera: view basis / eye / rays") {
   camera.pitch = 0.3f;
   const Viewport viewport{1280, 720};
   CHECK((ray_direction(camera, viewport, Eigen::Vector2f(640, 360)) - camera_forward(camera)).norm() < 1e-6f);
-  for (const Eigen::Vector2f pixel : {Eigen::Vector2f(0.5f, 0.5f), Eigen::Vector2f(1000.5f, 77.5f),
+  for (const Eigen::Vector2f& pixel : {Eigen::Vector2f(0.5f, 0.5f), Eigen::Vector2f(1000.5f, 77.5f),
                                       Eigen::Vector2f(13.0f, 700.0f)}) {
     const Vec3f d = ray_direction(camera, viewport, pixel);
     CHECK(d.norm() == doctest::Approx(1.0f));
@@ -211,6 +211,12 @@ TEST_CASE("egl: context is GL 4.5 core or fails with a one-line reason") {
   }
   MESSAGE("EGL " << ctx.platform << ": " << ctx.gl_renderer << ", " << ctx.gl_version);
   CHECK(!ctx.gl_renderer.empty());
+  // A second context beside the first (they share the display); destroying one leaves the other.
+  EglContext second;
+  REQUIRE_MESSAGE(create_egl_context(second, error), error);
+  destroy_egl_context(second);
+  CHECK(create_egl_context(second, error));
+  destroy_egl_context(second);
   destroy_egl_context(ctx);
   CHECK(ctx.display == nullptr);
   destroy_egl_context(ctx);  // twice is harmless

@@ -1,14 +1,13 @@
-#include "sim/pbd_kernels.h"
-
 #include <doctest/doctest.h>
 
 #include <Eigen/SVD>
-
 #include <array>
 #include <cmath>
 #include <cstdint>
 #include <random>
 #include <vector>
+
+#include "sim/pbd_kernels.h"
 
 using namespace dvx;
 using Eigen::Matrix3d;
@@ -138,7 +137,8 @@ double hanging_spring_stretch(double compliance, int iterations, int steps) {
     v.y() += gravity * dt;
     set(x, 1, old + dt * v);
     double lambda = 0.0;
-    for (int it = 0; it < iterations; ++it) solve_distance(x.data(), inv_mass.data(), 0, 1, rest, compliance, dt, lambda);
+    for (int it = 0; it < iterations; ++it)
+      solve_distance(x.data(), inv_mass.data(), 0, 1, rest, compliance, dt, lambda);
     v = 0.98 * (get(x, 1) - old) / dt;
   }
   return get(x, 1).norm() - rest;
@@ -274,7 +274,9 @@ TEST_SUITE("pbd_kernels") {
   TEST_CASE("solve_distance: two free particles meet the rest length and keep their mass centre") {
     std::vector<double> x = {0.0, 0.0, 0.0, 1.0, 2.0, -1.0};
     const std::vector<double> inv_mass = {1.0, 3.0};
-    const auto centre = [&]() -> Vector3d { return (get(x, 0) / inv_mass[0] + get(x, 1) / inv_mass[1]) / (1.0 / inv_mass[0] + 1.0 / inv_mass[1]); };
+    const auto centre = [&]() -> Vector3d {
+      return (get(x, 0) / inv_mass[0] + get(x, 1) / inv_mass[1]) / (1.0 / inv_mass[0] + 1.0 / inv_mass[1]);
+    };
     const Vector3d c0 = centre();
     double lambda = 0.0;
     solve_distance(x.data(), inv_mass.data(), 0, 1, 0.7, 0.0, 0.01, lambda);
@@ -417,7 +419,8 @@ TEST_SUITE("pbd_kernels") {
     Rng rng(25);
     for (int trial = 0; trial < 50; ++trial) {
       Cube cube;
-      for (int c = 0; c < Cube::kCount; ++c) cube.inv_mass[cube.indices[c]] = c == trial % 8 ? 0.0 : rng.uniform(0.5, 2.0);
+      for (int c = 0; c < Cube::kCount; ++c)
+        cube.inv_mass[cube.indices[c]] = c == trial % 8 ? 0.0 : rng.uniform(0.5, 2.0);
       const Matrix3d r = rng.rotation().toRotationMatrix();
       cube.place([&](const Vector3d& p) { return Vector3d(r * p + rng.vec(-0.05, 0.05)); });
       const std::vector<double> before = cube.x;
