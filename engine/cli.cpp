@@ -156,6 +156,14 @@ int run_cli(int argc, char** argv) {
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
   replay->add_option("--out,-o", replay_options.out_dir, "Output folder")->capture_default_str();
+  std::string frame_size = "1280x720", speed = "max";
+  replay->add_option("--frames", replay_options.frames_every, "Write DIR/frames/frame_NNNNN.png every N steps (EGL)");
+  replay->add_option("--size", frame_size, "Frame size WxH")->capture_default_str();
+  replay->add_flag("--render", replay_options.render, "Render every step offscreen (frame timings) without writing PNGs");
+  replay->add_flag("--wireframe", replay_options.wireframe, "Overlay the triangle edges in frames");
+  replay->add_option("--speed", speed, "max (as fast as possible) or realtime (one step per dt)")
+      ->check(CLI::IsMember({"max", "realtime"}))
+      ->capture_default_str();
   replay->add_option("--record", replay_options.record_path,
                      "Also write the replayed session (poses + state hashes) to this recording");
   replay->add_option("--hash-every", replay_options.hash_every, "With --record: a state hash every N steps")
@@ -218,11 +226,30 @@ int run_cli(int argc, char** argv) {
     if (voxelize->parsed()) return run_voxelize_command(vox);
     if (replay->parsed()) {
       replay_options.physics = !no_physics;
+      replay_options.realtime = speed == "realtime";
+      {
+        int w = 0, h = 0;
+        char x = 0, extra = 0;
+        if (std::sscanf(frame_size.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 ||
+            h < 16 || w > 8192 || h > 8192) {
+          throw_input("--size", "'" + frame_size + "' is not WxH with 16 <= W, H <= 8192");
+        }
+        replay_options.width = w;
+        replay_options.height = h;
+      }
       replay_options.progress = stderr_is_tty();
       const ReplayResult r = run_replay(replay_options);
       std::printf("replayed %u steps: final hash %s, %u hash checks, %u mismatched\n", r.steps, r.final_hash.c_str(),
                   r.hash_checked, r.hash_mismatched);
-      std::printf("wrote %s, timings.csv and final.ply in %s\n", r.summary_path.c_str(), replay_options.out_dir.c_str());
+      std::printf("wrote %s, timings.csv, timings.svg and final.ply in %s\n", r.summary_path.c_str(),
+                  replay_options.out_dir.c_str());
+      if (r.frames_written > 0) {
+        std::printf("wrote %u frames in %s/frames\n", r.frames_written, replay_options.out_dir.c_str());
+      }
+      if (r.interrupted) {
+        std::fprintf(stderr, "divvox: interrupted after %u steps; outputs cover them\n", r.steps);
+        return 130;
+      }
       if (r.hash_mismatched > 0) {
         std::fprintf(stderr, "divvox: error: %s: replay diverged from the recording at step %lld\n",
                      replay_options.recording.c_str(), static_cast<long long>(r.first_mismatch_step));

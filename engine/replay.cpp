@@ -5,6 +5,11 @@
 #include "engine/output.h"
 #include "engine/recording.h"
 #include "engine/task_pool.h"
+#include "engine/snapshot.h"
+#include "engine/svg_plot.h"
+#ifdef DIVVOX_HAS_RENDER
+#include "engine/headless_render.h"
+#endif
 #include "engine/voxelize_job.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
@@ -20,12 +25,19 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <atomic>
+#include <csignal>
 #include <sstream>
+#include <thread>
 
 namespace dvx {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// SIGINT stops a replay cleanly: the step loop ends, outputs cover the steps done.
+std::atomic<bool> g_interrupted{false};
+void on_sigint(int) { g_interrupted.store(true); }
 
 double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
@@ -181,7 +193,18 @@ ReplayResult run_replay(const ReplayOptions& options) {
   uint64_t totals_voxels_cut = 0;
   size_t line = 0;
   const uint32_t last = recording.last_step();
+  uint32_t steps_done = 0;
+  DirtyHistory dirty_history;
+  const Clock::time_point start = Clock::now();
+  // The simulation loop (on its own thread when a render thread draws its snapshots).
+  const auto simulate = [&](SnapshotExchange* exchange) {
   for (uint32_t step = 0; step <= last && !recording.steps.empty(); ++step) {
+    if (g_interrupted.load()) {
+      result.interrupted = true;
+      break;
+    }
+    // --speed realtime: a step every dt of wall-clock time.
+    if (options.realtime) std::this_thread::sleep_until(start + std::chrono::duration<double>(recording.dt * step));
     const BladePose previous = pose;
     const bool had_pose = have_pose;
     std::string recorded_hash;
@@ -243,12 +266,63 @@ ReplayResult run_replay(const ReplayOptions& options) {
       }
       if (writer && options.hash_every > 0 && step % options.hash_every == 0) writer->write_hash(step, hash);
     }
+    // Hand the surface to the render thread (capture frames every frames_every steps).
+    if (exchange != nullptr) {
+      const bool capture = options.frames_every > 0 && step % options.frames_every == 0;
+      const StepTimings timings{row.cut_ms, row.surface_ms, row.deform_ms, row.total_ms};
+      exchange->publish(
+          [&](Snapshot& slot, uint64_t slot_sequence) {
+            fill_snapshot(slot, slot_sequence, state.surface, pbd ? &pbd->deformed : nullptr, dirty_history, step,
+                          timings);
+          },
+          capture);
+      state.surface.clear_dirty();
+    }
+    steps_done = step + 1;
     if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
   }
+  };
+
+  // Threads: simulation here, or simulation on a thread and rendering here (EGL contexts belong to
+  // the thread that made them).
+  std::vector<FrameRow> frames;
+  const bool render = options.render || options.frames_every > 0;
+  const std::string frames_dir = options.frames_every > 0 ? (std::filesystem::path(options.out_dir) / "frames").string() : "";
+  std::signal(SIGINT, on_sigint);
+  if (render) {
+#ifdef DIVVOX_HAS_RENDER
+    std::string render_error;
+    if (!probe_headless_render(render_error)) throw_input(options.recording, "headless rendering: " + render_error);
+    if (!frames_dir.empty()) make_output_dir(frames_dir);
+    HeadlessRenderOptions ro;
+    ro.width = options.width;
+    ro.height = options.height;
+    ro.frames_dir = frames_dir;
+    ro.wireframe = options.wireframe;
+    ro.framing = mesh_bounds(input.mesh);
+    SnapshotExchange exchange;
+    std::thread sim_thread([&] {
+      simulate(&exchange);
+      exchange.finish();
+    });
+    const bool rendered = run_headless_render(exchange, ro, frames, render_error);
+    sim_thread.join();
+    if (!rendered) throw_input(options.recording, "headless rendering: " + render_error);
+    for (const FrameRow& f : frames) result.frames_written += f.written ? 1 : 0;
+#else
+    throw_input(options.recording, "this build has no renderer (configured with -DDIVVOX_GRAPHICS=OFF); drop --frames");
+#endif
+  } else {
+    simulate(nullptr);
+  }
+  std::signal(SIGINT, SIG_DFL);
+
   if (options.progress) std::fprintf(stderr, "\n");
-  result.steps = recording.steps.empty() ? 0 : last + 1;
+  result.steps = steps_done;
   result.final_hash = hash_hex(state_hash(state, pbd.get()));
-  if (writer && (options.hash_every == 0 || last % options.hash_every != 0)) writer->write_hash(last, result.final_hash);
+  if (writer && steps_done > 0 && (options.hash_every == 0 || (steps_done - 1) % options.hash_every != 0)) {
+    writer->write_hash(steps_done - 1, result.final_hash);
+  }
 
   // Final surface and its checks.
   // (The topology checks run on the rest-space surface; final.ply is the deformed one.)
@@ -287,6 +361,39 @@ ReplayResult run_replay(const ReplayOptions& options) {
   }
   const std::filesystem::path out(options.out_dir);
   write_text_file((out / "timings.csv").string(), csv.str());
+  // Per-phase time against step.
+  {
+    Plot plot;
+    plot.title = "divvox replay: time per step";
+    plot.x_label = "step";
+    plot.y_label = "ms";
+    PlotSeries cut{"cut", {}, {}, false, true}, surface{"surface", {}, {}, false, true},
+        deform{"deform", {}, {}, false, true}, total{"total", {}, {}, false, true};
+    for (const StepRow& r : rows) {
+      for (PlotSeries* series : {&cut, &surface, &deform, &total}) series->x.push_back(r.step);
+      cut.y.push_back(r.cut_ms);
+      surface.y.push_back(r.surface_ms);
+      deform.y.push_back(r.deform_ms);
+      total.y.push_back(r.total_ms);
+    }
+    plot.series = {cut, surface};
+    if (pbd) plot.series.push_back(deform);
+    plot.series.push_back(total);
+    write_text_file((out / "timings.svg").string(), plot_svg(plot));
+  }
+  // Per-frame timings of the render thread.
+  std::vector<double> render_ms, interval_ms;
+  if (!frames.empty()) {
+    std::ostringstream f;
+    f << "frame,step,upload_ms,draw_ms,readback_ms,frame_interval_ms,written\n";
+    for (const FrameRow& r : frames) {
+      f << r.frame << ',' << r.step << ',' << r.upload_ms << ',' << r.draw_ms << ',' << r.readback_ms << ','
+        << r.interval_ms << ',' << (r.written ? 1 : 0) << '\n';
+      render_ms.push_back(r.upload_ms + r.draw_ms + r.readback_ms);
+      if (r.frame > 0) interval_ms.push_back(r.interval_ms);
+    }
+    write_text_file((out / "frame_timings.csv").string(), f.str());
+  }
   save_ply((out / "final.ply").string(), deformed_surface);
 
   // summary.json (DESIGN §1 contract: the fields that apply without physics).
@@ -307,7 +414,12 @@ ReplayResult run_replay(const ReplayOptions& options) {
         {"surface", percentiles(surface_ms)},
         {"deform", percentiles(deform_ms)},
         {"total", percentiles(total_ms)},
-        {"step", percentiles(step_ms)}}},
+        {"step", percentiles(step_ms)},
+        {"render", percentiles(render_ms)},
+        {"frame_interval", percentiles(interval_ms)}}},
+      {"frames", {{"rendered", frames.size()}, {"written", result.frames_written}, {"size", {options.width, options.height}}}},
+      {"interrupted", result.interrupted},
+      {"wall_s", std::chrono::duration<double>(Clock::now() - start).count()},
       {"timing_note", "cut, surface, total: over steps whose blade sweep crossed lattice edges; deform and step: every step"},
       {"init_ms", init_ms},
       {"lattice", {model.lattice.nx, model.lattice.ny, model.lattice.nz}},

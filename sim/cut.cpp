@@ -223,6 +223,7 @@ bool free_quad(CutSurface& s, uint64_t key) {
   s.quad_of_half_edge.erase(key);
   s.quad_half_edge[quad] = CutSurface::kFreeKey;
   s.triangles[2 * quad] = s.triangles[2 * quad + 1] = Tri{kDeadIndex, kDeadIndex, kDeadIndex};
+  s.triangle_cut[2 * quad] = s.triangle_cut[2 * quad + 1] = 0;
   s.free_quads.push_back(quad);
   mark_quad_dirty(s, quad);
   return true;
@@ -230,7 +231,7 @@ bool free_quad(CutSurface& s, uint64_t key) {
 
 // Writes the quad (v0 v1 v2 v3, counter-clockwise seen from outside) of a half-edge, split along
 // the shorter diagonal. Returns true when a slot changed.
-bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4]) {
+bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut) {
   uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) {
     if (!s.free_quads.empty()) {
@@ -240,6 +241,7 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4]) {
       quad = uint32_t(s.quad_half_edge.size());
       s.quad_half_edge.push_back(CutSurface::kFreeKey);
       s.triangles.resize(s.triangles.size() + 2);
+      s.triangle_cut.resize(s.triangles.size(), 0);
     }
     s.quad_half_edge[quad] = key;
     s.quad_of_half_edge.set(key, quad);
@@ -254,9 +256,11 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4]) {
     t0 = {v[0], v[1], v[3]};
     t1 = {v[1], v[2], v[3]};
   }
-  if (s.triangles[2 * quad] == t0 && s.triangles[2 * quad + 1] == t1) return false;
+  const uint8_t flag = on_cut ? 1 : 0;
+  if (s.triangles[2 * quad] == t0 && s.triangles[2 * quad + 1] == t1 && s.triangle_cut[2 * quad] == flag) return false;
   s.triangles[2 * quad] = t0;
   s.triangles[2 * quad + 1] = t1;
+  s.triangle_cut[2 * quad] = s.triangle_cut[2 * quad + 1] = flag;
   mark_quad_dirty(s, quad);
   return true;
 }
@@ -266,7 +270,7 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4]) {
 // The half-edge at end `side` of `edge` as a parameter along the edge (see half_edge()).
 // `cut` is the edge's EdgeCut (nullptr when uncut), looked up by the caller.
 bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge, int side, double& t,
-                     Vec3d& normal) {
+                     Vec3d& normal, bool* from_cut = nullptr) {
   const int axis = int(edge % 3);
   const uint32_t n0 = edge / 3;
   const uint32_t n1 = n0 + node_stride(model.lattice, axis);
@@ -300,6 +304,7 @@ bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge,
   }
   if (best < 0.0 || best > 1.0) return false;
   t = best;
+  if (from_cut != nullptr) *from_cut = cut != nullptr && (side ? best == double(cut->t_hi) : best == double(cut->t_lo));
   // Outward: from the end node toward the boundary.
   if (normal[axis] * (side ? -1.0 : 1.0) < 0.0) normal = -normal;
   return true;
@@ -438,7 +443,8 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
         double t;
         Vec3d normal;
         uint8_t pieces[4];
-        if (half_edge_param(model, cut, edge, side, t, normal) &&
+        bool on_cut = false;
+        if (half_edge_param(model, cut, edge, side, t, normal, &on_cut) &&
             sharing_pieces(model, state, edge, side, around, corners, pieces)) {
           uint32_t v[4];
           bool ok = true;
@@ -448,7 +454,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
           }
           if (!ok) continue;  // cannot happen for a consistent state; check_cut_state reports it
           if (side == 1) std::swap(v[1], v[3]);  // outward normal along -axis: reverse the winding
-          if (write_quad(s, key, v)) stats.triangles_changed += 2;
+          if (write_quad(s, key, v, on_cut)) stats.triangles_changed += 2;
         } else if (free_quad(s, key)) {
           stats.triangles_changed += 2;
         }

@@ -78,6 +78,7 @@ struct CutSurface {
   std::vector<uint64_t> vertex_piece;  // (vertex slots) piece key voxel*8+piece, kFreeKey when free
   std::vector<Tri> triangles;          // (triangle slots) two per quad slot: 2q, 2q+1
   std::vector<uint64_t> quad_half_edge;  // (quad slots) half-edge key edge*2+side, kFreeKey when free
+  std::vector<uint8_t> triangle_cut;     // (triangle slots) 1: on a cut face (its boundary is a blade crossing)
   std::vector<uint32_t> free_vertices;
   std::vector<uint32_t> free_quads;
   FlatMap vertex_of_piece;   // piece key -> vertex slot

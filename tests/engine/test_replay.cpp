@@ -15,6 +15,10 @@
 
 #include <unistd.h>
 
+#define STB_IMAGE_IMPLEMENTATION
+#include <stb/stb_image.h>
+
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -204,5 +208,53 @@ TEST_SUITE("replay") {
     const double m0 = summary["mass"]["initial"], m1 = summary["mass"]["final"];
     CHECK(std::abs(m1 - m0) <= 1e-12 * m0);
     CHECK(summary["cut"]["sim_voxels_divided"].get<int>() > 0);
+  }
+  TEST_CASE("headless replay with frames: the bunny renders to PNGs showing the object") {
+#ifndef DIVVOX_HAS_RENDER
+    MESSAGE("skipped: this build has no renderer");
+#else
+    TempDir dir;
+    ReplayOptions options;
+    options.recording = dvx_test::source_path("assets/recordings/bunny_cut.jsonl");
+    options.out_dir = dir.path.string();
+    options.frames_every = 130;
+    options.width = 320;
+    options.height = 180;
+    ReplayResult r;
+    try {
+      r = run_replay(options);
+    } catch (const InputError& e) {
+      // No EGL here: say so, unless the suite requires GL.
+      if (std::getenv("DIVVOX_REQUIRE_GL") != nullptr) FAIL(e.what());
+      MESSAGE("skipped: " << e.what());
+      return;
+    }
+    CHECK(r.frames_written == 3);  // steps 0, 130, 260
+    CHECK(r.hash_mismatched == 0);  // rendering does not change the simulation
+    for (const char* name : {"frame_00000.png", "frame_00130.png", "frame_00260.png"}) {
+      CAPTURE(name);
+      int w = 0, h = 0, channels = 0;
+      unsigned char* pixels = stbi_load((dir.path / "frames" / name).string().c_str(), &w, &h, &channels, 3);
+      REQUIRE(pixels != nullptr);
+      CHECK(w == 320);
+      CHECK(h == 180);
+      // Object pixels: those that differ from the background (the corner pixel).
+      int object = 0;
+      for (int i = 0; i < w * h; ++i) {
+        const int d = std::abs(pixels[3 * i] - pixels[0]) + std::abs(pixels[3 * i + 1] - pixels[1]) +
+                      std::abs(pixels[3 * i + 2] - pixels[2]);
+        object += d > 24;
+      }
+      stbi_image_free(pixels);
+      const double coverage = double(object) / double(w * h);
+      CHECK(coverage > 0.05);
+      CHECK(coverage < 0.95);
+    }
+    const nlohmann::json summary = nlohmann::json::parse(read_file(dir.path / "summary.json"));
+    CHECK(summary["frames"]["written"] == 3);
+    CHECK(summary["timing_ms"]["render"]["count"].get<int>() >= 3);
+    CHECK(fs::exists(dir.path / "timings.svg"));
+    CHECK(fs::exists(dir.path / "frame_timings.csv"));
+#endif
   }
 }

@@ -1,0 +1,129 @@
+#include "engine/headless_render.h"
+
+#include "render/camera.h"
+#include "render/egl_context.h"
+#include "render/renderer.h"
+
+#include <Eigen/Geometry>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+namespace dvx {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+// Area-weighted vertex normals over the live slots of a snapshot.
+void slot_normals(const Snapshot& s, std::vector<Vec3f>& normals) {
+  normals.assign(s.positions.size(), Vec3f::Zero());
+  for (const Tri& t : s.triangles) {
+    if (t[0] == kDeadIndex || t[0] >= s.positions.size() || t[1] >= s.positions.size() || t[2] >= s.positions.size()) {
+      continue;
+    }
+    const Vec3f n = (s.positions[t[1]] - s.positions[t[0]]).cross(s.positions[t[2]] - s.positions[t[0]]);
+    if (!n.allFinite()) continue;
+    for (int c = 0; c < 3; ++c) normals[t[c]] += n;
+  }
+  for (Vec3f& n : normals) {
+    const float len = n.norm();
+    n = len > 0.0f ? Vec3f(n / len) : Vec3f(0, 1, 0);
+  }
+}
+
+}  // namespace
+
+bool headless_render_available() { return true; }
+
+bool probe_headless_render(std::string& error) {
+  EglContext context;
+  if (!create_egl_context(context, error)) return false;
+  destroy_egl_context(context);
+  return true;
+}
+
+bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions& options, std::vector<FrameRow>& rows,
+                         std::string& error) {
+  EglContext context;
+  if (!create_egl_context(context, error)) {
+    exchange.close();
+    return false;
+  }
+  Renderer renderer;
+  if (!renderer_init(renderer, options.width, options.height, error)) {
+    exchange.close();
+    destroy_egl_context(context);
+    return false;
+  }
+  const Camera camera = frame_box(options.framing, float(options.width) / float(options.height));
+  DrawOptions draw;
+  draw.wireframe = options.wireframe;
+  std::vector<Vec3f> normals;
+  std::vector<uint8_t> rgba;
+  uint64_t last_sequence = 0, frame = 0;
+  Clock::time_point last_frame = Clock::now();
+  bool ok = true;
+  while (ok) {
+    const Snapshot* s = exchange.take();
+    if (s == nullptr) {
+      if (exchange.finished()) break;
+      exchange.wait(50);
+      continue;
+    }
+    // Upload: positions and normals in full (they move every step), triangles by dirty range unless
+    // snapshots were skipped.
+    const Clock::time_point t0 = Clock::now();
+    slot_normals(*s, normals);
+    RenderMesh mesh;
+    mesh.positions = s->positions.data();
+    mesh.normals = normals.data();
+    mesh.vertex_count = uint32_t(s->positions.size());
+    mesh.triangles = s->triangles.data();
+    mesh.triangle_count = uint32_t(s->triangles.size());
+    mesh.triangle_flags = s->triangle_flags.data();
+    mesh.vertex_begin = 0;
+    mesh.vertex_end = mesh.vertex_count;
+    mesh.triangle_begin = s->dirty_triangle_begin;
+    mesh.triangle_end = s->dirty_triangle_end;
+    mesh.full = s->sequence != last_sequence + 1;
+    last_sequence = s->sequence;
+    renderer_upload(renderer, mesh);
+    const Clock::time_point t1 = Clock::now();
+    renderer_draw(renderer, camera, draw);
+    const Clock::time_point t2 = Clock::now();
+    FrameRow row{frame, s->step, ms_between(t0, t1), ms_between(t1, t2), 0.0, ms_between(last_frame, t2), false};
+    last_frame = t2;
+    // Capture: read back and write the PNG.
+    if (s->capture && !options.frames_dir.empty()) {
+      if (!renderer_read_pixels(renderer, rgba)) {
+        error = "cannot read the rendered frame back";
+        ok = false;
+      }
+      row.readback_ms = ms_between(t2, Clock::now());
+      char name[64];
+      std::snprintf(name, sizeof name, "frame_%05u.png", s->step);
+      if (ok && !write_png((std::filesystem::path(options.frames_dir) / name).string(), options.width, options.height,
+                           rgba, error)) {
+        ok = false;
+      }
+      row.written = ok;
+    } else {
+      renderer_read_pixels(renderer, rgba);  // finish the frame (llvmpipe renders lazily)
+      row.readback_ms = ms_between(t2, Clock::now());
+    }
+    rows.push_back(row);
+    ++frame;
+  }
+  exchange.close();
+  renderer_destroy(renderer);
+  destroy_egl_context(context);
+  return ok;
+}
+
+}  // namespace dvx

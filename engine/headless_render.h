@@ -1,0 +1,40 @@
+// The render thread of a headless replay: EGL offscreen context, the shared renderer, frames to PNG,
+// per-frame timings. Draws the newest snapshot the simulation thread published.
+#pragma once
+
+#include "engine/snapshot.h"
+
+#include <atomic>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace dvx {
+
+struct FrameRow {
+  uint64_t frame;
+  uint32_t step;
+  double upload_ms, draw_ms, readback_ms, interval_ms;
+  bool written;  // a PNG was written for this frame
+};
+
+struct HeadlessRenderOptions {
+  int width = 1280, height = 720;
+  std::string frames_dir;  // "" : no PNG files
+  bool wireframe = false;
+  Aabb framing;            // the camera frames this box (the rest shape of the object)
+};
+
+// True when this build can render headless (EGL + the render layer).
+bool headless_render_available();
+
+// Creates the EGL context and renderer on the calling thread (false with a one-line reason).
+// Then renders snapshots until the exchange is finished and drained. Captures (readback + PNG) the
+// snapshots marked capture; draws the others (for timing). Fills `rows`.
+bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions& options, std::vector<FrameRow>& rows,
+                         std::string& error);
+
+// Creates the context and renderer only (to fail fast before the simulation starts).
+bool probe_headless_render(std::string& error);
+
+}  // namespace dvx
