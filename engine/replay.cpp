@@ -4,6 +4,7 @@
 #include "engine/mesh_io.h"
 #include "engine/output.h"
 #include "engine/recording.h"
+#include "engine/session.h"
 #include "engine/task_pool.h"
 #include "engine/snapshot.h"
 #include "engine/svg_plot.h"
@@ -43,14 +44,6 @@ double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
 }
 
-// Per-step timings and counts (one row of timings.csv).
-struct StepRow {
-  uint32_t step;
-  bool cutting;
-  double cut_ms, surface_ms, deform_ms, total_ms;
-  CutStepStats stats;
-  uint32_t sim_voxels_cut;
-};
 
 // {"mean","p50","p95","p99","max"} of a sample (empty: zeros).
 nlohmann::json percentiles(std::vector<double> values) {
@@ -70,105 +63,17 @@ nlohmann::json percentiles(std::vector<double> values) {
           {"count", values.size()}};
 }
 
-bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.b == b.b; }
-
-// PBD parameters of a scene.
-PbdParams pbd_params(const Scene& scene, double dt) {
-  PbdParams p;
-  p.resolution = scene.resolution;
-  p.sim_resolution = scene.sim_resolution;
-  p.density = scene.material.density;
-  p.stretch_compliance = scene.material.stretch_compliance;
-  p.shape_stiffness = scene.material.shape_stiffness;
-  p.dt = dt;
-  p.substeps = scene.solver.substeps;
-  p.iterations = scene.solver.iterations;
-  p.damping = scene.solver.damping;
-  p.gravity = scene.gravity;
-  for (const FixedBox& b : scene.fixed) {
-    Aabb box;
-    box.grow(b.min);
-    box.grow(b.max);
-    p.fixed.push_back(box);
-  }
-  return p;
-}
-
-// The state hash: the cut surface, and the particles when the physics runs.
-uint64_t state_hash(const CutState& cut, const PbdState* pbd) {
-  uint64_t h = cut_state_hash(cut);
-  if (pbd != nullptr) {
-    Fnv1a f;
-    f.add(h);
-    for (size_t p = 0; p < pbd->position.size(); ++p) {
-      if (pbd->mass[p] > 0.0) f.bytes(pbd->position[p].data(), 3 * sizeof(double));
-    }
-    h = f.value;
-  }
-  return h;
-}
-
-// A grab command from a step line: {"target": [x,y,z], "compliance": c} starts (nearest particle) or
-// moves the grab; "release" ends it. Anything else is an error naming the line.
-void apply_grab(const nlohmann::json& grab, PbdState& pbd, const std::string& file, uint32_t line) {
-  if (grab.is_string() && grab.get<std::string>() == "release") {
-    grab_end(pbd);
-    return;
-  }
-  const auto bad = [&] {
-    throw_input(file, "line " + std::to_string(line) +
-                          ": grab must be {\"target\": [x,y,z], \"compliance\": c} or \"release\"");
-  };
-  if (!grab.is_object() || !grab.contains("target") || !grab["target"].is_array() || grab["target"].size() != 3) bad();
-  Vec3d target;
-  for (int a = 0; a < 3; ++a) {
-    if (!grab["target"][a].is_number()) bad();
-    target[a] = grab["target"][a].get<double>();
-  }
-  if (!target.allFinite()) bad();
-  double compliance = 1e-4;
-  if (grab.contains("compliance")) {
-    if (!grab["compliance"].is_number() || !(grab["compliance"].get<double>() >= 0.0)) bad();
-    compliance = grab["compliance"].get<double>();
-  }
-  if (pbd.grab_particle == ~0u) {
-    grab_begin(pbd, target, compliance);
-  } else {
-    grab_move(pbd, target);
-  }
-}
-
 }  // namespace
 
 ReplayResult run_replay(const ReplayOptions& options) {
   const Recording recording = read_recording(options.recording);
   for (const std::string& warning : recording.warnings) std::fprintf(stderr, "divvox: warning: %s\n", warning.c_str());
 
-  // The voxel model of the recording's scene.
+  // The simulation of the recording's scene.
   const Scene& scene = recording.scene;
-  const LoadedMesh input = load_mesh(scene.mesh_path);
-  check_voxelize_memory(scene.mesh_path, mesh_bounds(input.mesh), input.mesh.triangles.size(), scene.resolution);
-  VoxelModel model;
-  VoxelizeParams params;
-  params.resolution = scene.resolution;
-  std::string error;
-  if (!voxelize(input.mesh, params, model, error)) throw_input(scene.mesh_path, error);
-  CutState state;
-  const Clock::time_point init_start = Clock::now();
-  init_cut_state(model, state);
-  const double init_ms = ms_between(init_start, Clock::now());
-  const SurfaceStats initial = surface_stats(compact_surface(state.surface));
-
-  // The PBD model and its worker threads.
-  std::unique_ptr<PbdState> pbd;
-  std::unique_ptr<TaskPool> pool;
-  double initial_mass = 0.0;
-  if (options.physics) {
-    pbd = std::make_unique<PbdState>();
-    if (!init_pbd(model, state, pbd_params(scene, recording.dt), *pbd, error)) throw_input(options.recording, error);
-    pool = std::make_unique<TaskPool>(options.workers);
-    initial_mass = total_mass(*pbd);
-  }
+  Session session;
+  open_session(scene, recording.dt, options.physics, options.workers, session);
+  const SurfaceStats initial = surface_stats(compact_surface(session.cut.surface));
 
   make_output_dir(options.out_dir);
   std::unique_ptr<RecordingWriter> writer;
@@ -185,11 +90,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   // Step through the recording: a line sets the pose (kept until the next line); the sweep from the
   // previous step's pose to this step's cuts when this step is cutting.
   ReplayResult result;
-  std::vector<StepRow> rows;
-  BladePose pose;
-  bool have_pose = false, cutting = false;
-  BladePose rest_pose;  // the blade in rest space after the last cutting step
-  bool rest_pose_valid = false;
+  std::vector<StepReport> rows;
   uint64_t totals_voxels_cut = 0;
   size_t line = 0;
   const uint32_t last = recording.last_step();
@@ -205,58 +106,31 @@ ReplayResult run_replay(const ReplayOptions& options) {
     }
     // --speed realtime: a step every dt of wall-clock time.
     if (options.realtime) std::this_thread::sleep_until(start + std::chrono::duration<double>(recording.dt * step));
-    const BladePose previous = pose;
-    const bool had_pose = have_pose;
+    // The recording's lines for this step become the step's commands.
+    StepCommands commands;
     std::string recorded_hash;
     for (; line < recording.steps.size() && recording.steps[line].step == step; ++line) {
       const RecordedStep& r = recording.steps[line];
       if (r.has_blade) {
-        pose = r.blade;
-        cutting = r.cutting;
-        have_pose = true;
+        commands.has_blade = true;
+        commands.blade = r.blade;
+        commands.cutting = r.cutting;
       }
       if (r.has_hash && check_hashes) recorded_hash = r.hash;
-      if (pbd && r.extra.is_object() && r.extra.contains("grab")) {
-        apply_grab(r.extra["grab"], *pbd, options.recording, r.line);
+      if (r.extra.is_object() && r.extra.contains("grab")) {
+        commands.grab = parse_grab(r.extra["grab"], options.recording, r.line);
         if (writer) writer->write_line({{"step", step}, {"grab", r.extra["grab"]}});
       }
     }
-    if (!(cutting && had_pose)) rest_pose_valid = false;  // a new cut starts from the blade where it is
-    StepRow row{step, cutting, 0, 0, 0, 0, {}, 0};
-    const Clock::time_point t0 = Clock::now();
-    if (cutting && had_pose && !same_pose(previous, pose)) {
-      // The blade moves in world space; cuts are made in rest space. The sweep starts where the last
-      // one ended in rest space, so consecutive sweeps join even while the body moves.
-      BladePose from = previous, to = pose;
-      if (pbd) {
-        from = rest_pose_valid ? rest_pose
-                               : BladePose{pbd_world_to_rest(*pbd, previous.a), pbd_world_to_rest(*pbd, previous.b)};
-        to = {pbd_world_to_rest(*pbd, pose.a), pbd_world_to_rest(*pbd, pose.b)};
-      }
-      rest_pose = to;
-      rest_pose_valid = true;
-      cut_divide(model, state, from, to, row.stats);
-      const Clock::time_point t1 = Clock::now();
-      cut_update_surface(model, state, row.stats);
-      const Clock::time_point t2 = Clock::now();
-      if (pbd) row.sim_voxels_cut = pbd_apply_cut(model, state, *pbd);
-      row.cut_ms = ms_between(t0, t1) + ms_between(t2, Clock::now());  // divide, fine and coarse
-      row.surface_ms = ms_between(t1, t2);
-      totals_voxels_cut += row.stats.voxels_cut;
-    }
-    if (pbd) {
-      const Clock::time_point t3 = Clock::now();
-      pbd_step(state, *pbd, pool->runner());
-      row.deform_ms = ms_between(t3, Clock::now());
-    }
-    row.total_ms = ms_between(t0, Clock::now());
+    const StepReport row = session_step(session, commands);
+    totals_voxels_cut += row.cut.voxels_cut;
     rows.push_back(row);
-    if (writer && have_pose) writer->write_blade(step, pose, cutting);
+    if (writer && session.have_blade) writer->write_blade(step, session.blade, session.cutting);
 
     // Determinism: compare with the recorded hash, write ours.
     const bool want_hash = !recorded_hash.empty() || (writer && options.hash_every > 0 && step % options.hash_every == 0);
     if (want_hash) {
-      const std::string hash = hash_hex(state_hash(state, pbd.get()));
+      const std::string hash = hash_hex(session_hash(session));
       if (!recorded_hash.empty()) {
         ++result.hash_checked;
         if (hash != recorded_hash) {
@@ -269,14 +143,13 @@ ReplayResult run_replay(const ReplayOptions& options) {
     // Hand the surface to the render thread (capture frames every frames_every steps).
     if (exchange != nullptr) {
       const bool capture = options.frames_every > 0 && step % options.frames_every == 0;
-      const StepTimings timings{row.cut_ms, row.surface_ms, row.deform_ms, row.total_ms};
       exchange->publish(
           [&](Snapshot& slot, uint64_t slot_sequence) {
-            fill_snapshot(slot, slot_sequence, state.surface, pbd ? &pbd->deformed : nullptr, dirty_history, step,
-                          timings);
+            fill_snapshot(slot, slot_sequence, session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr,
+                          dirty_history, step, row.timings);
           },
           capture);
-      state.surface.clear_dirty();
+      session.cut.surface.clear_dirty();
     }
     steps_done = step + 1;
     if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
@@ -299,7 +172,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
     ro.height = options.height;
     ro.frames_dir = frames_dir;
     ro.wireframe = options.wireframe;
-    ro.framing = mesh_bounds(input.mesh);
+    ro.framing = mesh_bounds(session.input.mesh);
     SnapshotExchange exchange;
     std::thread sim_thread([&] {
       simulate(&exchange);
@@ -319,7 +192,9 @@ ReplayResult run_replay(const ReplayOptions& options) {
 
   if (options.progress) std::fprintf(stderr, "\n");
   result.steps = steps_done;
-  result.final_hash = hash_hex(state_hash(state, pbd.get()));
+  result.final_hash = hash_hex(session_hash(session));
+  const CutState& state = session.cut;
+  const PbdState* pbd = session.pbd.get();
   if (writer && steps_done > 0 && (options.hash_every == 0 || (steps_done - 1) % options.hash_every != 0)) {
     writer->write_hash(steps_done - 1, result.final_hash);
   }
@@ -345,18 +220,18 @@ ReplayResult run_replay(const ReplayOptions& options) {
   csv << "step,cut_ms,surface_ms,deform_ms,total_ms,cut_voxels,edges_hit,edges_cut,voxels_divided,"
          "vertices_changed,triangles_changed,cutting,sim_voxels_cut\n";
   std::vector<double> cut_ms, surface_ms, total_ms, deform_ms, step_ms;
-  for (const StepRow& r : rows) {
-    if (pbd) deform_ms.push_back(r.deform_ms);
-    step_ms.push_back(r.total_ms);
-    csv << r.step << ',' << r.cut_ms << ',' << r.surface_ms << ',' << r.deform_ms << ',' << r.total_ms << ','
-        << r.stats.voxels_cut << ','
-        << r.stats.edges_hit << ',' << r.stats.edges_cut << ',' << r.stats.voxels_divided << ','
-        << r.stats.vertices_changed << ',' << r.stats.triangles_changed << ',' << (r.cutting ? 1 : 0) << ','
+  for (const StepReport& r : rows) {
+    if (pbd) deform_ms.push_back(r.timings.deform_ms);
+    step_ms.push_back(r.timings.total_ms);
+    csv << r.step << ',' << r.timings.cut_ms << ',' << r.timings.surface_ms << ',' << r.timings.deform_ms << ','
+        << r.timings.total_ms << ',' << r.cut.voxels_cut << ','
+        << r.cut.edges_hit << ',' << r.cut.edges_cut << ',' << r.cut.voxels_divided << ','
+        << r.cut.vertices_changed << ',' << r.cut.triangles_changed << ',' << (r.cutting ? 1 : 0) << ','
         << r.sim_voxels_cut << '\n';
-    if (r.stats.edges_hit > 0) {
-      cut_ms.push_back(r.cut_ms);
-      surface_ms.push_back(r.surface_ms);
-      total_ms.push_back(r.total_ms);
+    if (r.cut.edges_hit > 0) {
+      cut_ms.push_back(r.timings.cut_ms);
+      surface_ms.push_back(r.timings.surface_ms);
+      total_ms.push_back(r.timings.total_ms);
     }
   }
   const std::filesystem::path out(options.out_dir);
@@ -369,12 +244,12 @@ ReplayResult run_replay(const ReplayOptions& options) {
     plot.y_label = "ms";
     PlotSeries cut{"cut", {}, {}, false, true}, surface{"surface", {}, {}, false, true},
         deform{"deform", {}, {}, false, true}, total{"total", {}, {}, false, true};
-    for (const StepRow& r : rows) {
+    for (const StepReport& r : rows) {
       for (PlotSeries* series : {&cut, &surface, &deform, &total}) series->x.push_back(r.step);
-      cut.y.push_back(r.cut_ms);
-      surface.y.push_back(r.surface_ms);
-      deform.y.push_back(r.deform_ms);
-      total.y.push_back(r.total_ms);
+      cut.y.push_back(r.timings.cut_ms);
+      surface.y.push_back(r.timings.surface_ms);
+      deform.y.push_back(r.timings.deform_ms);
+      total.y.push_back(r.timings.total_ms);
     }
     plot.series = {cut, surface};
     if (pbd) plot.series.push_back(deform);
@@ -401,7 +276,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
       {"recording", options.recording},
       {"scene", scene_to_json(scene)},
       {"physics", bool(pbd)},
-      {"workers", pbd ? pool->workers() : 1},
+      {"workers", pbd ? session.pool->workers() : 1},
       {"steps", result.steps},
       {"dt", recording.dt},
       {"final_hash", result.final_hash},
@@ -421,8 +296,8 @@ ReplayResult run_replay(const ReplayOptions& options) {
       {"interrupted", result.interrupted},
       {"wall_s", std::chrono::duration<double>(Clock::now() - start).count()},
       {"timing_note", "cut, surface, total: over steps whose blade sweep crossed lattice edges; deform and step: every step"},
-      {"init_ms", init_ms},
-      {"lattice", {model.lattice.nx, model.lattice.ny, model.lattice.nz}},
+      {"init_ms", session.init_ms},
+      {"lattice", {session.model.lattice.nx, session.model.lattice.ny, session.model.lattice.nz}},
       {"cut",
        {{"voxels_cut", totals_voxels_cut},
         {"voxels_divided", state.divided.size()},
@@ -441,7 +316,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
       {"nonfinite_values", nonfinite},
   };
   if (pbd) {
-    summary["mass"] = {{"initial", initial_mass}, {"final", total_mass(*pbd)}};
+    summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(*pbd)}};
     summary["kinetic_energy"] = kinetic_energy(*pbd);
     summary["particles"] = pbd->position.size() - pbd->free_particles.size();
     summary["shape_constraints"] = pbd->pieces.size();

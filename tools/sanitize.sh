@@ -16,14 +16,15 @@ case "$mode" in
     sanitize="address;undefined"
     # The whole suite: sim/, engine/ and cli/ tests.
     ctest_filter=()
+    graphics=OFF
     ;;
   thread | tsan)
     build="$here/build-tsan"
     sanitize="thread"
-    # Only the engine tests. The threaded engine (DESIGN: sim thread + render thread) does not exist
-    # yet, so for now this just runs today's single-threaded engine tests under TSan; once the threaded
-    # engine lands, its tests (named engine/...) are picked up by the same filter.
+    # The engine tests: the task pool behind the PBD loops, the simulation thread + render thread of
+    # a headless replay with frames (EGL), record/replay with 1 and 2 workers.
     ctest_filter=(-R 'engine/')
+    graphics=ON
     ;;
   -h | --help)
     sed -n '2,7p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
@@ -54,7 +55,7 @@ if [[ ! -f "$build/CMakeCache.txt" || ! -f "$build/build.ninja" ]]; then
   if ! CC=clang CXX=clang++ cmake -S "$here" -B "$build" -G Ninja \
       -DCMAKE_BUILD_TYPE=RelWithDebInfo \
       -DDIVVOX_SANITIZE="$sanitize" \
-      -DDIVVOX_GRAPHICS=OFF >"$build/sanitize-configure.log" 2>&1; then
+      -DDIVVOX_GRAPHICS="$graphics" >"$build/sanitize-configure.log" 2>&1; then
     cat "$build/sanitize-configure.log"
     exit 1
   fi

@@ -1,0 +1,160 @@
+#include "engine/session.h"
+
+#include "engine/errors.h"
+#include "engine/voxelize_job.h"
+#include "sim/state_hash.h"
+#include "sim/voxelize.h"
+
+#include <nlohmann/json.hpp>
+
+#include <chrono>
+
+namespace dvx {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_between(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double, std::milli>(b - a).count();
+}
+
+bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.b == b.b; }
+
+}  // namespace
+
+PbdParams pbd_params(const Scene& scene, double dt) {
+  PbdParams p;
+  p.resolution = scene.resolution;
+  p.sim_resolution = scene.sim_resolution;
+  p.density = scene.material.density;
+  p.stretch_compliance = scene.material.stretch_compliance;
+  p.shape_stiffness = scene.material.shape_stiffness;
+  p.dt = dt;
+  p.substeps = scene.solver.substeps;
+  p.iterations = scene.solver.iterations;
+  p.damping = scene.solver.damping;
+  p.gravity = scene.gravity;
+  for (const FixedBox& b : scene.fixed) {
+    Aabb box;
+    box.grow(b.min);
+    box.grow(b.max);
+    p.fixed.push_back(box);
+  }
+  return p;
+}
+
+void open_session(const Scene& scene, double dt, bool physics, int workers, Session& s) {
+  s.scene = scene;
+  s.dt = dt;
+  s.input = load_mesh(scene.mesh_path);
+  check_voxelize_memory(scene.mesh_path, mesh_bounds(s.input.mesh), s.input.mesh.triangles.size(), scene.resolution);
+  VoxelizeParams params;
+  params.resolution = scene.resolution;
+  std::string error;
+  if (!voxelize(s.input.mesh, params, s.model, error)) throw_input(scene.mesh_path, error);
+  const Clock::time_point t0 = Clock::now();
+  init_cut_state(s.model, s.cut);
+  s.init_ms = ms_between(t0, Clock::now());
+  if (physics) {
+    s.pbd = std::make_unique<PbdState>();
+    if (!init_pbd(s.model, s.cut, pbd_params(scene, dt), *s.pbd, error)) throw_input(scene.file, error);
+    s.pool = std::make_unique<TaskPool>(workers);
+    s.initial_mass = total_mass(*s.pbd);
+  }
+}
+
+StepReport session_step(Session& s, const StepCommands& commands) {
+  StepReport report;
+  report.step = s.step;
+  const BladePose previous = s.blade;
+  const bool had_blade = s.have_blade;
+  if (commands.has_blade) {
+    s.blade = commands.blade;
+    s.cutting = commands.cutting;
+    s.have_blade = true;
+  }
+  report.cutting = s.cutting;
+  if (s.pbd) {
+    if (commands.grab.kind == GrabCommand::kRelease) grab_end(*s.pbd);
+    if (commands.grab.kind == GrabCommand::kTarget) {
+      if (s.pbd->grab_particle == ~0u) {
+        grab_begin(*s.pbd, commands.grab.target, commands.grab.compliance);
+      } else {
+        grab_move(*s.pbd, commands.grab.target);
+      }
+    }
+  }
+  if (!(s.cutting && had_blade)) s.rest_blade_valid = false;  // a new cut starts from the blade where it is
+
+  const Clock::time_point t0 = Clock::now();
+  if (s.cutting && had_blade && !same_pose(previous, s.blade)) {
+    // The blade moves in world space; cuts are made in rest space.
+    BladePose from = previous, to = s.blade;
+    if (s.pbd) {
+      from = s.rest_blade_valid ? s.rest_blade
+                                : BladePose{pbd_world_to_rest(*s.pbd, previous.a), pbd_world_to_rest(*s.pbd, previous.b)};
+      to = {pbd_world_to_rest(*s.pbd, s.blade.a), pbd_world_to_rest(*s.pbd, s.blade.b)};
+    }
+    s.rest_blade = to;
+    s.rest_blade_valid = true;
+    cut_divide(s.model, s.cut, from, to, report.cut);
+    const Clock::time_point t1 = Clock::now();
+    cut_update_surface(s.model, s.cut, report.cut);
+    const Clock::time_point t2 = Clock::now();
+    if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(s.model, s.cut, *s.pbd);
+    report.timings.cut_ms = ms_between(t0, t1) + ms_between(t2, Clock::now());  // divide, fine and coarse
+    report.timings.surface_ms = ms_between(t1, t2);
+  }
+  if (s.pbd) {
+    const Clock::time_point t3 = Clock::now();
+    pbd_step(s.cut, *s.pbd, s.pool->runner());
+    report.timings.deform_ms = ms_between(t3, Clock::now());
+  }
+  report.timings.total_ms = ms_between(t0, Clock::now());
+  ++s.step;
+  return report;
+}
+
+uint64_t session_hash(const Session& s) {
+  uint64_t h = cut_state_hash(s.cut);
+  if (s.pbd) {
+    Fnv1a f;
+    f.add(h);
+    for (size_t p = 0; p < s.pbd->position.size(); ++p) {
+      if (s.pbd->mass[p] > 0.0) f.bytes(s.pbd->position[p].data(), 3 * sizeof(double));
+    }
+    h = f.value;
+  }
+  return h;
+}
+
+GrabCommand parse_grab(const nlohmann::json& grab, const std::string& file, uint32_t line) {
+  GrabCommand g;
+  if (grab.is_string() && grab.get<std::string>() == "release") {
+    g.kind = GrabCommand::kRelease;
+    return g;
+  }
+  const auto bad = [&] {
+    throw_input(file, "line " + std::to_string(line) +
+                          ": grab must be {\"target\": [x,y,z], \"compliance\": c} or \"release\"");
+  };
+  if (!grab.is_object() || !grab.contains("target") || !grab["target"].is_array() || grab["target"].size() != 3) bad();
+  for (int a = 0; a < 3; ++a) {
+    if (!grab["target"][a].is_number()) bad();
+    g.target[a] = grab["target"][a].get<double>();
+  }
+  if (!g.target.allFinite()) bad();
+  if (grab.contains("compliance")) {
+    if (!grab["compliance"].is_number() || !(grab["compliance"].get<double>() >= 0.0)) bad();
+    g.compliance = grab["compliance"].get<double>();
+  }
+  g.kind = GrabCommand::kTarget;
+  return g;
+}
+
+nlohmann::json grab_to_json(const GrabCommand& g) {
+  if (g.kind == GrabCommand::kRelease) return "release";
+  return {{"target", {g.target.x(), g.target.y(), g.target.z()}}, {"compliance", g.compliance}};
+}
+
+}  // namespace dvx

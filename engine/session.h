@@ -1,0 +1,79 @@
+// One running simulation: the voxel model, the cut state, the PBD model and its worker threads, and
+// the blade. The simulation thread owns a Session; nothing else touches it. Inputs arrive as
+// StepCommands stamped with the step they apply to — the same for a live session (mouse) and a
+// replay (recording), so a replay reproduces a live session bit for bit.
+#pragma once
+
+#include "engine/mesh_io.h"
+#include "engine/scene.h"
+#include "engine/snapshot.h"
+#include "engine/task_pool.h"
+#include "sim/cut.h"
+#include "sim/pbd.h"
+
+#include <nlohmann/json_fwd.hpp>
+
+#include <memory>
+#include <string>
+
+namespace dvx {
+
+// The grab tool's command for one step.
+struct GrabCommand {
+  enum Kind : uint8_t { kNone, kTarget, kRelease } kind = kNone;
+  Vec3d target = Vec3d::Zero();  // starts the grab at the nearest particle, or moves it
+  double compliance = 1e-4;
+};
+
+// Everything that applies at one step.
+struct StepCommands {
+  bool has_blade = false;  // a new blade pose (else the last one is kept)
+  BladePose blade;
+  bool cutting = false;    // with has_blade: the sweep into this pose cuts
+  GrabCommand grab;
+};
+
+// What one step did and how long each phase took.
+struct StepReport {
+  uint32_t step = 0;
+  bool cutting = false;
+  StepTimings timings;
+  CutStepStats cut;
+  uint32_t sim_voxels_cut = 0;
+};
+
+struct Session {
+  Scene scene;
+  double dt = 1.0 / 60.0;
+  LoadedMesh input;
+  VoxelModel model;
+  CutState cut;
+  std::unique_ptr<PbdState> pbd;  // null without physics
+  std::unique_ptr<TaskPool> pool;
+  double init_ms = 0.0, initial_mass = 0.0;
+  // The blade: its last pose in world space, and in rest space after the last cutting step (the next
+  // sweep starts there, so consecutive sweeps join even while the body moves).
+  BladePose blade, rest_blade;
+  bool have_blade = false, cutting = false, rest_blade_valid = false;
+  uint32_t step = 0;  // the next step to run
+};
+
+// PBD parameters of a scene at time step dt.
+PbdParams pbd_params(const Scene& scene, double dt);
+
+// Loads the scene's mesh, voxelizes it, builds the surface and (with physics) the PBD model.
+// Throws InputError for bad input.
+void open_session(const Scene& scene, double dt, bool physics, int workers, Session& session);
+
+// Runs one step at the fixed dt: the blade's sweep (when cutting), the PBD update, the grab.
+StepReport session_step(Session& session, const StepCommands& commands);
+
+// State hash: the cut surface, and the live particles when the physics runs.
+uint64_t session_hash(const Session& session);
+
+// A grab command from a recording's "grab" value: {"target": [x,y,z], "compliance": c} or "release".
+// Throws InputError naming `file` and `line` otherwise.
+GrabCommand parse_grab(const nlohmann::json& grab, const std::string& file, uint32_t line);
+nlohmann::json grab_to_json(const GrabCommand& grab);
+
+}  // namespace dvx
