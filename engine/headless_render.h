@@ -11,12 +11,6 @@
 
 namespace dvx {
 
-struct FrameRow {
-  uint64_t frame;
-  uint32_t step;
-  double upload_ms, draw_ms, readback_ms, interval_ms;
-  bool written;  // a PNG was written for this frame
-};
 
 struct HeadlessRenderOptions {
   int width = 1280, height = 720;

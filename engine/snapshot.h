@@ -30,6 +30,14 @@ struct Snapshot {
   StepTimings timings;
 };
 
+// Timings of one frame of the render thread.
+struct FrameRow {
+  uint64_t frame;
+  uint32_t step;
+  double upload_ms, draw_ms, readback_ms, interval_ms;
+  bool written;  // a PNG was written for this frame
+};
+
 class SnapshotExchange {
  public:
   // Simulation side: fills the back slot through `fill`, publishes it. With `capture`, waits until
