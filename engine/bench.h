@@ -49,7 +49,7 @@ struct BenchDeformOptions {
   int resolution = 64;
   std::vector<int> sim_resolutions = {8, 16, 32};
   std::vector<int> iterations = {1, 2, 5, 10, 20, 50};
-  double seconds = 1.0;  // simulated time at which the surfaces are compared
+  double seconds = 2.0;  // simulated time at which the surfaces are compared
   int workers = 2;
   // The speed target: PBD + embedding per step on a large surface.
   std::string target_mesh;  // default: armadillo from ../shared/assets ("" and absent: skipped)
