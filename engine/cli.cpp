@@ -8,6 +8,9 @@
 #include "engine/resources.h"
 #include "engine/scene.h"
 #include "engine/voxelize_job.h"
+#ifdef DIVVOX_HAS_UI
+#include "ui/app.h"
+#endif
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -98,9 +101,21 @@ std::vector<int> parse_int_list(const std::string& flag, const std::string& text
 
 int run_cli(int argc, char** argv) {
   CLI::App app{"divvox: interactive cutting of deformable objects with Divided Voxels"};
-  app.require_subcommand(1);
+  app.require_subcommand(0, 1);  // none: the interactive window
   app.set_version_flag("--version", "divvox 0.1.0");
   app.footer("Exit codes: 0 success, 2 bad input (file, flag or value), 1 internal failure.");
+
+  // divvox [SCENE.json]: the window (no subcommand).
+  std::string window_scene, window_record, window_play, window_screenshot, window_size = "1280x720";
+  int window_frames = 0;
+  app.add_option("scene", window_scene, "Scene to open in the window (default: assets/scenes/bunny.json)");
+  app.add_option("--record", window_record, "Record the window's session (from step 0) to this recording");
+  app.add_option("--play", window_play, "Drive the window from a recording (prints its final hash after its last step)");
+  app.add_option("--exit-after-frames", window_frames,
+                 "Close the window after N frames of a loaded scene (with --play: not before its last step)")
+      ->check(CLI::Range(1, 100000000));
+  app.add_option("--screenshot", window_screenshot, "Write the last frame as PNG to this path");
+  app.add_option("--size", window_size, "Window size WxH")->capture_default_str();
 
   // divvox voxelize
   VoxelizeArgs vox;
@@ -223,6 +238,36 @@ int run_cli(int argc, char** argv) {
   }
 
   try {
+    if (app.get_subcommands().empty()) {
+      // A mistyped subcommand reads as a scene path: name both.
+      if (!window_scene.empty() && !std::filesystem::exists(window_scene) &&
+          window_scene.find_first_of("./") == std::string::npos) {
+        throw_input(window_scene, "not a subcommand (voxelize, replay, bench) nor a scene file");
+      }
+#ifdef DIVVOX_HAS_UI
+      WindowOptions window;
+      window.scene_path = window_scene.empty() ? default_scene_path() : window_scene;
+      window.record_path = window_record;
+      window.play_path = window_play;
+      window.exit_after_frames = window_frames;
+      window.screenshot_path = window_screenshot;
+      int w = 0, h = 0;
+      char x = 0, extra = 0;
+      if (std::sscanf(window_size.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 ||
+          h < 16 || w > 8192 || h > 8192) {
+        throw_input("--size", "'" + window_size + "' is not WxH with 16 <= W, H <= 8192");
+      }
+      window.width = w;
+      window.height = h;
+      if (!window_play.empty() && !window_scene.empty()) {
+        throw_input("--play", "the recording holds its own scene; drop " + window_scene);
+      }
+      return run_window(window);
+#else
+      std::fprintf(stderr, "divvox: error: this build has no window (GLFW/imgui missing); use a subcommand (see divvox --help)\n");
+      return kExitBadInput;
+#endif
+    }
     if (voxelize->parsed()) return run_voxelize_command(vox);
     if (replay->parsed()) {
       replay_options.physics = !no_physics;

@@ -88,6 +88,26 @@ if ! grep -q '"mismatched": 0' "$tmp/r6/summary.json"; then
   failures=$((failures + 1))
 fi
 
+# Crash-safe recordings: SIGKILL a replay while it records (real-time pace); the partial recording
+# replays up to its last complete step.
+"$divvox" replay "$rec" --headless --speed realtime --out "$tmp/k1" --record "$tmp/killed.jsonl" --hash-every 10 >/dev/null 2>&1 &
+pid=$!
+sleep 1.5
+kill -KILL "$pid" 2>/dev/null
+wait "$pid" 2>/dev/null
+count=$((count + 1))
+lines=$(wc -l <"$tmp/killed.jsonl")
+if [[ $lines -lt 20 ]]; then
+  echo "FAIL: the killed recording has only $lines lines"
+  failures=$((failures + 1))
+fi
+expect 0 '' -- "$divvox" replay "$tmp/killed.jsonl" --headless --out "$tmp/k2"
+count=$((count + 1))
+if ! grep -q '"mismatched": 0' "$tmp/k2/summary.json" || grep -q '"checked": 0,' "$tmp/k2/summary.json"; then
+  echo "FAIL: the killed recording does not replay with matching hashes"
+  failures=$((failures + 1))
+fi
+
 # A valid run writes report.json and surface.ply.
 expect 0 '' -- "$divvox" voxelize "$bunny" --resolution 32 --error-samples 2000 --out "$tmp/ok"
 count=$((count + 1))

@@ -1,0 +1,170 @@
+#include "ui/input.h"
+
+#include "engine/errors.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+
+namespace dvx {
+
+Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel) {
+  return {camera_eye(camera), ray_direction(camera, viewport, pixel)};
+}
+
+bool ray_box(const Ray& ray, const Aabb& box, float& t_enter, float& t_exit) {
+  if (box.empty()) return false;
+  float t0 = -std::numeric_limits<float>::infinity(), t1 = std::numeric_limits<float>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    const float lo = float(box.min[a]), hi = float(box.max[a]);
+    const float o = ray.origin[a], d = ray.direction[a];
+    if (std::abs(d) < 1e-12f) {
+      if (o < lo || o > hi) return false;
+      continue;
+    }
+    float ta = (lo - o) / d, tb = (hi - o) / d;
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+    if (t0 > t1) return false;
+  }
+  if (t1 < 0.0f) return false;
+  t_enter = t0;
+  t_exit = t1;
+  return true;
+}
+
+CursorBlade blade_from_cursor(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
+                              const Aabb& box, double length, float depth) {
+  const Ray ray = cursor_ray(camera, viewport, pixel);
+  CursorBlade blade;
+  float t_enter = 0.0f, t_exit = 0.0f;
+  blade.hits_box = ray_box(ray, box, t_enter, t_exit);
+  if (depth > 0.0f) {
+    blade.depth = depth;
+  } else if (blade.hits_box) {
+    blade.depth = std::max(t_enter, 0.0f);
+  } else {
+    // The target's depth along this ray.
+    const float along = ray.direction.dot(camera_forward(camera));
+    blade.depth = along > 1e-6f ? camera.distance / along : camera.distance;
+  }
+  const Vec3d origin = ray.origin.cast<double>(), dir = ray.direction.cast<double>();
+  blade.pose.a = origin + double(blade.depth) * dir;
+  blade.pose.b = blade.pose.a + length * dir;
+  return blade;
+}
+
+void camera_orbit(Camera& camera, float dx, float dy, float radians_per_pixel) {
+  constexpr float kPi = 3.14159265358979f;
+  constexpr float kMaxPitch = 89.0f * kPi / 180.0f;
+  camera.yaw = std::remainder(camera.yaw - dx * radians_per_pixel, 2.0f * kPi);
+  camera.pitch = std::clamp(camera.pitch + dy * radians_per_pixel, -kMaxPitch, kMaxPitch);
+}
+
+void camera_pan(Camera& camera, const Viewport& viewport, float dx, float dy) {
+  // World units per pixel at the target's depth.
+  const float per_pixel = 2.0f * camera.distance * std::tan(0.5f * camera.fov_y) / float(std::max(viewport.height, 1));
+  camera.target += per_pixel * (-dx * camera_right(camera) + dy * camera_up(camera));
+}
+
+void camera_zoom(Camera& camera, float factor, float radius) {
+  if (!(factor > 0.0f) || !std::isfinite(factor)) return;
+  radius = std::max(radius, 1e-6f);
+  camera.distance = std::clamp(camera.distance * factor, 0.02f * radius, 200.0f * radius);
+  camera.z_near = std::max(0.01f * camera.distance, 1e-5f * radius);
+  camera.z_far = camera.distance + 4.0f * radius;
+}
+
+bool pick_point(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
+                const std::vector<Vec3f>& positions, float radius_pixels, Vec3f& picked) {
+  const Ray ray = cursor_ray(camera, viewport, pixel);
+  // A pixel's size at distance t along the ray is t * per_unit.
+  const float per_unit = 2.0f * std::tan(0.5f * camera.fov_y) / float(std::max(viewport.height, 1));
+  float best = std::numeric_limits<float>::infinity();
+  bool found = false;
+  for (const Vec3f& p : positions) {
+    if (!p.allFinite()) continue;
+    const Vec3f o = p - ray.origin;
+    const float t = o.dot(ray.direction);
+    if (t <= camera.z_near) continue;
+    const float off = (o - t * ray.direction).norm();
+    if (off > radius_pixels * per_unit * t) continue;
+    if (t < best) {
+      best = t;
+      picked = p;
+      found = true;
+    }
+  }
+  return found;
+}
+
+Vec3f drag_target(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel, const Vec3f& anchor) {
+  const Ray ray = cursor_ray(camera, viewport, pixel);
+  const Vec3f forward = camera_forward(camera);
+  const float depth = (anchor - ray.origin).dot(forward);
+  const float along = ray.direction.dot(forward);
+  if (along < 1e-6f) return anchor;
+  return ray.origin + (depth / along) * ray.direction;
+}
+
+SceneEdit scene_edit_of(const Scene& scene) {
+  SceneEdit e;
+  std::snprintf(e.mesh, sizeof e.mesh, "%s", scene.mesh.c_str());
+  e.resolution = scene.resolution;
+  e.sim_resolution = scene.sim_resolution;
+  e.density = scene.material.density;
+  e.stretch_compliance = scene.material.stretch_compliance;
+  e.shape_stiffness = scene.material.shape_stiffness;
+  e.dt = scene.solver.dt;
+  e.substeps = scene.solver.substeps;
+  e.iterations = scene.solver.iterations;
+  e.damping = scene.solver.damping;
+  for (int k = 0; k < 3; ++k) e.gravity[k] = scene.gravity[k];
+  e.scalpel_length = scene.scalpel.length;
+  return e;
+}
+
+bool apply_scene_edit(const Scene& base, const SceneEdit& e, Scene& out, std::string& error) {
+  // Through the scene file's own validation, so the panel accepts exactly what a file may hold.
+  nlohmann::json j = scene_to_json(base);
+  j["mesh"] = std::string(e.mesh);
+  j["resolution"] = e.resolution;
+  j["sim_resolution"] = e.sim_resolution;
+  j["material"] = {{"density", e.density}, {"stretch_compliance", e.stretch_compliance}, {"shape_stiffness", e.shape_stiffness}};
+  j["solver"] = {{"dt", e.dt}, {"substeps", e.substeps}, {"iterations", e.iterations}, {"damping", e.damping}};
+  j["gravity"] = {e.gravity[0], e.gravity[1], e.gravity[2]};
+  j["scalpel"] = {{"length", e.scalpel_length}};
+  for (double v : {e.density, e.stretch_compliance, e.shape_stiffness, e.dt, e.damping, e.scalpel_length, e.gravity[0],
+                   e.gravity[1], e.gravity[2]}) {
+    if (!std::isfinite(v)) {
+      error = "values must be finite numbers";
+      return false;
+    }
+  }
+  try {
+    out = parse_scene(j, base.file);
+  } catch (const InputError& ex) {
+    error = ex.what();
+    // Drop the "FILE: " prefix: the panel names the key.
+    if (!base.file.empty() && error.rfind(base.file + ": ", 0) == 0) error = error.substr(base.file.size() + 2);
+    return false;
+  }
+  return true;
+}
+
+bool parse_window_size(const std::string& text, int& width, int& height) {
+  int w = 0, h = 0;
+  char x = 0, extra = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X')) return false;
+  if (w < 16 || h < 16 || w > 8192 || h > 8192) return false;
+  width = w;
+  height = h;
+  return true;
+}
+
+}  // namespace dvx

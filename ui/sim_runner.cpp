@@ -1,0 +1,346 @@
+#include "ui/sim_runner.h"
+
+#include "engine/errors.h"
+#include "sim/state_hash.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+
+namespace dvx {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Later commands of the same step win (a newer pose, a newer grab target or a release).
+void merge(StepCommands& into, const StepCommands& from) {
+  if (from.has_blade) {
+    into.has_blade = true;
+    into.blade = from.blade;
+    into.cutting = from.cutting;
+  }
+  if (from.grab.kind != GrabCommand::kNone) into.grab = from.grab;
+}
+
+int default_workers() {
+  const unsigned n = std::thread::hardware_concurrency();
+  return int(std::clamp(n > 1 ? n - 1 : 1u, 1u, 4u));
+}
+
+}  // namespace
+
+SimRunner::SimRunner() { thread_ = std::thread([this] { run(); }); }
+
+SimRunner::~SimRunner() { stop(); }
+
+void SimRunner::stop() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    quit_ = true;
+  }
+  wake_.notify_all();
+  exchange_.close();
+  if (thread_.joinable()) thread_.join();
+}
+
+void SimRunner::open(const Scene& scene, double dt, const std::string& record_path) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  open_request_ = std::make_unique<OpenRequest>(OpenRequest{scene, dt, record_path, nullptr});
+  status_.loading = true;
+  wake_.notify_all();
+}
+
+void SimRunner::play(const std::string& recording_path) {
+  auto recording = std::make_shared<Recording>(read_recording(recording_path));  // throws InputError
+  for (const std::string& w : recording->warnings) std::fprintf(stderr, "divvox: warning: %s\n", w.c_str());
+  // Grab values are checked here, so a bad one is refused before anything starts.
+  for (const RecordedStep& r : recording->steps) {
+    if (r.extra.is_object() && r.extra.contains("grab")) parse_grab(r.extra["grab"], recording_path, r.line);
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  open_request_ = std::make_unique<OpenRequest>(OpenRequest{recording->scene, recording->dt, "", recording});
+  status_.loading = true;
+  wake_.notify_all();
+}
+
+void SimRunner::start_recording(const std::string& path) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  record_request_ = path;
+  wake_.notify_all();
+}
+
+void SimRunner::stop_recording() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  stop_record_request_ = true;
+  wake_.notify_all();
+}
+
+void SimRunner::push(const StampedCommands& c) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  // Keep the queue sorted by step (stable for equal stamps).
+  auto at = std::upper_bound(queue_.begin(), queue_.end(), c.step,
+                             [](uint32_t step, const StampedCommands& q) { return step < q.step; });
+  queue_.insert(at, c);
+}
+
+void SimRunner::push_now(const StepCommands& commands) { push({next_step_.load(), commands}); }
+
+void SimRunner::set_paused(bool paused) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  paused_ = paused;
+  status_.paused = paused;
+  wake_.notify_all();
+}
+
+void SimRunner::step_once() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++single_steps_;
+  wake_.notify_all();
+}
+
+void SimRunner::set_solver(double dt, int iterations, const Vec3d& gravity) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (status_.recording || status_.playing) {
+    status_.error = "solver edits are off while recording or playing (a recording holds one scene)";
+    return;
+  }
+  solver_request_ = true;
+  req_dt_ = dt;
+  req_iterations_ = iterations;
+  req_gravity_ = gravity;
+  wake_.notify_all();
+}
+
+SimStatus SimRunner::status() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return status_;
+}
+
+void SimRunner::publish(const StepTimings& timings) {
+  Session& s = *session_;
+  const uint32_t step = s.step == 0 ? 0 : s.step - 1;
+  exchange_.publish(
+      [&](Snapshot& slot, uint64_t slot_sequence) {
+        fill_snapshot(slot, slot_sequence, s.cut.surface, s.pbd ? &s.pbd->deformed : nullptr, history_, step, timings);
+      },
+      false);
+  ++published_;
+  s.cut.surface.clear_dirty();
+}
+
+void SimRunner::do_open(OpenRequest& request) {
+  auto session = std::make_unique<Session>();
+  std::string error;
+  std::unique_ptr<RecordingWriter> writer;
+  try {
+    open_session(request.scene, request.dt, true, default_workers(), *session);
+    if (!request.record_path.empty()) {
+      writer = std::make_unique<RecordingWriter>(request.record_path, request.scene, request.dt, 1);
+    }
+  } catch (const InputError& e) {
+    error = e.what();
+  } catch (const std::bad_alloc&) {
+    error = "out of memory opening the scene";
+  } catch (const std::exception& e) {
+    error = std::string("internal error: ") + e.what();
+  }
+  std::unique_lock<std::mutex> lock(mutex_);
+  status_.loading = false;
+  if (!error.empty()) {
+    status_.error = error;
+    std::fprintf(stderr, "divvox: error: %s\n", error.c_str());
+    return;
+  }
+  // The new session replaces the old one; the queue starts empty (or with the played commands).
+  session_ = std::move(session);
+  writer_ = std::move(writer);
+  playing_ = request.play;
+  play_line_ = 0;
+  play_done_.store(false);
+  queue_.clear();
+  if (playing_) {
+    for (const RecordedStep& r : playing_->steps) {
+      StampedCommands c;
+      c.step = r.step;
+      if (r.has_blade) {
+        c.commands.has_blade = true;
+        c.commands.blade = r.blade;
+        c.commands.cutting = r.cutting;
+      }
+      if (r.extra.is_object() && r.extra.contains("grab")) c.commands.grab = parse_grab(r.extra["grab"], playing_->file, r.line);
+      if (c.commands.has_blade || c.commands.grab.kind != GrabCommand::kNone) queue_.push_back(c);
+    }
+  }
+  status_.error.clear();
+  status_.ready = true;
+  status_.scene = session_->scene;
+  status_.dt = session_->dt;
+  status_.bounds = mesh_bounds(session_->input.mesh);
+  ++status_.generation;
+  status_.step = 0;
+  status_.timings.clear();
+  status_.recording = writer_ != nullptr;
+  status_.recording_path = request.record_path;
+  status_.playing = playing_ != nullptr;
+  status_.play_done = false;
+  status_.play_path = playing_ ? playing_->file : "";
+  status_.play_last = playing_ ? playing_->last_step() : 0;
+  status_.hash_checked = status_.hash_mismatched = 0;
+  status_.final_hash.clear();
+  status_.occupied_voxels = session_->model.occupied_voxels;
+  status_.divided_voxels = 0;
+  next_step_.store(0);
+  lock.unlock();
+  // The first snapshot of this session: the renderer uploads it in full.
+  history_ = DirtyHistory();
+  history_.first_sequence = published_ + 1;
+  generation_first_sequence_.store(published_ + 1);
+  publish(StepTimings());
+}
+
+void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
+  Session& s = *session_;
+  const uint32_t step = s.step;
+  // This step's commands: every queued entry stamped up to it.
+  StepCommands commands;
+  while (!queue_.empty() && queue_.front().step <= step) {
+    merge(commands, queue_.front().commands);
+    queue_.pop_front();
+  }
+  lock.unlock();
+
+  const StepReport report = session_step(s, commands);
+  // Record what was applied, at the step it was applied to.
+  if (writer_) {
+    try {
+      if (commands.has_blade) writer_->write_blade(step, commands.blade, commands.cutting);
+      if (commands.grab.kind != GrabCommand::kNone) writer_->write_line({{"step", step}, {"grab", grab_to_json(commands.grab)}});
+      if (step % kHashEvery == 0) writer_->write_hash(step, hash_hex(session_hash(s)));
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "divvox: error: recording: %s\n", e.what());
+      writer_.reset();
+    }
+  }
+  // Playback: the recording's hashes are checked; its last step prints the final hash.
+  bool checked = false, mismatched = false, done = false;
+  std::string final_hash;
+  if (playing_ && !play_done_.load()) {
+    for (; play_line_ < playing_->steps.size() && playing_->steps[play_line_].step <= step; ++play_line_) {
+      const RecordedStep& r = playing_->steps[play_line_];
+      if (r.step == step && r.has_hash) {
+        checked = true;
+        if (hash_hex(session_hash(s)) != r.hash) {
+          mismatched = true;
+          std::fprintf(stderr, "divvox: warning: %s: state hash differs from the recording at step %u\n",
+                       playing_->file.c_str(), step);
+        }
+      }
+    }
+    if (step >= playing_->last_step()) {
+      done = true;
+      final_hash = hash_hex(session_hash(s));
+      std::printf("final hash %s (played %s to step %u)\n", final_hash.c_str(), playing_->file.c_str(), step);
+      std::fflush(stdout);
+    }
+  }
+  publish(report.timings);
+
+  lock.lock();
+  next_step_.store(s.step);
+  status_.step = s.step;
+  status_.timings.push_back(report.timings);
+  if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
+  status_.divided_voxels = uint32_t(s.cut.divided.size());
+  if (s.pbd) {
+    status_.sim_voxels_divided = uint32_t(sim_voxels_divided(*s.pbd));
+    status_.particles = uint32_t(s.pbd->position.size() - s.pbd->free_particles.size());
+  }
+  status_.recording = writer_ != nullptr;
+  if (checked) ++status_.hash_checked;
+  if (mismatched) ++status_.hash_mismatched;
+  if (done) {
+    status_.play_done = true;
+    status_.final_hash = final_hash;
+    play_done_.store(true);
+  }
+}
+
+void SimRunner::finish_recording() {
+  // The state after the last step ends the recording (unless the periodic hash already did).
+  if (writer_ && session_ && session_->step > 0) {
+    const uint32_t last = session_->step - 1;
+    try {
+      if (last % kHashEvery != 0) writer_->write_hash(last, hash_hex(session_hash(*session_)));
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "divvox: error: recording: %s\n", e.what());
+    }
+  }
+  writer_.reset();
+}
+
+void SimRunner::run() {
+  std::unique_lock<std::mutex> lock(mutex_);
+  Clock::time_point next_time = Clock::now();
+  while (!quit_) {
+    if (open_request_) {
+      std::unique_ptr<OpenRequest> request = std::move(open_request_);
+      finish_recording();  // a recording ends with its session
+      lock.unlock();
+      do_open(*request);
+      lock.lock();
+      next_time = Clock::now();
+      continue;
+    }
+    if (!record_request_.empty() && session_) {
+      // Recording starts from step 0 of the current scene, so it replays.
+      open_request_ = std::make_unique<OpenRequest>(OpenRequest{session_->scene, session_->dt, record_request_, nullptr});
+      record_request_.clear();
+      status_.loading = true;
+      continue;
+    }
+    if (stop_record_request_) {
+      stop_record_request_ = false;
+      finish_recording();
+      status_.recording = false;
+    }
+    if (solver_request_ && session_) {
+      solver_request_ = false;
+      Session& s = *session_;
+      s.dt = req_dt_;
+      s.scene.solver.dt = req_dt_;
+      s.scene.solver.iterations = req_iterations_;
+      s.scene.gravity = req_gravity_;
+      if (s.pbd) {
+        s.pbd->params.dt = req_dt_;
+        s.pbd->params.iterations = req_iterations_;
+        s.pbd->params.gravity = req_gravity_;
+      }
+      status_.dt = req_dt_;
+      status_.scene = s.scene;
+    }
+    if (!session_ || (paused_ && single_steps_ == 0)) {
+      wake_.wait_for(lock, std::chrono::milliseconds(50));
+      next_time = Clock::now();
+      continue;
+    }
+    if (single_steps_ > 0 && paused_) {
+      --single_steps_;
+    } else {
+      // Real time: one step per dt; a simulation that falls behind drops the lost time.
+      const Clock::time_point now = Clock::now();
+      if (now < next_time) {
+        wake_.wait_until(lock, next_time);
+        continue;
+      }
+      const auto dt = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(session_->dt));
+      next_time += dt;
+      if (now > next_time + 5 * dt) next_time = now;
+    }
+    do_step(lock);
+  }
+  finish_recording();
+  lock.unlock();
+  exchange_.finish();
+}
+
+}  // namespace dvx

@@ -1,0 +1,126 @@
+// The window's simulation thread: one Session stepped at the fixed dt in real time, fed
+// StepCommands from a mutex-protected queue (each stamped with the step it applies to), publishing
+// a snapshot after every step through a SnapshotExchange (fill_snapshot, as the headless replay
+// does). The mouse and a played recording feed the same queue; the thread records the commands it
+// applied (RecordingWriter, a state hash every 60 steps), so a recording made here replays bit for
+// bit with `divvox replay`.
+#pragma once
+
+#include "engine/recording.h"
+#include "engine/session.h"
+#include "engine/snapshot.h"
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace dvx {
+
+struct StampedCommands {
+  uint32_t step = 0;  // the step they apply to (a stamp already past applies at the next step)
+  StepCommands commands;
+};
+
+// What the panels show; copied out under the runner's lock.
+struct SimStatus {
+  bool loading = false, ready = false, paused = false;
+  uint32_t step = 0;  // the next step to run
+  double dt = 1.0 / 60.0;
+  Scene scene;
+  Aabb bounds;            // the input mesh's bounds (framing, blade placement)
+  uint64_t generation = 0;  // +1 per (re)built session
+  uint32_t occupied_voxels = 0, divided_voxels = 0, sim_voxels_divided = 0, particles = 0;
+  std::vector<StepTimings> timings;  // recent steps, oldest first
+  std::string error;                 // the last failed open/record request
+  // Recording and playback.
+  bool recording = false;
+  std::string recording_path;
+  bool playing = false, play_done = false;
+  std::string play_path;
+  uint32_t play_last = 0, hash_checked = 0, hash_mismatched = 0;
+  std::string final_hash;
+};
+
+class SimRunner {
+ public:
+  static constexpr uint32_t kHashEvery = 60;
+  static constexpr size_t kTimingHistory = 300;
+
+  SimRunner();
+  ~SimRunner();  // stops the thread
+  SimRunner(const SimRunner&) = delete;
+  SimRunner& operator=(const SimRunner&) = delete;
+
+  SnapshotExchange& exchange() { return exchange_; }
+  // Sequence number of the first snapshot of the current session (the renderer uploads it in full).
+  uint64_t generation_first_sequence() const { return generation_first_sequence_.load(); }
+
+  // Requests, from any thread; the simulation thread carries them out between steps.
+  // (Re)builds the session from `scene` (stops recording and playback). `record_path`: record it
+  // from step 0. On failure the previous session stays and status().error says why.
+  void open(const Scene& scene, double dt, const std::string& record_path = "");
+  // Plays a recording: rebuilds its scene and feeds its commands at their steps; prints
+  // "final hash X" on stdout after its last step. Throws InputError for a bad recording.
+  void play(const std::string& recording_path);
+  void start_recording(const std::string& path);  // restarts the current scene and records from step 0
+  void stop_recording();
+  void push(const StampedCommands& commands);
+  void push_now(const StepCommands& commands);  // stamped with the next step
+  void set_paused(bool paused);
+  void step_once();
+  // Live edits of the running session (refused while recording or playing: a recording holds
+  // one scene). Apply to the PBD parameters at the next step.
+  void set_solver(double dt, int iterations, const Vec3d& gravity);
+  void stop();
+
+  SimStatus status();
+  uint32_t next_step() const { return next_step_.load(); }
+  bool play_done() const { return play_done_.load(); }
+
+ private:
+  struct OpenRequest {
+    Scene scene;
+    double dt;
+    std::string record_path;
+    std::shared_ptr<Recording> play;
+  };
+  void run();
+  void do_open(OpenRequest& request);
+  void do_step(std::unique_lock<std::mutex>& lock);
+  void publish(const StepTimings& timings);
+  void finish_recording();
+
+  SnapshotExchange exchange_;
+  std::thread thread_;
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  // Shared under mutex_.
+  bool quit_ = false, paused_ = false;
+  int single_steps_ = 0;
+  std::deque<StampedCommands> queue_;
+  std::unique_ptr<OpenRequest> open_request_;
+  bool stop_record_request_ = false;
+  std::string record_request_;
+  bool solver_request_ = false;
+  double req_dt_ = 0;
+  int req_iterations_ = 0;
+  Vec3d req_gravity_;
+  SimStatus status_;
+  // Simulation-thread only.
+  std::unique_ptr<Session> session_;
+  std::unique_ptr<RecordingWriter> writer_;
+  std::shared_ptr<Recording> playing_;
+  size_t play_line_ = 0;
+  DirtyHistory history_;
+  uint64_t published_ = 0;
+  std::atomic<uint64_t> generation_first_sequence_{1};
+  std::atomic<uint32_t> next_step_{0};
+  std::atomic<bool> play_done_{false};
+};
+
+}  // namespace dvx
