@@ -39,6 +39,23 @@ void slot_normals(const Snapshot& s, std::vector<Vec3f>& normals) {
 
 }  // namespace
 
+void upload_snapshot(Renderer& renderer, const Snapshot& s, bool full, std::vector<Vec3f>& normals) {
+  slot_normals(s, normals);
+  RenderMesh mesh;
+  mesh.positions = s.positions.data();
+  mesh.normals = normals.data();
+  mesh.vertex_count = uint32_t(s.positions.size());
+  mesh.triangles = s.triangles.data();
+  mesh.triangle_count = uint32_t(s.triangles.size());
+  mesh.triangle_flags = s.triangle_flags.data();
+  mesh.vertex_begin = 0;
+  mesh.vertex_end = mesh.vertex_count;
+  mesh.triangle_begin = s.dirty_triangle_begin;
+  mesh.triangle_end = s.dirty_triangle_end;
+  mesh.full = full;
+  renderer_upload(renderer, mesh);
+}
+
 bool headless_render_available() { return true; }
 
 bool probe_headless_render(std::string& error) {
@@ -79,21 +96,8 @@ bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions
     // Upload: positions and normals in full (they move every step), triangles by dirty range unless
     // snapshots were skipped.
     const Clock::time_point t0 = Clock::now();
-    slot_normals(*s, normals);
-    RenderMesh mesh;
-    mesh.positions = s->positions.data();
-    mesh.normals = normals.data();
-    mesh.vertex_count = uint32_t(s->positions.size());
-    mesh.triangles = s->triangles.data();
-    mesh.triangle_count = uint32_t(s->triangles.size());
-    mesh.triangle_flags = s->triangle_flags.data();
-    mesh.vertex_begin = 0;
-    mesh.vertex_end = mesh.vertex_count;
-    mesh.triangle_begin = s->dirty_triangle_begin;
-    mesh.triangle_end = s->dirty_triangle_end;
-    mesh.full = s->sequence != last_sequence + 1;
+    upload_snapshot(renderer, *s, s->sequence != last_sequence + 1, normals);
     last_sequence = s->sequence;
-    renderer_upload(renderer, mesh);
     const Clock::time_point t1 = Clock::now();
     renderer_draw(renderer, camera, draw);
     const Clock::time_point t2 = Clock::now();

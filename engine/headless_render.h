@@ -3,6 +3,7 @@
 #pragma once
 
 #include "engine/snapshot.h"
+#include "render/renderer.h"
 
 #include <atomic>
 #include <cstdint>
@@ -18,6 +19,11 @@ struct HeadlessRenderOptions {
   bool wireframe = false;
   Aabb framing;            // the camera frames this box (the rest shape of the object)
 };
+
+// Uploads a snapshot to the renderer: positions and normals (area-weighted, computed here into
+// `normals`) in full, triangles by the snapshot's dirty range unless `full`. Shared by the headless
+// render thread and the window.
+void upload_snapshot(Renderer& renderer, const Snapshot& snapshot, bool full, std::vector<Vec3f>& normals);
 
 // True when this build can render headless (EGL + the render layer).
 bool headless_render_available();

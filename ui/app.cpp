@@ -1,6 +1,7 @@
 #include "ui/app.h"
 
 #include "engine/errors.h"
+#include "engine/headless_render.h"
 #include "engine/recording.h"
 #include "engine/scene.h"
 #include "render/camera.h"
@@ -62,23 +63,6 @@ void no_display_error() {
   std::fprintf(stderr,
                "divvox: error: no display (DISPLAY is not set or the X server refused); use 'divvox replay REC "
                "--headless'\n");
-}
-
-// Area-weighted vertex normals over the live slots of a snapshot (as the headless renderer does).
-void slot_normals(const Snapshot& s, std::vector<Vec3f>& normals) {
-  normals.assign(s.positions.size(), Vec3f::Zero());
-  for (const Tri& t : s.triangles) {
-    if (t[0] == kDeadIndex || t[0] >= s.positions.size() || t[1] >= s.positions.size() || t[2] >= s.positions.size()) {
-      continue;
-    }
-    const Vec3f n = (s.positions[t[1]] - s.positions[t[0]]).cross(s.positions[t[2]] - s.positions[t[0]]);
-    if (!n.allFinite()) continue;
-    for (int c = 0; c < 3; ++c) normals[t[c]] += n;
-  }
-  for (Vec3f& n : normals) {
-    const float len = n.norm();
-    n = len > 0.0f ? Vec3f(n / len) : Vec3f(0, 1, 0);
-  }
 }
 
 // Fraction of the image that is not background.
@@ -491,21 +475,9 @@ int run_window(const WindowOptions& options) {
     const Clock::time_point t0 = Clock::now();
     if (const Snapshot* s = sim.exchange().take()) {
       app.current = s;
-      slot_normals(*s, normals);
-      RenderMesh mesh;
-      mesh.positions = s->positions.data();
-      mesh.normals = normals.data();
-      mesh.vertex_count = uint32_t(s->positions.size());
-      mesh.triangles = s->triangles.data();
-      mesh.triangle_count = uint32_t(s->triangles.size());
-      mesh.triangle_flags = s->triangle_flags.data();
-      mesh.vertex_begin = 0;
-      mesh.vertex_end = mesh.vertex_count;
-      mesh.triangle_begin = s->dirty_triangle_begin;
-      mesh.triangle_end = s->dirty_triangle_end;
-      mesh.full = s->sequence != last_sequence + 1 || s->sequence == sim.generation_first_sequence();
+      upload_snapshot(renderer, *s, s->sequence != last_sequence + 1 || s->sequence == sim.generation_first_sequence(),
+                      normals);
       last_sequence = s->sequence;
-      renderer_upload(renderer, mesh);
       app.triangles = 0;
       for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
       if (app.latency_probe_stamp != 0 && s->step + 1 >= app.latency_probe_stamp) {
