@@ -78,7 +78,8 @@ bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions
     destroy_egl_context(context);
     return false;
   }
-  const Camera camera = frame_box(options.framing, float(options.width) / float(options.height));
+  const Camera framing = frame_box(options.framing, float(options.width) / float(options.height));
+  Camera camera = framing;
   DrawOptions draw;
   draw.wireframe = options.wireframe;
   std::vector<Vec3f> normals;
@@ -98,6 +99,17 @@ bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions
     const Clock::time_point t0 = Clock::now();
     upload_snapshot(renderer, *s, s->sequence != last_sequence + 1, normals);
     last_sequence = s->sequence;
+    // The recording's camera when it sets one (clip planes scaled to its distance).
+    if (s->has_camera) {
+      camera.target = s->camera_target;
+      camera.distance = s->camera_distance;
+      camera.yaw = s->camera_yaw;
+      camera.pitch = s->camera_pitch;
+      camera.z_near = 0.01f * s->camera_distance;
+      camera.z_far = 100.0f * s->camera_distance;
+    } else {
+      camera = framing;
+    }
     const Clock::time_point t1 = Clock::now();
     renderer_draw(renderer, camera, draw);
     const Clock::time_point t2 = Clock::now();

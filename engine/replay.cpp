@@ -96,6 +96,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   const uint32_t last = recording.last_step();
   uint32_t steps_done = 0;
   DirtyHistory dirty_history;
+  Snapshot camera;  // only its camera fields: the recording's camera so far
   const Clock::time_point start = Clock::now();
   // The simulation loop (on its own thread when a render thread draws its snapshots).
   const auto simulate = [&](SnapshotExchange* exchange) {
@@ -117,6 +118,27 @@ ReplayResult run_replay(const ReplayOptions& options) {
         commands.cutting = r.cutting;
       }
       if (r.has_hash && check_hashes) recorded_hash = r.hash;
+      if (r.extra.is_object() && r.extra.contains("camera")) {
+        // {"target": [x,y,z], "distance": d, "yaw": radians, "pitch": radians}: the frames' camera from here on.
+        const nlohmann::json& c = r.extra["camera"];
+        const auto number = [&](const char* key) {
+          if (!c.is_object() || !c.contains(key) || !c[key].is_number() || !std::isfinite(c[key].get<double>())) {
+            throw_input(options.recording, "line " + std::to_string(r.line) +
+                                               ": camera must be {\"target\": [x,y,z], \"distance\": d, \"yaw\": a, "
+                                               "\"pitch\": b}");
+          }
+          return float(c[key].get<double>());
+        };
+        if (!c.is_object() || !c.contains("target") || !c["target"].is_array() || c["target"].size() != 3) number("target");
+        for (int a = 0; a < 3; ++a) {
+          if (!c["target"][a].is_number()) number("target");
+          camera.camera_target[a] = float(c["target"][a].get<double>());
+        }
+        camera.camera_distance = number("distance");
+        camera.camera_yaw = number("yaw");
+        camera.camera_pitch = number("pitch");
+        camera.has_camera = camera.camera_target.allFinite() && camera.camera_distance > 0.0f;
+      }
       if (r.extra.is_object() && r.extra.contains("grab")) {
         commands.grab = parse_grab(r.extra["grab"], options.recording, r.line);
         if (writer) writer->write_line({{"step", step}, {"grab", r.extra["grab"]}});
@@ -147,6 +169,11 @@ ReplayResult run_replay(const ReplayOptions& options) {
           [&](Snapshot& slot, uint64_t slot_sequence) {
             fill_snapshot(slot, slot_sequence, session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr,
                           dirty_history, step, row.timings);
+            slot.has_camera = camera.has_camera;
+            slot.camera_target = camera.camera_target;
+            slot.camera_distance = camera.camera_distance;
+            slot.camera_yaw = camera.camera_yaw;
+            slot.camera_pitch = camera.camera_pitch;
           },
           capture);
       session.cut.surface.clear_dirty();

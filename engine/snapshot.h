@@ -28,6 +28,10 @@ struct Snapshot {
   uint32_t dirty_triangle_begin = 0, dirty_triangle_end = 0;  // triangle slots changed since the previous snapshot
   bool capture = false;             // a frame must be captured of this snapshot
   StepTimings timings;
+  // A camera set by the recording ("camera" in step lines), else the default framing is used.
+  bool has_camera = false;
+  Vec3f camera_target = Vec3f::Zero();
+  float camera_distance = 1.0f, camera_yaw = 0.0f, camera_pitch = 0.0f;
 };
 
 // Timings of one frame of the render thread.

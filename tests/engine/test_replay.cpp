@@ -257,4 +257,52 @@ TEST_SUITE("replay") {
     CHECK(fs::exists(dir.path / "frame_timings.csv"));
 #endif
   }
+  TEST_CASE("a camera in the recording sets the frames' view") {
+#ifdef DIVVOX_HAS_RENDER
+    TempDir dir;
+    // The shipped poses for 11 steps, with and without a close camera at step 0.
+    std::istringstream in(read_file(dvx_test::source_path("assets/recordings/bunny_cut.jsonl")));
+    std::string header, line;
+    std::getline(in, header);
+    nlohmann::json h = nlohmann::json::parse(header);
+    h["scene"]["mesh"] = dvx_test::source_path("assets/meshes/bunny_npm.obj");
+    h.erase("physics");
+    std::string body;
+    for (int i = 0; i < 11 && std::getline(in, line);) {
+      if (line.find("\"blade\"") == std::string::npos) continue;
+      body += line + "\n";
+      ++i;
+    }
+    const auto coverage_of = [&](const std::string& camera_line, const std::string& name) {
+      std::ofstream((dir.path / name).string()) << h.dump() << "\n" << camera_line << body;
+      ReplayOptions o;
+      o.recording = (dir.path / name).string();
+      o.out_dir = (dir.path / (name + ".out")).string();
+      o.frames_every = 10;
+      o.width = 160;
+      o.height = 90;
+      try {
+        run_replay(o);
+      } catch (const InputError& e) {
+        MESSAGE("skipped: " << e.what());
+        return -1.0;
+      }
+      int w = 0, hh = 0, n = 0;
+      unsigned char* p = stbi_load((dir.path / (name + ".out") / "frames" / "frame_00010.png").string().c_str(), &w, &hh, &n, 3);
+      REQUIRE(p != nullptr);
+      int object = 0;
+      for (int i = 0; i < w * hh; ++i) {
+        object += std::abs(p[3 * i] - p[0]) + std::abs(p[3 * i + 1] - p[1]) + std::abs(p[3 * i + 2] - p[2]) > 24;
+      }
+      stbi_image_free(p);
+      return double(object) / double(w * hh);
+    };
+    const double framed = coverage_of("", "framed.jsonl");
+    const double close = coverage_of("{\"step\":0,\"camera\":{\"target\":[0,5,0],\"distance\":9,\"yaw\":0.5,\"pitch\":0.2}}\n",
+                                     "close.jsonl");
+    if (framed < 0 || close < 0) return;
+    CHECK(framed > 0.05);
+    CHECK(close > framed + 0.1);  // the close camera fills more of the frame
+#endif
+  }
 }
