@@ -92,7 +92,11 @@ fi
 # replays up to its last complete step.
 "$divvox" replay "$rec" --headless --speed realtime --out "$tmp/k1" --record "$tmp/killed.jsonl" --hash-every 10 >/dev/null 2>&1 &
 pid=$!
-sleep 1.5
+# Kill it once it has recorded a few dozen lines (polls: start-up time varies with the build).
+for _ in $(seq 1 300); do
+  [[ -f "$tmp/killed.jsonl" ]] && (($(wc -l <"$tmp/killed.jsonl") >= 40)) && break
+  sleep 0.1
+done
 kill -KILL "$pid" 2>/dev/null
 wait "$pid" 2>/dev/null
 count=$((count + 1))
