@@ -12,6 +12,7 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <fstream>
 
 using namespace dvx;
 
@@ -31,6 +32,14 @@ struct Random {
     return Vec3d(uniform(box.min.x(), box.max.x()), uniform(box.min.y(), box.max.y()), uniform(box.min.z(), box.max.z()));
   }
 };
+
+// Resident memory of this process (bytes), from /proc/self/statm.
+uint64_t resident_bytes() {
+  std::ifstream statm("/proc/self/statm");
+  uint64_t size = 0, resident = 0;
+  statm >> size >> resident;
+  return resident * 4096;
+}
 
 }  // namespace
 
@@ -64,13 +73,16 @@ TEST_SUITE("stress") {
     const double scale = box.extent().maxCoeff();
 
     Random random{20261122};
+    uint64_t memory_after_cutting = 0;
     BladePose blade{random.point(box), random.point(box)};
     int cutting_left = 0;
     bool grabbing = false;
     const int steps = std::getenv("DIVVOX_STRESS_STEPS") ? std::atoi(std::getenv("DIVVOX_STRESS_STEPS")) : 20000;
     for (int step = 1; step <= steps; ++step) {
-      // A new random blade every so often; it moves along a random direction while it cuts.
-      if (cutting_left == 0 && random.uniform(0, 1) < 0.004) {
+      // A new random blade every so often (cutting stops for the last fifth: memory must then stay flat).
+      const bool cutting_phase = step <= steps * 4 / 5;
+      if (step == steps * 4 / 5 + 1) memory_after_cutting = resident_bytes();
+      if (cutting_phase && cutting_left == 0 && random.uniform(0, 1) < 0.004) {
         const Vec3d c = random.point(box), d = Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1));
         blade = {c - 0.6 * scale * d, c + 0.6 * scale * d};
         cutting_left = int(random.uniform(5, 30));
@@ -108,8 +120,14 @@ TEST_SUITE("stress") {
         CHECK(kinetic_energy(pbd) < 0.5 * mass * fall * fall + 1.0);
       }
     }
+    // After cutting stopped, grabs and steps allocate nothing that lasts.
+    const uint64_t memory_end = resident_bytes();
+    CHECK(memory_end <= memory_after_cutting + (1u << 20));
     std::string problem;
     CHECK_MESSAGE(check_cut_state(model, cut, problem), problem);
+    MESSAGE("resident memory: " << memory_after_cutting / 1024 << " KiB when cutting stopped, " << memory_end / 1024
+                                << " KiB at the end; kinetic energy " << kinetic_energy(pbd) << ", mass "
+                                << total_mass(pbd) << " (initial " << mass << ")");
     MESSAGE("after " << steps << " steps: " << cut.divided.size() << " divided voxels, " << sim_voxels_divided(pbd)
                                   << " divided simulation voxels, " << pbd.pieces.size() << " sim pieces");
   }
