@@ -52,10 +52,9 @@ uint32_t node_stride(const Lattice& l, int axis) {
 
 // The voxels around a lattice edge (up to 4, in counter-clockwise order about the axis); the
 // corner of the edge's lower node in each. Entries outside the lattice get voxel = kDeadIndex.
-void voxels_around_edge(const Lattice& l, uint32_t edge, uint32_t voxels[4], uint8_t lower_corner[4]) {
-  const int axis = int(edge % 3);
-  int32_t n[3];
-  l.node_coords(edge / 3, n);
+// The voxels around the lattice edge from node n along `axis` (see voxels_around_edge).
+void voxels_around_node_edge(const Lattice& l, const int32_t n[3], int axis, uint32_t voxels[4],
+                             uint8_t lower_corner[4]) {
   const int u = (axis + 1) % 3, v = (axis + 2) % 3;
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
   static constexpr int kOffsets[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
@@ -69,22 +68,18 @@ void voxels_around_edge(const Lattice& l, uint32_t edge, uint32_t voxels[4], uin
   }
 }
 
+void voxels_around_edge(const Lattice& l, uint32_t edge, uint32_t voxels[4], uint8_t lower_corner[4]) {
+  int32_t n[3];
+  l.node_coords(edge / 3, n);
+  voxels_around_node_edge(l, n, int(edge % 3), voxels, lower_corner);
+}
+
 // The same for edge e of the voxel at vc, without divisions (the hot path of the surface update).
 void voxels_around_voxel_edge(const Lattice& l, const int32_t vc[3], int e, uint32_t voxels[4],
                               uint8_t lower_corner[4]) {
   const VoxelEdge& ve = kVoxelEdges[e];
-  const int axis = ve.axis, u = (axis + 1) % 3, v = (axis + 2) % 3;
   const int32_t n[3] = {vc[0] + (ve.c0 & 1), vc[1] + ((ve.c0 >> 1) & 1), vc[2] + ((ve.c0 >> 2) & 1)};
-  const int32_t dims[3] = {l.nx, l.ny, l.nz};
-  static constexpr int kOffsets[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
-  for (int q = 0; q < 4; ++q) {
-    int32_t c[3] = {n[0], n[1], n[2]};
-    c[u] -= kOffsets[q][0];
-    c[v] -= kOffsets[q][1];
-    const bool inside = c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] < dims[0] && c[1] < dims[1] && c[2] < dims[2];
-    voxels[q] = inside ? l.voxel(c[0], c[1], c[2]) : kDeadIndex;
-    lower_corner[q] = uint8_t((kOffsets[q][0] << u) | (kOffsets[q][1] << v));
-  }
+  voxels_around_node_edge(l, n, ve.axis, voxels, lower_corner);
 }
 
 // Inserts into a sorted vector if absent.
