@@ -1,5 +1,7 @@
 #include "sim/mesh_distance.h"
 
+#include "sim/random.h"
+
 #include <Eigen/Geometry>
 
 #include <algorithm>
@@ -59,18 +61,6 @@ Vec3d closest_point_robust(const Vec3d& p, const Vec3d& a, const Vec3d& b, const
   return best;
 }
 
-// splitmix64: tiny portable PRNG, identical output on every platform and standard library.
-struct SplitMix64 {
-  uint64_t state;
-  uint64_t next() {
-    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
-  // Uniform in [0, 1) with 53 random bits.
-  double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
-};
 
 // Marks the vertices that triangles use (unreferenced positions are not part of the surface).
 std::vector<uint32_t> used_vertices(const TriMesh& mesh) {

@@ -3,7 +3,10 @@
 
 #include <doctest/doctest.h>
 
+#include <unistd.h>
+
 #include <filesystem>
+#include <fstream>
 #include <string>
 
 namespace dvx_test {
@@ -23,5 +26,25 @@ inline std::string shared_asset(const std::string& name) {
 inline std::string source_path(const std::string& relative) {
   return (std::filesystem::path(DIVVOX_SOURCE_DIR) / relative).string();
 }
+
+// A temporary folder removed at the end of the test (unique per process and instance).
+struct TempDir {
+  std::filesystem::path path;
+  TempDir() {
+    static int counter = 0;
+    path = std::filesystem::temp_directory_path() /
+           ("divvox_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    std::filesystem::create_directories(path);
+  }
+  ~TempDir() { std::filesystem::remove_all(path); }
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  // Writes a file in the folder and returns its path.
+  std::string file(const std::string& name, const std::string& text) const {
+    const std::filesystem::path p = path / name;
+    std::ofstream(p, std::ios::binary) << text;
+    return p.string();
+  }
+};
 
 }  // namespace dvx_test

@@ -9,20 +9,16 @@
 #include <cmath>
 #include <limits>
 
+#include "sim/random.h"
+
 using namespace dvx;
 
 namespace {
 
 // Portable test PRNG (splitmix64) so the points are the same everywhere.
-struct Rng {
-  uint64_t s;
-  uint64_t next() {
-    uint64_t z = (s += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
-  double uniform(double lo, double hi) { return lo + (hi - lo) * (static_cast<double>(next() >> 11) * 0x1.0p-53); }
+struct Rng : SplitMix64 {
+  explicit Rng(uint64_t seed) : SplitMix64{seed} {}
+  using SplitMix64::uniform;
   Vec3d point(double lo, double hi) { return Vec3d(uniform(lo, hi), uniform(lo, hi), uniform(lo, hi)); }
 };
 

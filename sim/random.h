@@ -1,0 +1,22 @@
+// A tiny portable random generator (splitmix64): the same numbers on every platform and standard
+// library, so sampling, tests and benchmarks are reproducible from a seed.
+#pragma once
+
+#include <cstdint>
+
+namespace dvx {
+
+struct SplitMix64 {
+  uint64_t state;
+  uint64_t next() {
+    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+  }
+  // Uniform in [0, 1) with 53 random bits.
+  double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+  double uniform(double lo, double hi) { return lo + (hi - lo) * uniform(); }
+};
+
+}  // namespace dvx
