@@ -40,6 +40,16 @@ for i in range(1, 121):
 for i in range(30):
     pose([7.0, y, -z], [7.0, y, z], False)
 
-out = open(sys.argv[1], "w") if len(sys.argv) > 1 else sys.stdout
+# With --grab: then the grab tool pulls the back beside the slit open (a "grab" command per step).
+if "--grab" in sys.argv:
+    for i in range(90):
+        t = i / 89
+        lines.append({"step": step, "grab": {"target": [1.0 + 2.5 * t, 6.0 + 1.0 * t, 0.0], "compliance": 1e-6}})
+        step += 1
+    lines.append({"step": step, "grab": "release"})
+    pose([7.0, y, -z], [7.0, y, z], False)
+
+paths = [a for a in sys.argv[1:] if not a.startswith("--")]
+out = open(paths[0], "w") if paths else sys.stdout
 for line in lines:
     out.write(json.dumps(line, separators=(",", ":")) + "\n")

@@ -88,6 +88,14 @@ if ! grep -q '"mismatched": 0' "$tmp/r6/summary.json"; then
   failures=$((failures + 1))
 fi
 
+# The grab recording: grab commands replay deterministically.
+expect 0 '' -- "$divvox" replay "$repo/assets/recordings/bunny_grab.jsonl" --headless --out "$tmp/g1"
+count=$((count + 1))
+if ! grep -q '"mismatched": 0' "$tmp/g1/summary.json" || grep -q '"checked": 0,' "$tmp/g1/summary.json"; then
+  echo "FAIL: the grab recording's hashes do not match"
+  failures=$((failures + 1))
+fi
+
 # Crash-safe recordings: SIGKILL a replay while it records (real-time pace); the partial recording
 # replays up to its last complete step.
 "$divvox" replay "$rec" --headless --speed realtime --out "$tmp/k1" --record "$tmp/killed.jsonl" --hash-every 10 >/dev/null 2>&1 &
