@@ -46,6 +46,7 @@ BladePose cut_pose(const Aabb& box, int s, int steps) {
 struct StepTiming {
   double divide_ms = 0, surface_ms = 0, total_ms = 0;
   uint32_t voxels_cut = 0, edges_cut = 0, triangles_changed = 0;
+  uint32_t newly_divided = 0;  // voxels that became divided in this step
 };
 
 }  // namespace
@@ -66,7 +67,7 @@ std::string bench_cut(const BenchCutOptions& options) {
   std::ostringstream rows_csv, steps_csv;
   rows_csv << "mesh,resolution,nx,ny,nz,occupied_voxels,steps,cutting_steps,init_ms,step_p50_ms,step_p99_ms,"
               "step_max_ms,divide_p50_ms,surface_p50_ms,voxels_cut,edges_cut,us_per_cut_voxel,divided_voxels,"
-              "explicit_bytes,bytes_per_divided_voxel,components,boundary_edges\n";
+              "explicit_bytes,bytes_per_divided_voxel,components,boundary_edges,newly_divided,us_per_newly_divided_voxel\n";
   steps_csv << "mesh,resolution,step,divide_ms,surface_ms,total_ms,voxels_cut,edges_cut,triangles_changed\n";
   nlohmann::json json_rows = nlohmann::json::array();
 
@@ -90,20 +91,21 @@ std::string bench_cut(const BenchCutOptions& options) {
       std::vector<StepTiming>& run = runs[size_t(r)];
       for (int s = 1; s <= options.steps; ++s) {
         CutStepStats stats;
+        const size_t divided_before = state.divided.size();
         const Clock::time_point t0 = Clock::now();
         cut_divide(model, state, cut_pose(box, s - 1, options.steps), cut_pose(box, s, options.steps), stats);
         const Clock::time_point t1 = Clock::now();
         cut_update_surface(model, state, stats);
         const Clock::time_point t2 = Clock::now();
         run.push_back({ms_between(t0, t1), ms_between(t1, t2), ms_between(t0, t2), stats.voxels_cut, stats.edges_cut,
-                       stats.triangles_changed});
+                       stats.triangles_changed, uint32_t(state.divided.size() - divided_before)});
       }
     }
 
     // Per-step medians over repeats; statistics over the steps that cut something.
     std::vector<double> totals, divides, surfaces;
     double sum_total = 0.0;
-    uint64_t sum_voxels = 0, sum_edges = 0;
+    uint64_t sum_voxels = 0, sum_edges = 0, sum_new = 0;
     for (int s = 0; s < options.steps; ++s) {
       std::vector<double> t, d, u;
       for (const auto& run : runs) {
@@ -121,11 +123,13 @@ std::string bench_cut(const BenchCutOptions& options) {
       surfaces.push_back(surface);
       sum_total += total;
       sum_voxels += first.voxels_cut;
+      sum_new += first.newly_divided;
       sum_edges += first.edges_cut;
     }
     const SurfaceStats stats = surface_stats(compact_surface(state.surface));
     const uint64_t explicit_bytes = cut_memory_bytes(state);
     const double us_per_voxel = sum_voxels ? 1000.0 * sum_total / double(sum_voxels) : 0.0;
+    const double us_per_new = sum_new ? 1000.0 * sum_total / double(sum_new) : 0.0;
     const double bytes_per_divided = state.divided.empty() ? 0.0 : double(explicit_bytes) / double(state.divided.size());
     const Lattice& l = model.lattice;
     rows_csv << name << ',' << resolution << ',' << l.nx << ',' << l.ny << ',' << l.nz << ',' << model.occupied_voxels
@@ -133,7 +137,8 @@ std::string bench_cut(const BenchCutOptions& options) {
              << quantile(totals, 0.5) << ',' << quantile(totals, 0.99) << ',' << quantile(totals, 1.0) << ','
              << quantile(divides, 0.5) << ',' << quantile(surfaces, 0.5) << ',' << sum_voxels << ',' << sum_edges
              << ',' << us_per_voxel << ',' << state.divided.size() << ',' << explicit_bytes << ','
-             << bytes_per_divided << ',' << stats.components << ',' << stats.boundary_edges << '\n';
+             << bytes_per_divided << ',' << stats.components << ',' << stats.boundary_edges << ',' << sum_new << ','
+             << us_per_new << '\n';
     json_rows.push_back({{"mesh", name},
                          {"resolution", resolution},
                          {"lattice", {l.nx, l.ny, l.nz}},
@@ -145,6 +150,8 @@ std::string bench_cut(const BenchCutOptions& options) {
                          {"voxels_cut", sum_voxels},
                          {"edges_cut", sum_edges},
                          {"us_per_cut_voxel", us_per_voxel},
+                         {"newly_divided_voxels", sum_new},
+                         {"us_per_newly_divided_voxel", us_per_new},
                          {"divided_voxels", state.divided.size()},
                          {"explicit_bytes", explicit_bytes},
                          {"bytes_per_divided_voxel", bytes_per_divided},
