@@ -8,10 +8,25 @@
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
+#include <cctype>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <stdexcept>
+#include <string>
+
+// Debian's assimp is built with ASSIMP_BUILD_DEBUG: a failed internal ai_assert (reachable from
+// malformed files, e.g. a PLY whose faces TriangulateProcess miscounts) prints a line and aborts.
+// This definition interposes the library's (calls from libassimp go through its PLT) and throws
+// instead; load_mesh turns that into an InputError naming the file.
+namespace Assimp {
+void aiAssertViolation(const char* expression, const char* file, int line) {
+  throw std::runtime_error(std::string("assimp internal check failed: ") + expression + " (" + file + ":" +
+                           std::to_string(line) + ")");
+}
+}  // namespace Assimp
 
 namespace dvx {
 namespace {
@@ -52,6 +67,36 @@ uint64_t file_size(const std::string& path) {
   return ec ? 0 : uint64_t(size);
 }
 
+// assimp 5.2's PLY reader never returns on a header without an `end_header` line (it keeps
+// reading at end of file): refuse such files before handing them over. Looks at .ply files
+// starting with the "ply" magic (assimp refuses the others itself), at most their first 1 MiB.
+void check_ply_header(const std::string& path, const std::string& extension) {
+  std::string lower = extension;
+  for (char& c : lower) c = char(std::tolower(static_cast<unsigned char>(c)));
+  if (lower != ".ply") return;
+  std::ifstream in(path, std::ios::binary);
+  std::string head(1u << 20, '\0');
+  in.read(head.data(), std::streamsize(head.size()));
+  head.resize(size_t(in.gcount()));
+  if (head.rfind("ply", 0) != 0) return;
+  // A line (ends: \n \r \f \0, as assimp's) whose first word is end_header.
+  bool at_line_start = true;
+  for (size_t i = 0; i < head.size(); ++i) {
+    const char c = head[i];
+    if (c == '\n' || c == '\r' || c == '\f' || c == '\0') {
+      at_line_start = true;
+    } else if (at_line_start && (c == ' ' || c == '\t')) {
+      continue;
+    } else if (at_line_start && head.compare(i, 10, "end_header") == 0 &&
+               (i + 10 == head.size() || std::strchr(" \t\n\r\f", head[i + 10]) != nullptr || head[i + 10] == '\0')) {
+      return;
+    } else {
+      at_line_start = false;
+    }
+  }
+  throw_input(path, "PLY header has no end_header line");
+}
+
 }  // namespace
 
 LoadedMesh load_mesh(const std::string& path) {
@@ -70,11 +115,34 @@ LoadedMesh load_mesh(const std::string& path) {
   if (extension.empty() || !importer.IsExtensionSupported(extension)) {
     throw_input(path, "unknown mesh format '" + extension + "' (use OBJ, PLY, STL, glTF/GLB)");
   }
+  check_ply_header(path, extension);
   // Points and lines are dropped; polygons become triangles; the structure is validated
   // (assimp rejects out-of-range indices there). Vertices are welded by us, exactly.
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
-  const aiScene* scene = importer.ReadFile(
-      path, aiProcess_Triangulate | aiProcess_ValidateDataStructure | aiProcess_SortByPType);
+  // Read first, post-process after checking the faces: assimp 5.2's loaders can produce faces
+  // without indices (a damaged PLY face list), which SortByPType dereferences out of bounds
+  // and TriangulateProcess asserts on; ValidateDataStructure does not catch them.
+  const aiScene* scene = nullptr;
+  try {
+    scene = importer.ReadFile(path, 0);
+    if (scene != nullptr) {
+      for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+        const aiMesh* mesh = scene->mMeshes[m];
+        if (mesh == nullptr) throw_input(path, "mesh " + std::to_string(m) + " is missing");
+        for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
+          if (mesh->mFaces[f].mNumIndices == 0 || mesh->mFaces[f].mIndices == nullptr) {
+            throw_input(path, "face " + std::to_string(f) + " has no vertices");
+          }
+        }
+      }
+      scene = importer.ApplyPostProcessing(aiProcess_Triangulate | aiProcess_ValidateDataStructure |
+                                           aiProcess_SortByPType);
+    }
+  } catch (const InputError&) {
+    throw;
+  } catch (const std::exception& e) {  // aiAssertViolation above, or assimp's own exceptions
+    throw_input(path, std::string("cannot be read as a mesh: ") + e.what());
+  }
   if (scene == nullptr) {
     std::string reason = importer.GetErrorString();
     if (reason.empty()) reason = "unknown reason";

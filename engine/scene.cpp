@@ -144,7 +144,7 @@ Scene load_scene(const std::string& path) {
   json root;
   try {
     root = json::parse(in, nullptr, true, /*ignore_comments=*/true);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, or out_of_range for a number like 1e999
     throw_input(path, std::string("malformed JSON: ") + e.what());
   }
   return parse_scene(root, path);
