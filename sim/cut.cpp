@@ -162,25 +162,23 @@ void pieces_of(const VoxelModel& model, const CutState& state, uint32_t voxel, u
 
 // ---- Surface slots -------------------------------------------------------------------------
 
-void mark_vertex_dirty(CutSurface& s, uint32_t slot) {
-  if (s.dirty_vertex_begin >= s.dirty_vertex_end) {
-    s.dirty_vertex_begin = slot;
-    s.dirty_vertex_end = slot + 1;
+// Grows the dirty range [begin, end) to cover [lo, hi).
+void grow_range(uint32_t& begin, uint32_t& end, uint32_t lo, uint32_t hi) {
+  if (begin >= end) {
+    begin = lo;
+    end = hi;
   } else {
-    s.dirty_vertex_begin = std::min(s.dirty_vertex_begin, slot);
-    s.dirty_vertex_end = std::max(s.dirty_vertex_end, slot + 1);
+    begin = std::min(begin, lo);
+    end = std::max(end, hi);
   }
 }
 
+void mark_vertex_dirty(CutSurface& s, uint32_t slot) {
+  grow_range(s.dirty_vertex_begin, s.dirty_vertex_end, slot, slot + 1);
+}
+
 void mark_quad_dirty(CutSurface& s, uint32_t quad) {
-  const uint32_t t = 2 * quad;
-  if (s.dirty_triangle_begin >= s.dirty_triangle_end) {
-    s.dirty_triangle_begin = t;
-    s.dirty_triangle_end = t + 2;
-  } else {
-    s.dirty_triangle_begin = std::min(s.dirty_triangle_begin, t);
-    s.dirty_triangle_end = std::max(s.dirty_triangle_end, t + 2);
-  }
+  grow_range(s.dirty_triangle_begin, s.dirty_triangle_end, 2 * quad, 2 * quad + 2);
 }
 
 // Slot of a piece's vertex, allocated when absent.

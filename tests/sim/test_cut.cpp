@@ -9,6 +9,8 @@
 
 #include <doctest/doctest.h>
 
+#include "fixtures.h"
+
 #include <Eigen/Geometry>
 
 #include <cmath>
@@ -17,14 +19,7 @@ using namespace dvx;
 
 namespace {
 
-VoxelModel voxelized(const TriMesh& mesh, int resolution) {
-  VoxelModel model;
-  std::string error;
-  VoxelizeParams params;
-  params.resolution = resolution;
-  REQUIRE_MESSAGE(voxelize(mesh, params, model, error), error);
-  return model;
-}
+using dvx_test::voxelized;
 
 SurfaceStats stats_of(const CutState& state) { return surface_stats(compact_surface(state.surface)); }
 

@@ -8,6 +8,8 @@
 
 #include <doctest/doctest.h>
 
+#include "fixtures.h"
+
 #include <Eigen/Geometry>
 
 #include <cmath>
@@ -16,14 +18,7 @@ using namespace dvx;
 
 namespace {
 
-VoxelModel voxelize_or_fail(const TriMesh& mesh, int resolution) {
-  VoxelModel model;
-  std::string error;
-  VoxelizeParams params;
-  params.resolution = resolution;
-  REQUIRE_MESSAGE(voxelize(mesh, params, model, error), error);
-  return model;
-}
+using dvx_test::voxelized;
 
 Eigen::Matrix3d rotation(double ax_deg, double ay_deg, double az_deg) {
   const double d = M_PI / 180.0;
@@ -53,7 +48,7 @@ TEST_SUITE("pipeline") {
   TEST_CASE("sphere: closed, one component, volume and distance to the analytic surface") {
     const double r = 1.0;
     const TriMesh sphere = make_icosphere(Vec3d(0.1, -0.2, 0.3), r, 5);
-    const VoxelModel model = voxelize_or_fail(sphere, 48);
+    const VoxelModel model = voxelized(sphere, 48);
     const SurfaceMesh surface = dual_contour(model);
     const SurfaceStats stats = surface_stats(surface);
     const double h = model.lattice.voxel_size;
@@ -75,7 +70,7 @@ TEST_SUITE("pipeline") {
 
   TEST_CASE("rotated cube: dual contouring keeps its corners (max error <= 0.1 voxel)") {
     const TriMesh cube = make_box(Vec3d(0.05, 0.02, -0.03), Vec3d(1, 1, 1), rotation(20, 30, 10), 1);
-    const VoxelModel model = voxelize_or_fail(cube, 40);
+    const VoxelModel model = voxelized(cube, 40);
     const SurfaceMesh surface = dual_contour(model);
     const SurfaceStats stats = surface_stats(surface);
     CHECK(stats.boundary_edges == 0);
@@ -86,8 +81,8 @@ TEST_SUITE("pipeline") {
 
   TEST_CASE("inward winding gives the same signs and crossings") {
     const TriMesh mesh = make_torus(Vec3d(0, 0, 0), 1.0, 0.4, 48, 24);
-    const VoxelModel outward = voxelize_or_fail(mesh, 40);
-    const VoxelModel inward = voxelize_or_fail(flip_winding(mesh), 40);
+    const VoxelModel outward = voxelized(mesh, 40);
+    const VoxelModel inward = voxelized(flip_winding(mesh), 40);
     CHECK(outward.inside == inward.inside);
     REQUIRE(outward.crossings.size() == inward.crossings.size());
     for (size_t i = 0; i < outward.crossings.size(); ++i) {
@@ -105,8 +100,8 @@ TEST_SUITE("pipeline") {
     REQUIRE(open.triangles.size() < closed.triangles.size());
     REQUIRE(mesh_bounds(open).min == mesh_bounds(closed).min);
     REQUIRE(mesh_bounds(open).max == mesh_bounds(closed).max);
-    const VoxelModel a = voxelize_or_fail(closed, 40);
-    const VoxelModel b = voxelize_or_fail(open, 40);
+    const VoxelModel a = voxelized(closed, 40);
+    const VoxelModel b = voxelized(open, 40);
     CHECK(same_signs_away_from(a, b, hole_centre, 0.25 + 2 * a.lattice.voxel_size));
     const SurfaceStats stats = surface_stats(dual_contour(b));
     CHECK(stats.boundary_edges == 0);
@@ -114,7 +109,7 @@ TEST_SUITE("pipeline") {
 
   TEST_CASE("two separate components give two closed surfaces") {
     const TriMesh two = merge_meshes(make_icosphere(Vec3d(-1.5, 0, 0), 1.0, 3), make_icosphere(Vec3d(1.5, 0, 0), 1.0, 3));
-    const SurfaceStats stats = surface_stats(dual_contour(voxelize_or_fail(two, 48)));
+    const SurfaceStats stats = surface_stats(dual_contour(voxelized(two, 48)));
     CHECK(stats.components == 2);
     CHECK(stats.boundary_edges == 0);
     CHECK(stats.euler == 4);
@@ -122,7 +117,7 @@ TEST_SUITE("pipeline") {
 
   TEST_CASE("a torus has Euler characteristic 0") {
     const TriMesh torus = make_torus(Vec3d(0.01, 0.02, 0.0), 1.0, 0.35, 64, 32);
-    const SurfaceStats stats = surface_stats(dual_contour(voxelize_or_fail(torus, 48)));
+    const SurfaceStats stats = surface_stats(dual_contour(voxelized(torus, 48)));
     CHECK(stats.components == 1);
     CHECK(stats.boundary_edges == 0);
     CHECK(stats.euler == 0);
@@ -141,15 +136,15 @@ TEST_SUITE("pipeline") {
     dirty.triangles.push_back({a, a + 1, a + 2});
     dirty.triangles.push_back(clean.triangles[5]);
     dirty.triangles.push_back(clean.triangles[5]);
-    const VoxelModel m0 = voxelize_or_fail(clean, 32);
-    const VoxelModel m1 = voxelize_or_fail(dirty, 32);
+    const VoxelModel m0 = voxelized(clean, 32);
+    const VoxelModel m1 = voxelized(dirty, 32);
     CHECK(m0.inside == m1.inside);
     CHECK(m0.crossings.size() == m1.crossings.size());
   }
 
   TEST_CASE("a thin plate thicker than two voxels stays one closed piece") {
     const TriMesh plate = make_box(Vec3d(0, 0, 0), Vec3d(1.0, 0.06, 0.7), rotation(3, 5, 7), 4);
-    const VoxelModel model = voxelize_or_fail(plate, 64);  // 2 * 0.06 = ~3.8 voxels
+    const VoxelModel model = voxelized(plate, 64);  // 2 * 0.06 = ~3.8 voxels
     const SurfaceStats stats = surface_stats(dual_contour(model));
     CHECK(stats.components == 1);
     CHECK(stats.boundary_edges == 0);
