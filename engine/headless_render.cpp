@@ -56,8 +56,6 @@ void upload_snapshot(Renderer& renderer, const Snapshot& s, bool full, std::vect
   renderer_upload(renderer, mesh);
 }
 
-bool headless_render_available() { return true; }
-
 bool probe_headless_render(std::string& error) {
   EglContext context;
   if (!create_egl_context(context, error)) return false;

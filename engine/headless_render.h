@@ -25,9 +25,6 @@ struct HeadlessRenderOptions {
 // render thread and the window.
 void upload_snapshot(Renderer& renderer, const Snapshot& snapshot, bool full, std::vector<Vec3f>& normals);
 
-// True when this build can render headless (EGL + the render layer).
-bool headless_render_available();
-
 // Creates the EGL context and renderer on the calling thread (false with a one-line reason).
 // Then renders snapshots until the exchange is finished and drained. Captures (readback + PNG) the
 // snapshots marked capture; draws the others (for timing). Fills `rows`.

@@ -1,22 +1,18 @@
 #include "engine/replay.h"
 
 #include "engine/errors.h"
-#include "engine/mesh_io.h"
 #include "engine/output.h"
 #include "engine/recording.h"
 #include "engine/session.h"
-#include "engine/task_pool.h"
 #include "engine/snapshot.h"
 #include "engine/svg_plot.h"
 #ifdef DIVVOX_HAS_RENDER
 #include "engine/headless_render.h"
 #endif
-#include "engine/voxelize_job.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
 #include "sim/state_hash.h"
 #include "sim/surface_metrics.h"
-#include "sim/voxelize.h"
 
 #include <nlohmann/json.hpp>
 
@@ -25,9 +21,9 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <memory>
 #include <atomic>
 #include <csignal>
+#include <memory>
 #include <sstream>
 #include <thread>
 
