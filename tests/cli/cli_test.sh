@@ -26,6 +26,15 @@ expect() {
   fi
 }
 
+# check_hashes DIR WHAT: the replay in DIR checked at least one recorded hash and all matched.
+check_hashes() {
+  count=$((count + 1))
+  if ! grep -q '"mismatched": 0' "$1/summary.json" || grep -q '"checked": 0,' "$1/summary.json"; then
+    echo "FAIL: $2: hashes not checked or not matching"
+    failures=$((failures + 1))
+  fi
+}
+
 # Bad meshes, each written here.
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\n' >"$tmp/points_only.obj"
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n' >"$tmp/out_of_range.obj"
@@ -82,19 +91,11 @@ if ! grep -q '"nonfinite_values": 0' "$tmp/r5/summary.json" || ! grep -q '"mass"
   failures=$((failures + 1))
 fi
 expect 0 '' -- "$divvox" replay "$rec" --headless --out "$tmp/r6"
-count=$((count + 1))
-if ! grep -q '"mismatched": 0' "$tmp/r6/summary.json"; then
-  echo "FAIL: the shipped recording's hashes do not match"
-  failures=$((failures + 1))
-fi
+check_hashes "$tmp/r6" "the shipped recording"
 
 # The grab recording: grab commands replay deterministically.
 expect 0 '' -- "$divvox" replay "$repo/assets/recordings/bunny_grab.jsonl" --headless --out "$tmp/g1"
-count=$((count + 1))
-if ! grep -q '"mismatched": 0' "$tmp/g1/summary.json" || grep -q '"checked": 0,' "$tmp/g1/summary.json"; then
-  echo "FAIL: the grab recording's hashes do not match"
-  failures=$((failures + 1))
-fi
+check_hashes "$tmp/g1" "the grab recording"
 
 # Crash-safe recordings: SIGKILL a replay while it records (real-time pace); the partial recording
 # replays up to its last complete step.
@@ -114,11 +115,7 @@ if [[ $lines -lt 20 ]]; then
   failures=$((failures + 1))
 fi
 expect 0 '' -- "$divvox" replay "$tmp/killed.jsonl" --headless --out "$tmp/k2"
-count=$((count + 1))
-if ! grep -q '"mismatched": 0' "$tmp/k2/summary.json" || grep -q '"checked": 0,' "$tmp/k2/summary.json"; then
-  echo "FAIL: the killed recording does not replay with matching hashes"
-  failures=$((failures + 1))
-fi
+check_hashes "$tmp/k2" "the killed recording"
 
 # A valid run writes report.json and surface.ply.
 expect 0 '' -- "$divvox" voxelize "$bunny" --resolution 32 --error-samples 2000 --out "$tmp/ok"
