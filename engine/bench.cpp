@@ -1,14 +1,12 @@
 #include "engine/bench.h"
 
+#include "engine/child_process.h"
 #include "engine/errors.h"
 #include "engine/output.h"
 #include "engine/resources.h"
 #include "engine/voxelize_job.h"
 
 #include <nlohmann/json.hpp>
-
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -30,12 +28,14 @@ double median(std::vector<double> values) {
 struct VoxelizeRow {
   double load_ms = 0, voxelize_ms = 0, contour_ms = 0, total_ms = 0;
   uint32_t nx = 0, ny = 0, nz = 0;
+  double voxel_size = 0;
   uint64_t occupied_voxels = 0, crossing_edges = 0, model_bytes = 0, peak_rss = 0, surface_triangles = 0;
   uint64_t boundary_edges = 0, components = 0;
+  double error_max = 0, error_mean = 0, error_rms = 0;  // two-sided distance to the input, voxel units
 };
 
 // Runs the repeats in this (child) process and returns the row.
-VoxelizeRow measure(const std::string& mesh, int resolution, int repeats) {
+VoxelizeRow measure(const std::string& mesh, int resolution, int repeats, uint64_t error_samples) {
   std::vector<double> load, vox, contour, total;
   VoxelizeRow row;
   for (int r = 0; r < repeats; ++r) {
@@ -48,6 +48,7 @@ VoxelizeRow measure(const std::string& mesh, int resolution, int repeats) {
     vox.push_back(result.ms.voxelize);
     contour.push_back(result.ms.contour);
     total.push_back(result.ms.load + result.ms.voxelize + result.ms.contour);
+    row.voxel_size = result.model.lattice.voxel_size;
     row.nx = uint32_t(result.model.lattice.nx);
     row.ny = uint32_t(result.model.lattice.ny);
     row.nz = uint32_t(result.model.lattice.nz);
@@ -63,49 +64,38 @@ VoxelizeRow measure(const std::string& mesh, int resolution, int repeats) {
   row.contour_ms = median(contour);
   row.total_ms = median(total);
   row.peak_rss = peak_rss_bytes();
+  // The error to the input in one more, untimed run (after the peak memory was read: the sampling
+  // and its tree are not part of voxelization).
+  if (error_samples > 0) {
+    VoxelizeJobOptions options;
+    options.mesh_path = mesh;
+    options.resolution = resolution;
+    options.error_samples = error_samples;
+    const VoxelizeJobResult result = run_voxelize(options);
+    row.error_max = result.error.max;
+    row.error_mean = result.error.mean;
+    row.error_rms = result.error.rms;
+  }
   return row;
 }
 
 // Runs measure() in a child so each row's peak memory is its own; false when it failed.
-bool measure_in_child(const std::string& mesh, int resolution, int repeats, VoxelizeRow& row, std::string& error) {
-  int fds[2];
-  if (pipe(fds) != 0) throw std::runtime_error("bench: pipe() failed");
-  std::fflush(nullptr);
-  const pid_t pid = fork();
-  if (pid < 0) throw std::runtime_error("bench: fork() failed");
-  if (pid == 0) {
-    close(fds[0]);
-    int code = 0;
-    std::string text;
-    try {
-      const VoxelizeRow r = measure(mesh, resolution, repeats);
-      text = std::string(reinterpret_cast<const char*>(&r), sizeof r);
-    } catch (const std::exception& e) {
-      text = e.what();
-      code = 3;
-    }
-    size_t written = 0;
-    while (written < text.size()) {
-      const ssize_t n = write(fds[1], text.data() + written, text.size() - written);
-      if (n <= 0) break;
-      written += size_t(n);
-    }
-    close(fds[1]);
-    _exit(code);
-  }
-  close(fds[1]);
+bool measure_in_child(const std::string& mesh, int resolution, int repeats, uint64_t error_samples, VoxelizeRow& row,
+                      std::string& error) {
   std::string bytes;
-  char buffer[4096];
-  for (ssize_t n; (n = read(fds[0], buffer, sizeof buffer)) > 0;) bytes.append(buffer, size_t(n));
-  close(fds[0]);
-  int status = 0;
-  waitpid(pid, &status, 0);
-  if (WIFEXITED(status) && WEXITSTATUS(status) == 0 && bytes.size() == sizeof row) {
-    std::copy(bytes.begin(), bytes.end(), reinterpret_cast<char*>(&row));
-    return true;
+  const bool ok = run_in_child(
+      [&] {
+        const VoxelizeRow r = measure(mesh, resolution, repeats, error_samples);
+        return std::string(reinterpret_cast<const char*>(&r), sizeof r);
+      },
+      bytes, error);
+  if (!ok) return false;
+  if (bytes.size() != sizeof row) {
+    error = "child process returned a truncated result";
+    return false;
   }
-  error = bytes.empty() ? "child process failed" : bytes;
-  return false;
+  std::copy(bytes.begin(), bytes.end(), reinterpret_cast<char*>(&row));
+  return true;
 }
 
 }  // namespace
@@ -131,7 +121,8 @@ std::string bench_voxelize(const BenchVoxelizeOptions& options) {
 
   std::ostringstream csv;
   csv << "mesh,resolution,nx,ny,nz,repeats,load_ms,voxelize_ms,contour_ms,total_ms,occupied_voxels,crossing_edges,"
-         "model_bytes,bytes_per_occupied_voxel,peak_rss_bytes,surface_triangles,boundary_edges,components,status\n";
+         "model_bytes,bytes_per_occupied_voxel,peak_rss_bytes,surface_triangles,boundary_edges,components,"
+         "error_max_voxels,error_mean_voxels,error_rms_voxels,voxel_size,status\n";
   nlohmann::json rows = nlohmann::json::array();
   for (const std::string& mesh : meshes) {
     for (int resolution : options.resolutions) {
@@ -139,7 +130,7 @@ std::string bench_voxelize(const BenchVoxelizeOptions& options) {
       if (options.progress) std::fprintf(stderr, "divvox bench: %s at %d\n", name.c_str(), resolution);
       VoxelizeRow row;
       std::string error;
-      const bool ok = measure_in_child(mesh, resolution, options.repeats, row, error);
+      const bool ok = measure_in_child(mesh, resolution, options.repeats, options.error_samples, row, error);
       const double per_voxel = row.occupied_voxels ? double(row.model_bytes) / double(row.occupied_voxels) : 0.0;
       std::string status = ok ? "ok" : error;
       for (char& c : status) {
@@ -164,13 +155,17 @@ std::string bench_voxelize(const BenchVoxelizeOptions& options) {
                       {"bytes_per_occupied_voxel", per_voxel},
                       {"peak_rss_bytes", row.peak_rss},
                       {"surface_triangles", row.surface_triangles},
+                      {"boundary_edges", row.boundary_edges},
+                      {"components", row.components},
+                      {"voxel_size", row.voxel_size},
+                      {"error_voxels", {{"max", row.error_max}, {"mean", row.error_mean}, {"rms", row.error_rms}}},
                       {"status", status}});
     }
   }
   const std::string csv_path = (std::filesystem::path(options.out_dir) / "bench_voxelize.csv").string();
   write_text_file(csv_path, csv.str());
   write_json_file((std::filesystem::path(options.out_dir) / "bench_voxelize.json").string(),
-                  {{"benchmark", "voxelize"}, {"repeats", options.repeats}, {"statistic", "median"}, {"rows", rows}});
+                  {{"benchmark", "voxelize"}, {"repeats", options.repeats}, {"error_samples", options.error_samples}, {"statistic", "median"}, {"rows", rows}});
   return csv_path;
 }
 

@@ -1,4 +1,5 @@
 #include "engine/bench.h"
+#include "engine/bench_common.h"
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
@@ -19,28 +20,7 @@
 namespace dvx {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double ms_between(Clock::time_point a, Clock::time_point b) {
-  return std::chrono::duration<double, std::milli>(b - a).count();
-}
-
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const size_t i = size_t(std::ceil(q * double(v.size()))) - 1;
-  return v[std::min(i, v.size() - 1)];
-}
-
-// The blade of step s (0..steps): along z across the whole box, at 55 % of its height, moving along
-// x from one side of the box to the other.
-BladePose cut_pose(const Aabb& box, int s, int steps) {
-  const Vec3d e = box.extent();
-  const double margin = 0.05 * e.maxCoeff();
-  const double x = box.min.x() - margin + (e.x() + 2 * margin) * double(s) / double(steps);
-  const double y = box.min.y() + 0.55 * e.y();
-  return {Vec3d(x, y, box.min.z() - margin), Vec3d(x, y, box.max.z() + margin)};
-}
+using Clock = BenchClock;
 
 // One step's measurements (medians over repeats).
 struct StepTiming {
@@ -52,13 +32,7 @@ struct StepTiming {
 }  // namespace
 
 std::string bench_cut(const BenchCutOptions& options) {
-  std::string mesh_path = options.mesh;
-  if (mesh_path.empty()) {
-    const std::filesystem::path shared = std::filesystem::path(DIVVOX_SHARED_ASSETS_DEFAULT) / "armadillo_100k.obj";
-    mesh_path = std::filesystem::exists(shared)
-                    ? shared.string()
-                    : (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/meshes/bunny_npm.obj").string();
-  }
+  const std::string mesh_path = options.mesh.empty() ? shared_or_bunny("armadillo_100k.obj") : options.mesh;
   make_output_dir(options.out_dir);
   const LoadedMesh input = load_mesh(mesh_path);
   const Aabb box = mesh_bounds(input.mesh);

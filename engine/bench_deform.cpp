@@ -1,4 +1,5 @@
 #include "engine/bench.h"
+#include "engine/bench_common.h"
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
@@ -8,6 +9,8 @@
 #include "sim/cut.h"
 #include "sim/pbd.h"
 #include "sim/voxelize.h"
+
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <chrono>
@@ -20,18 +23,6 @@ namespace dvx {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, size_t(std::ceil(q * double(v.size()))) - 1)];
-}
-
-std::string shared_or_bunny(const std::string& name) {
-  const std::filesystem::path shared = std::filesystem::path(DIVVOX_SHARED_ASSETS_DEFAULT) / name;
-  if (std::filesystem::exists(shared)) return shared.string();
-  return (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/meshes/bunny_npm.obj").string();
-}
 
 // The voxel model and cut state of a scenario: uncut, or cut through by a vertical plane.
 struct Scenario {
@@ -124,6 +115,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
   plot.x_label = "step time p50 [ms]";
   plot.y_label = "relative L2 error at t = " + std::to_string(options.seconds).substr(0, 4) + " s";
   plot.log_x = plot.log_y = true;
+  nlohmann::json rows = nlohmann::json::array(), target_json;
   for (const bool through : {false, true}) {
     const std::string scenario = through ? "through_cut" : "anchored";
     Scenario s;
@@ -150,6 +142,9 @@ std::string bench_deform(const BenchDeformOptions& options) {
             << run.stretch.size() << '\n';
         series.x.push_back(p50);
         series.y.push_back(error);
+        rows.push_back({{"scenario", scenario}, {"sim_resolution", sim}, {"iterations", iterations},
+                        {"step_p50_ms", p50}, {"step_p99_ms", quantile(times, 0.99)}, {"relative_error", error},
+                        {"particles", run.position.size() - run.free_particles.size()}});
       }
       plot.series.push_back(series);
     }
@@ -182,7 +177,24 @@ std::string bench_deform(const BenchDeformOptions& options) {
       << run.position.size() - run.free_particles.size() << ',' << quantile(times, 0.5) << ','
       << quantile(times, 0.99) << ',' << quantile(times, 1.0) << '\n';
     write_text_file((out / "bench_deform_target.csv").string(), t.str());
+    target_json = {{"mesh", std::filesystem::path(target).filename().string()},
+                   {"resolution", options.target_resolution},
+                   {"sim_resolution", options.target_sim_resolution},
+                   {"iterations", options.target_iterations},
+                   {"workers", pool.workers()},
+                   {"surface_vertices", s.cut.surface.live_vertices()},
+                   {"step_ms", {{"p50", quantile(times, 0.5)}, {"p99", quantile(times, 0.99)}, {"max", quantile(times, 1.0)}}}};
   }
+  write_json_file((out / "bench_deform.json").string(),
+                  {{"benchmark", "deform"},
+                   {"mesh", name},
+                   {"resolution", options.resolution},
+                   {"seconds", options.seconds},
+                   {"workers", pool.workers()},
+                   {"error", "relative L2 distance of the surface vertices to the finest, most converged run, over the "
+                             "reference's mean displacement"},
+                   {"rows", rows},
+                   {"target", target_json}});
   return (out / "bench_deform.csv").string();
 }
 

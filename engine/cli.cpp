@@ -151,6 +151,10 @@ int run_cli(int argc, char** argv) {
   bench_voxelize_cmd->add_option("--repeats", bench_vox.repeats, "Runs per configuration (median reported)")
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
+  bench_voxelize_cmd->add_option("--error-samples", bench_vox.error_samples,
+                                 "Area samples per side of the error to the input (0: not measured)")
+      ->check(CLI::Range(uint64_t(0), uint64_t(100000000)))
+      ->capture_default_str();
   bench_voxelize_cmd->add_option("--out,-o", bench_vox.out_dir, "Output folder")->capture_default_str();
 
   // divvox replay
@@ -223,6 +227,99 @@ int run_cli(int argc, char** argv) {
   bench_deform_cmd->add_option("--target-resolution", bench_deform_options.target_resolution, "Resolution of the speed target")
       ->capture_default_str();
   bench_deform_cmd->add_option("--out,-o", bench_deform_options.out_dir, "Output folder")->capture_default_str();
+
+  // divvox bench scaling (Experiment 1)
+  BenchScalingOptions bench_scaling_options;
+  bench_scaling_options.out_dir = "out/bench";
+  std::string bench_scaling_resolutions = "64,128,256,512";
+  CLI::App* bench_scaling_cmd = bench->add_subcommand(
+      "scaling", "Experiment 1 (paper Table 1, Fig. 8): the same cut with physics through each mesh at increasing\n"
+                 "resolutions: cut/surface/deform/total ms per cutting step, peak memory, bytes per occupied voxel.");
+  bench_scaling_cmd->add_option("--mesh", bench_scaling_options.meshes,
+                                "Mesh file (repeatable; default: bunny, armadillo, liver from ../shared/assets)");
+  bench_scaling_cmd->add_option("--resolutions", bench_scaling_resolutions, "Comma-separated resolutions")
+      ->capture_default_str();
+  bench_scaling_cmd->add_option("--sim-resolution", bench_scaling_options.sim_resolution, "Simulation resolution")
+      ->check(CLI::Range(1, 4096))
+      ->capture_default_str();
+  bench_scaling_cmd->add_option("--iterations", bench_scaling_options.iterations, "Solver iterations")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  bench_scaling_cmd->add_option("--workers", bench_scaling_options.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
+  bench_scaling_cmd->add_option("--steps", bench_scaling_options.steps, "Blade poses along the path")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  bench_scaling_cmd->add_option("--out,-o", bench_scaling_options.out_dir, "Output folder")->capture_default_str();
+
+  // divvox bench cut-length (Experiment 2)
+  BenchCutLengthOptions bench_length_options;
+  bench_length_options.out_dir = "out/bench";
+  CLI::App* bench_length_cmd = bench->add_subcommand(
+      "cut-length", "Experiment 2 (paper Fig. 9-10): time against the number of cut voxels, for one-step cuts of\n"
+                    "increasing length and for the steps of a progressive cut, with least-squares lines (slope, R^2).");
+  bench_length_cmd->add_option("--mesh", bench_length_options.mesh, "Mesh file (default: armadillo)");
+  bench_length_cmd->add_option("--resolution", bench_length_options.resolution, "Resolution")
+      ->check(CLI::Range(1, kMaxResolution))
+      ->capture_default_str();
+  bench_length_cmd->add_option("--lengths", bench_length_options.lengths, "Cut lengths (fractions 1/n .. n/n)")
+      ->check(CLI::Range(2, 1000))
+      ->capture_default_str();
+  bench_length_cmd->add_option("--steps", bench_length_options.steps, "Steps of the progressive cut")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  bench_length_cmd->add_option("--repeats", bench_length_options.repeats, "Repeats (median)")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  bench_length_cmd->add_option("--out,-o", bench_length_options.out_dir, "Output folder")->capture_default_str();
+
+  // divvox bench quality (Fig. 13)
+  BenchQualityOptions bench_quality_options;
+  bench_quality_options.out_dir = "out/bench";
+  std::string bench_quality_resolutions = "64,128,256";
+  CLI::App* bench_quality_cmd = bench->add_subcommand(
+      "quality", "Cut-surface mesh quality (paper Fig. 13): min/max angle histograms of the cut faces after a\n"
+                 "through-cut by the plane divvox_peers clips with, and the time of that cut (progressive, one step).");
+  bench_quality_cmd->add_option("--mesh", bench_quality_options.mesh, "Mesh file (default: armadillo)");
+  bench_quality_cmd->add_option("--resolutions", bench_quality_resolutions, "Comma-separated resolutions")
+      ->capture_default_str();
+  bench_quality_cmd->add_option("--height", bench_quality_options.height, "Cut plane height (fraction of the box)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  bench_quality_cmd->add_option("--steps", bench_quality_options.steps, "Steps of the progressive cut")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  bench_quality_cmd->add_option("--repeats", bench_quality_options.repeats, "Repeats (median)")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  bench_quality_cmd->add_option("--out,-o", bench_quality_options.out_dir, "Output folder")->capture_default_str();
+
+  // divvox bench replay (determinism and throughput)
+  BenchReplayOptions bench_replay_options;
+  bench_replay_options.out_dir = "out/bench";
+  CLI::App* bench_replay_cmd = bench->add_subcommand(
+      "replay", "Determinism and throughput: replays recordings with 1 and N workers several times; all final\n"
+                "hashes must agree. Reports speed against real time. Exit 1 when replays diverged.");
+  bench_replay_cmd->add_option("--recording", bench_replay_options.recordings,
+                               "Recording (repeatable; default: the shipped recordings)");
+  bench_replay_cmd->add_option("--workers", bench_replay_options.workers, "Threads of the second set of runs")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  bench_replay_cmd->add_option("--repeats", bench_replay_options.repeats, "Runs per worker count")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  bench_replay_cmd->add_option("--out,-o", bench_replay_options.out_dir, "Output folder")->capture_default_str();
+
+  // divvox bench report
+  BenchReportOptions bench_report_options;
+  CLI::App* bench_report_cmd = bench->add_subcommand(
+      "report", "Writes REPORT.md (and SVG plots beside the results) from the JSON results of the benchmarks above\n"
+                "and of divvox_peers. tools/bench_report.sh runs everything and then this.");
+  bench_report_cmd->add_option("--results", bench_report_options.results_dir, "Folder of bench_*.json, peers_*.json")
+      ->capture_default_str();
+  bench_report_cmd->add_option("--out,-o", bench_report_options.report_path, "Report file")->capture_default_str();
+  bench_report_cmd->add_option("--mode", bench_report_options.mode, "Mode named in the report")
+      ->check(CLI::IsMember({"quick", "full"}))
+      ->capture_default_str();
 
   try {
     app.parse(argc, argv);
@@ -300,6 +397,32 @@ int run_cli(int argc, char** argv) {
                      replay_options.recording.c_str(), static_cast<long long>(r.first_mismatch_step));
         return kExitInternal;
       }
+      return kExitOk;
+    }
+    if (bench_scaling_cmd->parsed()) {
+      bench_scaling_options.resolutions = parse_int_list("--resolutions", bench_scaling_resolutions);
+      bench_scaling_options.progress = stderr_is_tty();
+      std::printf("wrote %s\n", bench_scaling(bench_scaling_options).c_str());
+      return kExitOk;
+    }
+    if (bench_length_cmd->parsed()) {
+      bench_length_options.progress = stderr_is_tty();
+      std::printf("wrote %s\n", bench_cut_length(bench_length_options).c_str());
+      return kExitOk;
+    }
+    if (bench_quality_cmd->parsed()) {
+      bench_quality_options.resolutions = parse_int_list("--resolutions", bench_quality_resolutions);
+      bench_quality_options.progress = stderr_is_tty();
+      std::printf("wrote %s\n", bench_quality(bench_quality_options).c_str());
+      return kExitOk;
+    }
+    if (bench_replay_cmd->parsed()) {
+      bench_replay_options.progress = stderr_is_tty();
+      std::printf("wrote %s\n", bench_replay(bench_replay_options).c_str());
+      return kExitOk;
+    }
+    if (bench_report_cmd->parsed()) {
+      std::printf("wrote %s\n", bench_report(bench_report_options).c_str());
       return kExitOk;
     }
     if (bench_deform_cmd->parsed()) {

@@ -1,0 +1,417 @@
+// The paper's experiments as benchmarks: scaling with resolution (Experiment 1), time against cut
+// voxels (Experiment 2), cut-surface mesh quality (Fig. 13) and replay determinism/throughput.
+#include "engine/bench.h"
+#include "engine/bench_common.h"
+#include "engine/bench_json.h"
+#include "engine/child_process.h"
+#include "engine/errors.h"
+#include "engine/mesh_io.h"
+#include "engine/output.h"
+#include "engine/replay.h"
+#include "engine/resources.h"
+#include "engine/session.h"
+#include "engine/svg_plot.h"
+#include "engine/voxelize_job.h"
+#include "sim/cut.h"
+#include "sim/surface_metrics.h"
+#include "sim/triangle_quality.h"
+#include "sim/voxelize.h"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+namespace dvx {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string file_name(const std::string& path) { return fs::path(path).filename().string(); }
+
+// A CSV field without separators or line breaks.
+std::string csv_field(std::string text) {
+  for (char& c : text) {
+    if (c == ',' || c == '\n' || c == '\r') c = ';';
+  }
+  return text;
+}
+
+nlohmann::json percentiles(const std::vector<double>& v) {
+  return {{"p50", quantile(v, 0.5)}, {"p99", quantile(v, 0.99)}, {"max", quantile(v, 1.0)}, {"count", v.size()}};
+}
+
+// The voxel model of a mesh at a resolution (refused for memory before allocating).
+void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolution, VoxelModel& model) {
+  check_voxelize_memory(path, mesh_bounds(mesh), mesh.triangles.size(), resolution);
+  VoxelizeParams params;
+  params.resolution = resolution;
+  std::string error;
+  if (!voxelize(mesh, params, model, error)) throw_input(path, error);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Experiment 1: one (mesh, resolution) with the physics running, measured in a child process.
+
+// The scene of the scaling run: the mesh anchored on its lowest 20 %, gravity, the default solver.
+Scene scaling_scene(const std::string& mesh_path, const Aabb& box, const BenchScalingOptions& o, int resolution) {
+  Scene scene;
+  scene.mesh = scene.mesh_path = mesh_path;
+  scene.resolution = resolution;
+  scene.sim_resolution = std::min(o.sim_resolution, resolution);
+  scene.solver.iterations = o.iterations;
+  const Vec3d e = box.extent();
+  FixedBox fixed{box.min - Vec3d::Constant(e.maxCoeff()), box.max + Vec3d::Constant(e.maxCoeff())};
+  fixed.max.y() = box.min.y() + 0.2 * e.y();
+  scene.fixed.push_back(fixed);
+  return scene;
+}
+
+nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, const BenchScalingOptions& o) {
+  const LoadedMesh input = load_mesh(mesh_path);
+  const Aabb box = mesh_bounds(input.mesh);
+  const Scene scene = scaling_scene(mesh_path, box, o, resolution);
+  Session session;
+  open_session(scene, scene.solver.dt, true, o.workers, session);
+
+  // Step 0 places the blade; steps 1..n sweep it along the path, cutting.
+  std::vector<double> cut, surface, deform, total, all_steps;
+  uint64_t voxels_cut = 0;
+  for (int s = 0; s <= o.steps; ++s) {
+    StepCommands commands;
+    commands.has_blade = true;
+    commands.blade = cut_pose(box, s, o.steps);
+    commands.cutting = s > 0;
+    const StepReport report = session_step(session, commands);
+    all_steps.push_back(report.timings.total_ms);
+    if (report.cut.voxels_cut == 0) continue;
+    voxels_cut += report.cut.voxels_cut;
+    cut.push_back(report.timings.cut_ms);
+    surface.push_back(report.timings.surface_ms);
+    deform.push_back(report.timings.deform_ms);
+    total.push_back(report.timings.total_ms);
+  }
+  const SurfaceStats stats = surface_stats(compact_surface(session.cut.surface));
+  const Lattice& l = session.model.lattice;
+  const uint64_t model_bytes = session.model.memory_bytes(), cut_bytes = cut_memory_bytes(session.cut);
+  return {{"mesh", file_name(mesh_path)},
+          {"resolution", resolution},
+          {"sim_resolution", scene.sim_resolution},
+          {"iterations", scene.solver.iterations},
+          {"workers", o.workers},
+          {"lattice", {l.nx, l.ny, l.nz}},
+          {"occupied_voxels", session.model.occupied_voxels},
+          {"init_ms", session.init_ms},
+          {"cutting_steps", total.size()},
+          {"voxels_cut", voxels_cut},
+          {"step_ms", {{"cut", percentiles(cut)}, {"surface", percentiles(surface)}, {"deform", percentiles(deform)},
+                       {"total", percentiles(total)}, {"every_step", percentiles(all_steps)}}},
+          {"model_bytes", model_bytes},
+          {"cut_bytes", cut_bytes},
+          {"bytes_per_occupied_voxel", session.model.occupied_voxels
+                                           ? double(model_bytes + cut_bytes) / double(session.model.occupied_voxels)
+                                           : 0.0},
+          {"peak_rss_bytes", peak_rss_bytes()},
+          {"surface_triangles", stats.triangles},
+          {"boundary_edges", stats.boundary_edges},
+          {"components", stats.components},
+          {"status", "ok"}};
+}
+
+// ---------------------------------------------------------------------------------------------
+// Mesh quality: the angle statistics of the live triangles of a cut surface.
+
+struct SurfaceAngles {
+  AngleStats cut, all;
+};
+
+SurfaceAngles surface_angles(const CutSurface& surface) {
+  std::vector<Vec3d> positions(surface.positions.size());
+  for (size_t i = 0; i < positions.size(); ++i) positions[i] = surface.positions[i].cast<double>();
+  std::vector<uint32_t> live, cut;
+  for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
+    if (surface.triangles[t][0] == kDeadIndex) continue;
+    live.push_back(t);
+    if (surface.triangle_cut[t]) cut.push_back(t);
+  }
+  return {angle_stats(positions, surface.triangles, &cut), angle_stats(positions, surface.triangles, &live)};
+}
+
+}  // namespace
+
+// =============================================================================================
+
+std::string bench_scaling(const BenchScalingOptions& options) {
+  const std::vector<std::string> meshes = options.meshes.empty() ? default_bench_meshes() : options.meshes;
+  for (const std::string& mesh : meshes) {
+    if (!fs::exists(mesh)) throw_input(mesh, "no such file");
+  }
+  make_output_dir(options.out_dir);
+  std::ostringstream csv;
+  csv << "mesh,resolution,nx,ny,nz,occupied_voxels,sim_resolution,iterations,workers,init_ms,cutting_steps,voxels_cut,"
+         "cut_p50_ms,cut_p99_ms,surface_p50_ms,surface_p99_ms,deform_p50_ms,deform_p99_ms,total_p50_ms,total_p99_ms,"
+         "model_bytes,cut_bytes,bytes_per_occupied_voxel,peak_rss_bytes,surface_triangles,boundary_edges,components,"
+         "status\n";
+  nlohmann::json rows = nlohmann::json::array();
+  for (const std::string& mesh : meshes) {
+    for (int resolution : options.resolutions) {
+      if (options.progress) std::fprintf(stderr, "divvox bench scaling: %s at %d\n", file_name(mesh).c_str(), resolution);
+      std::string text, error;
+      nlohmann::json row;
+      if (run_in_child([&] { return measure_scaling(mesh, resolution, options).dump(); }, text, error)) {
+        row = nlohmann::json::parse(text);
+      } else {
+        row = {{"mesh", file_name(mesh)}, {"resolution", resolution}, {"status", "skipped: " + error}};
+      }
+      rows.push_back(row);
+      if (row["status"] != "ok") {
+        csv << row["mesh"].get<std::string>() << ',' << resolution << ",,,,,,,,,,,,,,,,,,,,,,,,,,"
+            << csv_field(row["status"].get<std::string>()) << '\n';
+        continue;
+      }
+      const nlohmann::json& t = row["step_ms"];
+      csv << row["mesh"].get<std::string>() << ',' << resolution << ',' << row["lattice"][0] << ',' << row["lattice"][1]
+          << ',' << row["lattice"][2] << ',' << row["occupied_voxels"] << ',' << row["sim_resolution"] << ','
+          << row["iterations"] << ',' << row["workers"] << ',' << row["init_ms"] << ',' << row["cutting_steps"] << ','
+          << row["voxels_cut"] << ',' << t["cut"]["p50"] << ',' << t["cut"]["p99"] << ',' << t["surface"]["p50"] << ','
+          << t["surface"]["p99"] << ',' << t["deform"]["p50"] << ',' << t["deform"]["p99"] << ','
+          << t["total"]["p50"] << ',' << t["total"]["p99"] << ',' << row["model_bytes"] << ',' << row["cut_bytes"]
+          << ',' << row["bytes_per_occupied_voxel"] << ',' << row["peak_rss_bytes"] << ','
+          << row["surface_triangles"] << ',' << row["boundary_edges"] << ',' << row["components"] << ",ok\n";
+    }
+  }
+  const fs::path out(options.out_dir);
+  write_text_file((out / "bench_scaling.csv").string(), csv.str());
+  write_json_file((out / "bench_scaling.json").string(),
+                  {{"benchmark", "scaling"},
+                   {"steps", options.steps},
+                   {"statistic", "p50/p99 over the steps whose sweep cut voxels; every_step: all steps"},
+                   {"rows", rows}});
+  return (out / "bench_scaling.csv").string();
+}
+
+// =============================================================================================
+
+std::string bench_cut_length(const BenchCutLengthOptions& options) {
+  const std::string mesh_path = options.mesh.empty() ? shared_or_bunny("armadillo_100k.obj") : options.mesh;
+  make_output_dir(options.out_dir);
+  const LoadedMesh input = load_mesh(mesh_path);
+  const Aabb box = mesh_bounds(input.mesh);
+  VoxelModel model;
+  voxelize_for_bench(input.mesh, mesh_path, options.resolution, model);
+  if (options.progress) std::fprintf(stderr, "divvox bench cut-length: %s at %d\n", file_name(mesh_path).c_str(), options.resolution);
+
+  std::ostringstream csv;
+  csv << "mesh,resolution,kind,length_fraction,step,voxels_cut,newly_divided,edges_cut,divide_ms,surface_ms,total_ms\n";
+  std::vector<double> one_x, one_y, prog_x, prog_y;
+  CutState state;
+
+  // Single steps of increasing length on a fresh state (median over repeats).
+  for (int i = 1; i <= options.lengths; ++i) {
+    const double fraction = double(i) / double(options.lengths);
+    std::vector<double> divide, surface, total;
+    CutStepStats stats;
+    uint32_t newly = 0;
+    for (int r = 0; r < options.repeats; ++r) {
+      init_cut_state(model, state);
+      stats = CutStepStats{};
+      const BenchClock::time_point t0 = BenchClock::now();
+      cut_divide(model, state, cut_pose_at(box, 0.0), cut_pose_at(box, fraction), stats);
+      const BenchClock::time_point t1 = BenchClock::now();
+      cut_update_surface(model, state, stats);
+      const BenchClock::time_point t2 = BenchClock::now();
+      divide.push_back(ms_between(t0, t1));
+      surface.push_back(ms_between(t1, t2));
+      total.push_back(ms_between(t0, t2));
+      newly = uint32_t(state.divided.size());
+    }
+    csv << file_name(mesh_path) << ',' << options.resolution << ",single_step," << fraction << ",1," << stats.voxels_cut
+        << ',' << newly << ',' << stats.edges_cut << ',' << quantile(divide, 0.5) << ',' << quantile(surface, 0.5)
+        << ',' << quantile(total, 0.5) << '\n';
+    one_x.push_back(stats.voxels_cut);
+    one_y.push_back(quantile(total, 0.5));
+  }
+
+  // A progressive cut: every step's sample (median over repeats).
+  std::vector<std::vector<double>> step_total(size_t(options.steps));
+  std::vector<CutStepStats> step_stats(size_t(options.steps));
+  std::vector<uint32_t> step_new(size_t(options.steps));
+  for (int r = 0; r < options.repeats; ++r) {
+    init_cut_state(model, state);
+    for (int s = 1; s <= options.steps; ++s) {
+      CutStepStats stats;
+      const size_t before = state.divided.size();
+      const BenchClock::time_point t0 = BenchClock::now();
+      cut_divide(model, state, cut_pose(box, s - 1, options.steps), cut_pose(box, s, options.steps), stats);
+      cut_update_surface(model, state, stats);
+      step_total[size_t(s - 1)].push_back(ms_between(t0, BenchClock::now()));
+      step_stats[size_t(s - 1)] = stats;
+      step_new[size_t(s - 1)] = uint32_t(state.divided.size() - before);
+    }
+  }
+  for (int s = 0; s < options.steps; ++s) {
+    const CutStepStats& st = step_stats[size_t(s)];
+    if (st.voxels_cut == 0) continue;
+    const double t = quantile(step_total[size_t(s)], 0.5);
+    csv << file_name(mesh_path) << ',' << options.resolution << ",progressive," << double(s + 1) / options.steps << ','
+        << s + 1 << ',' << st.voxels_cut << ',' << step_new[size_t(s)] << ',' << st.edges_cut << ",,," << t << '\n';
+    prog_x.push_back(st.voxels_cut);
+    prog_y.push_back(t);
+  }
+
+  const LineFit one = fit_line(one_x, one_y), prog = fit_line(prog_x, prog_y);
+  auto fit_json = [](const LineFit& f) {
+    return nlohmann::json{{"us_per_voxel", 1000.0 * f.slope}, {"intercept_ms", f.intercept}, {"r2", f.r2},
+                          {"samples", f.samples}};
+  };
+  const fs::path out(options.out_dir);
+  write_text_file((out / "bench_cut_length.csv").string(), csv.str());
+  write_json_file((out / "bench_cut_length.json").string(),
+                  {{"benchmark", "cut_length"},
+                   {"mesh", file_name(mesh_path)},
+                   {"resolution", options.resolution},
+                   {"lattice", {model.lattice.nx, model.lattice.ny, model.lattice.nz}},
+                   {"repeats", options.repeats},
+                   {"single_step", {{"x_voxels_cut", one_x}, {"y_ms", one_y}, {"fit", fit_json(one)}}},
+                   {"progressive", {{"steps", options.steps}, {"x_voxels_cut", prog_x}, {"y_ms", prog_y},
+                                    {"fit", fit_json(prog)}}}});
+  // The plot: both samples and their lines.
+  Plot plot;
+  plot.title = "Experiment 2: time against cut voxels (" + file_name(mesh_path) + " at " +
+               std::to_string(options.resolution) + ")";
+  plot.x_label = "voxels cut in the step";
+  plot.y_label = "divide + surface time (ms)";
+  plot.series.push_back({"one step per length", one_x, one_y, true, false});
+  plot.series.push_back({"progressive steps", prog_x, prog_y, true, false});
+  for (const auto& [name, f, xs] : {std::tuple{"fit (one step)", one, one_x}, std::tuple{"fit (progressive)", prog, prog_x}}) {
+    if (xs.empty()) continue;
+    const double hi = *std::max_element(xs.begin(), xs.end());
+    plot.series.push_back({name, {0.0, hi}, {f.intercept, f.intercept + f.slope * hi}, false, true});
+  }
+  write_text_file((out / "bench_cut_length.svg").string(), plot_svg(plot));
+  return (out / "bench_cut_length.csv").string();
+}
+
+// =============================================================================================
+
+std::string bench_quality(const BenchQualityOptions& options) {
+  const std::string mesh_path = options.mesh.empty() ? shared_or_bunny("armadillo_100k.obj") : options.mesh;
+  make_output_dir(options.out_dir);
+  const LoadedMesh input = load_mesh(mesh_path);
+  const Aabb box = mesh_bounds(input.mesh);
+  std::ostringstream csv;
+  csv << "mesh,resolution,steps,progressive_ms,one_step_ms,cut_triangles,cut_min_angle_deg,cut_mean_min_angle_deg,"
+         "cut_fraction_min_le_10,cut_fraction_max_ge_160,all_triangles,all_fraction_min_le_10,"
+         "all_fraction_max_ge_160,components,boundary_edges\n";
+  nlohmann::json rows = nlohmann::json::array();
+  for (int resolution : options.resolutions) {
+    if (options.progress) std::fprintf(stderr, "divvox bench quality: %s at %d\n", file_name(mesh_path).c_str(), resolution);
+    VoxelModel model;
+    voxelize_for_bench(input.mesh, mesh_path, resolution, model);
+    CutState state;
+    // The same through-cut progressively (sum of the steps) and in one step (medians over repeats).
+    std::vector<double> progressive, one_step;
+    for (int r = 0; r < options.repeats; ++r) {
+      init_cut_state(model, state);
+      const BenchClock::time_point t0 = BenchClock::now();
+      cut_step(model, state, cut_pose(box, 0, 1, options.height), cut_pose(box, 1, 1, options.height));
+      one_step.push_back(ms_between(t0, BenchClock::now()));
+    }
+    for (int r = 0; r < options.repeats; ++r) {
+      init_cut_state(model, state);
+      const BenchClock::time_point t0 = BenchClock::now();
+      for (int s = 1; s <= options.steps; ++s) {
+        cut_step(model, state, cut_pose(box, s - 1, options.steps, options.height),
+                 cut_pose(box, s, options.steps, options.height));
+      }
+      progressive.push_back(ms_between(t0, BenchClock::now()));
+    }
+    const SurfaceAngles angles = surface_angles(state.surface);
+    const SurfaceStats stats = surface_stats(compact_surface(state.surface));
+    csv << file_name(mesh_path) << ',' << resolution << ',' << options.steps << ',' << quantile(progressive, 0.5) << ','
+        << quantile(one_step, 0.5) << ',' << angles.cut.triangles << ',' << angles.cut.min_angle_deg << ','
+        << angles.cut.mean_min_angle_deg << ',' << angles.cut.fraction_min_le_10 << ','
+        << angles.cut.fraction_max_ge_160 << ',' << angles.all.triangles << ',' << angles.all.fraction_min_le_10
+        << ',' << angles.all.fraction_max_ge_160 << ',' << stats.components << ',' << stats.boundary_edges << '\n';
+    rows.push_back({{"resolution", resolution},
+                    {"lattice", {model.lattice.nx, model.lattice.ny, model.lattice.nz}},
+                    {"progressive_ms", quantile(progressive, 0.5)},
+                    {"one_step_ms", quantile(one_step, 0.5)},
+                    {"components", stats.components},
+                    {"boundary_edges", stats.boundary_edges},
+                    {"angles", {{"cut_surface", angle_stats_json(angles.cut)}, {"all", angle_stats_json(angles.all)}}}});
+  }
+  const fs::path out(options.out_dir);
+  const Vec3d point = cut_pose_at(box, 0.5, options.height).a;
+  write_text_file((out / "bench_quality.csv").string(), csv.str());
+  write_json_file((out / "bench_quality.json").string(),
+                  {{"benchmark", "quality"},
+                   {"mesh", file_name(mesh_path)},
+                   {"height", options.height},
+                   {"plane", {{"point", {point.x(), point.y(), point.z()}}, {"normal", {0, 1, 0}}}},
+                   {"steps", options.steps},
+                   {"repeats", options.repeats},
+                   {"input_angles", angle_stats_json(angle_stats(input.mesh.positions, input.mesh.triangles))},
+                   {"rows", rows}});
+  return (out / "bench_quality.csv").string();
+}
+
+// =============================================================================================
+
+std::string bench_replay(const BenchReplayOptions& options) {
+  std::vector<std::string> recordings = options.recordings;
+  if (recordings.empty()) {
+    for (const char* name : {"bunny_cut.jsonl", "bunny_grab.jsonl"}) {
+      recordings.push_back((fs::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/recordings" / name).string());
+    }
+  }
+  make_output_dir(options.out_dir);
+  std::ostringstream csv;
+  csv << "recording,workers,repeat,steps,simulated_s,wall_s,steps_per_s,realtime_factor,step_p50_ms,step_p99_ms,"
+         "final_hash,hash_checked,hash_mismatched\n";
+  nlohmann::json rows = nlohmann::json::array();
+  bool all_deterministic = true;
+  for (const std::string& recording : recordings) {
+    std::string first_hash;
+    bool deterministic = true;
+    nlohmann::json runs = nlohmann::json::array();
+    for (int workers : {1, options.workers}) {
+      for (int r = 0; r < options.repeats; ++r) {
+        if (options.progress) std::fprintf(stderr, "divvox bench replay: %s, %d workers, run %d\n", file_name(recording).c_str(), workers, r + 1);
+        ReplayOptions replay;
+        replay.recording = recording;
+        replay.workers = workers;
+        replay.out_dir = (fs::path(options.out_dir) / "replay_runs").string();
+        const ReplayResult result = run_replay(replay);
+        std::ifstream file(result.summary_path);
+        const nlohmann::json summary = nlohmann::json::parse(file);
+        const double simulated = double(summary["steps"]) * double(summary["dt"]);
+        const double wall = summary["wall_s"];
+        if (first_hash.empty()) first_hash = result.final_hash;
+        deterministic = deterministic && result.final_hash == first_hash && result.hash_mismatched == 0;
+        const nlohmann::json& step = summary["timing_ms"]["step"];
+        csv << file_name(recording) << ',' << workers << ',' << r + 1 << ',' << result.steps << ',' << simulated << ','
+            << wall << ',' << result.steps / wall << ',' << simulated / wall << ',' << step["p50"] << ','
+            << step["p99"] << ',' << result.final_hash << ',' << result.hash_checked << ',' << result.hash_mismatched
+            << '\n';
+        runs.push_back({{"workers", workers}, {"repeat", r + 1}, {"steps", result.steps}, {"simulated_s", simulated},
+                        {"wall_s", wall}, {"realtime_factor", simulated / wall}, {"step_ms", step},
+                        {"final_hash", result.final_hash}, {"hash_checked", result.hash_checked},
+                        {"hash_mismatched", result.hash_mismatched}});
+      }
+    }
+    all_deterministic = all_deterministic && deterministic;
+    rows.push_back({{"recording", file_name(recording)}, {"deterministic", deterministic}, {"runs", runs}});
+  }
+  fs::remove_all(fs::path(options.out_dir) / "replay_runs");
+  const fs::path out(options.out_dir);
+  write_text_file((out / "bench_replay.csv").string(), csv.str());
+  write_json_file((out / "bench_replay.json").string(),
+                  {{"benchmark", "replay"}, {"deterministic", all_deterministic}, {"rows", rows}});
+  if (!all_deterministic) throw std::runtime_error("bench replay: replays of the same recording diverged (see bench_replay.csv)");
+  return (out / "bench_replay.csv").string();
+}
+
+}  // namespace dvx

@@ -1,0 +1,132 @@
+#!/usr/bin/env bash
+# Runs every benchmark and writes the report (issue 7): REPORT.md with SVG plots, the CSV/JSON
+# results beside them.
+#   tools/bench_report.sh            -> full mode: bench/REPORT.md, bench/results/ (the committed reference)
+#   tools/bench_report.sh --quick    -> quick mode (< 5 minutes): out/bench_quick/REPORT.md, out/bench_quick/results/
+#   tools/bench_report.sh --smoke    -> seconds, on the shipped bunny only (the test suite runs this)
+# Options: --out DIR (report at DIR/REPORT.md, results in DIR/results), --bin DIR (use this divvox
+# build, skip set-up), --no-peers (skip the CGAL / OpenVDB comparison).
+# The peers (CGAL clip, OpenVDB) are built into build-peers/ with -DDIVVOX_BENCH_PEERS=ON from
+# Debian's libcgal-dev and libopenvdb-dev, installed when missing and running as root (or sudo).
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+mode=full out="" bin="" peers=1
+while (($#)); do
+  case "$1" in
+    --quick) mode=quick ;;
+    --full) mode=full ;;
+    --smoke) mode=smoke ;;
+    --out) out="$2"; shift ;;
+    --bin) bin="$2"; shift ;;
+    --no-peers) peers=0 ;;
+    -h | --help) sed -n '2,11p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "bench_report: unknown option '$1' (see --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+case "$mode" in
+  full) out="${out:-$here/bench}" ;;
+  quick) out="${out:-$here/out/bench_quick}" ;;
+  smoke) out="${out:-$here/out/bench_smoke}"; peers=0 ;;
+esac
+results="$out/results"
+mkdir -p "$results"
+
+# The divvox build (README set-up) unless one was given.
+if [[ -z "$bin" ]]; then
+  "$here/tools/setup.sh"
+  bin="$here/build/engine"
+fi
+divvox="$bin/divvox"
+[[ -x "$divvox" ]] || { echo "bench_report: $divvox not found" >&2; exit 2; }
+
+# The peer comparison tool: Debian packages, then its own build folder.
+peers_bin=""
+if ((peers)); then
+  missing=()
+  for p in libcgal-dev libopenvdb-dev; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  if ((${#missing[@]})); then
+    sudo_cmd=()
+    [[ $(id -u) -ne 0 ]] && sudo_cmd=(sudo)
+    echo "bench_report: installing ${missing[*]} (peer comparison only)"
+    if ! DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null; then
+      echo "bench_report: could not install ${missing[*]}; the report leaves CGAL and OpenVDB out" >&2
+    fi
+  fi
+  if dpkg-query -W -f='${Status}' libcgal-dev 2>/dev/null | grep -q "install ok installed" &&
+     dpkg-query -W -f='${Status}' libopenvdb-dev 2>/dev/null | grep -q "install ok installed"; then
+    pb="$here/build-peers"
+    if [[ ! -f "$pb/CMakeCache.txt" ]]; then
+      cmake -S "$here" -B "$pb" -G Ninja -DCMAKE_BUILD_TYPE=Release -DDIVVOX_BENCH_PEERS=ON -DDIVVOX_GRAPHICS=OFF \
+        -DDIVVOX_TESTS=OFF >"$pb.configure.log" 2>&1 || { cat "$pb.configure.log"; exit 1; }
+    fi
+    cmake --build "$pb" --target divvox_peers --parallel "$(nproc)" >"$pb.build.log" 2>&1 || { cat "$pb.build.log"; exit 1; }
+    peers_bin="$pb/tools/peers/divvox_peers"
+  fi
+fi
+
+shared="$(cd "$here/.." && pwd)/shared/assets"
+bunny="$here/assets/meshes/bunny_npm.obj"
+armadillo="$shared/armadillo_100k.obj"
+[[ -f "$armadillo" ]] || armadillo="$bunny"
+
+# The settings of each mode: quick trims resolutions, repeats and sweeps.
+case "$mode" in
+  full)
+    vox=(--resolutions 64,128,256,512 --repeats 5)
+    cut=(--mesh "$armadillo" --resolutions 64,128,256 --repeats 5)
+    scaling=(--resolutions 64,128,256,512)
+    length=(--mesh "$armadillo" --resolution 256 --repeats 5)
+    quality=(--mesh "$armadillo" --resolutions 64,128,256 --repeats 5)
+    deform=()
+    replay=(--repeats 3)
+    vdb=(--resolutions 64,128,256,512 --repeats 3)
+    clip=(--repeats 5)
+    ;;
+  quick)
+    vox=(--mesh "$armadillo" --resolutions 64,128,256 --repeats 2)
+    cut=(--mesh "$armadillo" --resolutions 64,128 --repeats 2)
+    scaling=(--mesh "$armadillo" --resolutions 64,128,256 --steps 50)
+    length=(--mesh "$armadillo" --resolution 128 --repeats 2)
+    quality=(--mesh "$armadillo" --resolutions 64,128 --repeats 2)
+    deform=(--sim-resolutions 8,16 --iterations 2,5,10,20 --seconds 1 --target-resolution 128)
+    replay=(--repeats 1)
+    vdb=(--resolutions 64,128,256 --repeats 1)
+    clip=(--repeats 2)
+    ;;
+  smoke)
+    vox=(--mesh "$bunny" --resolutions 24,48 --repeats 1 --error-samples 5000)
+    cut=(--mesh "$bunny" --resolutions 24,48 --repeats 1 --steps 20)
+    scaling=(--mesh "$bunny" --resolutions 16,32 --steps 10 --sim-resolution 8)
+    length=(--mesh "$bunny" --resolution 32 --repeats 1 --lengths 5 --steps 20)
+    quality=(--mesh "$bunny" --resolutions 24,48 --repeats 1 --steps 20)
+    deform=(--mesh "$bunny" --resolution 32 --sim-resolutions 4,8 --iterations 2,5 --seconds 0.2
+            --target-mesh "$bunny" --target-resolution 32)
+    replay=(--repeats 1 --recording "$here/assets/recordings/bunny_cut.jsonl")
+    ;;
+esac
+
+step() { echo "bench_report: $*" >&2; }
+start=$SECONDS
+step "voxelize (surface time and error)";  "$divvox" bench voxelize "${vox[@]}" --out "$results" >/dev/null
+step "cut (no physics)";                   "$divvox" bench cut "${cut[@]}" --out "$results" >/dev/null
+step "scaling (Experiment 1)";             "$divvox" bench scaling "${scaling[@]}" --out "$results" >/dev/null
+step "cut-length (Experiment 2)";          "$divvox" bench cut-length "${length[@]}" --out "$results" >/dev/null
+step "quality (Fig. 13)";                  "$divvox" bench quality "${quality[@]}" --out "$results" >/dev/null
+step "deform (physics speed against error)"; "$divvox" bench deform "${deform[@]}" --out "$results" >/dev/null
+step "replay (determinism, throughput)";   "$divvox" bench replay "${replay[@]}" --out "$results" >/dev/null
+if [[ -n "$peers_bin" ]]; then
+  step "peers: CGAL clip";                 "$peers_bin" clip --mesh "$armadillo" "${clip[@]}" --out "$results" >/dev/null
+  step "peers: OpenVDB";                   "$peers_bin" vdb --mesh "$armadillo" "${vdb[@]}" --out "$results" >/dev/null
+else
+  rm -f "$results"/peers_*.json "$results"/peers_*.csv
+fi
+report_mode=$mode
+[[ $mode == smoke ]] && report_mode=quick
+"$divvox" bench report --results "$results" --out "$out/REPORT.md" --mode "$report_mode" >/dev/null
+echo "bench_report: $mode run took $((SECONDS - start)) s"
+echo "report: $out/REPORT.md"
+echo "results: $results/ (CSV, JSON, SVG)"
