@@ -61,26 +61,34 @@ uint8_t node_piece(const VoxelModel& model, const PbdState& s, uint32_t sv, cons
 }
 
 // Material volume of the pieces of a simulation voxel: each inside corner of each fine voxel of the
-// block adds h^3 / 8 to its piece (so volumes partition exactly under cuts).
+// block adds h^3 / 8 to its piece (so volumes partition exactly under cuts). Counted per node, not
+// per voxel corner: a node adds one eighth for each of the block's fine voxels around it (1, 2, 4 or
+// 8 of them), so each node's piece is looked up once; integer counts keep the sum exact.
 void piece_volumes(const VoxelModel& model, const PbdState& s, uint32_t sv, double volumes[256]) {
   int32_t c[3];
   sim_voxel_coords(s, sv, c);
   const Lattice& l = model.lattice;
-  const double eighth = l.voxel_size * l.voxel_size * l.voxel_size / 8.0;
-  std::fill(volumes, volumes + 256, 0.0);
-  for (int32_t z = 0; z < s.ratio; ++z) {
-    for (int32_t y = 0; y < s.ratio; ++y) {
-      for (int32_t x = 0; x < s.ratio; ++x) {
-        const int32_t i = c[0] * s.ratio + x, j = c[1] * s.ratio + y, k = c[2] * s.ratio + z;
-        if (i >= l.nx || j >= l.ny || k >= l.nz) continue;
-        for (int corner = 0; corner < 8; ++corner) {
-          const uint8_t p =
-              node_piece(model, s, sv, c, i + (corner & 1), j + ((corner >> 1) & 1), k + ((corner >> 2) & 1));
-          if (p != kNoPiece) volumes[p] += eighth;
-        }
+  uint64_t eighths[256] = {};
+  // Fine voxels of the block along one axis around local node x: the voxels x - 1 and x when they are
+  // in the block and in the lattice.
+  const auto around = [&](int32_t x, int32_t first, int32_t n) {
+    return uint64_t((x > 0 && first + x - 1 < n) + (x < s.ratio && first + x < n));
+  };
+  for (int32_t z = 0; z <= s.ratio; ++z) {
+    const uint64_t wz = around(z, c[2] * s.ratio, l.nz);
+    for (int32_t y = 0; y <= s.ratio; ++y) {
+      const uint64_t wyz = wz * around(y, c[1] * s.ratio, l.ny);
+      if (wyz == 0) continue;
+      for (int32_t x = 0; x <= s.ratio; ++x) {
+        const uint64_t w = wyz * around(x, c[0] * s.ratio, l.nx);
+        if (w == 0) continue;
+        const uint8_t p = node_piece(model, s, sv, c, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z);
+        if (p != kNoPiece) eighths[p] += w;
       }
     }
   }
+  const double eighth = l.voxel_size * l.voxel_size * l.voxel_size / 8.0;
+  for (int p = 0; p < 256; ++p) volumes[p] = double(eighths[p]) * eighth;
 }
 
 // Labels the fine nodes of a simulation voxel's block by material component. Returns the count.
@@ -198,12 +206,22 @@ void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, i
     }
     return -1;
   };
+  // Each voxel's node labels (null: not divided, every inside node is its piece 0), looked up once.
+  const uint8_t* voxel_labels[8];
+  for (int q = 0; q < 8; ++q) {
+    voxel_labels[q] = nullptr;
+    if (voxels[q] == kDeadIndex) continue;
+    const uint32_t d = s.divided_of.get(voxels[q]);
+    if (d != kDeadIndex) voxel_labels[q] = s.labels.data() + s.divided[d].first_label;
+  }
   const int32_t r = s.ratio;
   const int32_t ci = I * r, cj = J * r, ck = K * r;
   for (int32_t c = -r; c <= r; ++c) {
     for (int32_t b = -r; b <= r; ++b) {
-      for (int32_t a = -r; a <= r; ++a) {
-        if (a != 0 && b != 0 && c != 0) continue;  // only nodes shared by several voxels
+      // Only nodes shared by several voxels: on one of the three planes through the corner. Off the
+      // b = 0 and c = 0 planes that leaves a = 0 alone.
+      const bool line_only = b != 0 && c != 0;
+      for (int32_t a = line_only ? 0 : -r; a <= (line_only ? 0 : r); ++a) {
         const int32_t i = ci + a, j = cj + b, k = ck + c;
         if (!fine_inside(model, i, j, k)) continue;
         int first = -1;
@@ -212,7 +230,9 @@ void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, i
           // Node inside this voxel's block?
           const int dx = q & 1, dy = (q >> 1) & 1, dz = (q >> 2) & 1;
           if ((dx == 0 ? a > 0 : a < 0) || (dy == 0 ? b > 0 : b < 0) || (dz == 0 ? c > 0 : c < 0)) continue;
-          const uint8_t p = node_piece(model, s, voxels[q], voxel_coords[q], i, j, k);
+          const int32_t* vc = voxel_coords[q];
+          const uint8_t p = voxel_labels[q] ? voxel_labels[q][block_index(s, i - vc[0] * r, j - vc[1] * r, k - vc[2] * r)]
+                                            : uint8_t(0);  // inside node of an undivided voxel
           if (p == kNoPiece) continue;
           const int m = member_of(s.piece_of_voxel[voxels[q]] + p);
           if (m < 0) continue;
@@ -551,6 +571,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   pbd_embed(cut, s);
   return true;
 }
+
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s) {
   // Simulation voxels holding changed fine voxels.
