@@ -5,11 +5,13 @@
 #include <assimp/DefaultLogger.hpp>
 #include <assimp/Exporter.hpp>
 #include <assimp/Importer.hpp>
+#include <assimp/ProgressHandler.hpp>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
 #include <cctype>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -97,9 +99,31 @@ void check_ply_header(const std::string& path, const std::string& extension) {
   throw_input(path, "PLY header has no end_header line");
 }
 
+// Reports assimp's reading progress on stderr in steps of 10 %.
+class LoadProgress final : public Assimp::ProgressHandler {
+ public:
+  explicit LoadProgress(std::string name) : name_(std::move(name)) {}
+  bool Update(float percentage) override {
+    const int tenth = int(percentage * 10.0f + 1e-3f);
+    if (percentage >= 0.0f && tenth > last_tenth_ && tenth <= 10) {
+      last_tenth_ = tenth;
+      std::fprintf(stderr, "divvox: loading %s: %d %%\n", name_.c_str(), 10 * tenth);
+    }
+    return true;  // never cancel
+  }
+
+ private:
+  std::string name_;
+  int last_tenth_ = 0;
+};
+
+void progress_note(bool enabled, const std::string& text) {
+  if (enabled) std::fprintf(stderr, "divvox: %s\n", text.c_str());
+}
+
 }  // namespace
 
-LoadedMesh load_mesh(const std::string& path) {
+LoadedMesh load_mesh(const std::string& path, bool progress) {
   namespace fs = std::filesystem;
   std::error_code ec;
   if (!fs::exists(path, ec)) throw_input(path, "no such file");
@@ -116,6 +140,11 @@ LoadedMesh load_mesh(const std::string& path) {
     throw_input(path, "unknown mesh format '" + extension + "' (use OBJ, PLY, STL, glTF/GLB)");
   }
   check_ply_header(path, extension);
+  const std::string name = fs::path(path).filename().string();
+  if (progress) {
+    progress_note(true, "loading " + name + " (" + std::to_string(file_size(path) >> 20) + " MiB)");
+    importer.SetProgressHandler(new LoadProgress(name));  // the importer owns and deletes it
+  }
   // Points and lines are dropped; polygons become triangles; the structure is validated
   // (assimp rejects out-of-range indices there). Vertices are welded by us, exactly.
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
@@ -151,6 +180,7 @@ LoadedMesh load_mesh(const std::string& path) {
 
   LoadedMesh loaded;
   if (scene->mRootNode != nullptr) gather_node(scene, scene->mRootNode, aiMatrix4x4(), loaded.mesh, path);
+  progress_note(progress, "read " + std::to_string(loaded.mesh.triangles.size()) + " triangles; checking and welding");
   if (loaded.mesh.triangles.empty()) throw_input(path, "the mesh has no triangles");
 
   // Coordinates must be finite.

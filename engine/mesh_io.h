@@ -16,7 +16,9 @@ struct LoadedMesh {
 // Loads and validates a triangle mesh. Throws InputError naming the file for: a missing or
 // unreadable file, an unknown format, a file assimp cannot parse, no triangles, face
 // indices out of range, NaN/Inf coordinates, a zero-size bounding box.
-LoadedMesh load_mesh(const std::string& path);
+// With `progress`, reports on stderr how far reading has got (every 10 %, from assimp's progress
+// callback: a mesh of millions of triangles takes seconds) and each later phase.
+LoadedMesh load_mesh(const std::string& path, bool progress = false);
 
 // Writes a surface as PLY (binary little endian). Throws std::runtime_error on failure.
 void save_ply(const std::string& path, const SurfaceMesh& mesh);

@@ -12,7 +12,7 @@ uint64_t available_memory_bytes();
 uint64_t peak_rss_bytes();
 // "1.5 GiB", "320 MiB", "12 KiB".
 std::string format_bytes(uint64_t bytes);
-// True when stderr is a terminal (progress is shown only then).
+// True when stderr is a terminal (progress is shown only then) or DIVVOX_PROGRESS=1.
 bool stderr_is_tty();
 
 }  // namespace dvx

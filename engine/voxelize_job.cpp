@@ -73,7 +73,7 @@ VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
   // Load and validate the input.
   progress_line(options.progress, "loading mesh");
   Clock::time_point t = Clock::now();
-  result.input = load_mesh(options.mesh_path);
+  result.input = load_mesh(options.mesh_path, options.progress);
   result.ms.load = ms_since(t);
   const Aabb box = mesh_bounds(result.input.mesh);
   check_voxelize_memory(options.mesh_path, box, result.input.mesh.triangles.size(), options.resolution);

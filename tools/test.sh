@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# README command 2: set up (packages + build), then the whole test suite through CTest.
+# README command 2: set up (packages + build), then the whole test suite through CTest, then the
+# simulation core's tests again under AddressSanitizer + UndefinedBehaviorSanitizer (g++, in
+# build-asan-sim/): the subset of `tools/sanitize.sh` that fits CI's time.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 "$here/tools/setup.sh"
-cd "$here/build"
-ctest --output-on-failure --parallel "$(nproc)" --timeout 600
+(cd "$here/build" && ctest --output-on-failure --parallel "$(nproc)" --timeout 600)
+"$here/tools/sanitize.sh" sim
