@@ -71,7 +71,6 @@ VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
   const Clock::time_point start = Clock::now();
 
   // Load and validate the input.
-  progress_line(options.progress, "loading mesh");
   Clock::time_point t = Clock::now();
   result.input = load_mesh(options.mesh_path, options.progress);
   result.ms.load = ms_since(t);

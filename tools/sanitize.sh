@@ -13,6 +13,7 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 mode="${1:-address}"
 (($#)) && shift
 cc=clang cxx=clang++ engine=ON
+build_flags=(-DCMAKE_BUILD_TYPE=RelWithDebInfo)
 case "$mode" in
   address | asan)
     build="$here/build-asan"
@@ -38,6 +39,8 @@ case "$mode" in
     graphics=OFF
     engine=OFF
     cc=gcc cxx=g++
+    # -O1 with asserts on: half the build time of -O2, and the asserts check the invariants too.
+    build_flags=(-DCMAKE_BUILD_TYPE=Debug "-DCMAKE_CXX_FLAGS_DEBUG=-O1 -g1")
     ;;
   -h | --help)
     sed -n '2,9p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'
@@ -66,7 +69,7 @@ if [[ ! -f "$build/CMakeCache.txt" || ! -f "$build/build.ninja" ]]; then
   echo "sanitize: configuring $build ($sanitize)"
   mkdir -p "$build"
   if ! CC="$cc" CXX="$cxx" cmake -S "$here" -B "$build" -G Ninja \
-      -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+      "${build_flags[@]}" \
       -DDIVVOX_SANITIZE="$sanitize" \
       -DDIVVOX_ENGINE="$engine" \
       -DDIVVOX_GRAPHICS="$graphics" >"$build/sanitize-configure.log" 2>&1; then

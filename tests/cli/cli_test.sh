@@ -125,5 +125,23 @@ if [[ ! -s "$tmp/ok/report.json" || ! -s "$tmp/ok/surface.ply" ]] || ! grep -q '
   failures=$((failures + 1))
 fi
 
+# Progress (forced on a pipe with DIVVOX_PROGRESS=1): reading reported up to 100 %, then each phase.
+count=$((count + 1))
+DIVVOX_PROGRESS=1 "$divvox" voxelize "$bunny" --resolution 16 --error-samples 100 --out "$tmp/progress" 2>"$tmp/progress.err" >/dev/null
+if ! grep -q 'loading bunny_npm.obj: 100 %' "$tmp/progress.err" || ! grep -q 'read [0-9]* triangles' "$tmp/progress.err" ||
+   ! grep -q 'voxelizing' "$tmp/progress.err"; then
+  echo "FAIL: voxelize with DIVVOX_PROGRESS=1 did not report its progress:"
+  sed 's/^/    /' "$tmp/progress.err"
+  failures=$((failures + 1))
+fi
+# Without a terminal and without DIVVOX_PROGRESS, nothing but errors on stderr.
+count=$((count + 1))
+"$divvox" voxelize "$bunny" --resolution 16 --error-samples 100 --out "$tmp/quiet" 2>"$tmp/quiet.err" >/dev/null
+if [[ -s "$tmp/quiet.err" ]]; then
+  echo "FAIL: voxelize wrote to stderr without a terminal:"
+  sed 's/^/    /' "$tmp/quiet.err"
+  failures=$((failures + 1))
+fi
+
 echo "$((count - failures)) passed, $failures failed"
 [[ $failures -eq 0 ]]
