@@ -115,9 +115,22 @@ TEST_SUITE("stress") {
         CHECK(kinetic_energy(pbd) < 0.5 * mass * fall * fall + 1.0);
       }
     }
-    // After cutting stopped, grabs and steps allocate nothing that lasts.
+    // After cutting stopped, grabs and steps allocate nothing that lasts. (Not under AddressSanitizer:
+    // its quarantine keeps freed blocks resident by design, so resident memory grows with any
+    // allocate/free cycle; tools/soak.sh checks the same in a Release build.)
     const uint64_t memory_end = resident_bytes();
-    CHECK(memory_end <= memory_after_cutting + (1u << 20));
+#if defined(__SANITIZE_ADDRESS__)
+    constexpr bool kAddressSanitizer = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+    constexpr bool kAddressSanitizer = true;
+#else
+    constexpr bool kAddressSanitizer = false;
+#endif
+#else
+    constexpr bool kAddressSanitizer = false;
+#endif
+    if (!kAddressSanitizer) CHECK(memory_end <= memory_after_cutting + (1u << 20));
     std::string problem;
     CHECK_MESSAGE(check_cut_state(model, cut, problem), problem);
     MESSAGE("resident memory: " << memory_after_cutting / 1024 << " KiB when cutting stopped, " << memory_end / 1024
