@@ -68,7 +68,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   // The simulation of the recording's scene.
   const Scene& scene = recording.scene;
   Session session;
-  open_session(scene, recording.dt, options.physics, options.workers, session);
+  open_session(scene, recording.dt, options.physics, options.workers, session, options.progress);
   const SurfaceStats initial = surface_stats(compact_surface(session.cut.surface));
 
   make_output_dir(options.out_dir);

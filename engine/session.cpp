@@ -43,10 +43,10 @@ PbdParams pbd_params(const Scene& scene, double dt) {
   return p;
 }
 
-void open_session(const Scene& scene, double dt, bool physics, int workers, Session& s) {
+void open_session(const Scene& scene, double dt, bool physics, int workers, Session& s, bool progress) {
   s.scene = scene;
   s.dt = dt;
-  s.input = load_mesh(scene.mesh_path);
+  s.input = load_mesh(scene.mesh_path, progress);
   check_voxelize_memory(scene.mesh_path, mesh_bounds(s.input.mesh), s.input.mesh.triangles.size(), scene.resolution);
   VoxelizeParams params;
   params.resolution = scene.resolution;

@@ -62,8 +62,8 @@ struct Session {
 PbdParams pbd_params(const Scene& scene, double dt);
 
 // Loads the scene's mesh, voxelizes it, builds the surface and (with physics) the PBD model.
-// Throws InputError for bad input.
-void open_session(const Scene& scene, double dt, bool physics, int workers, Session& session);
+// Throws InputError for bad input. With `progress`, loading the mesh reports on stderr.
+void open_session(const Scene& scene, double dt, bool physics, int workers, Session& session, bool progress = false);
 
 // Runs one step at the fixed dt: the blade's sweep (when cutting), the PBD update, the grab.
 StepReport session_step(Session& session, const StepCommands& commands);
