@@ -1,5 +1,9 @@
 #include "engine/bench_common.h"
 
+#include "engine/errors.h"
+#include "engine/voxelize_job.h"
+#include "sim/voxelize.h"
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -29,6 +33,47 @@ BladePose cut_pose_at(const Aabb& box, double fraction, double height) {
 
 BladePose cut_pose(const Aabb& box, int s, int steps, double height) {
   return cut_pose_at(box, double(s) / double(steps), height);
+}
+
+void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolution, VoxelModel& model) {
+  check_voxelize_memory(path, mesh_bounds(mesh), mesh.triangles.size(), resolution);
+  VoxelizeParams params;
+  params.resolution = resolution;
+  std::string error;
+  if (!voxelize(mesh, params, model, error)) throw_input(path, error);
+}
+
+std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const Aabb& box, int steps, int repeats,
+                                                CutState& state, std::vector<double>* init_ms) {
+  // Every repeat's phase times per step; the stats are the same in every repeat.
+  const size_t n = size_t(steps);
+  std::vector<CutStepSample> samples(n);
+  std::vector<std::vector<double>> divide(n), surface(n), total(n);
+  for (int r = 0; r < repeats; ++r) {
+    const BenchClock::time_point t_init = BenchClock::now();
+    init_cut_state(model, state);
+    if (init_ms) init_ms->push_back(ms_between(t_init, BenchClock::now()));
+    for (int s = 0; s < steps; ++s) {
+      CutStepSample& sample = samples[size_t(s)];
+      sample.stats = CutStepStats{};
+      const size_t divided_before = state.divided.size();
+      const BenchClock::time_point t0 = BenchClock::now();
+      cut_divide(model, state, cut_pose(box, s, steps), cut_pose(box, s + 1, steps), sample.stats);
+      const BenchClock::time_point t1 = BenchClock::now();
+      cut_update_surface(model, state, sample.stats);
+      const BenchClock::time_point t2 = BenchClock::now();
+      divide[size_t(s)].push_back(ms_between(t0, t1));
+      surface[size_t(s)].push_back(ms_between(t1, t2));
+      total[size_t(s)].push_back(ms_between(t0, t2));
+      sample.newly_divided = uint32_t(state.divided.size() - divided_before);
+    }
+  }
+  for (size_t s = 0; s < samples.size(); ++s) {
+    samples[s].divide_ms = quantile(divide[s], 0.5);
+    samples[s].surface_ms = quantile(surface[s], 0.5);
+    samples[s].total_ms = quantile(total[s], 0.5);
+  }
+  return samples;
 }
 
 LineFit fit_line(const std::vector<double>& x, const std::vector<double>& y) {

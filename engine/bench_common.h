@@ -4,6 +4,7 @@
 
 #include "sim/cut.h"
 #include "sim/mesh.h"
+#include "sim/voxel_model.h"
 
 #include <chrono>
 #include <string>
@@ -30,6 +31,23 @@ BladePose cut_pose(const Aabb& box, int s, int steps, double height = 0.55);
 
 // The blade pose with its x at `fraction` of the way along the same path (0: before the box).
 BladePose cut_pose_at(const Aabb& box, double fraction, double height = 0.55);
+
+// The voxel model of a mesh at a resolution, refused (InputError naming `path`) before allocating
+// when it would not fit in memory.
+void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolution, VoxelModel& model);
+
+// One step of the benchmark cut: medians over repeats of its phase times, and what it did.
+struct CutStepSample {
+  double divide_ms = 0, surface_ms = 0, total_ms = 0;
+  CutStepStats stats;          // deterministic: the same in every repeat
+  uint32_t newly_divided = 0;  // voxels that became divided in this step
+};
+
+// The benchmark cut path (cut_pose) in `steps` steps, `repeats` times on a fresh state, timed per
+// phase (cut_divide, cut_update_surface). Returns the per-step medians; `state` holds the cut at
+// the end, `init_ms` (when given) the time of each init_cut_state.
+std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const Aabb& box, int steps, int repeats,
+                                                CutState& state, std::vector<double>* init_ms = nullptr);
 
 // Least-squares line y = intercept + slope * x and its coefficient of determination.
 struct LineFit {

@@ -18,18 +18,6 @@
 #include <sstream>
 
 namespace dvx {
-namespace {
-
-using Clock = BenchClock;
-
-// One step's measurements (medians over repeats).
-struct StepTiming {
-  double divide_ms = 0, surface_ms = 0, total_ms = 0;
-  uint32_t voxels_cut = 0, edges_cut = 0, triangles_changed = 0;
-  uint32_t newly_divided = 0;  // voxels that became divided in this step
-};
-
-}  // namespace
 
 std::string bench_cut(const BenchCutOptions& options) {
   const std::string mesh_path = options.mesh.empty() ? shared_or_bunny("armadillo_100k.obj") : options.mesh;
@@ -47,58 +35,30 @@ std::string bench_cut(const BenchCutOptions& options) {
 
   for (int resolution : options.resolutions) {
     if (options.progress) std::fprintf(stderr, "divvox bench cut: %s at %d\n", name.c_str(), resolution);
-    check_voxelize_memory(mesh_path, box, input.mesh.triangles.size(), resolution);
     VoxelModel model;
-    VoxelizeParams params;
-    params.resolution = resolution;
-    std::string error;
-    if (!voxelize(input.mesh, params, model, error)) throw_input(mesh_path, error);
+    voxelize_for_bench(input.mesh, mesh_path, resolution, model);
 
-    // Repeat the whole cut on a fresh state; keep every step's samples.
-    std::vector<std::vector<StepTiming>> runs(size_t(options.repeats));
+    // Repeat the whole cut on a fresh state: per-step medians; statistics over the steps that cut.
     std::vector<double> init_ms;
     CutState state;
-    for (int r = 0; r < options.repeats; ++r) {
-      const Clock::time_point t_init = Clock::now();
-      init_cut_state(model, state);
-      init_ms.push_back(ms_between(t_init, Clock::now()));
-      std::vector<StepTiming>& run = runs[size_t(r)];
-      for (int s = 1; s <= options.steps; ++s) {
-        CutStepStats stats;
-        const size_t divided_before = state.divided.size();
-        const Clock::time_point t0 = Clock::now();
-        cut_divide(model, state, cut_pose(box, s - 1, options.steps), cut_pose(box, s, options.steps), stats);
-        const Clock::time_point t1 = Clock::now();
-        cut_update_surface(model, state, stats);
-        const Clock::time_point t2 = Clock::now();
-        run.push_back({ms_between(t0, t1), ms_between(t1, t2), ms_between(t0, t2), stats.voxels_cut, stats.edges_cut,
-                       stats.triangles_changed, uint32_t(state.divided.size() - divided_before)});
-      }
-    }
-
-    // Per-step medians over repeats; statistics over the steps that cut something.
+    const std::vector<CutStepSample> samples =
+        time_progressive_cut(model, box, options.steps, options.repeats, state, &init_ms);
     std::vector<double> totals, divides, surfaces;
     double sum_total = 0.0;
     uint64_t sum_voxels = 0, sum_edges = 0, sum_new = 0;
     for (int s = 0; s < options.steps; ++s) {
-      std::vector<double> t, d, u;
-      for (const auto& run : runs) {
-        t.push_back(run[size_t(s)].total_ms);
-        d.push_back(run[size_t(s)].divide_ms);
-        u.push_back(run[size_t(s)].surface_ms);
-      }
-      const StepTiming& first = runs[0][size_t(s)];
-      const double total = quantile(t, 0.5), divide = quantile(d, 0.5), surface = quantile(u, 0.5);
-      steps_csv << name << ',' << resolution << ',' << s + 1 << ',' << divide << ',' << surface << ',' << total << ','
-                << first.voxels_cut << ',' << first.edges_cut << ',' << first.triangles_changed << '\n';
-      if (first.voxels_cut == 0) continue;
-      totals.push_back(total);
-      divides.push_back(divide);
-      surfaces.push_back(surface);
-      sum_total += total;
-      sum_voxels += first.voxels_cut;
-      sum_new += first.newly_divided;
-      sum_edges += first.edges_cut;
+      const CutStepSample& step = samples[size_t(s)];
+      steps_csv << name << ',' << resolution << ',' << s + 1 << ',' << step.divide_ms << ',' << step.surface_ms << ','
+                << step.total_ms << ',' << step.stats.voxels_cut << ',' << step.stats.edges_cut << ','
+                << step.stats.triangles_changed << '\n';
+      if (step.stats.voxels_cut == 0) continue;
+      totals.push_back(step.total_ms);
+      divides.push_back(step.divide_ms);
+      surfaces.push_back(step.surface_ms);
+      sum_total += step.total_ms;
+      sum_voxels += step.stats.voxels_cut;
+      sum_new += step.newly_divided;
+      sum_edges += step.stats.edges_cut;
     }
     const SurfaceStats stats = surface_stats(compact_surface(state.surface));
     const uint64_t explicit_bytes = cut_memory_bytes(state);

@@ -33,11 +33,7 @@ struct Scenario {
 
 void make_scenario(const TriMesh& mesh, const std::string& path, int resolution, bool through_cut, Scenario& s) {
   s.box = mesh_bounds(mesh);
-  check_voxelize_memory(path, s.box, mesh.triangles.size(), resolution);
-  VoxelizeParams params;
-  params.resolution = resolution;
-  std::string error;
-  if (!voxelize(mesh, params, s.model, error)) throw_input(path, error);
+  voxelize_for_bench(mesh, path, resolution, s.model);
   init_cut_state(s.model, s.cut);
   if (through_cut) {
     // Blade along z at x = 55 % of the box, swept along y across the whole object.

@@ -43,15 +43,6 @@ nlohmann::json percentiles(const std::vector<double>& v) {
   return {{"p50", quantile(v, 0.5)}, {"p99", quantile(v, 0.99)}, {"max", quantile(v, 1.0)}, {"count", v.size()}};
 }
 
-// The voxel model of a mesh at a resolution (refused for memory before allocating).
-void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolution, VoxelModel& model) {
-  check_voxelize_memory(path, mesh_bounds(mesh), mesh.triangles.size(), resolution);
-  VoxelizeParams params;
-  params.resolution = resolution;
-  std::string error;
-  if (!voxelize(mesh, params, model, error)) throw_input(path, error);
-}
-
 // ---------------------------------------------------------------------------------------------
 // Experiment 1: one (mesh, resolution) with the physics running, measured in a child process.
 
@@ -235,30 +226,15 @@ std::string bench_cut_length(const BenchCutLengthOptions& options) {
   }
 
   // A progressive cut: every step's sample (median over repeats).
-  std::vector<std::vector<double>> step_total(size_t(options.steps));
-  std::vector<CutStepStats> step_stats(size_t(options.steps));
-  std::vector<uint32_t> step_new(size_t(options.steps));
-  for (int r = 0; r < options.repeats; ++r) {
-    init_cut_state(model, state);
-    for (int s = 1; s <= options.steps; ++s) {
-      CutStepStats stats;
-      const size_t before = state.divided.size();
-      const BenchClock::time_point t0 = BenchClock::now();
-      cut_divide(model, state, cut_pose(box, s - 1, options.steps), cut_pose(box, s, options.steps), stats);
-      cut_update_surface(model, state, stats);
-      step_total[size_t(s - 1)].push_back(ms_between(t0, BenchClock::now()));
-      step_stats[size_t(s - 1)] = stats;
-      step_new[size_t(s - 1)] = uint32_t(state.divided.size() - before);
-    }
-  }
+  const std::vector<CutStepSample> steps = time_progressive_cut(model, box, options.steps, options.repeats, state);
   for (int s = 0; s < options.steps; ++s) {
-    const CutStepStats& st = step_stats[size_t(s)];
-    if (st.voxels_cut == 0) continue;
-    const double t = quantile(step_total[size_t(s)], 0.5);
+    const CutStepSample& step = steps[size_t(s)];
+    if (step.stats.voxels_cut == 0) continue;
     csv << file_name(mesh_path) << ',' << options.resolution << ",progressive," << double(s + 1) / options.steps << ','
-        << s + 1 << ',' << st.voxels_cut << ',' << step_new[size_t(s)] << ',' << st.edges_cut << ",,," << t << '\n';
-    prog_x.push_back(st.voxels_cut);
-    prog_y.push_back(t);
+        << s + 1 << ',' << step.stats.voxels_cut << ',' << step.newly_divided << ',' << step.stats.edges_cut << ','
+        << step.divide_ms << ',' << step.surface_ms << ',' << step.total_ms << '\n';
+    prog_x.push_back(step.stats.voxels_cut);
+    prog_y.push_back(step.total_ms);
   }
 
   const LineFit one = fit_line(one_x, one_y), prog = fit_line(prog_x, prog_y);

@@ -1,6 +1,7 @@
 #include "engine/mesh_io.h"
 
 #include "engine/errors.h"
+#include "engine/resources.h"
 
 #include <assimp/DefaultLogger.hpp>
 #include <assimp/Exporter.hpp>
@@ -117,10 +118,6 @@ class LoadProgress final : public Assimp::ProgressHandler {
   int last_tenth_ = 0;
 };
 
-void progress_note(bool enabled, const std::string& text) {
-  if (enabled) std::fprintf(stderr, "divvox: %s\n", text.c_str());
-}
-
 }  // namespace
 
 LoadedMesh load_mesh(const std::string& path, bool progress) {
@@ -142,7 +139,7 @@ LoadedMesh load_mesh(const std::string& path, bool progress) {
   check_ply_header(path, extension);
   const std::string name = fs::path(path).filename().string();
   if (progress) {
-    progress_note(true, "loading " + name + " (" + std::to_string(file_size(path) >> 20) + " MiB)");
+    progress_line(true, "loading " + name + " (" + std::to_string(file_size(path) >> 20) + " MiB)");
     importer.SetProgressHandler(new LoadProgress(name));  // the importer owns and deletes it
   }
   // Points and lines are dropped; polygons become triangles; the structure is validated
@@ -180,7 +177,7 @@ LoadedMesh load_mesh(const std::string& path, bool progress) {
 
   LoadedMesh loaded;
   if (scene->mRootNode != nullptr) gather_node(scene, scene->mRootNode, aiMatrix4x4(), loaded.mesh, path);
-  progress_note(progress, "read " + std::to_string(loaded.mesh.triangles.size()) + " triangles; checking and welding");
+  progress_line(progress, "read " + std::to_string(loaded.mesh.triangles.size()) + " triangles; checking and welding");
   if (loaded.mesh.triangles.empty()) throw_input(path, "the mesh has no triangles");
 
   // Coordinates must be finite.

@@ -49,4 +49,8 @@ bool stderr_is_tty() {
   return isatty(STDERR_FILENO) == 1;
 }
 
+void progress_line(bool enabled, const std::string& text) {
+  if (enabled) std::fprintf(stderr, "divvox: %s\n", text.c_str());
+}
+
 }  // namespace dvx

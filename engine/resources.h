@@ -14,5 +14,7 @@ uint64_t peak_rss_bytes();
 std::string format_bytes(uint64_t bytes);
 // True when stderr is a terminal (progress is shown only then) or DIVVOX_PROGRESS=1.
 bool stderr_is_tty();
+// One progress line on stderr ("divvox: TEXT") when `enabled`.
+void progress_line(bool enabled, const std::string& text);
 
 }  // namespace dvx

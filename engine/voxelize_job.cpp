@@ -23,10 +23,6 @@ double ms_since(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
-void progress_line(bool enabled, const char* text) {
-  if (enabled) std::fprintf(stderr, "divvox: %s\n", text);
-}
-
 }  // namespace
 
 void check_voxelize_memory(const std::string& file, const Aabb& box, uint64_t triangles, int resolution) {

@@ -44,20 +44,7 @@ divvox="$bin/divvox"
 # The peer comparison tool: Debian packages, then its own build folder.
 peers_bin=""
 if ((peers)); then
-  missing=()
-  for p in libcgal-dev libopenvdb-dev; do
-    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-  done
-  if ((${#missing[@]})); then
-    sudo_cmd=()
-    [[ $(id -u) -ne 0 ]] && sudo_cmd=(sudo)
-    echo "bench_report: installing ${missing[*]} (peer comparison only)"
-    if ! DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null; then
-      echo "bench_report: could not install ${missing[*]}; the report leaves CGAL and OpenVDB out" >&2
-    fi
-  fi
-  if dpkg-query -W -f='${Status}' libcgal-dev 2>/dev/null | grep -q "install ok installed" &&
-     dpkg-query -W -f='${Status}' libopenvdb-dev 2>/dev/null | grep -q "install ok installed"; then
+  if "$here/tools/setup.sh" --only libcgal-dev libopenvdb-dev; then
     pb="$here/build-peers"
     if [[ ! -f "$pb/CMakeCache.txt" ]]; then
       cmake -S "$here" -B "$pb" -G Ninja -DCMAKE_BUILD_TYPE=Release -DDIVVOX_BENCH_PEERS=ON -DDIVVOX_GRAPHICS=OFF \
@@ -65,6 +52,8 @@ if ((peers)); then
     fi
     cmake --build "$pb" --target divvox_peers --parallel "$(nproc)" >"$pb.build.log" 2>&1 || { cat "$pb.build.log"; exit 1; }
     peers_bin="$pb/tools/peers/divvox_peers"
+  else
+    echo "bench_report: could not install libcgal-dev libopenvdb-dev; the report leaves CGAL and OpenVDB out" >&2
   fi
 fi
 

@@ -3,6 +3,8 @@
 # Idempotent: quiet and fast when everything is already there.
 #   tools/setup.sh            -> install + configure + build (Release) into build/
 #   DIVVOX_NO_BUILD=1 tools/setup.sh -> install only
+#   tools/setup.sh --only P...        -> install only the missing ones of packages P (no build);
+#                                        tools/bench_report.sh uses it for the optional CGAL/OpenVDB peers
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
@@ -13,6 +15,13 @@ packages=(
   libglfw3-dev libimgui-dev libstb-dev libglvnd-dev libegl-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth
 )
+
+only=0
+if [[ "${1:-}" == --only ]]; then
+  shift
+  packages=("$@")
+  only=1
+fi
 
 missing=()
 for p in "${packages[@]}"; do
@@ -27,7 +36,7 @@ if ((${#missing[@]})); then
   "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
-[[ "${DIVVOX_NO_BUILD:-0}" == 1 ]] && exit 0
+[[ "${DIVVOX_NO_BUILD:-0}" == 1 || $only == 1 ]] && exit 0
 
 # Configure once, then incremental builds (output shown only when something fails).
 build="${DIVVOX_BUILD_DIR:-$here/build}"
