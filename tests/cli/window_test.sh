@@ -2,7 +2,8 @@
 # The interactive window under Xvfb: driven by a recording (--play), it must reach the recording's
 # last step with the same final hash as the headless replay, write a screenshot that shows the
 # object (5-95 % of the pixels differ from the background), and exit 0. Without a display it must
-# exit 2 with the one-line "no display" message. Skips (exit 0) when xvfb-run is missing.
+# exit 2 with the one-line "no display" message. Skips (exit 0) when xvfb-run is missing, unless
+# DIVVOX_REQUIRE_GL=1 (tools/test.sh), where that is a failure.
 # Usage: window_test.sh DIVVOX REPO
 set -u
 divvox=$1
@@ -24,7 +25,11 @@ if [[ $code -ne 2 ]] || ! grep -q "no display" "$tmp/err" || [[ $(grep -c . "$tm
 fi
 
 if ! command -v xvfb-run >/dev/null 2>&1; then
-  echo "SKIP: xvfb-run not installed (apt-get install xvfb xauth); the window was not started"
+  if [[ ${DIVVOX_REQUIRE_GL:-} == 1 ]]; then
+    fail "xvfb-run not installed, but DIVVOX_REQUIRE_GL=1 (tools/test.sh installs xvfb and xauth)"
+  else
+    echo "SKIP: xvfb-run not installed (apt-get install xvfb xauth); the window was not started"
+  fi
   [[ $failures -eq 0 ]]
   exit $?
 fi
