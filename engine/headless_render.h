@@ -3,7 +3,6 @@
 #pragma once
 
 #include "engine/snapshot.h"
-#include "render/renderer.h"
 
 #include <atomic>
 #include <cstdint>
@@ -12,18 +11,12 @@
 
 namespace dvx {
 
-
 struct HeadlessRenderOptions {
   int width = 1280, height = 720;
   std::string frames_dir;  // "" : no PNG files
   bool wireframe = false;
   Aabb framing;            // the camera frames this box (the rest shape of the object)
 };
-
-// Uploads a snapshot to the renderer: positions and normals (area-weighted, computed here into
-// `normals`) in full, triangles by the snapshot's dirty range unless `full`. Shared by the headless
-// render thread and the window.
-void upload_snapshot(Renderer& renderer, const Snapshot& snapshot, bool full, std::vector<Vec3f>& normals);
 
 // Creates the EGL context and renderer on the calling thread (false with a one-line reason).
 // Then renders snapshots until the exchange is finished and drained. Captures (readback + PNG) the

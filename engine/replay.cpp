@@ -30,15 +30,10 @@
 namespace dvx {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
 // SIGINT stops a replay cleanly: the step loop ends, outputs cover the steps done.
 std::atomic<bool> g_interrupted{false};
 void on_sigint(int) { g_interrupted.store(true); }
 
-double ms_between(Clock::time_point a, Clock::time_point b) {
-  return std::chrono::duration<double, std::milli>(b - a).count();
-}
 
 
 // {"mean","p50","p95","p99","max"} of a sample (empty: zeros).

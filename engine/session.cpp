@@ -12,11 +12,6 @@
 namespace dvx {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double ms_between(Clock::time_point a, Clock::time_point b) {
-  return std::chrono::duration<double, std::milli>(b - a).count();
-}
 
 bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.b == b.b; }
 

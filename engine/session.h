@@ -6,8 +6,8 @@
 
 #include "engine/mesh_io.h"
 #include "engine/scene.h"
-#include "engine/snapshot.h"
 #include "engine/task_pool.h"
+#include "engine/timing.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
 

@@ -5,6 +5,7 @@
 // waits until that snapshot has been taken, so every requested frame is written).
 #pragma once
 
+#include "engine/timing.h"
 #include "sim/cut.h"
 #include "sim/mesh.h"
 
@@ -14,10 +15,6 @@
 #include <vector>
 
 namespace dvx {
-
-struct StepTimings {
-  double cut_ms = 0, surface_ms = 0, deform_ms = 0, total_ms = 0;
-};
 
 struct Snapshot {
   uint64_t sequence = 0;            // 1, 2, 3, ... in publish order

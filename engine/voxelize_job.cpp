@@ -3,6 +3,7 @@
 #include "engine/errors.h"
 #include "engine/resources.h"
 #include "engine/scene.h"
+#include "engine/timing.h"
 #include "sim/contour.h"
 #include "sim/voxelize.h"
 
@@ -15,16 +16,6 @@
 #include <limits>
 
 namespace dvx {
-namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double ms_since(Clock::time_point start) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
-
-}  // namespace
-
 void check_voxelize_memory(const std::string& file, const Aabb& box, uint64_t triangles, int resolution) {
   if (resolution < 1 || resolution > kMaxResolution) {
     throw_input(file, "resolution " + std::to_string(resolution) + " is outside [1, " +
@@ -69,7 +60,7 @@ VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
   // Load and validate the input.
   Clock::time_point t = Clock::now();
   result.input = load_mesh(options.mesh_path, options.progress);
-  result.ms.load = ms_since(t);
+  result.ms.load = ms_between(t, Clock::now());
   const Aabb box = mesh_bounds(result.input.mesh);
   check_voxelize_memory(options.mesh_path, box, result.input.mesh.triangles.size(), options.resolution);
 
@@ -80,7 +71,7 @@ VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
   params.resolution = options.resolution;
   std::string error;
   if (!voxelize(result.input.mesh, params, result.model, error)) throw_input(options.mesh_path, error);
-  result.ms.voxelize = ms_since(t);
+  result.ms.voxelize = ms_between(t, Clock::now());
   if (result.model.occupied_voxels == 0 || result.model.crossings.empty()) {
     throw_input(options.mesh_path, "no lattice node lies inside the mesh at resolution " +
                                        std::to_string(options.resolution) +
@@ -91,14 +82,14 @@ VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
   progress_line(options.progress, "dual contouring");
   t = Clock::now();
   result.surface = dual_contour(result.model);
-  result.ms.contour = ms_since(t);
+  result.ms.contour = ms_between(t, Clock::now());
 
   // Checks of the surface and of the input.
   t = Clock::now();
   result.stats = surface_stats(result.surface);
   result.input_volume = std::abs(signed_volume(result.input.mesh));
   result.input_watertight = is_watertight(result.input.mesh);
-  result.ms.metrics = ms_since(t);
+  result.ms.metrics = ms_between(t, Clock::now());
 
   // Two-sided sampled error, in voxel units.
   if (options.error_samples > 0) {
@@ -108,9 +99,9 @@ VoxelizeJobResult run_voxelize(const VoxelizeJobOptions& options) {
                                          options.seed);
     const double h = result.model.lattice.voxel_size;
     result.error = {e.max / h, e.mean / h, e.rms / h, e.samples};
-    result.ms.error = ms_since(t);
+    result.ms.error = ms_between(t, Clock::now());
   }
-  result.ms.total = ms_since(start);
+  result.ms.total = ms_between(start, Clock::now());
   return result;
 }
 

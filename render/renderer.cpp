@@ -226,23 +226,6 @@ RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* nor
   return m;
 }
 
-RenderMesh render_mesh_of(const CutSurface& surface, const std::vector<Vec3f>* normals,
-                          const std::vector<uint8_t>* flags) {
-  RenderMesh m;
-  m.positions = surface.positions.data();
-  m.vertex_count = uint32_t(surface.positions.size());
-  m.normals = normals && normals->size() == surface.positions.size() ? normals->data() : nullptr;
-  m.triangles = surface.triangles.data();
-  m.triangle_count = uint32_t(surface.triangles.size());
-  m.triangle_flags = flags && flags->size() == surface.triangles.size() ? flags->data() : nullptr;
-  m.vertex_begin = surface.dirty_vertex_begin;
-  m.vertex_end = surface.dirty_vertex_end;
-  m.triangle_begin = surface.dirty_triangle_begin;
-  m.triangle_end = surface.dirty_triangle_end;
-  m.full = false;
-  return m;
-}
-
 bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples) {
   renderer_destroy(r);
   r.width = width;

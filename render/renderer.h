@@ -9,7 +9,6 @@
 #pragma once
 
 #include "render/camera.h"
-#include "sim/cut.h"
 #include "sim/surface_mesh.h"
 
 #include <cstdint>
@@ -23,7 +22,7 @@ constexpr uint8_t kTriangleCut = 1;   // the triangle lies on a cut surface (dra
 constexpr uint8_t kTriangleDead = 2;  // set by the renderer for unused slots; callers need not set it
 
 // The surface to draw, borrowed for the duration of renderer_upload: a plain view over the
-// caller's arrays (a SurfaceMesh, a CutSurface or a deformed snapshot), so the renderer knows
+// caller's arrays (a SurfaceMesh, a CutSurface's slots or a deformed snapshot), so the renderer knows
 // nothing of how they were made.
 //
 // Triangle slots may be dead (kDeadIndex x3, as CutSurface keeps freed slots): they draw nothing.
@@ -44,9 +43,6 @@ struct RenderMesh {
 
 // A whole SurfaceMesh (full upload). `normals` / `flags` may be null or sized like the mesh.
 RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* normals = nullptr,
-                          const std::vector<uint8_t>* flags = nullptr);
-// A CutSurface with its dirty ranges (full = false); `normals` / `flags` sized like its slot arrays.
-RenderMesh render_mesh_of(const CutSurface& surface, const std::vector<Vec3f>* normals = nullptr,
                           const std::vector<uint8_t>* flags = nullptr);
 
 struct DrawOptions {

@@ -1,9 +1,10 @@
 #include "ui/app.h"
 
 #include "engine/errors.h"
-#include "engine/headless_render.h"
 #include "engine/recording.h"
+#include "engine/render_snapshot.h"
 #include "engine/scene.h"
+#include "engine/timing.h"
 #include "render/camera.h"
 #include "render/renderer.h"
 #include "ui/app_state.h"
@@ -28,12 +29,6 @@
 
 namespace dvx {
 namespace {
-
-using Clock = std::chrono::steady_clock;
-
-double ms_between(Clock::time_point a, Clock::time_point b) {
-  return std::chrono::duration<double, std::milli>(b - a).count();
-}
 
 std::string g_glfw_error;
 int g_glfw_error_code = 0;

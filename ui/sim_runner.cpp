@@ -10,8 +10,6 @@
 namespace dvx {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
 // Later commands of the same step win (a newer pose, a newer grab target or a release).
 void merge(StepCommands& into, const StepCommands& from) {
   if (from.has_blade) {

@@ -24,6 +24,25 @@ namespace {
 
 constexpr int kWidth = 640, kHeight = 360;
 
+// A CutSurface's slots with their dirty ranges (full = false), as the engine's snapshots hand them
+// over; `normals` / `flags` sized like its slot arrays (render/ itself knows no CutSurface).
+RenderMesh render_mesh_of(const CutSurface& surface, const std::vector<Vec3f>* normals = nullptr,
+                          const std::vector<uint8_t>* flags = nullptr) {
+  RenderMesh m;
+  m.positions = surface.positions.data();
+  m.vertex_count = uint32_t(surface.positions.size());
+  m.normals = normals && normals->size() == surface.positions.size() ? normals->data() : nullptr;
+  m.triangles = surface.triangles.data();
+  m.triangle_count = uint32_t(surface.triangles.size());
+  m.triangle_flags = flags && flags->size() == surface.triangles.size() ? flags->data() : nullptr;
+  m.vertex_begin = surface.dirty_vertex_begin;
+  m.vertex_end = surface.dirty_vertex_end;
+  m.triangle_begin = surface.dirty_triangle_begin;
+  m.triangle_end = surface.dirty_triangle_end;
+  m.full = false;
+  return m;
+}
+
 // The eight corners of a box.
 std::vector<Vec3f> corners(const Aabb& box) {
   std::vector<Vec3f> out;

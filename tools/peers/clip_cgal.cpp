@@ -3,7 +3,7 @@
 // measured (closedness, components) and its cut triangles classified for angle quality (Fig. 13).
 #include "tools/peers/peers.h"
 
-#include "engine/bench_json.h"
+#include "bench/bench_json.h"
 #include "engine/output.h"
 #include "sim/surface_metrics.h"
 #include "sim/triangle_quality.h"

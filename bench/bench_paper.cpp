@@ -1,9 +1,9 @@
 // The paper's experiments as benchmarks: scaling with resolution (Experiment 1), time against cut
 // voxels (Experiment 2), cut-surface mesh quality (Fig. 13) and replay determinism/throughput.
-#include "engine/bench.h"
-#include "engine/bench_common.h"
-#include "engine/bench_json.h"
-#include "engine/child_process.h"
+#include "bench/bench.h"
+#include "bench/bench_common.h"
+#include "bench/bench_json.h"
+#include "bench/child_process.h"
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
@@ -208,11 +208,11 @@ std::string bench_cut_length(const BenchCutLengthOptions& options) {
     for (int r = 0; r < options.repeats; ++r) {
       init_cut_state(model, state);
       stats = CutStepStats{};
-      const BenchClock::time_point t0 = BenchClock::now();
+      const Clock::time_point t0 = Clock::now();
       cut_divide(model, state, cut_pose_at(box, 0.0), cut_pose_at(box, fraction), stats);
-      const BenchClock::time_point t1 = BenchClock::now();
+      const Clock::time_point t1 = Clock::now();
       cut_update_surface(model, state, stats);
-      const BenchClock::time_point t2 = BenchClock::now();
+      const Clock::time_point t2 = Clock::now();
       divide.push_back(ms_between(t0, t1));
       surface.push_back(ms_between(t1, t2));
       total.push_back(ms_between(t0, t2));
@@ -291,18 +291,18 @@ std::string bench_quality(const BenchQualityOptions& options) {
     std::vector<double> progressive, one_step;
     for (int r = 0; r < options.repeats; ++r) {
       init_cut_state(model, state);
-      const BenchClock::time_point t0 = BenchClock::now();
+      const Clock::time_point t0 = Clock::now();
       cut_step(model, state, cut_pose(box, 0, 1, options.height), cut_pose(box, 1, 1, options.height));
-      one_step.push_back(ms_between(t0, BenchClock::now()));
+      one_step.push_back(ms_between(t0, Clock::now()));
     }
     for (int r = 0; r < options.repeats; ++r) {
       init_cut_state(model, state);
-      const BenchClock::time_point t0 = BenchClock::now();
+      const Clock::time_point t0 = Clock::now();
       for (int s = 1; s <= options.steps; ++s) {
         cut_step(model, state, cut_pose(box, s - 1, options.steps, options.height),
                  cut_pose(box, s, options.steps, options.height));
       }
-      progressive.push_back(ms_between(t0, BenchClock::now()));
+      progressive.push_back(ms_between(t0, Clock::now()));
     }
     const SurfaceAngles angles = surface_angles(state.surface);
     const SurfaceStats stats = surface_stats(compact_surface(state.surface));

@@ -1,6 +1,6 @@
-#include "engine/bench.h"
+#include "bench/bench.h"
 
-#include "engine/child_process.h"
+#include "bench/child_process.h"
 #include "engine/errors.h"
 #include "engine/output.h"
 #include "engine/resources.h"

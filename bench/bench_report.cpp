@@ -1,6 +1,6 @@
 // `divvox bench report`: REPORT.md and its plots from the JSON results of the other benchmarks
 // (and of tools/peers when it ran). Each section appears when its results exist.
-#include "engine/bench.h"
+#include "bench/bench.h"
 #include "engine/errors.h"
 #include "engine/output.h"
 #include "engine/svg_plot.h"

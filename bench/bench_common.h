@@ -2,21 +2,15 @@
 // path (one path in scene units for every resolution), the least-squares line of Experiment 2.
 #pragma once
 
+#include "engine/timing.h"
 #include "sim/cut.h"
 #include "sim/mesh.h"
 #include "sim/voxel_model.h"
 
-#include <chrono>
 #include <string>
 #include <vector>
 
 namespace dvx {
-
-using BenchClock = std::chrono::steady_clock;
-
-inline double ms_between(BenchClock::time_point a, BenchClock::time_point b) {
-  return std::chrono::duration<double, std::milli>(b - a).count();
-}
 
 // Nearest-rank quantile (q in [0, 1]) of a sample; 0 for an empty sample.
 double quantile(std::vector<double> values, double q);

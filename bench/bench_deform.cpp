@@ -1,5 +1,5 @@
-#include "engine/bench.h"
-#include "engine/bench_common.h"
+#include "bench/bench.h"
+#include "bench/bench_common.h"
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
@@ -21,8 +21,6 @@
 
 namespace dvx {
 namespace {
-
-using Clock = std::chrono::steady_clock;
 
 // The voxel model and cut state of a scenario: uncut, or cut through by a vertical plane.
 struct Scenario {

@@ -1,4 +1,4 @@
-#include "engine/child_process.h"
+#include "bench/child_process.h"
 
 #include <sys/wait.h>
 #include <unistd.h>

@@ -1,4 +1,4 @@
-#include "engine/bench_common.h"
+#include "bench/bench_common.h"
 
 #include "engine/errors.h"
 #include "engine/voxelize_job.h"
@@ -50,18 +50,18 @@ std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const A
   std::vector<CutStepSample> samples(n);
   std::vector<std::vector<double>> divide(n), surface(n), total(n);
   for (int r = 0; r < repeats; ++r) {
-    const BenchClock::time_point t_init = BenchClock::now();
+    const Clock::time_point t_init = Clock::now();
     init_cut_state(model, state);
-    if (init_ms) init_ms->push_back(ms_between(t_init, BenchClock::now()));
+    if (init_ms) init_ms->push_back(ms_between(t_init, Clock::now()));
     for (int s = 0; s < steps; ++s) {
       CutStepSample& sample = samples[size_t(s)];
       sample.stats = CutStepStats{};
       const size_t divided_before = state.divided.size();
-      const BenchClock::time_point t0 = BenchClock::now();
+      const Clock::time_point t0 = Clock::now();
       cut_divide(model, state, cut_pose(box, s, steps), cut_pose(box, s + 1, steps), sample.stats);
-      const BenchClock::time_point t1 = BenchClock::now();
+      const Clock::time_point t1 = Clock::now();
       cut_update_surface(model, state, sample.stats);
-      const BenchClock::time_point t2 = BenchClock::now();
+      const Clock::time_point t2 = Clock::now();
       divide[size_t(s)].push_back(ms_between(t0, t1));
       surface[size_t(s)].push_back(ms_between(t1, t2));
       total[size_t(s)].push_back(ms_between(t0, t2));

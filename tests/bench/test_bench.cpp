@@ -1,7 +1,7 @@
 // The benchmark experiments and the report on the shipped bunny at small resolutions: structure and
 // geometric properties of what they write (never their timings).
-#include "engine/bench.h"
-#include "engine/bench_common.h"
+#include "bench/bench.h"
+#include "bench/bench_common.h"
 #include "support.h"
 
 #include <nlohmann/json.hpp>

@@ -1,6 +1,6 @@
-#include "engine/cli.h"
+#include "app/cli.h"
 
-#include "engine/bench.h"
+#include "bench/bench.h"
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"

@@ -1,5 +1,5 @@
-#include "engine/bench.h"
-#include "engine/bench_common.h"
+#include "bench/bench.h"
+#include "bench/bench_common.h"
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
