@@ -167,7 +167,10 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const Piece
 
 // ---- The blade's sweep ---------------------------------------------------------------------
 
-void reset_sweep(SweepMapper& mapper) { mapper.carried.clear(); }
+void reset_sweep(SweepMapper& mapper) {
+  mapper.carried.clear();
+  mapper.carried_piece.clear();
+}
 
 namespace {
 
@@ -190,11 +193,20 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
     const double t = double(i) / nu;
     m.from_world[i] = from.a + t * (from.b - from.a);
     if (m.carried.size() != nu + 1 || !m.carried[i].allFinite()) continue;
-    const uint32_t piece = piece_at_rest(model, pbd, m.carried[i]);
-    if (piece == kDeadIndex) continue;
+    // The piece that held it, while it is live and still spans that rest point; else the material there.
+    uint32_t piece = m.carried_piece[i];
+    Vec3d u = Vec3d::Constant(-1.0);
+    if (piece < pbd.pieces.size() && pbd.pieces[piece].sim_voxel != kDeadIndex) {
+      u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
+    }
+    if (!(u.minCoeff() >= -1e-6 && u.maxCoeff() <= 1.0 + 1e-6)) {
+      piece = piece_at_rest(model, pbd, m.carried[i]);
+      if (piece == kDeadIndex) continue;
+      u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
+    }
     Vec3d corners[8];
     piece_corners(pbd, piece, corners);
-    m.from_world[i] = trilinear(corners, (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size);
+    m.from_world[i] = trilinear(corners, u);
   }
 }
 
@@ -334,10 +346,24 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
     }
   }
   // The samples of `to` that are in material, carried to the next step.
+  // In a slit or a gap (inside a piece's hexahedron, outside its material) a sample is carried with
+  // that piece: the material closing in on it is then cut by the relative motion.
   m.carried.assign(nu + 1, Vec3d::Constant(std::numeric_limits<double>::quiet_NaN()));
+  m.carried_piece.assign(nu + 1, kDeadIndex);
   for (uint32_t i = 0; i <= nu; ++i) {
     const uint32_t k = nv * row + i;
-    if (m.hit_begin[k] < m.hit_begin[k + 1]) m.carried[i] = m.hits[m.hit_begin[k]].rest;
+    if (m.hit_begin[k] < m.hit_begin[k + 1]) {
+      m.carried[i] = m.hits[m.hit_begin[k]].rest;
+      m.carried_piece[i] = m.hits[m.hit_begin[k]].piece;
+      continue;
+    }
+    query_piece_grid(m.grid, m.points[k], [&](uint32_t slot) {
+      Vec3d u;
+      if (m.carried_piece[i] != kDeadIndex || !piece_local(pbd, slot, m.points[k], Vec3d::Constant(0.5), u)) return;
+      if (u.minCoeff() < 0.0 || u.maxCoeff() > 1.0) return;
+      m.carried[i] = piece_rest_origin(pbd, slot) + pbd.sim_size * u;
+      m.carried_piece[i] = slot;
+    });
   }
   if (stats) {
     stats->samples += count;

@@ -86,7 +86,10 @@ struct RestQuad {
 
 // The blade's state between steps and the scratch of the mapping (no allocation in steady state).
 struct SweepMapper {
-  std::vector<Vec3d> carried;  // (blade samples) rest point of each sample at the last pose; NaN: not in material
+  // (blade samples) rest point of each sample at the last pose, relative to the piece whose material
+  // (or, in a slit or a gap, whose hexahedron) held it; NaN: in no piece.
+  std::vector<Vec3d> carried;
+  std::vector<uint32_t> carried_piece;
   PieceGrid grid;
   std::vector<Vec3d> from_world, to_world, points, strip_points;
   std::vector<uint32_t> hit_begin;

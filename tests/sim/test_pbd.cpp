@@ -285,3 +285,41 @@ TEST_SUITE("pbd") {
     CHECK(surface_stats(compact_surface(s.cut.surface)).components == 2);
   }
 }
+
+TEST_SUITE("pbd") {
+  TEST_CASE("two shells closer than one simulation voxel are not welded: the free one falls freely") {
+    Scene s;
+    const TriMesh shells = merge_meshes(make_box(Vec3d(-0.55, 0.0013, 0.0007), Vec3d(0.45, 0.5, 0.5), Eigen::Matrix3d::Identity(), 1),
+                                        make_box(Vec3d(0.55, 0.0013, 0.0007), Vec3d(0.45, 0.5, 0.5), Eigen::Matrix3d::Identity(), 1));
+    VoxelizeParams vp;
+    vp.resolution = 32;
+    std::string error;
+    REQUIRE(voxelize(shells, vp, s.model, error));
+    init_cut_state(s.model, s.cut);
+    PbdParams p;
+    p.resolution = 32;
+    p.sim_resolution = 4;  // simulation voxels of 0.5: the 0.2 gap lies inside one
+    p.damping = 0.0;
+    Aabb left;
+    left.grow(Vec3d(-5, -5, -5));
+    left.grow(Vec3d(-0.75, 5, 5));
+    p.fixed.push_back(left);
+    REQUIRE(init_pbd(s.model, s.cut, p, s.pbd, error));
+    REQUIRE(s.pbd.sim_size > 0.2);
+    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd, error), error);
+    const int steps = 60;
+    for (int i = 0; i < steps; ++i) pbd_step(s.cut, s.pbd);
+    // Mean drop of each shell's surface vertices.
+    double drop[2] = {0, 0};
+    int count[2] = {0, 0};
+    for (size_t v = 0; v < s.cut.surface.positions.size(); ++v) {
+      if (s.cut.surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
+      const int side = s.cut.surface.positions[v].x() > 0.0f;
+      drop[side] += double(s.cut.surface.positions[v].y() - s.pbd.deformed[v].y());
+      ++count[side];
+    }
+    const double t = steps * p.dt, expected = 0.5 * 9.81 * t * t;
+    CHECK(drop[0] / count[0] < 0.05);
+    CHECK(std::abs(drop[1] / count[1] - expected) < 0.05 * expected);
+  }
+}
