@@ -132,8 +132,8 @@ std::string bench_deform(const BenchDeformOptions& options) {
         const double p50 = quantile(times, 0.5);
         csv << name << ',' << scenario << ',' << options.resolution << ',' << sim << ',' << iterations << ',' << steps
             << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ','
-            << run.position.size() - run.free_particles.size() << ',' << run.pieces.size() << ','
-            << run.stretch.size() << '\n';
+            << live_particles(run) << ',' << live_pieces(run) << ','
+            << stretch_count(run) << '\n';
         series.x.push_back(p50);
         series.y.push_back(error);
         rows.push_back({{"scenario", scenario}, {"sim_resolution", sim}, {"iterations", iterations},

@@ -337,8 +337,8 @@ ReplayResult run_replay(const ReplayOptions& options) {
     summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(*pbd)}};
     summary["kinetic_energy"] = kinetic_energy(*pbd);
     summary["particles"] = pbd->position.size() - pbd->free_particles.size();
-    summary["shape_constraints"] = pbd->pieces.size();
-    summary["stretch_constraints"] = pbd->stretch.size();
+    summary["shape_constraints"] = live_pieces(*pbd);
+    summary["stretch_constraints"] = stretch_count(*pbd);
   }
   result.summary_path = (out / "summary.json").string();
   write_json_file(result.summary_path, summary);

@@ -79,25 +79,22 @@ StepReport session_step(Session& s, const StepCommands& commands) {
       }
     }
   }
-  if (!(s.cutting && had_blade)) s.rest_blade_valid = false;  // a new cut starts from the blade where it is
+  if (!(s.cutting && had_blade)) reset_sweep(s.sweep);  // a new cut starts from the blade where it is
 
   const Clock::time_point t0 = Clock::now();
-  if (s.cutting && had_blade && !same_pose(previous, s.blade)) {
-    // The blade moves in world space; cuts are made in rest space.
-    BladePose from = previous, to = s.blade;
+  // With physics the blade moves relative to the tissue even when it stands still.
+  if (s.cutting && had_blade && (s.pbd || !same_pose(previous, s.blade))) {
     if (s.pbd) {
-      from = s.rest_blade_valid ? s.rest_blade
-                                : BladePose{pbd_world_to_rest(*s.pbd, previous.a), pbd_world_to_rest(*s.pbd, previous.b)};
-      to = {pbd_world_to_rest(*s.pbd, s.blade.a), pbd_world_to_rest(*s.pbd, s.blade.b)};
+      // The world-space sweep mapped into rest space through the deformed pieces.
+      pbd_cut_divide(s.model, s.cut, *s.pbd, previous, s.blade, s.sweep, report.cut, &s.sweep_stats);
+    } else {
+      cut_divide(s.model, s.cut, previous, s.blade, report.cut);
     }
-    s.rest_blade = to;
-    s.rest_blade_valid = true;
-    cut_divide(s.model, s.cut, from, to, report.cut);
     const Clock::time_point t1 = Clock::now();
     cut_update_surface(s.model, s.cut, report.cut);
     const Clock::time_point t2 = Clock::now();
     if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(s.model, s.cut, *s.pbd);
-    report.timings.cut_ms = ms_between(t0, t1) + ms_between(t2, Clock::now());  // divide, fine and coarse
+    report.timings.cut_ms = ms_between(t0, t1) + ms_between(t2, Clock::now());  // map, divide, fine and coarse
     report.timings.surface_ms = ms_between(t1, t2);
   }
   if (s.pbd) {
@@ -116,7 +113,7 @@ uint64_t session_hash(const Session& s) {
     Fnv1a f;
     f.add(h);
     for (size_t p = 0; p < s.pbd->position.size(); ++p) {
-      if (s.pbd->mass[p] > 0.0) f.bytes(s.pbd->position[p].data(), 3 * sizeof(double));
+      if (s.pbd->refs[p] > 0) f.bytes(s.pbd->position[p].data(), 3 * sizeof(double));
     }
     h = f.value;
   }

@@ -10,6 +10,7 @@
 #include "engine/timing.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
+#include "sim/world_to_rest.h"
 
 #include <nlohmann/json_fwd.hpp>
 
@@ -51,10 +52,12 @@ struct Session {
   std::unique_ptr<PbdState> pbd;  // null without physics
   std::unique_ptr<TaskPool> pool;
   double init_ms = 0.0, initial_mass = 0.0;
-  // The blade: its last pose in world space, and in rest space after the last cutting step (the next
-  // sweep starts there, so consecutive sweeps join even while the body moves).
-  BladePose blade, rest_blade;
-  bool have_blade = false, cutting = false, rest_blade_valid = false;
+  // The blade: its last pose in world space, and the sweep mapper carrying its samples' rest points
+  // from one cutting step to the next (so a still blade cuts tissue moving into it).
+  BladePose blade;
+  SweepMapper sweep;
+  SweepMapStats sweep_stats;  // accumulated over the session
+  bool have_blade = false, cutting = false;
   uint32_t step = 0;  // the next step to run
 };
 

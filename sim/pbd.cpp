@@ -10,6 +10,10 @@ namespace dvx {
 namespace {
 
 constexpr uint8_t kMaxSimPieces = 250;  // labels are uint8; more components than this merge into the last
+constexpr uint32_t kLabelSlots = 256;   // piece slots per divided simulation voxel
+
+constexpr int kCubeEdges[12][2] = {{0, 1}, {2, 3}, {4, 5}, {6, 7}, {0, 2}, {1, 3},
+                                   {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}};
 
 // ---- Fine lattice access -------------------------------------------------------------------
 
@@ -19,58 +23,132 @@ bool fine_inside(const VoxelModel& model, int32_t i, int32_t j, int32_t k) {
   return model.is_inside(l.node(i, j, k));
 }
 
-// True when fine edge (node (i,j,k), axis) holds material: both ends inside and not cut.
-bool fine_material_edge(const VoxelModel& model, const CutState& cut, int32_t i, int32_t j, int32_t k, int axis) {
-  int32_t e[3] = {i, j, k};
-  e[axis] += 1;
-  if (!fine_inside(model, i, j, k) || !fine_inside(model, e[0], e[1], e[2])) return false;
-  return cut.edge_cut_of.get(Lattice::edge(model.lattice.node(i, j, k), axis)) == kDeadIndex;
-}
-
 // ---- Simulation grid -----------------------------------------------------------------------
 
-uint32_t sim_voxel_id(const PbdState& s, int32_t I, int32_t J, int32_t K) {
+uint32_t sim_voxel_id(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
   return uint32_t(I) + uint32_t(s.sx) * (uint32_t(J) + uint32_t(s.sy) * uint32_t(K));
 }
 
-void sim_voxel_coords(const PbdState& s, uint32_t v, int32_t c[3]) {
+void sim_voxel_coords(const PbdModel& s, uint32_t v, int32_t c[3]) {
   c[0] = int32_t(v % uint32_t(s.sx));
   v /= uint32_t(s.sx);
   c[1] = int32_t(v % uint32_t(s.sy));
   c[2] = int32_t(v / uint32_t(s.sy));
 }
 
-bool sim_in_range(const PbdState& s, int32_t I, int32_t J, int32_t K) {
+bool sim_in_range(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
   return I >= 0 && J >= 0 && K >= 0 && I < s.sx && J < s.sy && K < s.sz;
 }
 
 // Index of a fine node inside a simulation voxel's block ((ratio+1)^3 nodes).
-uint32_t block_index(const PbdState& s, int32_t a, int32_t b, int32_t c) {
+uint32_t block_index(const PbdModel& s, int32_t a, int32_t b, int32_t c) {
   const uint32_t n = uint32_t(s.ratio + 1);
   return uint32_t(a) + n * (uint32_t(b) + n * uint32_t(c));
 }
 
-// Local piece of a fine node (global fine coords) in simulation voxel sv, kNoPiece when outside.
-uint8_t node_piece(const VoxelModel& model, const PbdState& s, uint32_t sv, const int32_t svc[3], int32_t i,
-                   int32_t j, int32_t k) {
-  if (s.piece_of_voxel[sv] == kDeadIndex) return kNoPiece;
-  const uint32_t d = s.divided_of.get(sv);
-  if (d == kDeadIndex) return fine_inside(model, i, j, k) ? 0 : kNoPiece;
-  const SimDivided& div = s.divided[d];
-  return s.labels[div.first_label + block_index(s, i - svc[0] * s.ratio, j - svc[1] * s.ratio, k - svc[2] * s.ratio)];
+uint32_t block_nodes(const PbdModel& s) { return uint32_t((s.ratio + 1) * (s.ratio + 1) * (s.ratio + 1)); }
+
+Vec3d corner_rest(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
+  return s.origin + s.sim_size * Vec3d(I, J, K);
 }
 
-// Material volume of the pieces of a simulation voxel: each inside corner of each fine voxel of the
-// block adds h^3 / 8 to its piece (so volumes partition exactly under cuts). Counted per node, not
-// per voxel corner: a node adds one eighth for each of the block's fine voxels around it (1, 2, 4 or
-// 8 of them), so each node's piece is looked up once; integer counts keep the sum exact.
-void piece_volumes(const VoxelModel& model, const PbdState& s, uint32_t sv, double volumes[256]) {
+bool has_pieces(const PbdModel& s, uint32_t sv) { return s.pieces_in_voxel[sv] != 0; }
+
+// Label of a fine node given by its block index in simulation voxel sv (kNoPiece: no material).
+uint8_t label_at(const VoxelModel& model, const PbdModel& s, uint32_t sv, const int32_t svc[3], uint32_t b,
+                 int32_t i, int32_t j, int32_t k) {
+  if (!has_pieces(s, sv)) return kNoPiece;
+  const uint32_t d = s.voxel_divided[sv];
+  if (d == kDeadIndex) return fine_inside(model, i, j, k) ? 0 : kNoPiece;
+  (void)svc;
+  return s.labels[s.divided[d].first_label + b];
+}
+
+// Label of a fine node (global fine coordinates) in simulation voxel sv.
+uint8_t node_label(const VoxelModel& model, const PbdModel& s, uint32_t sv, const int32_t svc[3], int32_t i,
+                   int32_t j, int32_t k) {
+  const uint32_t b = block_index(s, i - svc[0] * s.ratio, j - svc[1] * s.ratio, k - svc[2] * s.ratio);
+  return label_at(model, s, sv, svc, b, i, j, k);
+}
+
+uint32_t slot_of_label(const PbdModel& s, uint32_t sv, uint8_t label) {
+  if (label == kNoPiece || label >= s.pieces_in_voxel[sv]) return kDeadIndex;
+  const uint32_t d = s.voxel_divided[sv];
+  if (d == kDeadIndex) return label == 0 ? s.voxel_piece[sv] : kDeadIndex;
+  return s.label_slots[s.divided[d].first_slot + label];
+}
+
+// ---- Labelling -----------------------------------------------------------------------------
+
+// Labels the fine nodes of a simulation voxel's block by material component: nodes are joined when a
+// fine voxel of the block puts them in one piece (voxel_pieces: the fine level decides what material
+// joins). Components are numbered in node order. Returns the count (0: no material).
+uint8_t label_block(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv,
+                    std::vector<uint32_t>& parent, uint8_t* labels) {
   int32_t c[3];
   sim_voxel_coords(s, sv, c);
   const Lattice& l = model.lattice;
-  uint64_t eighths[256] = {};
-  // Fine voxels of the block along one axis around local node x: the voxels x - 1 and x when they are
-  // in the block and in the lattice.
+  const int32_t r = s.ratio, n = r + 1;
+  const uint32_t count = block_nodes(s);
+  parent.resize(count);
+  for (uint32_t i = 0; i < count; ++i) parent[i] = i;
+  const auto find = [&](uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  };
+  for (int32_t z = 0; z < r && c[2] * r + z < l.nz; ++z) {
+    for (int32_t y = 0; y < r && c[1] * r + y < l.ny; ++y) {
+      for (int32_t x = 0; x < r && c[0] * r + x < l.nx; ++x) {
+        const uint32_t voxel = l.voxel(c[0] * r + x, c[1] * r + y, c[2] * r + z);
+        uint8_t corner_piece[8], pieces = 0;
+        voxel_pieces(model, cut, voxel, corner_piece, pieces);
+        if (pieces == 0) continue;
+        // Join each inside corner to the first corner of its piece.
+        uint32_t first[8] = {kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex};
+        for (int q = 0; q < 8; ++q) {
+          const uint8_t p = corner_piece[q];
+          if (p == kNoPiece || p >= 8) continue;
+          const uint32_t b = find(block_index(s, x + (q & 1), y + ((q >> 1) & 1), z + ((q >> 2) & 1)));
+          if (first[p] == kDeadIndex) {
+            first[p] = b;
+            continue;
+          }
+          const uint32_t f = find(first[p]);
+          if (b != f) parent[std::max(b, f)] = std::min(b, f);
+          first[p] = std::min(b, f);
+        }
+      }
+    }
+  }
+  // Number the components in node order (parent[] of a root becomes its label + count).
+  uint8_t pieces = 0;
+  for (int32_t z = 0; z < n; ++z) {
+    for (int32_t y = 0; y < n; ++y) {
+      for (int32_t x = 0; x < n; ++x) {
+        const uint32_t b = block_index(s, x, y, z);
+        if (!fine_inside(model, c[0] * r + x, c[1] * r + y, c[2] * r + z)) {
+          labels[b] = kNoPiece;
+          continue;
+        }
+        const uint32_t root = find(b);
+        if (root == b) {
+          labels[b] = pieces < kMaxSimPieces ? pieces++ : uint8_t(kMaxSimPieces - 1);
+        } else {
+          labels[b] = labels[root];  // roots come first in node order (union keeps the smaller index)
+        }
+      }
+    }
+  }
+  return pieces;
+}
+
+// Material volume of each label of a block, in eighths of a fine voxel: each inside node adds one
+// eighth for each of the block's fine voxels around it (1, 2, 4 or 8), so volumes partition exactly.
+void label_eighths(const VoxelModel& model, const PbdModel& s, uint32_t sv, const uint8_t* labels, uint64_t eighths[256]) {
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const Lattice& l = model.lattice;
+  std::fill(eighths, eighths + 256, uint64_t(0));
   const auto around = [&](int32_t x, int32_t first, int32_t n) {
     return uint64_t((x > 0 && first + x - 1 < n) + (x < s.ratio && first + x < n));
   };
@@ -81,64 +159,14 @@ void piece_volumes(const VoxelModel& model, const PbdState& s, uint32_t sv, doub
       if (wyz == 0) continue;
       for (int32_t x = 0; x <= s.ratio; ++x) {
         const uint64_t w = wyz * around(x, c[0] * s.ratio, l.nx);
-        if (w == 0) continue;
-        const uint8_t p = node_piece(model, s, sv, c, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z);
-        if (p != kNoPiece) eighths[p] += w;
+        const uint8_t p = labels[block_index(s, x, y, z)];
+        if (w != 0 && p != kNoPiece) eighths[p] += w;
       }
     }
   }
-  const double eighth = l.voxel_size * l.voxel_size * l.voxel_size / 8.0;
-  for (int p = 0; p < 256; ++p) volumes[p] = double(eighths[p]) * eighth;
 }
 
-// Labels the fine nodes of a simulation voxel's block by material component. Returns the count.
-uint8_t label_block(const VoxelModel& model, const CutState& cut, const PbdState& s, uint32_t sv, uint8_t* labels) {
-  int32_t c[3];
-  sim_voxel_coords(s, sv, c);
-  const int32_t n = s.ratio + 1;
-  const uint32_t count = uint32_t(n * n * n);
-  std::vector<uint32_t> parent(count);
-  for (uint32_t i = 0; i < count; ++i) parent[i] = i;
-  const auto find = [&](uint32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  for (int32_t z = 0; z < n; ++z) {
-    for (int32_t y = 0; y < n; ++y) {
-      for (int32_t x = 0; x < n; ++x) {
-        const int32_t i = c[0] * s.ratio + x, j = c[1] * s.ratio + y, k = c[2] * s.ratio + z;
-        const int32_t local[3] = {x, y, z};
-        for (int axis = 0; axis < 3; ++axis) {
-          if (local[axis] + 1 >= n || !fine_material_edge(model, cut, i, j, k, axis)) continue;
-          int32_t o[3] = {x, y, z};
-          o[axis] += 1;
-          const uint32_t a = find(block_index(s, x, y, z)), b = find(block_index(s, o[0], o[1], o[2]));
-          if (a != b) parent[std::max(a, b)] = std::min(a, b);
-        }
-      }
-    }
-  }
-  // Number the components in node order.
-  std::vector<uint8_t> id(count, kNoPiece);
-  uint8_t pieces = 0;
-  for (int32_t z = 0; z < n; ++z) {
-    for (int32_t y = 0; y < n; ++y) {
-      for (int32_t x = 0; x < n; ++x) {
-        const uint32_t b = block_index(s, x, y, z);
-        if (!fine_inside(model, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z)) {
-          labels[b] = kNoPiece;
-          continue;
-        }
-        const uint32_t r = find(b);
-        if (id[r] == kNoPiece) id[r] = pieces < kMaxSimPieces ? pieces++ : uint8_t(kMaxSimPieces - 1);
-        labels[b] = id[r];
-      }
-    }
-  }
-  return pieces;
-}
-
-// ---- Particles -----------------------------------------------------------------------------
+// ---- Slots ---------------------------------------------------------------------------------
 
 // Arguments by value: they may point into the arrays this grows.
 uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const Vec3d velocity) {
@@ -147,271 +175,379 @@ uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const
     p = s.free_particles.back();
     s.free_particles.pop_back();
   } else {
-    p = uint32_t(s.position.size());
+    p = uint32_t(s.rest.size());
     s.position.emplace_back();
     s.velocity.emplace_back();
     s.previous.emplace_back();
     s.rest.emplace_back();
+    s.mass_eighths.push_back(0);
     s.mass.push_back(0.0);
     s.inv_mass.push_back(0.0);
+    s.refs.push_back(0);
     s.anchored.push_back(0);
+    s.stretch_busy.push_back(0);
+    s.shape_busy.push_back(0);
   }
   s.rest[p] = rest;
   s.position[p] = position;
   s.previous[p] = position;
   s.velocity[p] = velocity;
+  s.mass_eighths[p] = 0;
+  s.refs[p] = 0;
+  bool anchored = false;
+  for (const Aabb& box : s.params.fixed) {
+    anchored = anchored || ((rest.array() >= box.min.array()).all() && (rest.array() <= box.max.array()).all());
+  }
+  s.anchored[p] = anchored;
   return p;
 }
 
-Vec3d corner_rest(const PbdState& s, int32_t I, int32_t J, int32_t K) {
-  return s.origin + s.sim_size * Vec3d(I, J, K);
+uint32_t new_piece(PbdState& s, uint32_t sv, uint8_t label) {
+  uint32_t slot;
+  if (!s.free_pieces.empty()) {
+    slot = s.free_pieces.back();
+    s.free_pieces.pop_back();
+  } else {
+    slot = uint32_t(s.pieces.size());
+    s.pieces.emplace_back();
+    s.rotation.push_back(Eigen::Quaterniond::Identity());
+  }
+  SimPiece& piece = s.pieces[slot];
+  piece.sim_voxel = sv;
+  piece.piece = label;
+  piece.colour = kOverflowColour;
+  piece.colour_slot = kDeadIndex;
+  std::fill(piece.particles, piece.particles + 8, kDeadIndex);
+  piece.eighths = 0;
+  s.rotation[slot] = Eigen::Quaterniond::Identity();
+  return slot;
 }
 
-// Assigns particles at coarse corner (I,J,K): pieces of the simulation voxels around it joined by a
-// shared inside fine node share a particle. Existing particles are kept where possible.
-void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, int32_t K) {
-  // The pieces around the corner.
-  struct Member {
-    uint32_t piece;  // global index
-    int corner;      // the corner's number in that piece's voxel
-  };
-  Member members[8 * 16];
-  int member_count = 0;
+void free_piece(PbdState& s, uint32_t slot) {
+  s.pieces[slot].sim_voxel = kDeadIndex;
+  s.free_pieces.push_back(slot);
+}
+
+// Mass of a particle from its eighths (exact: one rounding of an integer product).
+void update_mass(PbdState& s, uint32_t p) {
+  const double h = s.fine_size;
+  s.mass[p] = s.params.density * (double(s.mass_eighths[p]) * (h * h * h / 64.0));
+  s.inv_mass[p] = s.anchored[p] || s.mass[p] <= 0.0 ? 0.0 : 1.0 / s.mass[p];
+}
+
+// ---- Colour groups -------------------------------------------------------------------------
+
+// First colour not in `taken` (bits 0..62), else the overflow colour.
+uint8_t first_free_colour(uint64_t taken) {
+  const uint64_t free_bits = ~taken & ((uint64_t(1) << kOverflowColour) - 1);
+  return free_bits == 0 ? kOverflowColour : uint8_t(__builtin_ctzll(free_bits));
+}
+
+uint64_t colour_bit(uint8_t colour) { return colour == kOverflowColour ? 0 : uint64_t(1) << colour; }
+
+uint64_t pair_key(uint32_t a, uint32_t b) { return (uint64_t(a) << 32) | b; }
+
+// One more piece edge uses particle pair (a, b): the constraint is created (and coloured) on first use.
+void add_stretch(PbdState& s, uint32_t a, uint32_t b) {
+  if (a > b) std::swap(a, b);
+  const uint64_t key = pair_key(a, b);
+  const uint32_t existing = s.stretch_of.get(key);
+  if (existing != kDeadIndex) {
+    ++s.stretch_handles[existing].refs;
+    return;
+  }
+  uint32_t handle;
+  if (!s.free_stretch_handles.empty()) {
+    handle = s.free_stretch_handles.back();
+    s.free_stretch_handles.pop_back();
+  } else {
+    handle = uint32_t(s.stretch_handles.size());
+    s.stretch_handles.emplace_back();
+  }
+  const uint8_t colour = first_free_colour(s.stretch_busy[a] | s.stretch_busy[b]);
+  s.stretch_busy[a] |= colour_bit(colour);
+  s.stretch_busy[b] |= colour_bit(colour);
+  std::vector<StretchConstraint>& group = s.stretch_groups[colour];
+  s.stretch_handles[handle] = {colour, uint32_t(group.size()), 1};
+  group.push_back({a, b, (s.rest[a] - s.rest[b]).norm(), handle});
+  s.stretch_lambda[colour].push_back(0.0);
+  s.stretch_of.set(key, handle);
+}
+
+// One piece edge fewer uses (a, b): the last use removes the constraint by swap-with-last in its group.
+void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
+  if (a > b) std::swap(a, b);
+  const uint64_t key = pair_key(a, b);
+  const uint32_t handle = s.stretch_of.get(key);
+  if (handle == kDeadIndex) return;
+  StretchHandle& h = s.stretch_handles[handle];
+  if (--h.refs > 0) return;
+  std::vector<StretchConstraint>& group = s.stretch_groups[h.colour];
+  std::vector<double>& lambda = s.stretch_lambda[h.colour];
+  s.stretch_busy[a] &= ~colour_bit(h.colour);
+  s.stretch_busy[b] &= ~colour_bit(h.colour);
+  const uint32_t last = uint32_t(group.size() - 1);
+  if (h.index != last) {
+    group[h.index] = group[last];
+    lambda[h.index] = lambda[last];
+    s.stretch_handles[group[h.index].handle].index = h.index;
+  }
+  group.pop_back();
+  lambda.pop_back();
+  h.refs = kDeadIndex;
+  s.free_stretch_handles.push_back(handle);
+  s.stretch_of.erase(key);
+}
+
+// A piece joins the dynamics: masses, constraint references, shape-matching colour.
+void attach_piece(PbdState& s, uint32_t slot) {
+  SimPiece& piece = s.pieces[slot];
+  uint64_t taken = 0;
+  for (uint32_t p : piece.particles) {
+    ++s.refs[p];
+    s.mass_eighths[p] += piece.eighths;
+    taken |= s.shape_busy[p];
+  }
+  for (const auto& e : kCubeEdges) add_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
+  piece.colour = first_free_colour(taken);
+  for (uint32_t p : piece.particles) s.shape_busy[p] |= colour_bit(piece.colour);
+  piece.colour_slot = uint32_t(s.piece_groups[piece.colour].size());
+  s.piece_groups[piece.colour].push_back(slot);
+}
+
+// The reverse of attach_piece.
+void detach_piece(PbdState& s, uint32_t slot) {
+  SimPiece& piece = s.pieces[slot];
+  for (uint32_t p : piece.particles) {
+    --s.refs[p];
+    s.mass_eighths[p] -= piece.eighths;
+    s.shape_busy[p] &= ~colour_bit(piece.colour);
+  }
+  for (const auto& e : kCubeEdges) remove_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
+  std::vector<uint32_t>& group = s.piece_groups[piece.colour];
+  const uint32_t last = uint32_t(group.size() - 1);
+  if (piece.colour_slot != last) {
+    group[piece.colour_slot] = group[last];
+    s.pieces[group[piece.colour_slot]].colour_slot = piece.colour_slot;
+  }
+  group.pop_back();
+  piece.colour_slot = kDeadIndex;
+}
+
+// Runs f(slot) for each piece of simulation voxel sv.
+template <typename F>
+void for_pieces(const PbdModel& s, uint32_t sv, F&& f) {
+  for (uint8_t p = 0; p < s.pieces_in_voxel[sv]; ++p) f(slot_of_label(s, sv, p));
+}
+
+// ---- Corner particles ----------------------------------------------------------------------
+
+// The pieces around a coarse corner and the groups that material joins them into.
+struct CornerMembers {
+  static constexpr int kMax = 8 * 256;
+  uint32_t slot[kMax];  // piece slots
+  uint8_t corner[kMax];  // the coarse corner's number in that piece's voxel
+  int parent[kMax];
+  int base[8];          // first member of the voxel around the corner in octant q (-1: none)
+  int count = 0;
+  int find(int x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  }
+};
+
+// Fills the members around corner (I,J,K) and unites those joined by a fine node on their common
+// boundary (the three planes through the corner); stops as soon as everything is one group.
+void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_t J, int32_t K, CornerMembers& m) {
+  m.count = 0;
   uint32_t voxels[8];
-  int32_t voxel_coords[8][3];
+  int32_t vcs[8][3];
+  int groups = 0;
   for (int q = 0; q < 8; ++q) {
     const int32_t c[3] = {I - 1 + (q & 1), J - 1 + ((q >> 1) & 1), K - 1 + ((q >> 2) & 1)};
     voxels[q] = kDeadIndex;
+    m.base[q] = -1;
     if (!sim_in_range(s, c[0], c[1], c[2])) continue;
     const uint32_t sv = sim_voxel_id(s, c[0], c[1], c[2]);
-    if (s.piece_of_voxel[sv] == kDeadIndex) continue;
+    if (!has_pieces(s, sv)) continue;
     voxels[q] = sv;
-    std::copy(c, c + 3, voxel_coords[q]);
-    const int corner = (1 - (q & 1)) | ((1 - ((q >> 1) & 1)) << 1) | ((1 - ((q >> 2) & 1)) << 2);
-    for (uint32_t p = 0; p < s.pieces_in_voxel[sv] && member_count < 8 * 16; ++p) {
-      members[member_count++] = {s.piece_of_voxel[sv] + p, corner};
+    std::copy(c, c + 3, vcs[q]);
+    m.base[q] = m.count;
+    const uint8_t corner = uint8_t((1 - (q & 1)) | ((1 - ((q >> 1) & 1)) << 1) | ((1 - ((q >> 2) & 1)) << 2));
+    for (uint8_t p = 0; p < s.pieces_in_voxel[sv]; ++p) {
+      m.slot[m.count] = slot_of_label(s, sv, p);
+      m.corner[m.count] = corner;
+      m.parent[m.count] = m.count;
+      ++m.count;
+      ++groups;
     }
-  }
-  if (member_count == 0) return;
-  // Union-find over members joined by shared fine nodes on the planes through the corner.
-  int parent[8 * 16];
-  for (int m = 0; m < member_count; ++m) parent[m] = m;
-  const auto find = [&](int x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  const auto member_of = [&](uint32_t piece) {
-    for (int m = 0; m < member_count; ++m) {
-      if (members[m].piece == piece) return m;
-    }
-    return -1;
-  };
-  // Each voxel's node labels (null: not divided, every inside node is its piece 0), looked up once.
-  const uint8_t* voxel_labels[8];
-  for (int q = 0; q < 8; ++q) {
-    voxel_labels[q] = nullptr;
-    if (voxels[q] == kDeadIndex) continue;
-    const uint32_t d = s.divided_of.get(voxels[q]);
-    if (d != kDeadIndex) voxel_labels[q] = s.labels.data() + s.divided[d].first_label;
   }
   const int32_t r = s.ratio;
   const int32_t ci = I * r, cj = J * r, ck = K * r;
-  for (int32_t c = -r; c <= r; ++c) {
-    for (int32_t b = -r; b <= r; ++b) {
-      // Only nodes shared by several voxels: on one of the three planes through the corner. Off the
-      // b = 0 and c = 0 planes that leaves a = 0 alone.
+  for (int32_t c = -r; c <= r && groups > 1; ++c) {
+    for (int32_t b = -r; b <= r && groups > 1; ++b) {
+      // Only nodes shared by several voxels: on one of the three planes through the corner.
       const bool line_only = b != 0 && c != 0;
-      for (int32_t a = line_only ? 0 : -r; a <= (line_only ? 0 : r); ++a) {
+      for (int32_t a = line_only ? 0 : -r; a <= (line_only ? 0 : r) && groups > 1; ++a) {
         const int32_t i = ci + a, j = cj + b, k = ck + c;
         if (!fine_inside(model, i, j, k)) continue;
         int first = -1;
         for (int q = 0; q < 8; ++q) {
           if (voxels[q] == kDeadIndex) continue;
-          // Node inside this voxel's block?
           const int dx = q & 1, dy = (q >> 1) & 1, dz = (q >> 2) & 1;
           if ((dx == 0 ? a > 0 : a < 0) || (dy == 0 ? b > 0 : b < 0) || (dz == 0 ? c > 0 : c < 0)) continue;
-          const int32_t* vc = voxel_coords[q];
-          const uint8_t p = voxel_labels[q] ? voxel_labels[q][block_index(s, i - vc[0] * r, j - vc[1] * r, k - vc[2] * r)]
-                                            : uint8_t(0);  // inside node of an undivided voxel
-          if (p == kNoPiece) continue;
-          const int m = member_of(s.piece_of_voxel[voxels[q]] + p);
-          if (m < 0) continue;
+          const uint8_t label = node_label(model, s, voxels[q], vcs[q], i, j, k);
+          if (label == kNoPiece) continue;
+          const int x = m.find(m.base[q] + label);
           if (first < 0) {
-            first = find(m);
-          } else {
-            const int x = find(m);
-            if (x != first) {
-              parent[std::max(x, first)] = std::min(x, first);
-              first = std::min(x, first);
-            }
+            first = x;
+          } else if (x != first) {
+            m.parent[std::max(x, first)] = std::min(x, first);
+            first = std::min(x, first);
+            --groups;
           }
         }
       }
     }
   }
-  // One particle per group: keep the smallest existing particle of the group not claimed yet.
-  uint32_t claimed[8 * 16];
+}
+
+// Assigns particles at coarse corner (I,J,K): one per material group of the pieces around it.
+// Existing particles are kept where possible (the smallest not yet claimed by another group).
+void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, int32_t K, CornerMembers& m) {
+  corner_groups(model, s, I, J, K, m);
+  uint32_t claimed[CornerMembers::kMax];
   int claimed_count = 0;
-  for (int m = 0; m < member_count; ++m) {
-    if (find(m) != m) continue;
+  for (int g = 0; g < m.count; ++g) {
+    if (m.find(g) != g) continue;
     uint32_t best = kDeadIndex;
-    for (int n = 0; n < member_count; ++n) {
-      if (find(n) != m) continue;
-      const uint32_t p = s.pieces[members[n].piece].particles[members[n].corner];
-      if (p == kDeadIndex || std::find(claimed, claimed + claimed_count, p) != claimed + claimed_count) continue;
-      best = std::min(best, p);
+    for (int n = g; n < m.count; ++n) {
+      if (m.find(n) != g) continue;
+      const uint32_t p = s.pieces[m.slot[n]].particles[m.corner[n]];
+      if (p == kDeadIndex || p >= best || std::find(claimed, claimed + claimed_count, p) != claimed + claimed_count) continue;
+      best = p;
     }
     if (best == kDeadIndex) {
       // A new particle, starting where the group's previous particle was.
-      const uint32_t from = s.pieces[members[m].piece].particles[members[m].corner];
+      const uint32_t from = s.pieces[m.slot[g]].particles[m.corner[g]];
       const Vec3d rest = corner_rest(s, I, J, K);
       best = from == kDeadIndex ? new_particle(s, rest, rest, Vec3d::Zero())
                                 : new_particle(s, rest, s.position[from], s.velocity[from]);
     }
     claimed[claimed_count++] = best;
-    for (int n = 0; n < member_count; ++n) {
-      if (find(n) == m) s.pieces[members[n].piece].particles[members[n].corner] = best;
+    for (int n = g; n < m.count; ++n) {
+      if (m.find(n) == g) s.pieces[m.slot[n]].particles[m.corner[n]] = best;
     }
   }
 }
 
-// ---- Constraints ---------------------------------------------------------------------------
+// ---- Relabelling ---------------------------------------------------------------------------
 
-constexpr int kCubeEdges[12][2] = {{0, 1}, {2, 3}, {4, 5}, {6, 7}, {0, 2}, {1, 3},
-                                   {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}};
-
-// Masses, anchors, stretch constraints and colour groups from the current pieces.
-void rebuild_constraints(PbdState& s) {
-  const size_t n = s.position.size();
-  // Masses: an eighth of each piece's mass at each of its corners.
-  std::vector<uint8_t> used(n, 0);
-  std::fill(s.mass.begin(), s.mass.end(), 0.0);
-  for (const SimPiece& piece : s.pieces) {
-    const double m = s.params.density * piece.volume / 8.0;
-    for (uint32_t p : piece.particles) {
-      s.mass[p] += m;
-      used[p] = 1;
+// Gives simulation voxel sv the pieces of `labels` (count components): storage as one piece or as a
+// divided voxel, new piece slots inheriting particles and rotation from the old piece that held the
+// same fine node (old labels in `old`, old slots in `old_slots`; `old_count` 0: no pieces before).
+// Old slots nobody inherits are freed.
+void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const uint8_t* labels, uint8_t count,
+                      const uint8_t* old, const uint32_t* old_slots, uint8_t old_count) {
+  const uint32_t nodes = block_nodes(s);
+  // Storage of the labels.
+  uint32_t d = s.voxel_divided[sv];
+  if (count > 1 && d == kDeadIndex) {
+    d = uint32_t(s.divided.size());
+    s.voxel_divided[sv] = d;
+    s.divided.push_back({sv, uint32_t(s.labels.size()), uint32_t(s.label_slots.size()), 0});
+    s.labels.resize(s.labels.size() + nodes, kNoPiece);
+    s.label_slots.resize(s.label_slots.size() + kLabelSlots, kDeadIndex);
+  }
+  if (d != kDeadIndex) {
+    std::copy(labels, labels + nodes, s.labels.begin() + s.divided[d].first_label);
+    s.divided[d].piece_count = count;
+  }
+  s.pieces_in_voxel[sv] = count;
+  // New pieces: the first label meeting an old piece reuses its slot.
+  bool reused[256] = {};
+  uint64_t eighths[256];
+  label_eighths(model, s, sv, labels, eighths);
+  // The old label at each new label's first node (one pass over the block).
+  uint8_t inherit[256];
+  bool seen[256] = {};
+  for (uint32_t b = 0; b < nodes; ++b) {
+    const uint8_t p = labels[b];
+    if (p == kNoPiece || seen[p]) continue;
+    seen[p] = true;
+    inherit[p] = old_count ? old[b] : uint8_t(kNoPiece);
+  }
+  for (uint8_t p = 0; p < count; ++p) {
+    const uint8_t was = seen[p] ? inherit[p] : uint8_t(kNoPiece);
+    uint32_t slot;
+    if (was != kNoPiece && was < old_count && !reused[was]) {
+      slot = old_slots[was];
+      reused[was] = true;
+      s.pieces[slot].piece = p;
+    } else {
+      slot = new_piece(s, sv, p);
+      if (was != kNoPiece && was < old_count) {
+        std::copy(s.pieces[old_slots[was]].particles, s.pieces[old_slots[was]].particles + 8, s.pieces[slot].particles);
+        s.rotation[slot] = s.rotation[old_slots[was]];
+      }
+    }
+    s.pieces[slot].eighths = eighths[p];
+    if (d != kDeadIndex) {
+      s.label_slots[s.divided[d].first_slot + p] = slot;
+    } else {
+      s.voxel_piece[sv] = slot;
     }
   }
-  // Dead particles go to the free list; anchors from the fixed boxes.
-  s.free_particles.clear();
-  for (uint32_t p = 0; p < n; ++p) {
-    if (!used[p]) {
-      s.free_particles.push_back(p);
-      s.mass[p] = 0.0;
-      s.inv_mass[p] = 0.0;
-      s.anchored[p] = 0;
-      continue;
-    }
-    bool anchored = false;
-    for (const Aabb& box : s.params.fixed) {
-      anchored = anchored || ((s.rest[p].array() >= box.min.array()).all() && (s.rest[p].array() <= box.max.array()).all());
-    }
-    s.anchored[p] = anchored;
-    s.inv_mass[p] = anchored || s.mass[p] <= 0.0 ? 0.0 : 1.0 / s.mass[p];
+  for (uint8_t p = 0; p < old_count; ++p) {
+    if (!reused[p]) free_piece(s, old_slots[p]);
   }
-  std::reverse(s.free_particles.begin(), s.free_particles.end());  // reuse low slots first
-
-  // Stretch constraints: unique particle pairs along piece edges.
-  std::vector<StretchConstraint> edges;
-  edges.reserve(s.pieces.size() * 12);
-  for (const SimPiece& piece : s.pieces) {
-    for (const auto& e : kCubeEdges) {
-      uint32_t a = piece.particles[e[0]], b = piece.particles[e[1]];
-      if (a == b) continue;
-      if (a > b) std::swap(a, b);
-      edges.push_back({a, b, (s.rest[a] - s.rest[b]).norm()});
-    }
-  }
-  std::sort(edges.begin(), edges.end(), [](const StretchConstraint& x, const StretchConstraint& y) {
-    return x.a != y.a ? x.a < y.a : x.b < y.b;
-  });
-  edges.erase(std::unique(edges.begin(), edges.end(),
-                          [](const StretchConstraint& x, const StretchConstraint& y) { return x.a == y.a && x.b == y.b; }),
-              edges.end());
-
-  // Greedy colouring: constraints of one colour share no particle.
-  std::vector<uint64_t> busy(n, 0);
-  std::vector<uint8_t> colour(edges.size());
-  int colours = 0;
-  for (size_t i = 0; i < edges.size(); ++i) {
-    const uint64_t taken = busy[edges[i].a] | busy[edges[i].b];
-    int c = 0;
-    while (c < 63 && ((taken >> c) & 1u)) ++c;
-    colour[i] = uint8_t(c);
-    busy[edges[i].a] |= uint64_t(1) << c;
-    busy[edges[i].b] |= uint64_t(1) << c;
-    colours = std::max(colours, c + 1);
-  }
-  s.stretch_colour_begin.assign(size_t(colours) + 1, 0);
-  for (uint8_t c : colour) ++s.stretch_colour_begin[c + 1];
-  for (int c = 0; c < colours; ++c) s.stretch_colour_begin[c + 1] += s.stretch_colour_begin[c];
-  s.stretch.resize(edges.size());
-  {
-    std::vector<uint32_t> next(s.stretch_colour_begin.begin(), s.stretch_colour_begin.end() - 1);
-    for (size_t i = 0; i < edges.size(); ++i) s.stretch[next[colour[i]]++] = edges[i];
-  }
-  s.stretch_lambda.assign(s.stretch.size(), 0.0);
-
-  // Shape-matching colours.
-  std::fill(busy.begin(), busy.end(), 0);
-  colours = 0;
-  for (SimPiece& piece : s.pieces) {
-    uint64_t taken = 0;
-    for (uint32_t p : piece.particles) taken |= busy[p];
-    int c = 0;
-    while (c < 63 && ((taken >> c) & 1u)) ++c;
-    piece.colour = uint8_t(c);
-    for (uint32_t p : piece.particles) busy[p] |= uint64_t(1) << c;
-    colours = std::max(colours, c + 1);
-  }
-  s.piece_colour_begin.assign(size_t(colours) + 1, 0);
-  for (const SimPiece& piece : s.pieces) ++s.piece_colour_begin[piece.colour + 1];
-  for (int c = 0; c < colours; ++c) s.piece_colour_begin[c + 1] += s.piece_colour_begin[c];
-  s.piece_order.resize(s.pieces.size());
-  {
-    std::vector<uint32_t> next(s.piece_colour_begin.begin(), s.piece_colour_begin.end() - 1);
-    for (uint32_t i = 0; i < s.pieces.size(); ++i) s.piece_order[next[s.pieces[i].colour]++] = i;
-  }
+  if (count == 0) s.voxel_piece[sv] = kDeadIndex;
 }
 
 // ---- Embedding -----------------------------------------------------------------------------
 
-// Embeds a live surface vertex slot: its fine piece's simulation voxel and piece, and its local position.
+// Embeds a live surface vertex slot: its fine piece's simulation voxel, one node of the fine piece,
+// and its local position.
 void embed_vertex(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t slot) {
   const CutSurface& surface = cut.surface;
-  if (s.embedding.size() < surface.positions.size()) {
-    s.embedding.resize(surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
-    s.deformed.resize(surface.positions.size(), Vec3f::Zero());
-  }
   VertexEmbedding& e = s.embedding[slot];
+  e.sim_voxel = kDeadIndex;
   const uint64_t key = surface.vertex_piece[slot];
-  if (key == CutSurface::kFreeKey) {
-    e.sim_voxel = kDeadIndex;
-    return;
-  }
+  if (key == CutSurface::kFreeKey) return;
   const uint32_t voxel = uint32_t(key / 8);
   const uint8_t fine_piece = uint8_t(key % 8);
   int32_t vc[3];
   model.lattice.voxel_coords(voxel, vc);
   const int32_t svc[3] = {vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio};
   const uint32_t sv = sim_voxel_id(s, svc[0], svc[1], svc[2]);
-  // The fine piece's corners all lie in one sim piece: take the first.
   uint8_t corner_piece[8], count = 0;
   voxel_pieces(model, cut, voxel, corner_piece, count);
-  uint8_t sim_piece = kNoPiece;
-  for (int c = 0; c < 8 && sim_piece == kNoPiece; ++c) {
+  for (int c = 0; c < 8; ++c) {
     if (corner_piece[c] != fine_piece) continue;
-    sim_piece = node_piece(model, s, sv, svc, vc[0] + (c & 1), vc[1] + ((c >> 1) & 1), vc[2] + ((c >> 2) & 1));
-  }
-  if (sim_piece == kNoPiece || s.piece_of_voxel[sv] == kDeadIndex) {
-    e.sim_voxel = kDeadIndex;
+    const int32_t i = vc[0] + (c & 1), j = vc[1] + ((c >> 1) & 1), k = vc[2] + ((c >> 2) & 1);
+    if (node_label(model, s, sv, svc, i, j, k) == kNoPiece) continue;
+    e.sim_voxel = sv;
+    e.node = block_index(s, i - svc[0] * s.ratio, j - svc[1] * s.ratio, k - svc[2] * s.ratio);
+    const Vec3d local = (surface.positions[slot].cast<double>() - corner_rest(s, svc[0], svc[1], svc[2])) / s.sim_size;
+    e.local = local.cast<float>();
     return;
   }
-  e.sim_voxel = sv;
-  e.piece = sim_piece;
-  const Vec3d local = (surface.positions[slot].cast<double>() - corner_rest(s, svc[0], svc[1], svc[2])) / s.sim_size;
-  e.local = local.cast<float>();
+}
+
+// The piece slot an embedding names (kDeadIndex: none).
+uint32_t embedded_piece(const PbdModel& s, const VertexEmbedding& e) {
+  if (e.sim_voxel == kDeadIndex || !has_pieces(s, e.sim_voxel)) return kDeadIndex;
+  const uint32_t d = s.voxel_divided[e.sim_voxel];
+  if (d == kDeadIndex) return s.voxel_piece[e.sim_voxel];
+  const uint8_t label = s.labels[s.divided[d].first_label + e.node];
+  return label == kNoPiece ? kDeadIndex : s.label_slots[s.divided[d].first_slot + label];
+}
+
+void grow_embedding(const CutState& cut, PbdState& s) {
+  if (s.embedding.size() < cut.surface.positions.size()) {
+    s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
+    s.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
+  }
 }
 
 // Runs f(i) for i in [0, count) through the task runner (chunks of `grain`).
@@ -431,59 +567,21 @@ void parallel(const TaskRunner& tasks, uint32_t count, uint32_t grain, F&& f) {
       &f);
 }
 
-// Rebuilds the pieces array: unaffected voxels keep their pieces; `relabelled` voxels get new pieces
-// inheriting particles and rotation from the old piece that held the same fine node.
-void rebuild_pieces(const VoxelModel& model, PbdState& s, const std::vector<uint32_t>& relabelled,
-                    const std::vector<std::vector<uint8_t>>& old_labels, const std::vector<uint32_t>& old_first,
-                    const std::vector<SimPiece>& old_pieces) {
-  std::vector<SimPiece> pieces;
-  pieces.reserve(old_pieces.size() + relabelled.size() * 2);
-  const uint32_t voxels = uint32_t(s.sx) * uint32_t(s.sy) * uint32_t(s.sz);
-  const int32_t n = s.ratio + 1;
-  size_t r = 0;
-  for (uint32_t sv = 0; sv < voxels; ++sv) {
-    const uint32_t old = old_first[sv];
-    const bool changed = r < relabelled.size() && relabelled[r] == sv;
-    if (!changed) {
-      if (s.piece_of_voxel[sv] == kDeadIndex) continue;
-      const uint32_t first = uint32_t(pieces.size());
-      for (uint32_t p = 0; p < s.pieces_in_voxel[sv]; ++p) pieces.push_back(old_pieces[old + p]);
-      s.piece_of_voxel[sv] = first;
-      continue;
-    }
-    // A relabelled voxel: one new piece per label, inheriting from the old piece of its first node.
-    const std::vector<uint8_t>& before = old_labels[r];
-    const SimDivided& div = s.divided[s.divided_of.get(sv)];
-    const uint32_t first = uint32_t(pieces.size());
-    s.piece_of_voxel[sv] = first;
-    s.pieces_in_voxel[sv] = div.piece_count;
-    for (uint8_t p = 0; p < div.piece_count; ++p) {
-      SimPiece piece{};
-      piece.sim_voxel = sv;
-      piece.piece = p;
-      piece.rotation = Eigen::Quaterniond::Identity();
-      std::fill(piece.particles, piece.particles + 8, kDeadIndex);
-      for (uint32_t b = 0; b < uint32_t(n * n * n); ++b) {
-        if (s.labels[div.first_label + b] != p) continue;
-        const uint8_t was = before.empty() ? 0 : before[b];
-        if (was != kNoPiece && old != kDeadIndex) {
-          const SimPiece& from = old_pieces[old + was];
-          std::copy(from.particles, from.particles + 8, piece.particles);
-          piece.rotation = from.rotation;
-        }
-        break;
-      }
-      pieces.push_back(piece);
-    }
-    ++r;
-  }
-  s.pieces.swap(pieces);
-  // Volumes of the relabelled voxels' pieces.
-  for (uint32_t sv : relabelled) {
-    double volumes[256];
-    piece_volumes(model, s, sv, volumes);
-    for (uint32_t p = 0; p < s.pieces_in_voxel[sv]; ++p) s.pieces[s.piece_of_voxel[sv] + p].volume = volumes[p];
-  }
+// Coarse corner id (I,J,K) packed for sorting.
+uint64_t corner_id(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
+  return uint64_t(I) + uint64_t(s.sx + 1) * (uint64_t(J) + uint64_t(s.sy + 1) * uint64_t(K));
+}
+
+void corner_coords(const PbdModel& s, uint64_t id, int32_t& I, int32_t& J, int32_t& K) {
+  I = int32_t(id % uint64_t(s.sx + 1));
+  J = int32_t((id / uint64_t(s.sx + 1)) % uint64_t(s.sy + 1));
+  K = int32_t(id / (uint64_t(s.sx + 1) * uint64_t(s.sy + 1)));
+}
+
+template <typename T>
+void sorted_unique(std::vector<T>& v) {
+  std::sort(v.begin(), v.end());
+  v.erase(std::unique(v.begin(), v.end()), v.end());
 }
 
 }  // namespace
@@ -506,146 +604,142 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.sy = (l.ny + s.ratio - 1) / s.ratio;
   s.sz = (l.nz + s.ratio - 1) / s.ratio;
   s.sim_size = l.voxel_size * s.ratio;
+  s.fine_size = l.voxel_size;
   s.origin = l.origin;
   const uint32_t voxels = uint32_t(s.sx) * uint32_t(s.sy) * uint32_t(s.sz);
-  s.piece_of_voxel.assign(voxels, kDeadIndex);
+  s.voxel_piece.assign(voxels, kDeadIndex);
+  s.voxel_divided.assign(voxels, kDeadIndex);
   s.pieces_in_voxel.assign(voxels, 0);
 
-  // Simulation voxels with material: one piece each (cuts made before init are taken below).
+  // Pieces: the material components of every block (cuts made before init included).
+  s.scratch_labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
-    int32_t c[3];
-    sim_voxel_coords(s, sv, c);
-    bool material = false;
-    for (int32_t z = 0; z <= s.ratio && !material; ++z) {
-      for (int32_t y = 0; y <= s.ratio && !material; ++y) {
-        for (int32_t x = 0; x <= s.ratio && !material; ++x) {
-          material = fine_inside(model, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z);
-        }
-      }
-    }
-    if (!material) continue;
-    s.piece_of_voxel[sv] = uint32_t(s.pieces.size());
-    s.pieces_in_voxel[sv] = 1;
-    SimPiece piece{};
-    piece.sim_voxel = sv;
-    piece.rotation = Eigen::Quaterniond::Identity();
-    std::fill(piece.particles, piece.particles + 8, kDeadIndex);
-    double volumes[256];
-    piece_volumes(model, s, sv, volumes);
-    piece.volume = volumes[0];
-    s.pieces.push_back(piece);
+    const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
+    if (count > 0) set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, nullptr, nullptr, 0);
   }
-  // One particle per coarse corner with material around.
+  // Particles: one per material group at every coarse corner.
+  CornerMembers members;
   for (int32_t K = 0; K <= s.sz; ++K) {
     for (int32_t J = 0; J <= s.sy; ++J) {
-      for (int32_t I = 0; I <= s.sx; ++I) {
-        uint32_t particle = kDeadIndex;
-        for (int q = 0; q < 8; ++q) {
-          const int32_t c[3] = {I - 1 + (q & 1), J - 1 + ((q >> 1) & 1), K - 1 + ((q >> 2) & 1)};
-          if (!sim_in_range(s, c[0], c[1], c[2])) continue;
-          const uint32_t sv = sim_voxel_id(s, c[0], c[1], c[2]);
-          if (s.piece_of_voxel[sv] == kDeadIndex) continue;
-          if (particle == kDeadIndex) {
-            const Vec3d rest = corner_rest(s, I, J, K);
-            particle = new_particle(s, rest, rest, Vec3d::Zero());
-          }
-          const int corner = (1 - (q & 1)) | ((1 - ((q >> 1) & 1)) << 1) | ((1 - ((q >> 2) & 1)) << 2);
-          s.pieces[s.piece_of_voxel[sv]].particles[corner] = particle;
-        }
-      }
+      for (int32_t I = 0; I <= s.sx; ++I) assign_corner(model, s, I, J, K, members);
     }
   }
-  rebuild_constraints(s);
-  // Cuts already made: divide now; then embed every live vertex.
-  if (!cut.divided.empty()) {
-    CutState replayed = cut;  // changed_voxels: every divided voxel
-    replayed.changed_voxels.clear();
-    for (const DividedVoxel& dv : cut.divided) replayed.changed_voxels.push_back(dv.voxel);
-    std::sort(replayed.changed_voxels.begin(), replayed.changed_voxels.end());
-    replayed.changed_vertices.clear();
-    pbd_apply_cut(model, replayed, s);
+  // Constraints, colours and masses.
+  for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
+    if (s.pieces[slot].sim_voxel != kDeadIndex) attach_piece(s, slot);
   }
-  s.embedding.assign(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
-  s.deformed.assign(cut.surface.positions.size(), Vec3f::Zero());
+  for (uint32_t p = 0; p < s.rest.size(); ++p) update_mass(s, p);
+  // The embedding of every live vertex.
+  grow_embedding(cut, s);
   for (uint32_t slot = 0; slot < cut.surface.positions.size(); ++slot) embed_vertex(model, cut, s, slot);
   pbd_embed(cut, s);
   return true;
 }
 
-
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s) {
   // Simulation voxels holding changed fine voxels.
-  std::vector<uint32_t> affected;
+  std::vector<uint32_t>& affected = s.scratch_sim;
+  affected.clear();
   for (uint32_t voxel : cut.changed_voxels) {
     if (cut.divided_of.get(voxel) == kDeadIndex) continue;
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
     const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
-    if (s.piece_of_voxel[sv] != kDeadIndex) affected.push_back(sv);
+    if (has_pieces(s, sv)) affected.push_back(sv);
   }
-  std::sort(affected.begin(), affected.end());
-  affected.erase(std::unique(affected.begin(), affected.end()), affected.end());
+  sorted_unique(affected);
 
   if (!affected.empty()) {
-    // Relabel each affected simulation voxel, remembering the old labels.
-    const int32_t n = s.ratio + 1;
-    const uint32_t block = uint32_t(n * n * n);
-    std::vector<std::vector<uint8_t>> old_labels(affected.size());
-    for (size_t a = 0; a < affected.size(); ++a) {
-      const uint32_t sv = affected[a];
-      uint32_t d = s.divided_of.get(sv);
-      if (d == kDeadIndex) {
-        d = uint32_t(s.divided.size());
-        s.divided_of.set(sv, d);
-        s.divided.push_back({sv, uint32_t(s.labels.size()), 1});
-        s.labels.resize(s.labels.size() + block, kNoPiece);
-        old_labels[a].clear();  // uncut before: every inside node was piece 0
-      } else {
-        old_labels[a].assign(s.labels.begin() + s.divided[d].first_label,
-                             s.labels.begin() + s.divided[d].first_label + block);
-      }
-      SimDivided& div = s.divided[d];
-      div.piece_count = label_block(model, cut, s, sv, s.labels.data() + div.first_label);
-    }
-    // Rebuild the pieces array (old per-voxel first indices kept for inheritance).
-    const std::vector<uint32_t> old_first = s.piece_of_voxel;
-    const std::vector<SimPiece> old_pieces = s.pieces;
-    rebuild_pieces(model, s, affected, old_labels, old_first, old_pieces);
-    // Corner particles of the affected voxels.
-    std::vector<uint64_t> corners;
+    // The voxels whose pieces may change particles: the affected ones and their neighbours.
+    std::vector<uint32_t>& near = s.scratch_near;
+    near.clear();
     for (uint32_t sv : affected) {
       int32_t c[3];
       sim_voxel_coords(s, sv, c);
-      for (int q = 0; q < 8; ++q) {
-        const uint64_t I = uint64_t(c[0] + (q & 1)), J = uint64_t(c[1] + ((q >> 1) & 1)), K = uint64_t(c[2] + ((q >> 2) & 1));
-        corners.push_back(I + uint64_t(s.sx + 1) * (J + uint64_t(s.sy + 1) * K));
+      for (int32_t dz = -1; dz <= 1; ++dz) {
+        for (int32_t dy = -1; dy <= 1; ++dy) {
+          for (int32_t dx = -1; dx <= 1; ++dx) {
+            if (!sim_in_range(s, c[0] + dx, c[1] + dy, c[2] + dz)) continue;
+            const uint32_t n = sim_voxel_id(s, c[0] + dx, c[1] + dy, c[2] + dz);
+            if (has_pieces(s, n)) near.push_back(n);
+          }
+        }
       }
     }
-    std::sort(corners.begin(), corners.end());
-    corners.erase(std::unique(corners.begin(), corners.end()), corners.end());
-    for (uint64_t corner : corners) {
-      const int32_t I = int32_t(corner % uint64_t(s.sx + 1));
-      const int32_t J = int32_t((corner / uint64_t(s.sx + 1)) % uint64_t(s.sy + 1));
-      const int32_t K = int32_t(corner / (uint64_t(s.sx + 1) * uint64_t(s.sy + 1)));
-      assign_corner(model, s, I, J, K);
+    sorted_unique(near);
+    // Detach their pieces (remembering the particles they used).
+    std::vector<uint64_t>& touched = s.scratch_corners;
+    touched.clear();
+    for (uint32_t sv : near) {
+      for_pieces(s, sv, [&](uint32_t slot) {
+        for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+        detach_piece(s, slot);
+      });
     }
-    rebuild_constraints(s);
+    // Relabel the affected voxels.
+    const uint32_t nodes = block_nodes(s);
+    s.scratch_labels.resize(2 * size_t(nodes));
+    s.scratch_old_slots.resize(kLabelSlots);
+    for (uint32_t sv : affected) {
+      uint8_t* old = s.scratch_labels.data() + nodes;
+      const uint32_t d = s.voxel_divided[sv];
+      const uint8_t old_count = s.pieces_in_voxel[sv];
+      if (d != kDeadIndex) {
+        std::copy(s.labels.begin() + s.divided[d].first_label, s.labels.begin() + s.divided[d].first_label + nodes, old);
+        std::copy(s.label_slots.begin() + s.divided[d].first_slot,
+                  s.label_slots.begin() + s.divided[d].first_slot + kLabelSlots, s.scratch_old_slots.begin());
+      } else {
+        int32_t c[3];
+        sim_voxel_coords(s, sv, c);
+        for (int32_t z = 0; z <= s.ratio; ++z) {
+          for (int32_t y = 0; y <= s.ratio; ++y) {
+            for (int32_t x = 0; x <= s.ratio; ++x) {
+              old[block_index(s, x, y, z)] =
+                  fine_inside(model, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z) ? 0 : kNoPiece;
+            }
+          }
+        }
+        s.scratch_old_slots[0] = s.voxel_piece[sv];
+      }
+      const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
+      set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
+    }
+    // Corner particles of the affected voxels.
+    std::vector<uint64_t> corners;
+    corners.reserve(affected.size() * 8);
+    for (uint32_t sv : affected) {
+      int32_t c[3];
+      sim_voxel_coords(s, sv, c);
+      for (int q = 0; q < 8; ++q) corners.push_back(corner_id(s, c[0] + (q & 1), c[1] + ((q >> 1) & 1), c[2] + ((q >> 2) & 1)));
+    }
+    sorted_unique(corners);
+    CornerMembers members;
+    for (uint64_t id : corners) {
+      int32_t I, J, K;
+      corner_coords(s, id, I, J, K);
+      assign_corner(model, s, I, J, K, members);
+    }
+    // Re-attach; masses of every particle involved; unused particles go to the free list.
+    for (uint32_t sv : near) {
+      for_pieces(s, sv, [&](uint32_t slot) {
+        attach_piece(s, slot);
+        for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+      });
+    }
+    sorted_unique(touched);
+    for (uint64_t p : touched) {
+      update_mass(s, uint32_t(p));
+      if (s.refs[p] == 0) {
+        s.mass[p] = s.inv_mass[p] = 0.0;
+        s.free_particles.push_back(uint32_t(p));
+      }
+    }
   }
 
-  // Re-embed changed vertex slots and every vertex of an affected simulation voxel.
-  const CutSurface& surface = cut.surface;
-  if (s.embedding.size() < surface.positions.size()) {
-    s.embedding.resize(surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
-    s.deformed.resize(surface.positions.size(), Vec3f::Zero());
-  }
-  for (uint32_t slot : cut.changed_vertices) embed_vertex(model, cut, s, slot);
-  if (!affected.empty()) {
-    std::vector<uint8_t> hit(s.piece_of_voxel.size(), 0);
-    for (uint32_t sv : affected) hit[sv] = 1;
-    for (uint32_t slot = 0; slot < s.embedding.size(); ++slot) {
-      const uint32_t sv = s.embedding[slot].sim_voxel;
-      if (sv != kDeadIndex && hit[sv]) embed_vertex(model, cut, s, slot);
-    }
+  // Re-embed the changed vertex slots (vertices of relabelled voxels follow their node's label).
+  grow_embedding(cut, s);
+  for (uint32_t slot : cut.changed_vertices) {
+    if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
   return uint32_t(affected.size());
 }
@@ -654,17 +748,17 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
   parallel(tasks, count, 4096, [&](uint32_t slot) {
     const VertexEmbedding& e = s.embedding[slot];
-    if (e.sim_voxel == kDeadIndex || s.piece_of_voxel[e.sim_voxel] == kDeadIndex ||
-        e.piece >= s.pieces_in_voxel[e.sim_voxel]) {
+    const uint32_t piece = embedded_piece(s, e);
+    if (piece == kDeadIndex) {
       s.deformed[slot] = cut.surface.positions[slot];
       return;
     }
-    const SimPiece& piece = s.pieces[s.piece_of_voxel[e.sim_voxel] + e.piece];
+    const uint32_t* particles = s.pieces[piece].particles;
     const double u = e.local.x(), v = e.local.y(), w = e.local.z();
     Vec3d p = Vec3d::Zero();
     for (int c = 0; c < 8; ++c) {
       const double weight = ((c & 1) ? u : 1.0 - u) * (((c >> 1) & 1) ? v : 1.0 - v) * (((c >> 2) & 1) ? w : 1.0 - w);
-      p += weight * s.position[piece.particles[c]];
+      p += weight * s.position[particles[c]];
     }
     s.deformed[slot] = p.cast<float>();
   });
@@ -675,8 +769,22 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   const int substeps = std::max(1, params.substeps);
   const double h = params.dt / substeps;
   const uint32_t n = uint32_t(s.position.size());
-  double* x = s.position[0].data();
+  double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
+  // One constraint of each kind (the loops below run them colour by colour; overflow serially).
+  const auto stretch = [&](uint8_t c, uint32_t i) {
+    const StretchConstraint& k = s.stretch_groups[c][i];
+    solve_distance(x, w, k.a, k.b, k.rest, params.stretch_compliance, h, s.stretch_lambda[c][i]);
+  };
+  const auto shape = [&](uint8_t c, uint32_t i) {
+    const uint32_t slot = s.piece_groups[c][i];
+    const uint32_t* particles = s.pieces[slot].particles;
+    double rest[24];
+    for (int k = 0; k < 8; ++k) {
+      for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
+    }
+    solve_shape_matching(x, w, particles, rest, 8, params.shape_stiffness, s.rotation[slot]);
+  };
   for (int sub = 0; sub < substeps; ++sub) {
     // Predict.
     parallel(tasks, n, 4096, [&](uint32_t p) {
@@ -688,29 +796,19 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       s.velocity[p] += h * params.gravity;
       s.position[p] += h * s.velocity[p];
     });
-    std::fill(s.stretch_lambda.begin(), s.stretch_lambda.end(), 0.0);
+    for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     double grab_lambda[3] = {0, 0, 0};
     for (int it = 0; it < params.iterations; ++it) {
-      // Stretching, colour by colour.
-      for (size_t c = 0; c + 1 < s.stretch_colour_begin.size(); ++c) {
-        const uint32_t begin = s.stretch_colour_begin[c], end = s.stretch_colour_begin[c + 1];
-        parallel(tasks, end - begin, 2048, [&](uint32_t i) {
-          const StretchConstraint& k = s.stretch[begin + i];
-          solve_distance(x, w, k.a, k.b, k.rest, params.stretch_compliance, h, s.stretch_lambda[begin + i]);
-        });
+      // Stretching, colour by colour; the overflow colour serially.
+      for (uint8_t c = 0; c < kOverflowColour; ++c) {
+        parallel(tasks, uint32_t(s.stretch_groups[c].size()), 2048, [&](uint32_t i) { stretch(c, i); });
       }
-      // Shape matching, colour by colour.
-      for (size_t c = 0; c + 1 < s.piece_colour_begin.size(); ++c) {
-        const uint32_t begin = s.piece_colour_begin[c], end = s.piece_colour_begin[c + 1];
-        parallel(tasks, end - begin, 256, [&](uint32_t i) {
-          SimPiece& piece = s.pieces[s.piece_order[begin + i]];
-          double rest[24];
-          for (int k = 0; k < 8; ++k) {
-            for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[piece.particles[k]][a];
-          }
-          solve_shape_matching(x, w, piece.particles, rest, 8, params.shape_stiffness, piece.rotation);
-        });
+      for (uint32_t i = 0; i < s.stretch_groups[kOverflowColour].size(); ++i) stretch(kOverflowColour, i);
+      // Shape matching, the same way.
+      for (uint8_t c = 0; c < kOverflowColour; ++c) {
+        parallel(tasks, uint32_t(s.piece_groups[c].size()), 256, [&](uint32_t i) { shape(c, i); });
       }
+      for (uint32_t i = 0; i < s.piece_groups[kOverflowColour].size(); ++i) shape(kOverflowColour, i);
       // Grab: a compliant attachment of one particle to its target (XPBD, per axis).
       if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) {
         const double alpha = s.grab_compliance / (h * h);
@@ -733,46 +831,51 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   pbd_embed(cut, s, tasks);
 }
 
-Vec3d pbd_world_to_rest(const PbdState& s, const Vec3d& world) {
-  // Inverse-distance weighted displacement of the 8 nearest live particles (smooth in the point, so
-  // a blade sliding along the body maps to a blade sliding along its rest shape).
-  constexpr int k = 8;
-  double best_d[k];
-  uint32_t best_p[k];
-  int found = 0;
-  for (uint32_t p = 0; p < s.position.size(); ++p) {
-    if (s.mass[p] <= 0.0) continue;
-    const double d = (s.position[p] - world).squaredNorm();
-    if (found < k) {
-      best_d[found] = d;
-      best_p[found++] = p;
-    } else {
-      int worst = 0;
-      for (int i = 1; i < k; ++i) worst = best_d[i] > best_d[worst] ? i : worst;
-      if (d < best_d[worst]) {
-        best_d[worst] = d;
-        best_p[worst] = p;
-      }
-    }
+uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }
+
+uint32_t piece_at_rest(const VoxelModel& model, const PbdState& s, const Vec3d& rest) {
+  const Vec3d g = (rest - s.origin) / s.sim_size;
+  if (!g.allFinite()) return kDeadIndex;
+  const int32_t c[3] = {int32_t(std::floor(g.x())), int32_t(std::floor(g.y())), int32_t(std::floor(g.z()))};
+  if (!sim_in_range(s, c[0], c[1], c[2])) return kDeadIndex;
+  const uint32_t sv = sim_voxel_id(s, c[0], c[1], c[2]);
+  if (!has_pieces(s, sv)) return kDeadIndex;
+  // The nearest fine node, kept in the block.
+  const Vec3d f = (rest - s.origin) / s.fine_size;
+  int32_t node[3];
+  for (int a = 0; a < 3; ++a) {
+    node[a] = std::clamp(int32_t(std::lround(f[a])), c[a] * s.ratio, c[a] * s.ratio + s.ratio);
   }
-  if (found == 0) return world;
-  Vec3d displacement = Vec3d::Zero();
-  double weight = 0.0;
-  const double eps = 1e-6 * s.sim_size * s.sim_size;
-  for (int i = 0; i < found; ++i) {
-    const double w = 1.0 / (best_d[i] + eps);
-    displacement += w * (s.position[best_p[i]] - s.rest[best_p[i]]);
-    weight += w;
+  (void)model;
+  return slot_of_label(s, sv, node_label(model, s, sv, c, node[0], node[1], node[2]));
+}
+
+bool piece_holds(const VoxelModel& model, const PbdState& s, uint32_t piece, const Vec3d& u) {
+  const SimPiece& p = s.pieces[piece];
+  if (p.sim_voxel == kDeadIndex || !u.allFinite()) return false;
+  int32_t c[3], node[3];
+  sim_voxel_coords(s, p.sim_voxel, c);
+  for (int a = 0; a < 3; ++a) {
+    node[a] = c[a] * s.ratio + int32_t(std::lround(std::clamp(u[a], 0.0, 1.0) * s.ratio));
   }
-  const Vec3d rest = world - displacement / weight;
-  return rest.allFinite() ? rest : world;
+  return node_label(model, s, p.sim_voxel, c, node[0], node[1], node[2]) == p.piece;
+}
+
+Vec3d piece_rest_origin(const PbdState& s, uint32_t piece) {
+  int32_t c[3];
+  sim_voxel_coords(s, s.pieces[piece].sim_voxel, c);
+  return corner_rest(s, c[0], c[1], c[2]);
+}
+
+void piece_corners(const PbdState& s, uint32_t piece, Vec3d corners[8]) {
+  for (int c = 0; c < 8; ++c) corners[c] = s.position[s.pieces[piece].particles[c]];
 }
 
 void grab_begin(PbdState& s, const Vec3d& point, double compliance) {
   double best = std::numeric_limits<double>::infinity();
   s.grab_particle = ~0u;
   for (uint32_t p = 0; p < s.position.size(); ++p) {
-    if (s.mass[p] <= 0.0) continue;
+    if (s.refs[p] == 0) continue;
     const double d = (s.position[p] - point).squaredNorm();
     if (d < best) {
       best = d;
@@ -787,9 +890,10 @@ void grab_move(PbdState& s, const Vec3d& target) { s.grab_target = target; }
 void grab_end(PbdState& s) { s.grab_particle = ~0u; }
 
 double total_mass(const PbdState& s) {
-  double m = 0.0;
-  for (double x : s.mass) m += x;
-  return m;
+  uint64_t eighths = 0;
+  for (size_t p = 0; p < s.mass_eighths.size(); ++p) eighths += s.refs[p] ? s.mass_eighths[p] : 0;
+  const double h = s.fine_size;
+  return s.params.density * (double(eighths) * (h * h * h / 64.0));
 }
 
 double kinetic_energy(const PbdState& s) {
@@ -803,7 +907,7 @@ double kinetic_energy(const PbdState& s) {
 uint64_t count_nonfinite(const PbdState& s) {
   uint64_t bad = 0;
   for (size_t p = 0; p < s.position.size(); ++p) {
-    if (s.mass[p] <= 0.0) continue;
+    if (s.refs[p] == 0) continue;
     bad += !s.position[p].allFinite() + !s.velocity[p].allFinite();
   }
   for (size_t v = 0; v < s.embedding.size(); ++v) {
@@ -813,5 +917,210 @@ uint64_t count_nonfinite(const PbdState& s) {
 }
 
 uint32_t sim_voxels_divided(const PbdState& s) { return uint32_t(s.divided.size()); }
+uint32_t live_pieces(const PbdState& s) { return uint32_t(s.pieces.size() - s.free_pieces.size()); }
+uint32_t live_particles(const PbdState& s) { return uint32_t(s.rest.size() - s.free_particles.size()); }
+
+uint32_t stretch_count(const PbdState& s) {
+  size_t n = 0;
+  for (const auto& group : s.stretch_groups) n += group.size();
+  return uint32_t(n);
+}
+
+uint32_t overflow_constraints(const PbdState& s) {
+  return uint32_t(s.stretch_groups[kOverflowColour].size() + s.piece_groups[kOverflowColour].size());
+}
+
+// ---- Consistency check ---------------------------------------------------------------------
+
+namespace {
+
+bool fail(std::string& error, const std::string& what) {
+  error = what;
+  return false;
+}
+
+// Pieces of every simulation voxel = material components of its block, recomputed from scratch.
+bool check_pieces(const VoxelModel& model, const CutState& cut, const PbdState& s, std::string& error) {
+  const uint32_t nodes = block_nodes(s);
+  std::vector<uint8_t> fresh(nodes);
+  std::vector<uint32_t> parent;
+  const uint32_t voxels = uint32_t(s.sx) * uint32_t(s.sy) * uint32_t(s.sz);
+  for (uint32_t sv = 0; sv < voxels; ++sv) {
+    const uint8_t count = label_block(model, cut, s, sv, parent, fresh.data());
+    const std::string where = "simulation voxel " + std::to_string(sv);
+    if (count != s.pieces_in_voxel[sv]) {
+      return fail(error, where + ": " + std::to_string(s.pieces_in_voxel[sv]) + " pieces, material has " +
+                             std::to_string(count) + " components");
+    }
+    if (count == 0) continue;
+    if (count > 1 && s.voxel_divided[sv] == kDeadIndex) return fail(error, where + ": several pieces but no labels");
+    // Stored labels and fresh labels correspond one to one.
+    uint8_t to_fresh[256], to_stored[256];
+    std::fill(to_fresh, to_fresh + 256, kNoPiece);
+    std::fill(to_stored, to_stored + 256, kNoPiece);
+    int32_t c[3];
+    sim_voxel_coords(s, sv, c);
+    for (int32_t z = 0; z <= s.ratio; ++z) {
+      for (int32_t y = 0; y <= s.ratio; ++y) {
+        for (int32_t x = 0; x <= s.ratio; ++x) {
+          const uint32_t b = block_index(s, x, y, z);
+          const uint8_t stored = label_at(model, s, sv, c, b, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z);
+          const uint8_t f = fresh[b];
+          if ((stored == kNoPiece) != (f == kNoPiece)) return fail(error, where + ": label of an outside node");
+          if (f == kNoPiece) continue;
+          if (to_fresh[stored] == kNoPiece && to_stored[f] == kNoPiece) {
+            to_fresh[stored] = f;
+            to_stored[f] = stored;
+          }
+          if (to_fresh[stored] != f || to_stored[f] != stored) return fail(error, where + ": pieces differ from material components");
+        }
+      }
+    }
+    // Each label's piece slot is live, names this voxel and label, and holds the label's volume.
+    uint64_t eighths[256];
+    label_eighths(model, s, sv, fresh.data(), eighths);
+    for (uint8_t p = 0; p < count; ++p) {
+      const uint32_t slot = slot_of_label(s, sv, p);
+      if (slot >= s.pieces.size() || s.pieces[slot].sim_voxel != sv || s.pieces[slot].piece != p) {
+        return fail(error, where + ": label " + std::to_string(p) + " has no live piece");
+      }
+      if (s.pieces[slot].eighths != eighths[to_fresh[p]]) return fail(error, where + ": piece volume is not its material's");
+    }
+  }
+  return true;
+}
+
+// Particle sharing = material adjacency at every coarse corner.
+bool check_corners(const VoxelModel& model, const PbdState& s, std::string& error) {
+  CornerMembers m;
+  for (int32_t K = 0; K <= s.sz; ++K) {
+    for (int32_t J = 0; J <= s.sy; ++J) {
+      for (int32_t I = 0; I <= s.sx; ++I) {
+        corner_groups(model, s, I, J, K, m);
+        for (int a = 0; a < m.count; ++a) {
+          const uint32_t pa = s.pieces[m.slot[a]].particles[m.corner[a]];
+          for (int b = a + 1; b < m.count; ++b) {
+            const uint32_t pb = s.pieces[m.slot[b]].particles[m.corner[b]];
+            if ((m.find(a) == m.find(b)) != (pa == pb)) {
+              return fail(error, "corner (" + std::to_string(I) + "," + std::to_string(J) + "," + std::to_string(K) +
+                                     "): particle sharing differs from material adjacency");
+            }
+          }
+        }
+      }
+    }
+  }
+  return true;
+}
+
+// Masses, references and free lists of particles and pieces.
+bool check_particles(const PbdState& s, std::string& error) {
+  const size_t n = s.rest.size();
+  std::vector<uint64_t> eighths(n, 0);
+  std::vector<uint32_t> refs(n, 0);
+  for (const SimPiece& piece : s.pieces) {
+    if (piece.sim_voxel == kDeadIndex) continue;
+    for (uint32_t p : piece.particles) {
+      if (p >= n) return fail(error, "a piece names a particle out of range");
+      eighths[p] += piece.eighths;
+      ++refs[p];
+    }
+  }
+  std::vector<uint8_t> free_slot(n, 0);
+  for (uint32_t p : s.free_particles) {
+    if (p >= n || free_slot[p]) return fail(error, "free particle list holds a bad or repeated slot");
+    free_slot[p] = 1;
+  }
+  const double h = s.fine_size;
+  for (size_t p = 0; p < n; ++p) {
+    const std::string where = "particle " + std::to_string(p);
+    if (refs[p] != s.refs[p]) return fail(error, where + ": reference count is not its piece corners");
+    if ((refs[p] == 0) != (free_slot[p] != 0)) return fail(error, where + ": free list disagrees with its use");
+    if (refs[p] == 0) continue;
+    if (eighths[p] != s.mass_eighths[p]) return fail(error, where + ": mass is not its pieces' volume");
+    if (s.mass[p] != s.params.density * (double(eighths[p]) * (h * h * h / 64.0))) return fail(error, where + ": mass is not density x volume");
+    if (!s.position[p].allFinite()) return fail(error, where + ": position is not finite");
+  }
+  std::vector<uint8_t> free_piece_slot(s.pieces.size(), 0);
+  for (uint32_t slot : s.free_pieces) {
+    if (slot >= s.pieces.size() || free_piece_slot[slot] || s.pieces[slot].sim_voxel != kDeadIndex) {
+      return fail(error, "free piece list holds a live, bad or repeated slot");
+    }
+    free_piece_slot[slot] = 1;
+  }
+  for (size_t slot = 0; slot < s.pieces.size(); ++slot) {
+    if (s.pieces[slot].sim_voxel == kDeadIndex && !free_piece_slot[slot]) return fail(error, "a dead piece slot is not free");
+  }
+  return true;
+}
+
+// Stretch constraints = unique particle pairs along piece edges; colour groups race-free.
+bool check_constraints(const PbdState& s, std::string& error) {
+  FlatMap expected;
+  for (const SimPiece& piece : s.pieces) {
+    if (piece.sim_voxel == kDeadIndex) continue;
+    for (const auto& e : kCubeEdges) {
+      const uint64_t key = pair_key(std::min(piece.particles[e[0]], piece.particles[e[1]]),
+                                    std::max(piece.particles[e[0]], piece.particles[e[1]]));
+      expected.set(key, expected.get(key, 0) + 1);
+    }
+  }
+  const size_t n = s.rest.size();
+  std::vector<uint64_t> stretch_busy(n, 0), shape_busy(n, 0);
+  uint32_t count = 0;
+  for (int c = 0; c < kColourGroups; ++c) {
+    if (s.stretch_lambda[c].size() != s.stretch_groups[c].size()) return fail(error, "lambdas out of step with constraints");
+    for (uint32_t i = 0; i < s.stretch_groups[c].size(); ++i) {
+      const StretchConstraint& k = s.stretch_groups[c][i];
+      const StretchHandle& h = s.stretch_handles[k.handle];
+      if (h.colour != c || h.index != i) return fail(error, "a stretch handle does not point at its constraint");
+      if (h.refs != expected.get(pair_key(k.a, k.b), 0)) return fail(error, "a stretch constraint's uses differ from the piece edges");
+      if (s.stretch_of.get(pair_key(k.a, k.b)) != k.handle) return fail(error, "stretch map out of step");
+      const uint64_t bit = colour_bit(uint8_t(c));
+      if ((stretch_busy[k.a] | stretch_busy[k.b]) & bit) return fail(error, "two stretch constraints of one colour share a particle");
+      stretch_busy[k.a] |= bit;
+      stretch_busy[k.b] |= bit;
+      ++count;
+    }
+    for (uint32_t i = 0; i < s.piece_groups[c].size(); ++i) {
+      const SimPiece& piece = s.pieces[s.piece_groups[c][i]];
+      if (piece.sim_voxel == kDeadIndex || piece.colour != c || piece.colour_slot != i) return fail(error, "a shape group holds a stale piece");
+      const uint64_t bit = colour_bit(uint8_t(c));
+      for (uint32_t p : piece.particles) {
+        if (shape_busy[p] & bit) return fail(error, "two shape constraints of one colour share a particle");
+        shape_busy[p] |= bit;
+      }
+    }
+  }
+  if (count != expected.size()) return fail(error, "stretch constraints missing for some piece edges");
+  for (size_t p = 0; p < n; ++p) {
+    if (s.refs[p] && (stretch_busy[p] != s.stretch_busy[p] || shape_busy[p] != s.shape_busy[p])) {
+      return fail(error, "colour masks out of step with the groups");
+    }
+  }
+  uint32_t grouped = 0;
+  for (const auto& group : s.piece_groups) grouped += uint32_t(group.size());
+  if (grouped != live_pieces(s)) return fail(error, "a live piece is in no shape group");
+  return true;
+}
+
+}  // namespace
+
+bool check_pbd_state(const VoxelModel& model, const CutState& cut, const PbdState& s, std::string& error) {
+  if (!check_pieces(model, cut, s, error) || !check_corners(model, s, error) || !check_particles(s, error) ||
+      !check_constraints(s, error)) {
+    return false;
+  }
+  // Every live vertex slot is embedded in a live piece.
+  for (uint32_t slot = 0; slot < cut.surface.positions.size(); ++slot) {
+    if (cut.surface.vertex_piece[slot] == CutSurface::kFreeKey) continue;
+    if (slot >= s.embedding.size()) return fail(error, "vertex slot " + std::to_string(slot) + " has no embedding");
+    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
+    if (piece == kDeadIndex || s.pieces[piece].sim_voxel == kDeadIndex) {
+      return fail(error, "vertex slot " + std::to_string(slot) + " is embedded in no live piece");
+    }
+  }
+  return true;
+}
 
 }  // namespace dvx

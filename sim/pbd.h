@@ -2,28 +2,42 @@
 // cut surface through every cut without remapping (paper section 5, DESIGN §3 "Deformation").
 //
 // Simulation voxels. The fine lattice is grouped into blocks of ratio^3 fine voxels (ratio = 2^l =
-// resolution / sim_resolution). A block with material is a simulation voxel. Like a fine voxel, an
-// uncut simulation voxel is one implicit *sim piece*; once a fine edge inside it is cut, its pieces
-// are the connected components of the fine material graph inside the block (fine inside nodes
-// joined by uncut fine edges), stored as one label per fine node of the block. Each sim piece is a
-// shape-matching cluster with a particle at each of its 8 corners and stretching constraints along
-// its 12 edges.
+// resolution / sim_resolution). A block with material is a simulation voxel. Its *sim pieces* are
+// the connected components of the fine material inside the block, from the start (not only after
+// a cut): fine nodes are joined when a fine voxel of the block puts them in one of its pieces
+// (cut.h's voxel_pieces, so the fine level's joining rule is the only one). A block whose material
+// is one component needs no labels; a block with several keeps one label per fine node. Each sim
+// piece is a shape-matching cluster with a particle at each of its 8 corners and stretching
+// constraints along its 12 edges.
 //
-// Particles. Pieces meeting at a coarse corner share its particle when material joins them near that
-// corner: the pieces of the (up to) 8 simulation voxels around the corner are united whenever a fine
-// node on their common boundary belongs to both; each resulting group has one particle. So a cut
-// through a region duplicates the corner particles there (the paper's divide at the coarse level),
-// while a partially cut simulation voxel keeps shared particles and the cut opens only up to its
-// front. Particle masses come from the material volume of the pieces using them (density x volume,
-// an eighth of each piece per corner); volumes partition under cuts, so total mass is conserved.
+// Particles. Pieces meeting at a coarse corner share its particle only when material joins them
+// there: the pieces of the (up to) 8 simulation voxels around the corner are united whenever a fine
+// node on their common boundary belongs to both; each resulting group has one particle. So disjoint
+// shells, thin gaps and ears are never welded, a severed piece is free, a cut duplicates the corner
+// particles it separates (the paper's divide at the coarse level), and a partially cut simulation
+// voxel keeps shared particles up to its front. Masses are exact: a piece holds its volume as an
+// integer count of eighths of a fine voxel and gives that count to each of its 8 particles; a
+// particle's mass is density x count x h^3 / 64, so the total is conserved through cuts exactly.
 //
-// Embedding. A surface vertex belongs to a fine piece, which lies in exactly one sim piece; its
-// deformed position is the trilinear interpolation of that piece's 8 particles at the vertex's rest
-// position. Only surface vertices are deformed: interior fine nodes are never materialised.
+// Incremental updates. A cut step relabels only the simulation voxels holding changed fine voxels;
+// their pieces and those of their 26 neighbours are detached (constraint references, masses, colour
+// slots) and re-attached after the corners are re-assigned. Piece, particle and constraint slots are
+// stable, with free lists; constraints sit in colour groups and leave them by swap-with-last. Colours
+// are greedy over a 63-bit per-particle mask; a constraint that finds every colour taken goes to the
+// overflow group, solved serially after the others (no silent cap, no race).
 //
-// Threads. The solver runs constraint colour groups through a TaskRunner the caller provides (sim/
-// owns no threads); constraints of one colour share no particle, so results are bit-identical for
-// any number of workers.
+// Embedding. A surface vertex belongs to a fine piece, which lies in exactly one sim piece; it keeps
+// its sim voxel and one fine node of its fine piece (the node's label names the sim piece, so a
+// relabelled voxel needs no re-embedding) and its rest position. Its deformed position is the
+// trilinear interpolation of that piece's 8 particles. Interior fine nodes are never materialised.
+//
+// Model and data. PbdModel is the topology (pieces, labels, constraints, colours, embedding); PbdData
+// the dynamic state (positions, velocities, lambdas, rotations' warm starts, grab, deformed surface).
+// Cuts edit the model between steps; a step reads the model and writes the data.
+//
+// Threads. The solver runs colour groups through a TaskRunner the caller provides (sim/ owns no
+// threads); constraints of one colour share no particle, so results are bit-identical for any number
+// of workers.
 #pragma once
 
 #include "sim/cut.h"
@@ -60,88 +74,122 @@ struct PbdParams {
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
 };
 
-// A shape-matching cluster: one piece of one simulation voxel.
+// Colours 0..62 are parallel groups; kOverflowColour is solved serially.
+constexpr uint8_t kOverflowColour = 63;
+constexpr int kColourGroups = 64;
+
+// A shape-matching cluster: one piece of one simulation voxel. Slot kDeadIndex sim_voxel: free.
 struct SimPiece {
   uint32_t sim_voxel;
-  uint8_t piece;                // piece number inside its simulation voxel
-  uint8_t colour;               // shape-matching colour group
-  uint32_t particles[8];        // corner particles (corner c = dx | dy<<1 | dz<<2)
-  double volume;                // material volume
-  Eigen::Quaterniond rotation;  // warm start of the rotation extraction
+  uint8_t piece;           // label inside its simulation voxel
+  uint8_t colour;          // shape-matching colour group
+  uint32_t colour_slot;    // index in its colour group
+  uint32_t particles[8];   // corner particles (corner c = dx | dy<<1 | dz<<2)
+  uint64_t eighths;        // material volume in eighths of a fine voxel (exact)
 };
 
-// A simulation voxel holding a cut: one label per fine node of its block.
+// A simulation voxel whose material has several components: labels of its fine nodes and the piece
+// slot of each label.
 struct SimDivided {
   uint32_t sim_voxel;
-  uint32_t first_label;  // offset into PbdState::labels ((ratio+1)^3 labels), kNoPiece for outside nodes
+  uint32_t first_label;  // offset into PbdModel::labels ((ratio+1)^3 labels), kNoPiece for outside nodes
+  uint32_t first_slot;   // offset into PbdModel::label_slots (256 piece slots)
   uint8_t piece_count;
 };
 
-// A stretching constraint along a simulation-voxel edge (shared by the pieces using both particles).
+// A stretching constraint along a simulation-voxel edge, shared by every piece using both particles.
 struct StretchConstraint {
   uint32_t a, b;
   double rest;
+  uint32_t handle;  // index in PbdModel::stretch_handles
 };
 
-// Where a surface vertex sits: its simulation voxel and the piece there (indices into `pieces` shift
-// when pieces are rebuilt; (sim voxel, piece) does not).
+// Where a stretching constraint sits, and how many piece edges use it.
+struct StretchHandle {
+  uint8_t colour;
+  uint32_t index;  // in stretch_groups[colour]
+  uint32_t refs;   // kDeadIndex: free handle
+};
+
+// Where a surface vertex sits: its simulation voxel and one fine node (block index) of its fine piece.
 struct VertexEmbedding {
   uint32_t sim_voxel;  // kDeadIndex: not embedded (free slot)
-  uint8_t piece;
+  uint32_t node;       // block index of a node of the vertex's fine piece
   Vec3f local;         // rest position in the sim voxel's frame ([0,1]^3 inside it)
 };
 
-struct PbdState {
+// The topology: what cuts edit.
+struct PbdModel {
   // Simulation grid.
   int32_t ratio = 1;                 // fine voxels per simulation voxel side
   int32_t sx = 0, sy = 0, sz = 0;    // simulation voxels per axis
   double sim_size = 1.0;             // simulation voxel edge length
+  double fine_size = 1.0;            // fine voxel edge length
   Vec3d origin = Vec3d::Zero();      // = fine lattice origin
 
-  // Particles (SoA; dead particles have mass 0 and sit in free_particles).
-  std::vector<Vec3d> position, velocity, previous, rest;
+  // Pieces: stable slots (free list). Per simulation voxel: its single piece, or its labels.
+  std::vector<SimPiece> pieces;
+  std::vector<uint32_t> free_pieces;
+  std::vector<uint32_t> voxel_piece;     // (sim voxels) the piece slot of an undivided voxel, else kDeadIndex
+  std::vector<uint32_t> voxel_divided;   // (sim voxels) index in divided, kDeadIndex: one component or none
+  std::vector<uint8_t> pieces_in_voxel;  // (sim voxels) piece count
+  std::vector<SimDivided> divided;
+  std::vector<uint8_t> labels;           // labels of divided simulation voxels
+  std::vector<uint32_t> label_slots;     // (divided x 256) piece slot per label
+
+  // Particles' static part (SoA; a free particle has refs 0 and sits in free_particles).
+  std::vector<Vec3d> rest;
+  std::vector<uint64_t> mass_eighths;  // sum of the eighths of the pieces using it
   std::vector<double> mass, inv_mass;
+  std::vector<uint32_t> refs;          // piece corners using it
   std::vector<uint8_t> anchored;
   std::vector<uint32_t> free_particles;
 
-  // Pieces and topology.
-  std::vector<SimPiece> pieces;
-  std::vector<uint32_t> piece_of_voxel;  // (sim voxels) first piece index, kDeadIndex: no material
-  std::vector<uint8_t> pieces_in_voxel;  // (sim voxels) piece count
-  std::vector<SimDivided> divided;
-  FlatMap divided_of;                    // sim voxel -> index in divided
-  std::vector<uint8_t> labels;           // labels of divided simulation voxels
+  // Constraints in colour groups; the per-particle masks of colours taken.
+  std::vector<StretchConstraint> stretch_groups[kColourGroups];
+  std::vector<StretchHandle> stretch_handles;
+  std::vector<uint32_t> free_stretch_handles;
+  FlatMap stretch_of;                            // particle pair a*2^32+b (a<b) -> handle
+  std::vector<uint32_t> piece_groups[kColourGroups];  // piece slots by shape-matching colour
+  std::vector<uint64_t> stretch_busy, shape_busy;     // (particles) colour bits taken
 
-  // Constraints, grouped by colour (offsets into the arrays).
-  std::vector<StretchConstraint> stretch;
-  std::vector<double> stretch_lambda;
-  std::vector<uint32_t> stretch_colour_begin;  // (colours + 1)
-  std::vector<uint32_t> piece_order;           // piece indices sorted by colour
-  std::vector<uint32_t> piece_colour_begin;    // (colours + 1)
+  // Surface embedding (per vertex slot of the cut surface).
+  std::vector<VertexEmbedding> embedding;
 
+  PbdParams params;
+
+  // Scratch reused between cut steps (no allocation in steady state).
+  std::vector<uint32_t> scratch_parent, scratch_sim, scratch_near, scratch_old_slots;
+  std::vector<uint8_t> scratch_labels, scratch_mark;
+  std::vector<uint64_t> scratch_corners;
+};
+
+// The dynamic state: what a step writes.
+struct PbdData {
+  std::vector<Vec3d> position, velocity, previous;  // (particle slots)
+  std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_groups
+  std::vector<Eigen::Quaterniond> rotation;           // (piece slots) warm start of the rotation extraction
   // Grab tool: one particle pulled towards a target through a compliant attachment.
   uint32_t grab_particle = ~0u;
   Vec3d grab_target = Vec3d::Zero();
   double grab_compliance = 1e-4;
-  double grab_lambda[3] = {0, 0, 0};
-
-  // Surface embedding (per vertex slot of the cut surface) and the deformed positions.
-  std::vector<VertexEmbedding> embedding;
   std::vector<Vec3f> deformed;  // (surface vertex slots)
-
-  PbdParams params;
   uint64_t steps = 0;
 };
+
+// Model and data together (what the engine holds). Field names of the data are forwarded for the
+// callers that only read positions.
+struct PbdState : PbdModel, PbdData {};
 
 // Builds simulation voxels, particles, constraints and the embedding of the current surface.
 // Returns false with a reason when sim_resolution does not divide the lattice into 2^l blocks.
 bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& params, PbdState& state,
               std::string& error);
 
-// Updates the PBD model after a cut step (uses cut.changed_voxels / changed_vertices): re-divides the
+// Updates the PBD model after a cut step (uses cut.changed_voxels / changed_vertices): relabels the
 // simulation voxels holding changed fine voxels, duplicates corner particles where material separated,
-// rebuilds constraints and masses, re-embeds the changed vertices. Returns the number of simulation
-// voxels re-divided.
+// updates constraints and masses of the pieces around them, re-embeds the changed vertices. Returns
+// the number of simulation voxels relabelled.
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& state);
 
 // One time step (substeps x iterations), then the deformed surface positions.
@@ -150,11 +198,17 @@ void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}
 // Recomputes deformed positions of all live surface vertices (pbd_step calls it).
 void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
 
-// Maps a point in deformed (world) space to rest space, where cuts are made: minus the inverse-distance
-// weighted displacement of the 8 nearest particles. Smooth in the point, exact for translated pieces,
-// first order for smooth deformation; a piece that turned far from its rest orientation is cut as if
-// it had only moved (a known limitation). The blade's poses go through it before they cut.
-Vec3d pbd_world_to_rest(const PbdState& state, const Vec3d& world);
+// The piece slot holding rest point `rest` (the label of the fine node nearest to it, in the
+// simulation voxel containing it), kDeadIndex when that node holds no material.
+uint32_t piece_at_rest(const VoxelModel& model, const PbdState& state, const Vec3d& rest);
+// The piece slot of label `label` in simulation voxel sv, kDeadIndex when none.
+uint32_t piece_slot(const PbdState& state, uint32_t sv, uint8_t label);
+// True when the fine node nearest to local point u ([0,1]^3 in the piece's simulation voxel, clamped
+// to it) belongs to the piece: u is in the piece's material to within half a fine voxel.
+bool piece_holds(const VoxelModel& model, const PbdState& state, uint32_t piece, const Vec3d& u);
+// The rest position of a piece's corner 0, and its 8 deformed corner positions.
+Vec3d piece_rest_origin(const PbdState& state, uint32_t piece);
+void piece_corners(const PbdState& state, uint32_t piece, Vec3d corners[8]);
 
 // Grab tool: attach the live particle nearest to `point` (deformed space); move; release.
 void grab_begin(PbdState& state, const Vec3d& point, double compliance);
@@ -162,9 +216,22 @@ void grab_move(PbdState& state, const Vec3d& target);
 void grab_end(PbdState& state);
 
 // Diagnostics.
-double total_mass(const PbdState& state);
+double total_mass(const PbdState& state);  // exact: density x (sum of eighths) x h^3 / 64
 double kinetic_energy(const PbdState& state);
 uint64_t count_nonfinite(const PbdState& state);
 uint32_t sim_voxels_divided(const PbdState& state);
+uint32_t live_pieces(const PbdState& state);
+uint32_t live_particles(const PbdState& state);
+uint32_t stretch_count(const PbdState& state);
+uint32_t overflow_constraints(const PbdState& state);  // stretch + shape constraints in the overflow colour
+
+// Full consistency check (tests call it after every cut step, like check_cut_state): every
+// simulation voxel's pieces are the material components of its block, recomputed from scratch;
+// particle sharing equals material adjacency at every corner of a piece; every particle's mass is
+// density x volume exactly and its references count its piece corners; stretch constraints are
+// exactly the unique particle pairs along piece edges, each in one colour group whose members share
+// no particle (overflow excepted); every live embedding slot names a live piece. Returns false with
+// the first problem in `error`.
+bool check_pbd_state(const VoxelModel& model, const CutState& cut, const PbdState& state, std::string& error);
 
 }  // namespace dvx

@@ -4,6 +4,7 @@
 #include "engine/mesh_io.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
+#include "sim/world_to_rest.h"
 #include "sim/random.h"
 #include "sim/surface_metrics.h"
 #include "sim/voxelize.h"
@@ -70,6 +71,7 @@ TEST_SUITE("stress") {
     Random random(20261122);
     uint64_t memory_after_cutting = 0;
     BladePose blade{random.point(box), random.point(box)};
+    SweepMapper sweep;
     int cutting_left = 0;
     bool grabbing = false;
     const int steps = std::getenv("DIVVOX_STRESS_STEPS") ? std::atoi(std::getenv("DIVVOX_STRESS_STEPS")) : 20000;
@@ -81,13 +83,12 @@ TEST_SUITE("stress") {
         const Vec3d c = random.point(box), d = Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1));
         blade = {c - 0.6 * scale * d, c + 0.6 * scale * d};
         cutting_left = int(random.uniform(5, 30));
+        reset_sweep(sweep);
       }
       if (cutting_left > 0) {
         const Vec3d move = 0.02 * scale * Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1));
         const BladePose next{blade.a + move, blade.b + move + 0.005 * scale * Vec3d(random.uniform(-1, 1), 0, 0)};
-        cut_step(model, cut, {pbd_world_to_rest(pbd, blade.a), pbd_world_to_rest(pbd, blade.b)},
-                 {pbd_world_to_rest(pbd, next.a), pbd_world_to_rest(pbd, next.b)});
-        pbd_apply_cut(model, cut, pbd);
+        pbd_cut_step(model, cut, pbd, blade, next, sweep);
         blade = next;
         --cutting_left;
       }
@@ -137,6 +138,6 @@ TEST_SUITE("stress") {
                                 << " KiB at the end; kinetic energy " << kinetic_energy(pbd) << ", mass "
                                 << total_mass(pbd) << " (initial " << mass << ")");
     MESSAGE("after " << steps << " steps: " << cut.divided.size() << " divided voxels, " << sim_voxels_divided(pbd)
-                                  << " divided simulation voxels, " << pbd.pieces.size() << " sim pieces");
+                                  << " divided simulation voxels, " << live_pieces(pbd) << " sim pieces");
   }
 }

@@ -1,0 +1,396 @@
+#include "sim/world_to_rest.h"
+
+#include <Eigen/LU>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace dvx {
+
+// ---- Trilinear map -------------------------------------------------------------------------
+
+Vec3d trilinear(const Vec3d corners[8], const Vec3d& u) {
+  Vec3d x = Vec3d::Zero();
+  for (int c = 0; c < 8; ++c) {
+    const double w = ((c & 1) ? u.x() : 1.0 - u.x()) * (((c >> 1) & 1) ? u.y() : 1.0 - u.y()) *
+                     (((c >> 2) & 1) ? u.z() : 1.0 - u.z());
+    x += w * corners[c];
+  }
+  return x;
+}
+
+bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, double tolerance, int max_iterations) {
+  for (int it = 0; it <= max_iterations; ++it) {
+    // The map and its Jacobian at u.
+    Vec3d x = Vec3d::Zero();
+    Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
+    for (int c = 0; c < 8; ++c) {
+      const double f[3] = {(c & 1) ? u.x() : 1.0 - u.x(), ((c >> 1) & 1) ? u.y() : 1.0 - u.y(),
+                           ((c >> 2) & 1) ? u.z() : 1.0 - u.z()};
+      const double d[3] = {(c & 1) ? 1.0 : -1.0, ((c >> 1) & 1) ? 1.0 : -1.0, ((c >> 2) & 1) ? 1.0 : -1.0};
+      x += f[0] * f[1] * f[2] * corners[c];
+      jacobian.col(0) += d[0] * f[1] * f[2] * corners[c];
+      jacobian.col(1) += f[0] * d[1] * f[2] * corners[c];
+      jacobian.col(2) += f[0] * f[1] * d[2] * corners[c];
+    }
+    const Vec3d residual = target - x;
+    if (!residual.allFinite()) return false;
+    if (residual.norm() <= tolerance) return true;
+    if (it == max_iterations) break;
+    // Newton step, damped to at most one cell per axis; a flat or inverted map stops it.
+    const double scale = jacobian.cwiseAbs().maxCoeff();
+    const double det = jacobian.determinant();
+    if (!(scale > 0.0) || !(std::abs(det) > 1e-9 * scale * scale * scale)) return false;
+    Vec3d step = jacobian.inverse() * residual;
+    const double longest = step.cwiseAbs().maxCoeff();
+    if (!(longest < std::numeric_limits<double>::infinity())) return false;
+    if (longest > 1.0) step /= longest;
+    u += step;
+    if ((u.array() - 0.5).abs().maxCoeff() > 2.0) return false;
+  }
+  return false;
+}
+
+// ---- Grid over deformed pieces ---------------------------------------------------------------
+
+void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, double margin, PieceGrid& grid) {
+  grid.candidates.clear();
+  grid.ranges.clear();
+  grid.everywhere.clear();
+  grid.items.clear();
+  grid.cell_begin.clear();
+  if (region.empty()) return;
+  // Pieces whose grown bounds overlap the region (one pass over the pieces).
+  const Vec3d lo_region = region.min, hi_region = region.max;
+  Vec3d lo_all = Vec3d::Constant(std::numeric_limits<double>::infinity()), hi_all = -lo_all;
+  grid.box_lo.clear();
+  grid.box_hi.clear();
+  for (uint32_t slot = 0; slot < pbd.pieces.size(); ++slot) {
+    if (pbd.pieces[slot].sim_voxel == kDeadIndex) continue;
+    Vec3d lo = pbd.position[pbd.pieces[slot].particles[0]], hi = lo;
+    for (int c = 1; c < 8; ++c) {
+      lo = lo.cwiseMin(pbd.position[pbd.pieces[slot].particles[c]]);
+      hi = hi.cwiseMax(pbd.position[pbd.pieces[slot].particles[c]]);
+    }
+    lo.array() -= margin;
+    hi.array() += margin;
+    if ((hi.array() < lo_region.array()).any() || (lo.array() > hi_region.array()).any() || !lo.allFinite() ||
+        !hi.allFinite()) {
+      continue;
+    }
+    grid.candidates.push_back(slot);
+    grid.box_lo.push_back(lo.cwiseMax(lo_region));
+    grid.box_hi.push_back(hi.cwiseMin(hi_region));
+    lo_all = lo_all.cwiseMin(grid.box_lo.back());
+    hi_all = hi_all.cwiseMax(grid.box_hi.back());
+  }
+  if (grid.candidates.empty()) return;
+  // Cells: about `cell` wide, at most 64 per axis and about two per candidate.
+  const Vec3d extent = (hi_all - lo_all).cwiseMax(Vec3d::Constant(1e-12));
+  double size = std::max(cell, extent.maxCoeff() / 64.0);
+  const double limit = std::max(64.0, 2.0 * double(grid.candidates.size()));
+  for (int pass = 0; pass < 8; ++pass) {
+    const double cells = std::ceil(extent.x() / size) * std::ceil(extent.y() / size) * std::ceil(extent.z() / size);
+    if (cells <= limit) break;
+    size *= std::cbrt(cells / limit) * 1.0001;
+  }
+  grid.origin = lo_all;
+  grid.cell = size;
+  for (int a = 0; a < 3; ++a) grid.n[a] = std::max(1, std::min(64, int32_t(std::ceil(extent[a] / size))));
+  const uint32_t cells = uint32_t(grid.n[0]) * uint32_t(grid.n[1]) * uint32_t(grid.n[2]);
+  // Counting sort of the candidates into their cells (pieces covering many cells are tested always).
+  const auto cell_range = [&](size_t i, int32_t r[6]) {
+    for (int a = 0; a < 3; ++a) {
+      r[a] = std::clamp(int32_t((grid.box_lo[i][a] - grid.origin[a]) / size), 0, grid.n[a] - 1);
+      r[3 + a] = std::clamp(int32_t((grid.box_hi[i][a] - grid.origin[a]) / size), 0, grid.n[a] - 1);
+    }
+  };
+  grid.cell_begin.assign(size_t(cells) + 1, 0);
+  const auto for_cells = [&](const int32_t r[6], auto&& f) {
+    for (int32_t z = r[2]; z <= r[5]; ++z) {
+      for (int32_t y = r[1]; y <= r[4]; ++y) {
+        for (int32_t x = r[0]; x <= r[3]; ++x) f(uint32_t(x) + uint32_t(grid.n[0]) * (uint32_t(y) + uint32_t(grid.n[1]) * uint32_t(z)));
+      }
+    }
+  };
+  grid.ranges.resize(grid.candidates.size() * 6);
+  for (size_t i = 0; i < grid.candidates.size(); ++i) {
+    int32_t* r = grid.ranges.data() + 6 * i;
+    cell_range(i, r);
+    const int64_t covered = int64_t(r[3] - r[0] + 1) * (r[4] - r[1] + 1) * (r[5] - r[2] + 1);
+    if (covered > 64) {
+      grid.everywhere.push_back(grid.candidates[i]);
+      r[0] = 1;  // empty range
+      r[3] = 0;
+      continue;
+    }
+    for_cells(r, [&](uint32_t id) { ++grid.cell_begin[id + 1]; });
+  }
+  for (uint32_t c = 0; c < cells; ++c) grid.cell_begin[c + 1] += grid.cell_begin[c];
+  grid.items.resize(grid.cell_begin[cells]);
+  grid.cursor.assign(grid.cell_begin.begin(), grid.cell_begin.end() - 1);
+  for (size_t i = 0; i < grid.candidates.size(); ++i) {
+    const int32_t* r = grid.ranges.data() + 6 * i;
+    for_cells(r, [&](uint32_t id) { grid.items[grid.cursor[id]++] = grid.candidates[i]; });
+  }
+}
+
+// ---- Points --------------------------------------------------------------------------------
+
+namespace {
+
+// Inverts a piece's map at `world`: local coordinates u (from `start`), false when Newton fails.
+bool piece_local(const PbdState& pbd, uint32_t piece, const Vec3d& world, const Vec3d& start, Vec3d& u) {
+  Vec3d corners[8];
+  piece_corners(pbd, piece, corners);
+  u = start;
+  return invert_trilinear(corners, world, u, 1e-7 * pbd.sim_size);
+}
+
+}  // namespace
+
+uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
+                       std::vector<RestHit>& out, uint32_t* tests) {
+  const size_t before = out.size();
+  constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces
+  query_piece_grid(grid, world, [&](uint32_t slot) {
+    if (tests) ++*tests;
+    Vec3d u;
+    if (!piece_local(pbd, slot, world, Vec3d::Constant(0.5), u)) return;
+    if (u.minCoeff() < -kInside || u.maxCoeff() > 1.0 + kInside) return;
+    if (!piece_holds(model, pbd, slot, u)) return;
+    out.push_back({slot, piece_rest_origin(pbd, slot) + pbd.sim_size * u});
+  });
+  return uint32_t(out.size() - before);
+}
+
+// ---- The blade's sweep ---------------------------------------------------------------------
+
+void reset_sweep(SweepMapper& mapper) {
+  mapper.carried.clear();
+  mapper.carried_piece.clear();
+}
+
+namespace {
+
+constexpr uint32_t kMaxSweepPoints = 1u << 21;  // a sweep sampled finer than this is sampled coarser
+
+bool near_point(const Vec3d& a, const Vec3d& b, double tolerance) { return (a - b).squaredNorm() <= tolerance * tolerance; }
+
+// Distance of p from the segment a-b.
+double segment_distance(const Vec3d& p, const Vec3d& a, const Vec3d& b) {
+  const Vec3d d = b - a;
+  const double len2 = d.squaredNorm();
+  const double t = len2 > 0.0 ? std::clamp((p - a).dot(d) / len2, 0.0, 1.0) : 0.0;
+  return (p - (a + t * d)).norm();
+}
+
+// Where the blade's previous samples are now: carried with the material, or where they were.
+void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& from, uint32_t nu, SweepMapper& m) {
+  m.from_world.resize(nu + 1);
+  for (uint32_t i = 0; i <= nu; ++i) {
+    const double t = double(i) / nu;
+    m.from_world[i] = from.a + t * (from.b - from.a);
+    if (m.carried.size() != nu + 1 || !m.carried[i].allFinite()) continue;
+    // The piece that held it, while it is live and still spans that rest point; else the material there.
+    uint32_t piece = m.carried_piece[i];
+    Vec3d u = Vec3d::Constant(-1.0);
+    if (piece < pbd.pieces.size() && pbd.pieces[piece].sim_voxel != kDeadIndex) {
+      u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
+    }
+    if (!(u.minCoeff() >= -1e-6 && u.maxCoeff() <= 1.0 + 1e-6)) {
+      piece = piece_at_rest(model, pbd, m.carried[i]);
+      if (piece == kDeadIndex) continue;
+      u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
+    }
+    Vec3d corners[8];
+    piece_corners(pbd, piece, corners);
+    m.from_world[i] = trilinear(corners, u);
+  }
+}
+
+// The rest image through `piece` of grid point k: its hit when it has one, else Newton from `start`.
+bool rest_through(const PbdState& pbd, const SweepMapper& m, uint32_t k, uint32_t piece, const Vec3d& start, Vec3d& rest) {
+  for (uint32_t h = m.hit_begin[k]; h < m.hit_begin[k + 1]; ++h) {
+    if (m.hits[h].piece != piece) continue;
+    rest = m.hits[h].rest;
+    return true;
+  }
+  Vec3d u;
+  if (!piece_local(pbd, piece, m.points[k], start, u)) return false;
+  rest = piece_rest_origin(pbd, piece) + pbd.sim_size * u;
+  return true;
+}
+
+// Appends a cell's quad, merged into the previous one when it continues the same straight strip.
+void emit_quad(const RestQuad& q, double h, bool may_merge, std::vector<RestQuad>& quads, uint32_t& strip_begin,
+               std::vector<Vec3d>& strip_points) {
+  const double join = 1e-6 * h, straight = 0.02 * h;
+  if (may_merge && !quads.empty()) {
+    RestQuad& last = quads.back();
+    if (near_point(last.from.b, q.from.a, join) && near_point(last.to.b, q.to.a, join)) {
+      // Every junction of the strip must stay on the merged strip's edges.
+      bool ok = true;
+      for (size_t i = strip_begin; i + 1 < strip_points.size() && ok; i += 2) {
+        ok = segment_distance(strip_points[i], last.from.a, q.from.b) <= straight &&
+             segment_distance(strip_points[i + 1], last.to.a, q.to.b) <= straight;
+      }
+      ok = ok && segment_distance(q.from.a, last.from.a, q.from.b) <= straight &&
+           segment_distance(q.to.a, last.to.a, q.to.b) <= straight;
+      if (ok) {
+        strip_points.push_back(q.from.a);
+        strip_points.push_back(q.to.a);
+        last.from.b = q.from.b;
+        last.to.b = q.to.b;
+        return;
+      }
+    }
+  }
+  quads.push_back(q);
+  strip_points.clear();
+  strip_begin = 0;
+}
+
+}  // namespace
+
+void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
+               SweepMapper& m, SweepMapStats* stats) {
+  const double h = pbd.fine_size;
+  m.quads.clear();
+  // Samples: nu + 1 along the blade, nv + 1 along its motion (fine-voxel spacing).
+  const double length = std::max((from.b - from.a).norm(), (to.b - to.a).norm());
+  if (!std::isfinite(length)) return;
+  uint32_t nu = uint32_t(std::clamp(std::ceil(length / h), 1.0, double(kMaxSweepPoints / 2)));
+  sweep_start(model, pbd, from, nu, m);
+  m.to_world.resize(nu + 1);
+  double motion = 0.0;
+  for (uint32_t i = 0; i <= nu; ++i) {
+    m.to_world[i] = to.a + (double(i) / nu) * (to.b - to.a);
+    motion = std::max(motion, (m.to_world[i] - m.from_world[i]).norm());
+  }
+  if (!std::isfinite(motion)) return;
+  const uint32_t nv = uint32_t(std::clamp(std::ceil(motion / h), 1.0, std::max(1.0, double(kMaxSweepPoints / (nu + 1)) - 1.0)));
+  // The pieces near the sweep, then the rest images of every sample.
+  Aabb region;
+  for (uint32_t i = 0; i <= nu; ++i) {
+    region.grow(m.from_world[i]);
+    region.grow(m.to_world[i]);
+  }
+  region.min.array() -= h;
+  region.max.array() += h;
+  build_piece_grid(pbd, region, pbd.sim_size, 1e-3 * h, m.grid);
+  const uint32_t row = nu + 1, count = row * (nv + 1);
+  m.points.resize(count);
+  m.hit_begin.resize(size_t(count) + 1);
+  m.hits.clear();
+  uint32_t tests = 0;
+  for (uint32_t j = 0; j <= nv; ++j) {
+    const double t = double(j) / nv;
+    for (uint32_t i = 0; i <= nu; ++i) {
+      const uint32_t k = j * row + i;
+      m.points[k] = m.from_world[i] + t * (m.to_world[i] - m.from_world[i]);
+      m.hit_begin[k] = uint32_t(m.hits.size());
+      world_to_rest(model, pbd, m.grid, m.points[k], m.hits, &tests);
+    }
+  }
+  m.hit_begin[count] = uint32_t(m.hits.size());
+
+  // Cells: one rest quad per piece holding one of the cell's corners.
+  std::vector<Vec3d>& strip_points = m.strip_points;
+  strip_points.clear();
+  uint32_t strip_begin = 0;
+  if (motion > 1e-9 * h) {
+    for (uint32_t j = 0; j < nv; ++j) {
+      uint32_t previous_piece = kDeadIndex;
+      for (uint32_t i = 0; i < nu; ++i) {
+        const uint32_t k[4] = {j * row + i, j * row + i + 1, (j + 1) * row + i, (j + 1) * row + i + 1};
+        // Distinct pieces of the corners' hits, ascending.
+        uint32_t pieces[32];
+        Vec3d starts[32];
+        int piece_count = 0;
+        for (uint32_t corner : k) {
+          for (uint32_t x = m.hit_begin[corner]; x < m.hit_begin[corner + 1] && piece_count < 32; ++x) {
+            const uint32_t p = m.hits[x].piece;
+            if (std::find(pieces, pieces + piece_count, p) != pieces + piece_count) continue;
+            starts[piece_count] = (m.hits[x].rest - piece_rest_origin(pbd, p)) / pbd.sim_size;
+            pieces[piece_count++] = p;
+          }
+        }
+        for (int a = 1; a < piece_count; ++a) {  // insertion sort (tiny)
+          for (int b = a; b > 0 && pieces[b - 1] > pieces[b]; --b) {
+            std::swap(pieces[b - 1], pieces[b]);
+            std::swap(starts[b - 1], starts[b]);
+          }
+        }
+        const size_t cell_first = m.quads.size();
+        for (int p = 0; p < piece_count; ++p) {
+          Vec3d r[4];
+          bool ok = true;
+          for (int c = 0; c < 4 && ok; ++c) ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
+          if (!ok) continue;
+          const RestQuad q{{r[0], r[1]}, {r[2], r[3]}};
+          // A neighbour piece sharing the cell's corners maps it the same way: cut it once.
+          bool same = false;
+          for (size_t x = cell_first; x < m.quads.size() && !same; ++x) {
+            const RestQuad& o = m.quads[x];
+            same = near_point(o.to.b, q.to.b, 1e-3 * h) && near_point(o.to.a, q.to.a, 1e-3 * h) &&
+                   near_point(o.from.b, q.from.b, 1e-3 * h) && near_point(o.from.a, q.from.a, 1e-3 * h);
+          }
+          if (same) continue;
+          emit_quad(q, h, piece_count == 1 && previous_piece != kDeadIndex && m.quads.size() == cell_first,
+                    m.quads, strip_begin, strip_points);
+        }
+        previous_piece = piece_count == 1 ? pieces[0] : kDeadIndex;
+      }
+    }
+  }
+  // The samples of `to` that are in material, carried to the next step.
+  // In a slit or a gap (inside a piece's hexahedron, outside its material) a sample is carried with
+  // that piece: the material closing in on it is then cut by the relative motion.
+  m.carried.assign(nu + 1, Vec3d::Constant(std::numeric_limits<double>::quiet_NaN()));
+  m.carried_piece.assign(nu + 1, kDeadIndex);
+  for (uint32_t i = 0; i <= nu; ++i) {
+    const uint32_t k = nv * row + i;
+    if (m.hit_begin[k] < m.hit_begin[k + 1]) {
+      m.carried[i] = m.hits[m.hit_begin[k]].rest;
+      m.carried_piece[i] = m.hits[m.hit_begin[k]].piece;
+      continue;
+    }
+    query_piece_grid(m.grid, m.points[k], [&](uint32_t slot) {
+      Vec3d u;
+      if (m.carried_piece[i] != kDeadIndex || !piece_local(pbd, slot, m.points[k], Vec3d::Constant(0.5), u)) return;
+      if (u.minCoeff() < 0.0 || u.maxCoeff() > 1.0) return;
+      m.carried[i] = piece_rest_origin(pbd, slot) + pbd.sim_size * u;
+      m.carried_piece[i] = slot;
+    });
+  }
+  if (stats) {
+    stats->samples += count;
+    stats->piece_tests += tests;
+    stats->hits += uint32_t(m.hits.size());
+    stats->quads += uint32_t(m.quads.size());
+  }
+}
+
+void pbd_cut_divide(const VoxelModel& model, CutState& cut, const PbdState& pbd, const BladePose& from,
+                    const BladePose& to, SweepMapper& mapper, CutStepStats& stats, SweepMapStats* map_stats) {
+  map_sweep(model, pbd, from, to, mapper, map_stats);
+  uint32_t hits = 0;
+  for (const RestQuad& q : mapper.quads) {
+    cut_divide(model, cut, q.from, q.to, stats);
+    hits += stats.edges_hit;
+  }
+  stats.edges_hit = hits;
+}
+
+CutStepStats pbd_cut_step(const VoxelModel& model, CutState& cut, PbdState& pbd, const BladePose& from,
+                          const BladePose& to, SweepMapper& mapper) {
+  CutStepStats stats;
+  pbd_cut_divide(model, cut, pbd, from, to, mapper, stats);
+  cut_update_surface(model, cut, stats);
+  pbd_apply_cut(model, cut, pbd);
+  return stats;
+}
+
+}  // namespace dvx

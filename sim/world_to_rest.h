@@ -1,0 +1,125 @@
+// World space -> rest space through the deformed simulation pieces (DESIGN §3 "Deformation").
+//
+// Cuts are made in rest space (the voxel model never moves); the blade moves in world space. A
+// point in world space is in material where some piece's deformed hexahedron contains it *and* the
+// rest position found by inverting that piece's trilinear map lies in that piece's material. So a
+// blade through air cuts nothing, a bent or rotated piece is cut where the blade passes it, and two
+// overlapping pieces (a flap folded onto the body) are each cut where the blade passes them.
+//
+// The pieces are found through a uniform grid over their deformed bounds (PieceGrid, rebuilt per use
+// over the region of interest: one pass over the pieces, no sort); the map is inverted by Newton's
+// method on the trilinear map (invert_trilinear). Contact uses both as well.
+//
+// The blade's sweep between two steps is sampled at fine-voxel spacing, along the blade and along
+// its motion. The sweep starts where the blade's previous samples are *now*: each sample that was in
+// material is carried with the material (its rest point mapped forward through the current
+// deformation), so a still blade cuts tissue moving into it, and a blade moving with the tissue cuts
+// nothing new. Each cell of the sampled sweep becomes one rest-space quad per piece that holds one of
+// its corners (the other corners mapped through the same piece, extrapolating its map a little);
+// consecutive cells whose rest images continue one straight strip are merged before cutting.
+#pragma once
+
+#include "sim/cut.h"
+#include "sim/pbd.h"
+
+#include <cstdint>
+#include <vector>
+
+namespace dvx {
+
+// Trilinear map of a hexahedron (corners c = dx | dy<<1 | dz<<2) at local coordinates u.
+Vec3d trilinear(const Vec3d corners[8], const Vec3d& u);
+
+// Finds u with trilinear(corners, u) = target by Newton's method from `u` (in/out; start e.g. at
+// 0.5^3), to within `tolerance` (world units). Returns false when it does not converge (degenerate or
+// inverted hexahedron, or a target far outside: |u - 0.5| > 2 on an axis).
+bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, double tolerance, int max_iterations = 16);
+
+// A uniform grid over the deformed bounds of the pieces that overlap a region.
+struct PieceGrid {
+  Vec3d origin = Vec3d::Zero();
+  double cell = 1.0;
+  int32_t n[3] = {0, 0, 0};
+  std::vector<uint32_t> cell_begin;  // (cells + 1) offsets into items
+  std::vector<uint32_t> items;       // piece slots per cell
+  std::vector<uint32_t> everywhere;  // pieces too large for the grid: tested by every query
+  // Scratch.
+  std::vector<uint32_t> candidates;
+  std::vector<int32_t> ranges;  // (candidates x 6) cell ranges
+  std::vector<Vec3d> box_lo, box_hi;  // (candidates) grown bounds clipped to the region
+  std::vector<uint32_t> cursor;       // (cells) fill positions
+};
+
+// Builds the grid over the live pieces whose deformed bounds, grown by `margin`, overlap `region`.
+// Cells of about `cell` (at most 64 per axis).
+void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, double margin, PieceGrid& grid);
+
+// Calls f(piece slot) for each piece whose grown bounds may contain `point` (each at most once).
+template <typename F>
+void query_piece_grid(const PieceGrid& grid, const Vec3d& point, F&& f) {
+  for (uint32_t slot : grid.everywhere) f(slot);
+  if (grid.cell_begin.empty()) return;
+  int32_t c[3];
+  for (int a = 0; a < 3; ++a) {
+    const double x = (point[a] - grid.origin[a]) / grid.cell;
+    if (!(x >= 0.0) || x >= double(grid.n[a])) return;
+    c[a] = int32_t(x);
+  }
+  const uint32_t id = uint32_t(c[0]) + uint32_t(grid.n[0]) * (uint32_t(c[1]) + uint32_t(grid.n[1]) * uint32_t(c[2]));
+  for (uint32_t i = grid.cell_begin[id]; i < grid.cell_begin[id + 1]; ++i) f(grid.items[i]);
+}
+
+// The rest positions of a world point: every (piece, rest point) whose piece holds the point's
+// preimage in its material. Appends to `out`; returns how many it appended.
+struct RestHit {
+  uint32_t piece;
+  Vec3d rest;
+};
+// `tests` (optional) counts the Newton inversions.
+uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
+                       std::vector<RestHit>& out, uint32_t* tests = nullptr);
+
+// A rest-space quad to cut: the sweep from one blade segment to another.
+struct RestQuad {
+  BladePose from, to;
+};
+
+// The blade's state between steps and the scratch of the mapping (no allocation in steady state).
+struct SweepMapper {
+  // (blade samples) rest point of each sample at the last pose, relative to the piece whose material
+  // (or, in a slit or a gap, whose hexahedron) held it; NaN: in no piece.
+  std::vector<Vec3d> carried;
+  std::vector<uint32_t> carried_piece;
+  PieceGrid grid;
+  std::vector<Vec3d> from_world, to_world, points, strip_points;
+  std::vector<uint32_t> hit_begin;
+  std::vector<RestHit> hits;
+  std::vector<RestQuad> quads;
+};
+
+// What one mapping did.
+struct SweepMapStats {
+  uint32_t samples = 0;      // world points mapped
+  uint32_t piece_tests = 0;  // (point, piece) Newton inversions
+  uint32_t hits = 0;         // accepted (point, piece) pairs
+  uint32_t quads = 0;        // rest quads cut
+};
+
+// Forgets the carried blade (a new cut starts where the blade is).
+void reset_sweep(SweepMapper& mapper);
+
+// Maps the sweep from world pose `from` to world pose `to` into rest-space quads (mapper.quads) and
+// records the rest points of `to` for the next step.
+void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
+               SweepMapper& mapper, SweepMapStats* stats = nullptr);
+
+// Phase 1 of a cut step with physics: maps the sweep and divides with every rest quad (cut_divide);
+// then the caller runs cut_update_surface and pbd_apply_cut.
+void pbd_cut_divide(const VoxelModel& model, CutState& cut, const PbdState& pbd, const BladePose& from,
+                    const BladePose& to, SweepMapper& mapper, CutStepStats& stats, SweepMapStats* map_stats = nullptr);
+
+// The whole cut step with physics: pbd_cut_divide, cut_update_surface, pbd_apply_cut.
+CutStepStats pbd_cut_step(const VoxelModel& model, CutState& cut, PbdState& pbd, const BladePose& from,
+                          const BladePose& to, SweepMapper& mapper);
+
+}  // namespace dvx
