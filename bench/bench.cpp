@@ -3,6 +3,7 @@
 #include "bench/child_process.h"
 #include "engine/errors.h"
 #include "engine/output.h"
+#include "engine/plot.h"
 #include "engine/resources.h"
 #include "engine/voxelize_job.h"
 
@@ -165,7 +166,7 @@ std::string bench_voxelize(const BenchVoxelizeOptions& options) {
   const std::string csv_path = (std::filesystem::path(options.out_dir) / "bench_voxelize.csv").string();
   write_text_file(csv_path, csv.str());
   write_json_file((std::filesystem::path(options.out_dir) / "bench_voxelize.json").string(),
-                  {{"benchmark", "voxelize"}, {"repeats", options.repeats}, {"error_samples", options.error_samples}, {"statistic", "median"}, {"rows", rows}});
+                  {{"benchmark", "voxelize"}, {"machine", machine_summary()}, {"repeats", options.repeats}, {"error_samples", options.error_samples}, {"statistic", "median"}, {"rows", rows}});
   return csv_path;
 }
 

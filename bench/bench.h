@@ -1,6 +1,8 @@
 // `divvox bench ...`: benchmarks that write CSV/JSON (never timed unit tests).
 #pragma once
 
+#include <nlohmann/json_fwd.hpp>
+
 #include <string>
 #include <vector>
 
@@ -137,5 +139,15 @@ struct BenchReportOptions {
   std::string mode = "full";  // quick | full: named in the report
 };
 std::string bench_report(const BenchReportOptions& options);
+
+}  // namespace dvx
+
+namespace dvx {
+
+// The plot of a benchmark's JSON results ("cut_length": time against cut voxels with the fits;
+// "deform": step time against error, Pareto front and the scene defaults marked): DIR/bench_NAME.svg
+// and .png, drawn by gnuplot. The benchmark draws it when it runs; `bench report` redraws it from the
+// JSON. Returns the SVG's file name; "" with `error` when it was not drawn (gnuplot missing).
+std::string draw_bench_plot(const nlohmann::json& results, const std::string& dir, std::string& error);
 
 }  // namespace dvx

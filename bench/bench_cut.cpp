@@ -3,6 +3,7 @@
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
+#include "engine/plot.h"
 #include "engine/voxelize_job.h"
 #include "sim/cut.h"
 #include "sim/surface_metrics.h"
@@ -96,7 +97,7 @@ std::string bench_cut(const BenchCutOptions& options) {
   write_text_file((out / "bench_cut.csv").string(), rows_csv.str());
   write_text_file((out / "bench_cut_steps.csv").string(), steps_csv.str());
   write_json_file((out / "bench_cut.json").string(),
-                  {{"benchmark", "cut"}, {"mesh", name}, {"steps", options.steps}, {"repeats", options.repeats},
+                  {{"benchmark", "cut"}, {"machine", machine_summary()}, {"mesh", name}, {"steps", options.steps}, {"repeats", options.repeats},
                    {"statistic", "per-step median over repeats; p50/p99 over steps that cut"}, {"rows", json_rows}});
   return (out / "bench_cut.csv").string();
 }

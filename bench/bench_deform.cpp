@@ -3,7 +3,7 @@
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
-#include "engine/svg_plot.h"
+#include "engine/plot.h"
 #include "engine/task_pool.h"
 #include "engine/voxelize_job.h"
 #include "sim/cut.h"
@@ -104,11 +104,6 @@ std::string bench_deform(const BenchDeformOptions& options) {
   std::ostringstream csv;
   csv << "mesh,scenario,resolution,sim_resolution,iterations,steps,step_p50_ms,step_p99_ms,relative_error,particles,"
          "shape_constraints,stretch_constraints\n";
-  Plot plot;
-  plot.title = "PBD: step time against error (" + name + ")";
-  plot.x_label = "step time p50 [ms]";
-  plot.y_label = "relative L2 error at t = " + std::to_string(options.seconds).substr(0, 4) + " s";
-  plot.log_x = plot.log_y = true;
   nlohmann::json rows = nlohmann::json::array(), target_json;
   for (const bool through : {false, true}) {
     const std::string scenario = through ? "through_cut" : "anchored";
@@ -120,8 +115,6 @@ std::string bench_deform(const BenchDeformOptions& options) {
     PbdState reference;
     simulate(s, anchored_params(s, options.resolution, finest, most), steps, pool, reference);
     for (int sim : options.sim_resolutions) {
-      PlotSeries series;
-      series.name = scenario + " sim " + std::to_string(sim);
       for (int iterations : options.iterations) {
         if (options.progress) {
           std::fprintf(stderr, "divvox bench deform: %s sim %d iterations %d\n", scenario.c_str(), sim, iterations);
@@ -134,18 +127,14 @@ std::string bench_deform(const BenchDeformOptions& options) {
             << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ','
             << live_particles(run) << ',' << live_pieces(run) << ','
             << stretch_count(run) << '\n';
-        series.x.push_back(p50);
-        series.y.push_back(error);
         rows.push_back({{"scenario", scenario}, {"sim_resolution", sim}, {"iterations", iterations},
                         {"step_p50_ms", p50}, {"step_p99_ms", quantile(times, 0.99)}, {"relative_error", error},
                         {"particles", run.position.size() - run.free_particles.size()}});
       }
-      plot.series.push_back(series);
     }
   }
   const std::filesystem::path out(options.out_dir);
   write_text_file((out / "bench_deform.csv").string(), csv.str());
-  write_text_file((out / "bench_deform.svg").string(), plot_svg(plot));
 
   // The speed target: PBD + embedding per step on a large surface.
   std::string target = options.target_mesh;
@@ -179,8 +168,8 @@ std::string bench_deform(const BenchDeformOptions& options) {
                    {"surface_vertices", s.cut.surface.live_vertices()},
                    {"step_ms", {{"p50", quantile(times, 0.5)}, {"p99", quantile(times, 0.99)}, {"max", quantile(times, 1.0)}}}};
   }
-  write_json_file((out / "bench_deform.json").string(),
-                  {{"benchmark", "deform"},
+  const nlohmann::json results = {{"benchmark", "deform"},
+                   {"machine", machine_summary()},
                    {"mesh", name},
                    {"resolution", options.resolution},
                    {"seconds", options.seconds},
@@ -188,7 +177,10 @@ std::string bench_deform(const BenchDeformOptions& options) {
                    {"error", "relative L2 distance of the surface vertices to the finest, most converged run, over the "
                              "reference's mean displacement"},
                    {"rows", rows},
-                   {"target", target_json}});
+                   {"target", target_json}};
+  write_json_file((out / "bench_deform.json").string(), results);
+  std::string error;
+  if (draw_bench_plot(results, out.string(), error).empty()) std::fprintf(stderr, "divvox: bench_deform.svg skipped: %s\n", error.c_str());
   return (out / "bench_deform.csv").string();
 }
 

@@ -10,7 +10,7 @@
 #include "engine/replay.h"
 #include "engine/resources.h"
 #include "engine/session.h"
-#include "engine/svg_plot.h"
+#include "engine/plot.h"
 #include "engine/voxelize_job.h"
 #include "sim/cut.h"
 #include "sim/surface_metrics.h"
@@ -176,7 +176,7 @@ std::string bench_scaling(const BenchScalingOptions& options) {
   const fs::path out(options.out_dir);
   write_text_file((out / "bench_scaling.csv").string(), csv.str());
   write_json_file((out / "bench_scaling.json").string(),
-                  {{"benchmark", "scaling"},
+                  {{"benchmark", "scaling"}, {"machine", machine_summary()},
                    {"steps", options.steps},
                    {"statistic", "p50/p99 over the steps whose sweep cut voxels; every_step: all steps"},
                    {"rows", rows}});
@@ -244,29 +244,20 @@ std::string bench_cut_length(const BenchCutLengthOptions& options) {
   };
   const fs::path out(options.out_dir);
   write_text_file((out / "bench_cut_length.csv").string(), csv.str());
-  write_json_file((out / "bench_cut_length.json").string(),
-                  {{"benchmark", "cut_length"},
+  const nlohmann::json results = {{"benchmark", "cut_length"},
+                   {"machine", machine_summary()},
                    {"mesh", file_name(mesh_path)},
                    {"resolution", options.resolution},
                    {"lattice", {model.lattice.nx, model.lattice.ny, model.lattice.nz}},
                    {"repeats", options.repeats},
                    {"single_step", {{"x_voxels_cut", one_x}, {"y_ms", one_y}, {"fit", fit_json(one)}}},
                    {"progressive", {{"steps", options.steps}, {"x_voxels_cut", prog_x}, {"y_ms", prog_y},
-                                    {"fit", fit_json(prog)}}}});
-  // The plot: both samples and their lines.
-  Plot plot;
-  plot.title = "Experiment 2: time against cut voxels (" + file_name(mesh_path) + " at " +
-               std::to_string(options.resolution) + ")";
-  plot.x_label = "voxels cut in the step";
-  plot.y_label = "divide + surface time (ms)";
-  plot.series.push_back({"one step per length", one_x, one_y, true, false});
-  plot.series.push_back({"progressive steps", prog_x, prog_y, true, false});
-  for (const auto& [name, f, xs] : {std::tuple{"fit (one step)", one, one_x}, std::tuple{"fit (progressive)", prog, prog_x}}) {
-    if (xs.empty()) continue;
-    const double hi = *std::max_element(xs.begin(), xs.end());
-    plot.series.push_back({name, {0.0, hi}, {f.intercept, f.intercept + f.slope * hi}, false, true});
+                                    {"fit", fit_json(prog)}}}};
+  write_json_file((out / "bench_cut_length.json").string(), results);
+  std::string error;
+  if (draw_bench_plot(results, out.string(), error).empty()) {
+    std::fprintf(stderr, "divvox: bench_cut_length.svg skipped: %s\n", error.c_str());
   }
-  write_text_file((out / "bench_cut_length.svg").string(), plot_svg(plot));
   return (out / "bench_cut_length.csv").string();
 }
 
@@ -323,7 +314,7 @@ std::string bench_quality(const BenchQualityOptions& options) {
   const Vec3d point = cut_pose_at(box, 0.5, options.height).a;
   write_text_file((out / "bench_quality.csv").string(), csv.str());
   write_json_file((out / "bench_quality.json").string(),
-                  {{"benchmark", "quality"},
+                  {{"benchmark", "quality"}, {"machine", machine_summary()},
                    {"mesh", file_name(mesh_path)},
                    {"height", options.height},
                    {"plane", {{"point", {point.x(), point.y(), point.z()}}, {"normal", {0, 1, 0}}}},
@@ -385,7 +376,7 @@ std::string bench_replay(const BenchReplayOptions& options) {
   const fs::path out(options.out_dir);
   write_text_file((out / "bench_replay.csv").string(), csv.str());
   write_json_file((out / "bench_replay.json").string(),
-                  {{"benchmark", "replay"}, {"deterministic", all_deterministic}, {"rows", rows}});
+                  {{"benchmark", "replay"}, {"machine", machine_summary()}, {"deterministic", all_deterministic}, {"rows", rows}});
   if (!all_deterministic) throw std::runtime_error("bench replay: replays of the same recording diverged (see bench_replay.csv)");
   return (out / "bench_replay.csv").string();
 }

@@ -3,13 +3,12 @@
 #include "bench/bench.h"
 #include "engine/errors.h"
 #include "engine/output.h"
-#include "engine/svg_plot.h"
+#include "engine/plot.h"
+#include "engine/scene.h"
 
 #include <nlohmann/json.hpp>
 
-#include <sys/utsname.h>
-#include <unistd.h>
-
+#include <algorithm>
 #include <cstdio>
 #include <ctime>
 #include <filesystem>
@@ -46,32 +45,70 @@ double get(const json& j, const char* key, double fallback = 0.0) {
   return j.is_object() && j.contains(key) && j[key].is_number() ? j[key].get<double>() : fallback;
 }
 
-// One line describing the machine the report was generated on.
-std::string machine_line() {
-  std::string cpu = "unknown CPU";
-  std::ifstream cpuinfo("/proc/cpuinfo");
-  for (std::string line; std::getline(cpuinfo, line);) {
-    if (line.rfind("model name", 0) == 0) {
-      cpu = line.substr(line.find(':') + 2);
-      break;
-    }
+// The plot's second title line: what ran, on which machine (the results record it; results from
+// before they did: the machine writing the report).
+std::string measured_on(const json& results, const std::string& what) {
+  const std::string machine = results.is_object() && results.contains("machine") && results["machine"].is_string()
+                                  ? results["machine"].get<std::string>()
+                                  : machine_summary();
+  return what + (what.empty() ? "" : "; ") + "measured on " + machine;
+}
+
+// Draws a plot beside the CSVs (SVG, and PNG for pages that embed it). Returns the SVG's file name, or
+// "" with `error` when gnuplot did not draw it.
+std::string draw_into(const fs::path& dir, const std::string& name, const Plot& plot, std::string& error) {
+  const fs::path svg = dir / name;
+  return draw_plot(plot, {svg.string(), fs::path(svg).replace_extension(".png").string()}, error) ? name : "";
+}
+
+// The Markdown image line of a drawn plot (or why it is missing).
+std::string image_line(const std::string& title, const std::string& link_dir, const std::string& name,
+                       const std::string& error) {
+  if (name.empty()) {
+    std::fprintf(stderr, "divvox: bench report: plot \"%s\" skipped: %s\n", title.c_str(), error.c_str());
+    return "(plot \"" + title + "\" skipped: " + error + ")\n";
   }
-  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
-  utsname u{};
-  uname(&u);
-  return cpu + ", " + std::to_string(sysconf(_SC_NPROCESSORS_ONLN)) + " cores, " +
-         num(double(pages) * double(page) / (1024.0 * 1024.0 * 1024.0), 3) + " GiB, " + u.sysname + " " + u.release;
+  return "![" + title + "](" + link_dir + "/" + name + ")\n";
 }
 
 // Writes a plot beside the CSVs and returns the Markdown image line.
 std::string plot_file(const fs::path& results, const std::string& link_dir, const std::string& name, const Plot& plot) {
-  write_text_file((results / name).string(), plot_svg(plot));
-  return "![" + plot.title + "](" + link_dir + "/" + name + ")\n";
+  std::string error;
+  return image_line(plot.title, link_dir, draw_into(results, name, plot, error), error);
+}
+
+PlotSeries series(const std::string& name, bool markers, bool lines) {
+  PlotSeries s;
+  s.name = name;
+  s.markers = markers;
+  s.lines = lines;
+  return s;
+}
+
+// The Pareto front of the points (smaller is better on both axes) as a wide grey band under them.
+PlotSeries front_series(const std::string& name, const std::vector<double>& x, const std::vector<double>& y) {
+  PlotSeries s = series(name, false, true);
+  s.colour = "#cfcfcf";
+  s.width = 9.0;
+  for (size_t i : pareto_front(x, y)) {
+    s.x.push_back(x[i]);
+    s.y.push_back(y[i]);
+  }
+  return s;
+}
+
+// Chosen settings (the defaults) as large open circles.
+PlotSeries chosen_series(const std::string& name) {
+  PlotSeries s = series(name, true, false);
+  s.colour = "#000000";
+  s.point_type = 6;
+  s.point_size = 2.4;
+  return s;
 }
 
 // The histogram of an angle_stats_json value as a plot series (fraction of triangles per 5-degree bin).
 PlotSeries histogram_series(const std::string& name, const json& stats, const char* key) {
-  PlotSeries s{name, {}, {}, true, true};
+  PlotSeries s = series(name, true, true);
   const double n = std::max(1.0, get(stats, "triangles"));
   for (size_t i = 0; i < stats[key].size(); ++i) {
     s.x.push_back(5.0 * double(i) + 2.5);
@@ -80,7 +117,86 @@ PlotSeries histogram_series(const std::string& name, const json& stats, const ch
   return s;
 }
 
+// Experiment 2: time against cut voxels, both samples and their least-squares lines.
+Plot cut_length_plot(const json& r) {
+  Plot plot;
+  plot.title = "Experiment 2: cutting time against the voxels a step cuts";
+  plot.subtitle = measured_on(r, r.value("mesh", std::string()) + " at " + std::to_string(r.value("resolution", 0)) +
+                                     ", no physics, medians of " + std::to_string(r.value("repeats", 0)));
+  plot.x_label = "voxels cut in the step";
+  plot.y_label = "divide + surface time (ms)";
+  const struct { const char* key; const char* name; const char* colour; } samples[] = {
+      {"single_step", "one step per cut length", "#1f77b4"}, {"progressive", "steps of a progressive cut", "#d62728"}};
+  for (const auto& sample : samples) {
+    const json& part = r[sample.key];
+    PlotSeries s = series(sample.name, true, false);
+    s.colour = sample.colour;
+    s.point_size = 0.8;
+    s.x = part["x_voxels_cut"].get<std::vector<double>>();
+    s.y = part["y_ms"].get<std::vector<double>>();
+    if (s.x.empty()) continue;
+    const json& fit = part["fit"];
+    char name[96];
+    std::snprintf(name, sizeof name, "fit: %.3g µs per voxel, R² %.4g", get(fit, "us_per_voxel"), get(fit, "r2"));
+    PlotSeries line = series(name, false, true);
+    line.colour = sample.colour;
+    const double hi = *std::max_element(s.x.begin(), s.x.end());
+    line.x = {0.0, hi};
+    line.y = {get(fit, "intercept_ms"), get(fit, "intercept_ms") + get(fit, "us_per_voxel") * 1e-3 * hi};
+    plot.series.push_back(s);
+    plot.series.push_back(line);
+  }
+  return plot;
+}
+
+// Physics speed against error: one panel per scenario, a curve per simulation resolution (points
+// labelled with their iterations), the Pareto front and the scene's default setting marked.
+Plot deform_plot(const json& r) {
+  Plot plot;
+  plot.title = "PBD: step time against error, by simulation resolution and iterations";
+  plot.subtitle = measured_on(r, r.value("mesh", std::string()) + " at " + std::to_string(r.value("resolution", 0)) +
+                                     ", " + std::to_string(r.value("workers", 0)) + " workers");
+  plot.x_label = "PBD + embedding step time, p50 (ms)";
+  plot.log_x = true;
+  const Scene defaults;
+  for (const char* scenario : {"anchored", "through_cut"}) {
+    PlotPanel panel{std::string(scenario == std::string("anchored") ? "anchored" : "through-cut") + ": relative error",
+                    true, {}, {}};
+    std::map<int, PlotSeries> by_sim;
+    std::vector<double> all_x, all_y;
+    PlotSeries chosen = chosen_series("scene default (sim " + std::to_string(defaults.sim_resolution) + ", " +
+                                      std::to_string(defaults.solver.iterations) + " iterations)");
+    for (const json& row : r["rows"]) {
+      if (row["scenario"] != scenario || get(row, "relative_error") <= 0.0) continue;  // the reference itself
+      const int sim = row["sim_resolution"], iterations = row["iterations"];
+      PlotSeries& s = by_sim.try_emplace(sim, series("sim " + std::to_string(sim), true, true)).first->second;
+      s.x.push_back(get(row, "step_p50_ms"));
+      s.y.push_back(get(row, "relative_error"));
+      s.point_labels.push_back(std::to_string(iterations));
+      all_x.push_back(s.x.back());
+      all_y.push_back(s.y.back());
+      if (sim == defaults.sim_resolution && iterations == defaults.solver.iterations) {
+        chosen.x.push_back(s.x.back());
+        chosen.y.push_back(s.y.back());
+      }
+    }
+    panel.series.push_back(front_series("Pareto front", all_x, all_y));
+    for (auto& [sim, s] : by_sim) panel.series.push_back(s);
+    if (!chosen.x.empty()) panel.series.push_back(chosen);
+    plot.panels.push_back(panel);
+  }
+  return plot;
+}
+
 }  // namespace
+
+std::string draw_bench_plot(const json& results, const std::string& dir, std::string& error) {
+  const std::string benchmark = results.value("benchmark", std::string());
+  if (benchmark == "cut_length") return draw_into(dir, "bench_cut_length.svg", cut_length_plot(results), error);
+  if (benchmark == "deform") return draw_into(dir, "bench_deform.svg", deform_plot(results), error);
+  error = "no plot for benchmark \"" + benchmark + "\"";
+  return "";
+}
 
 std::string bench_report(const BenchReportOptions& options) {
   const fs::path results(options.results_dir), report(options.report_path);
@@ -100,6 +216,7 @@ std::string bench_report(const BenchReportOptions& options) {
   const json cut = read_results(results, "bench_cut.json");
 
   std::ostringstream md, head;
+  std::string plot_error;
   const std::time_t now = std::time(nullptr);
   char date[32];
   std::strftime(date, sizeof date, "%Y-%m-%d %H:%M", std::localtime(&now));
@@ -128,9 +245,10 @@ std::string bench_report(const BenchReportOptions& options) {
          << " | " << cell("deform") << " | " << cell("total") << " | " << mib(get(r, "peak_rss_bytes")) << " | "
          << num(get(r, "bytes_per_occupied_voxel")) << " | " << r["surface_triangles"] << " | ok |\n";
       PlotSeries& s = total_series[mesh];
-      s.name = mesh + " total p50";
+      s.name = mesh;
       s.x.push_back(get(r, "occupied_voxels"));
       s.y.push_back(get(t["total"], "p50"));
+      s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
       if (mesh.rfind("armadillo", 0) == 0 && r["resolution"] == 256) {
         head << "- **Cutting with physics**, armadillo at 256 (" << r["occupied_voxels"]
              << " occupied voxels): " << cell("total") << " ms per cutting step with the physics (p50 / p99; cutting, including the simulation model's update, + surface "
@@ -138,9 +256,14 @@ std::string bench_report(const BenchReportOptions& options) {
              << num(get(r, "bytes_per_occupied_voxel")) << " B per occupied voxel.\n";
       }
     }
-    Plot plot{"Experiment 1: time per cutting step against model size", "occupied voxels", "total ms per step (p50)",
-              true, true, {}};
+    Plot plot;
+    plot.title = "Experiment 1: time per cutting step (cut + surface + deform, p50) against model size";
+    plot.subtitle = measured_on(scaling, "points labelled with the resolution, physics on");
+    plot.x_label = "occupied voxels";
+    plot.y_label = "ms per cutting step (p50)";
+    plot.log_x = plot.log_y = true;
     for (auto& [name, s] : total_series) plot.series.push_back(s);
+    plot.lines.push_back({33.0, "frame budget 33 ms", "#b03030", 1, true, false});
     md << "\n" << plot_file(results, link, "report_scaling.svg", plot) << "\n";
   }
 
@@ -158,7 +281,9 @@ std::string bench_report(const BenchReportOptions& options) {
        << num(get(one, "r2"), 4) << " |\n"
        << "| progressive steps | " << num(get(prog, "us_per_voxel")) << " | " << num(get(prog, "intercept_ms"))
        << " | " << num(get(prog, "r2"), 4) << " |\n\n"
-       << "![Experiment 2](" << link << "/bench_cut_length.svg)\n\n";
+       << image_line("Experiment 2", link, draw_into(results, "bench_cut_length.svg", cut_length_plot(length), plot_error),
+                     plot_error)
+       << "\n";
     head << "- **Cost is linear in the cut voxels**: " << num(get(one, "us_per_voxel")) << " µs per cut voxel (R² "
          << num(get(one, "r2"), 4) << ") for one-step cuts of growing length on " << length["mesh"].get<std::string>()
          << " at " << length["resolution"] << ".\n";
@@ -175,7 +300,9 @@ std::string bench_report(const BenchReportOptions& options) {
           "(voxelize + contour, median).\n\n"
        << "| mesh | res | voxelize + contour ms | error mean | error max | error mean (scene units) | triangles |\n"
           "|---|---|---|---|---|---|---|\n";
-    std::map<std::string, PlotSeries> series;
+    std::map<std::string, PlotSeries> by_mesh;
+    const Scene defaults;
+    PlotSeries chosen = chosen_series("scene default (resolution " + std::to_string(defaults.resolution) + ")");
     for (const json& r : voxelize["rows"]) {
       if (r["status"] != "ok" || !r.contains("error_voxels")) continue;
       const double ms = get(r["time_ms"], "voxelize") + get(r["time_ms"], "contour");
@@ -183,22 +310,43 @@ std::string bench_report(const BenchReportOptions& options) {
       md << "| " << r["mesh"].get<std::string>() << " | " << r["resolution"] << " | " << num(ms) << " | " << num(mean)
          << " | " << num(get(r["error_voxels"], "max")) << " | " << num(mean * h) << " | " << r["surface_triangles"]
          << " |\n";
-      PlotSeries& s = series[r["mesh"].get<std::string>()];
-      s.name = "divvox " + r["mesh"].get<std::string>();
+      PlotSeries& s = by_mesh.try_emplace(r["mesh"].get<std::string>(), series("divvox " + r["mesh"].get<std::string>(), true, true)).first->second;
       s.x.push_back(ms);
-      s.y.push_back(mean * h);
-    }
-    Plot plot{"Surface extraction: time against error (Pareto)", "voxelize + contour ms", "mean error (scene units)",
-              true, true, {}};
-    for (auto& [name, s] : series) plot.series.push_back(s);
-    if (!vdb.is_null() && vdb.value("status", "") == "ok") {
-      PlotSeries s{"OpenVDB " + vdb.value("mesh", std::string()), {}, {}, true, true};
-      for (const json& r : vdb["rows"]) {
-        s.x.push_back(get(r, "total_ms"));
-        s.y.push_back(get(r["error"], "mean") * get(r, "voxel_size"));
+      s.y.push_back(mean / get(r, "resolution"));  // voxels over voxels per longest side
+      s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
+      if (r["resolution"] == defaults.resolution) {
+        chosen.x.push_back(ms);
+        chosen.y.push_back(s.y.back());
       }
-      plot.series.push_back(s);
     }
+    Plot plot;
+    plot.title = "Surface extraction: time against error (voxelize + dual contouring)";
+    plot.subtitle = measured_on(voxelize, "points labelled with the resolution");
+    plot.x_label = "voxelize + contour time, median (ms)";
+    plot.y_label = "mean error / longest side of the mesh";
+    plot.log_x = plot.log_y = true;
+    // The Pareto front of each mesh (with OpenVDB's points on its mesh), under the curves.
+    PlotSeries peer = series("OpenVDB " + vdb.value("mesh", std::string()), true, true);
+    peer.colour = "#555555";
+    peer.point_type = 5;
+    if (!vdb.is_null() && vdb.value("status", "") == "ok") {
+      for (const json& r : vdb["rows"]) {
+        peer.x.push_back(get(r, "total_ms"));
+        peer.y.push_back(get(r["error"], "mean") / get(r, "resolution"));
+        peer.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
+      }
+    }
+    for (auto& [mesh, s] : by_mesh) {
+      std::vector<double> x = s.x, y = s.y;
+      if (mesh == vdb.value("mesh", std::string())) {
+        x.insert(x.end(), peer.x.begin(), peer.x.end());
+        y.insert(y.end(), peer.y.begin(), peer.y.end());
+      }
+      plot.series.push_back(front_series(plot.series.empty() ? "Pareto front (per mesh)" : "", x, y));
+    }
+    for (auto& [mesh, s] : by_mesh) plot.series.push_back(s);
+    if (!peer.x.empty()) plot.series.push_back(peer);
+    if (!chosen.x.empty()) plot.series.push_back(chosen);
     md << "\n" << plot_file(results, link, "report_surface_pareto.svg", plot) << "\n";
   }
   if (!deform.is_null()) {
@@ -225,7 +373,10 @@ std::string bench_report(const BenchReportOptions& options) {
            << num(get(*r, "step_p50_ms")) << " | " << num(get(*r, "relative_error")) << " |\n";
       }
     }
-    md << "\n![physics speed against error](" << link << "/bench_deform.svg)\n\n";
+    md << "\n"
+       << image_line("physics speed against error", link, draw_into(results, "bench_deform.svg", deform_plot(deform), plot_error),
+                     plot_error)
+       << "\n";
     const json& target = deform["target"];
     if (target.is_object()) {
       md << "Speed target: " << target["mesh"].get<std::string>() << " at " << target["resolution"] << " ("
@@ -249,10 +400,16 @@ std::string bench_report(const BenchReportOptions& options) {
          << num(get(a, "mean_min_angle_deg")) << "° | " << pct(get(a, "fraction_min_le_10")) << " | "
          << pct(get(a, "fraction_max_ge_160")) << " | " << time << " |\n";
     };
-    Plot min_plot{"Cut surface: smallest angle per triangle", "smallest angle (degrees)", "fraction of triangles",
-                  false, false, {}};
-    Plot max_plot{"Cut surface: largest angle per triangle", "largest angle (degrees)", "fraction of triangles",
-                  false, false, {}};
+    Plot min_plot, max_plot;
+    for (Plot* p : {&min_plot, &max_plot}) {
+      const bool min = p == &min_plot;
+      p->title = std::string("Cut surface quality: the ") + (min ? "smallest" : "largest") + " angle of each triangle";
+      p->subtitle = measured_on(quality, quality["mesh"].get<std::string>() + " cut by a plane; 5-degree bins");
+      p->x_label = std::string(min ? "smallest" : "largest") + " angle (degrees)";
+      p->y_label = "fraction of the cut triangles";
+      p->x_lo = min ? 0.0 : 60.0;  // a triangle's smallest angle is at most 60°, its largest at least 60°
+      p->x_hi = min ? 60.0 : 180.0;
+    }
     for (const json& r : quality["rows"]) {
       const json& a = r["angles"]["cut_surface"];
       const std::string name = "divvox " + std::to_string(r["resolution"].get<int>());
@@ -363,7 +520,7 @@ std::string bench_report(const BenchReportOptions& options) {
   std::ostringstream doc;
   doc << "# divvox benchmark report\n\n"
       << "Generated " << date << " by `tools/bench_report.sh" << (options.mode == "quick" ? " --quick" : "")
-      << "` (" << options.mode << " mode) on: " << machine_line()
+      << "` (" << options.mode << " mode) on: " << machine_summary()
       << ". All figures in one table come from one run on this machine; compare ratios, not absolute times"
       << (fs::exists(results / "MACHINE.md") ? " (see [MACHINE.md](" + link + "/MACHINE.md))" : std::string())
       << ". The CSV and JSON files beside the plots in `" << link << "/` hold every number.\n\n## Headline\n\n"

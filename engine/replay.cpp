@@ -5,7 +5,7 @@
 #include "engine/recording.h"
 #include "engine/session.h"
 #include "engine/snapshot.h"
-#include "engine/svg_plot.h"
+#include "engine/plot.h"
 #ifdef DIVVOX_HAS_RENDER
 #include "engine/headless_render.h"
 #endif
@@ -54,6 +54,78 @@ nlohmann::json percentiles(std::vector<double> values) {
           {"count", values.size()}};
 }
 
+
+// timings.svg and timings.png: one panel per phase against the step (the same log time axis in each),
+// the cutting steps shaded, each phase's p50 / p99 (over the samples summary.json uses) and the frame
+// (33 ms) and haptic (1 ms) budgets as lines. Without gnuplot: a message, and the replay goes on.
+void write_timings_plot(const std::string& recording, const std::vector<StepReport>& rows,
+                        const std::vector<FrameRow>& frames, bool physics, const std::filesystem::path& out) {
+  Plot plot;
+  plot.title = "divvox replay: time per step, " + std::filesystem::path(recording).filename().string();
+  plot.subtitle = std::to_string(rows.size()) + " steps, physics " + (physics ? "on" : "off") + "; " + machine_summary();
+  plot.x_label = "step";
+  plot.span_name = "steps that cut voxels";
+  plot.same_y = true;
+  // A panel: the values against x (NaN: not a sample), their p50 / p99 and the two budgets.
+  const auto panel = [&](const char* name, const char* colour, const char* over, const std::vector<double>& x,
+                         const std::vector<double>& y) {
+    PlotSeries s;
+    s.name = name;
+    s.colour = colour;
+    s.markers = false;
+    s.x = x;
+    s.y = y;
+    std::vector<double> sample;
+    for (double v : y) {
+      if (!std::isnan(v)) sample.push_back(v);
+    }
+    PlotPanel p{std::string(name) + " ms", true, {s}, {}};
+    const nlohmann::json stats = percentiles(sample);
+    for (const char* q : {"p50", "p99"}) {
+      char label[96];
+      std::snprintf(label, sizeof label, "%s %.3g ms (%s)", q, stats[q].get<double>(), over);
+      const bool p50 = q[1] == '5';  // dotted, its label under the line; p99 dashed, above
+      p.lines.push_back({stats[q].get<double>(), label, colour, p50 ? 3 : 2, false, p50});
+    }
+    p.lines.push_back({33.0, "frame budget 33 ms", "#b03030", 1, true, false});
+    p.lines.push_back({1.0, "haptic budget 1 ms", "#b03030", 1, true, false});
+    plot.panels.push_back(p);
+  };
+  std::vector<double> steps, cut, surface, deform, total;
+  for (const StepReport& r : rows) {
+    const bool cut_edges = r.cut.edges_hit > 0;  // the steps summary.json's cut and surface figures cover
+    steps.push_back(r.step);
+    cut.push_back(cut_edges ? r.timings.cut_ms : NAN);
+    surface.push_back(cut_edges ? r.timings.surface_ms : NAN);
+    deform.push_back(r.timings.deform_ms);
+    total.push_back(r.timings.total_ms);
+  }
+  panel("cut", "#1f77b4", "sweeps crossing edges", steps, cut);
+  panel("surface", "#ff7f0e", "sweeps crossing edges", steps, surface);
+  if (physics) panel("deform", "#2ca02c", "every step", steps, deform);
+  panel("total", "#333333", "every step", steps, total);
+  if (!frames.empty()) {
+    // The render thread's frames, at the step each one drew.
+    std::vector<double> frame_steps, render;
+    for (const FrameRow& f : frames) {
+      frame_steps.push_back(f.step);
+      render.push_back(f.upload_ms + f.draw_ms + f.readback_ms);
+    }
+    panel("render", "#9467bd", "every frame", frame_steps, render);
+  }
+  // The steps that cut voxels, as shaded runs.
+  for (size_t i = 0; i < rows.size(); ++i) {
+    if (rows[i].cut.voxels_cut == 0) continue;
+    size_t j = i;
+    while (j + 1 < rows.size() && rows[j + 1].cut.voxels_cut > 0) ++j;
+    plot.spans.push_back({double(rows[i].step) - 0.5, double(rows[j].step) + 0.5});
+    i = j;
+  }
+  std::string error;
+  if (!draw_plot(plot, {(out / "timings.svg").string(), (out / "timings.png").string()}, error)) {
+    std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", error.c_str());
+  }
+}
 }  // namespace
 
 ReplayResult run_replay(const ReplayOptions& options) {
@@ -254,26 +326,6 @@ ReplayResult run_replay(const ReplayOptions& options) {
   }
   const std::filesystem::path out(options.out_dir);
   write_text_file((out / "timings.csv").string(), csv.str());
-  // Per-phase time against step.
-  {
-    Plot plot;
-    plot.title = "divvox replay: time per step";
-    plot.x_label = "step";
-    plot.y_label = "ms";
-    PlotSeries cut{"cut", {}, {}, false, true}, surface{"surface", {}, {}, false, true},
-        deform{"deform", {}, {}, false, true}, total{"total", {}, {}, false, true};
-    for (const StepReport& r : rows) {
-      for (PlotSeries* series : {&cut, &surface, &deform, &total}) series->x.push_back(r.step);
-      cut.y.push_back(r.timings.cut_ms);
-      surface.y.push_back(r.timings.surface_ms);
-      deform.y.push_back(r.timings.deform_ms);
-      total.y.push_back(r.timings.total_ms);
-    }
-    plot.series = {cut, surface};
-    if (pbd) plot.series.push_back(deform);
-    plot.series.push_back(total);
-    write_text_file((out / "timings.svg").string(), plot_svg(plot));
-  }
   // Per-frame timings of the render thread.
   std::vector<double> render_ms, interval_ms;
   if (!frames.empty()) {
@@ -287,6 +339,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
     }
     write_text_file((out / "frame_timings.csv").string(), f.str());
   }
+  write_timings_plot(options.recording, rows, frames, pbd != nullptr, out);
   save_ply((out / "final.ply").string(), deformed_surface);
 
   // summary.json (DESIGN §1 contract: the fields that apply without physics).

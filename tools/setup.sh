@@ -8,12 +8,14 @@
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
-# Packages (DESIGN §6). libgl1-mesa-dri is the software rasterizer; xvfb-run needs xauth.
+# Packages (DESIGN §6). libgl1-mesa-dri is the software rasterizer; xvfb-run needs xauth; gnuplot-nox
+# draws the plots (timings.svg, the benchmark report; without it they are skipped, never fatal).
 packages=(
   build-essential cmake pkg-config ninja-build
   libeigen3-dev libassimp-dev nlohmann-json3-dev libcli11-dev doctest-dev
   libglfw3-dev libimgui-dev libstb-dev libglvnd-dev libegl-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth
+  gnuplot-nox
 )
 
 only=0

@@ -1,0 +1,80 @@
+// Plots of timings and benchmark results, drawn by gnuplot (Debian gnuplot-nox) through a pipe: the
+// caller fills plain structs, this module writes a gnuplot script with the data inline and runs it.
+// gnuplot does the layout (ticks, legends, fonts); this module chooses log-axis ticks (1-2-5 steps,
+// readable labels such as 20k, 1M, 0.05), the legend's corner and the panels' margins.
+#pragma once
+
+#include <cmath>
+#include <string>
+#include <vector>
+
+namespace dvx {
+
+// One curve or point set.
+struct PlotSeries {
+  std::string name;  // the legend entry ("" : no entry)
+  std::vector<double> x, y;  // a y that is NaN (or not positive on a log axis) breaks the line there
+  bool markers = true;  // draw points
+  bool lines = true;    // join points in order
+  std::string colour;   // "#rrggbb"; "" : the next colour of the palette
+  double width = 1.5;   // line width
+  int point_type = 7;   // gnuplot point type (7 filled circle, 6 open circle, 5 filled square, ...)
+  double point_size = 0.6;
+  std::vector<std::string> point_labels;  // when not empty: a small label beside each point (e.g. its setting)
+};
+
+// A horizontal reference line across the panel, labelled at one end (a budget, a percentile).
+struct PlotLine {
+  double y = 0.0;
+  std::string label;
+  std::string colour = "#555555";
+  int dash = 2;             // gnuplot dash type: 1 solid, 2 dashed, 3 dotted, 4 dash-dot
+  bool label_left = false;  // the label at the left end (default: right)
+  bool label_below = false; // the label under the line (default: above)
+};
+
+// A shaded range of x (in every panel), e.g. the steps that cut.
+struct PlotSpan {
+  double x0 = 0.0, x1 = 0.0;
+};
+
+// One panel of a stacked plot: its own y axis, series and reference lines.
+struct PlotPanel {
+  std::string y_label;
+  bool log_y = false;
+  std::vector<PlotSeries> series;
+  std::vector<PlotLine> lines;
+};
+
+struct Plot {
+  std::string title, x_label, y_label;
+  bool log_x = false, log_y = false;
+  std::vector<PlotSeries> series;   // a single-panel plot: these, y_label, log_y and `lines`
+  std::vector<PlotLine> lines;
+  std::vector<PlotPanel> panels;    // when not empty: stacked panels sharing the x axis (the above ignored)
+  std::string subtitle;             // second title line (what ran, on which machine)
+  std::vector<PlotSpan> spans;
+  std::string span_name;            // legend entry of the shaded spans (first panel)
+  bool same_y = false;              // every panel gets the same y range
+  double x_lo = NAN, x_hi = NAN;    // a fixed x range (default: the data's)
+  int width = 900, height = 0;      // pixels; height 0: 500, or 200 per panel + title and axis
+};
+
+// Draws `plot` with gnuplot into each output file (.svg or .png, by extension). gnuplot is the
+// executable named by $DIVVOX_GNUPLOT, else `gnuplot` on PATH. False with `error` (one line) when it is
+// missing or fails; the outputs are then removed, never left stale. Never throws for a missing tool.
+bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::string& error);
+
+// The gnuplot script draw_plot runs (data inline).
+std::string plot_script(const Plot& plot, const std::vector<std::string>& outputs);
+
+// A readable label of a log-axis tick value: 20k, 1.5M, 0.05, 2×10⁻⁵.
+std::string tick_label(double value);
+
+// One line describing this machine (CPU, cores, memory, kernel), for plot subtitles and reports.
+std::string machine_summary();
+
+// Indices of the points no other point beats in both x and y (smaller is better), sorted by x.
+std::vector<size_t> pareto_front(const std::vector<double>& x, const std::vector<double>& y);
+
+}  // namespace dvx
