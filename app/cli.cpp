@@ -383,8 +383,9 @@ int run_cli(int argc, char** argv) {
       const ReplayResult r = run_replay(replay_options);
       std::printf("replayed %u steps: final hash %s, %u hash checks, %u mismatched\n", r.steps, r.final_hash.c_str(),
                   r.hash_checked, r.hash_mismatched);
-      std::printf("wrote %s, timings.csv, timings.svg and final.ply in %s\n", r.summary_path.c_str(),
-                  replay_options.out_dir.c_str());
+      const bool plotted = std::filesystem::exists(std::filesystem::path(replay_options.out_dir) / "timings.svg");
+      std::printf("wrote %s, timings.csv, %sfinal.ply in %s\n", r.summary_path.c_str(),
+                  plotted ? "timings.svg, timings.png and " : "", replay_options.out_dir.c_str());
       if (r.frames_written > 0) {
         std::printf("wrote %u frames in %s/frames\n", r.frames_written, replay_options.out_dir.c_str());
       }

@@ -326,7 +326,8 @@ std::string bench_report(const BenchReportOptions& options) {
     plot.y_label = "mean error / longest side of the mesh";
     plot.log_x = plot.log_y = true;
     // The Pareto front of each mesh (with OpenVDB's points on its mesh), under the curves.
-    PlotSeries peer = series("OpenVDB " + vdb.value("mesh", std::string()), true, true);
+    const std::string peer_mesh = vdb.is_object() ? vdb.value("mesh", std::string()) : std::string();
+    PlotSeries peer = series("OpenVDB " + peer_mesh, true, true);
     peer.colour = "#555555";
     peer.point_type = 5;
     if (!vdb.is_null() && vdb.value("status", "") == "ok") {
@@ -338,7 +339,7 @@ std::string bench_report(const BenchReportOptions& options) {
     }
     for (auto& [mesh, s] : by_mesh) {
       std::vector<double> x = s.x, y = s.y;
-      if (mesh == vdb.value("mesh", std::string())) {
+      if (mesh == peer_mesh) {
         x.insert(x.end(), peer.x.begin(), peer.x.end());
         y.insert(y.end(), peer.y.begin(), peer.y.end());
       }

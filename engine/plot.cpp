@@ -118,7 +118,7 @@ std::string axis_commands(const char* name, const Axis& a, bool labels) {
     }
     s << ")\n";
   } else {
-    s << "set " << name << "tics\nset format " << name << " " << quoted(labels ? "%g" : "") << "\n";
+    s << "unset logscale " << name << "\nset " << name << "tics\nset format " << name << " " << quoted(labels ? "%g" : "") << "\n";
   }
   return s.str();
 }
@@ -430,8 +430,6 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
   return s.str();
 }
 
-namespace {
-
 // The gnuplot executable: $DIVVOX_GNUPLOT (a path or a name), else `gnuplot`, looked up on PATH.
 std::string find_gnuplot(std::string& error) {
   const char* env = std::getenv("DIVVOX_GNUPLOT");
@@ -450,8 +448,6 @@ std::string find_gnuplot(std::string& error) {
   error = exe + " not found on PATH (install gnuplot-nox, or set DIVVOX_GNUPLOT)";
   return "";
 }
-
-}  // namespace
 
 bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::string& error) {
   std::error_code ignored;
@@ -480,14 +476,13 @@ bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::s
   for (const std::string& out : outputs) written = written && fs::exists(out) && fs::file_size(out) > 0;
   if (written) return true;
   for (const std::string& out : outputs) fs::remove(out, ignored);
-  // The first line of gnuplot's complaint, if any.
+  // The first line of gnuplot's complaint (an error rather than a warning when there is one).
   std::string first;
   std::istringstream lines(messages);
   for (std::string line; std::getline(lines, line);) {
-    if (line.find_first_not_of(" \t^") != std::string::npos) {
-      first = line;
-      break;
-    }
+    if (line.find_first_not_of(" \t^") == std::string::npos) continue;
+    if (first.empty() || first.find("warning:") != std::string::npos) first = line;
+    if (line.find("warning:") == std::string::npos) break;
   }
   error = exe + " failed" + (first.empty() ? std::string() : ": " + first);
   return false;

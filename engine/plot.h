@@ -65,6 +65,9 @@ struct Plot {
 // missing or fails; the outputs are then removed, never left stale. Never throws for a missing tool.
 bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::string& error);
 
+// The gnuplot draw_plot would run ("" with `error` when there is none).
+std::string find_gnuplot(std::string& error);
+
 // The gnuplot script draw_plot runs (data inline).
 std::string plot_script(const Plot& plot, const std::vector<std::string>& outputs);
 

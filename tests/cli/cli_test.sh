@@ -92,6 +92,21 @@ if ! grep -q '"nonfinite_values": 0' "$tmp/r5/summary.json" || ! grep -q '"mass"
 fi
 expect 0 '' -- "$divvox" replay "$rec" --headless --out "$tmp/r6"
 check_hashes "$tmp/r6" "the shipped recording"
+# timings.svg: a well-formed SVG drawn by gnuplot; with no gnuplot on PATH the replay says so and succeeds.
+if command -v gnuplot >/dev/null && command -v python3 >/dev/null; then
+  count=$((count + 1))
+  if ! python3 -c 'import sys, xml.etree.ElementTree as E; t = E.parse(sys.argv[1]).getroot(); sys.exit(not t.tag.endswith("svg"))' "$tmp/r6/timings.svg"; then
+    echo "FAIL: $tmp/r6/timings.svg is not a well-formed SVG document"
+    failures=$((failures + 1))
+  fi
+fi
+mkdir -p "$tmp/empty_path"
+expect 0 'timings.svg skipped: gnuplot not found' -- env -u DIVVOX_GNUPLOT PATH="$tmp/empty_path" "$divvox" replay "$rec" --headless --no-physics --out "$tmp/r7"
+count=$((count + 1))
+if [[ ! -s "$tmp/r7/timings.csv" || -e "$tmp/r7/timings.svg" ]]; then
+  echo "FAIL: without gnuplot the replay should write timings.csv and no timings.svg"
+  failures=$((failures + 1))
+fi
 
 # The grab recording: grab commands replay deterministically.
 expect 0 '' -- "$divvox" replay "$repo/assets/recordings/bunny_grab.jsonl" --headless --out "$tmp/g1"

@@ -1,6 +1,7 @@
 // Cutting real meshes and replaying recordings through the cutter (geometry only).
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
+#include "engine/plot.h"
 #include "engine/recording.h"
 #include "engine/replay.h"
 #include "engine/scene.h"
@@ -120,6 +121,49 @@ TEST_SUITE("replay") {
     }
     CHECK(fs::file_size(dir.path / "final.ply") > 1000);
     CHECK(fs::file_size(dir.path / "timings.csv") > 1000);
+  }
+
+  TEST_CASE("a replay plots its timings with gnuplot, and still succeeds without gnuplot") {
+    TempDir dir;
+    const std::string session = (dir.path / "session.jsonl").string();
+    write_session(session, 32);
+    ReplayOptions options;
+    options.recording = session;
+    options.out_dir = (dir.path / "plotted").string();
+    std::string error;
+    if (find_gnuplot(error).empty()) {
+      MESSAGE("plotting part skipped: " << error);
+    } else {
+      run_replay(options);
+      // A whole SVG document with one series per phase (named in the legends as <text>NAME</text>).
+      const std::string svg = read_file(dir.path / "plotted" / "timings.svg");
+      CHECK(svg.rfind("<?xml", 0) == 0);
+      CHECK(svg.find("<svg") != std::string::npos);
+      CHECK(svg.find("</svg>") != std::string::npos);
+      size_t open = 0, close = 0;
+      for (size_t at = svg.find("<g"); at != std::string::npos; at = svg.find("<g", at + 1)) open += svg[at + 2] == ' ' || svg[at + 2] == '>';
+      for (size_t at = svg.find("</g>"); at != std::string::npos; at = svg.find("</g>", at + 1)) ++close;
+      CHECK(open == close);
+      for (const std::string series : {"<text>cut</text>", "<text>surface</text>", "<text>deform</text>",
+                                       "<text>total</text>", "steps that cut voxels", "frame budget 33 ms",
+                                       "haptic budget 1 ms", "p99"}) {
+        CAPTURE(series);
+        CHECK(svg.find(series) != std::string::npos);
+      }
+      CHECK(fs::file_size(dir.path / "plotted" / "timings.png") > 1000);
+    }
+    // No gnuplot: the CSV and the summary are written, the plot is skipped, the replay succeeds.
+    const char* previous = std::getenv("DIVVOX_GNUPLOT");
+    const std::string saved = previous != nullptr ? previous : "";
+    setenv("DIVVOX_GNUPLOT", (dir.path / "no-such-gnuplot").string().c_str(), 1);
+    options.out_dir = (dir.path / "unplotted").string();
+    const ReplayResult r = run_replay(options);
+    if (previous != nullptr) setenv("DIVVOX_GNUPLOT", saved.c_str(), 1);
+    else unsetenv("DIVVOX_GNUPLOT");
+    CHECK(r.steps > 0);
+    CHECK(fs::file_size(dir.path / "unplotted" / "timings.csv") > 100);
+    CHECK(fs::exists(dir.path / "unplotted" / "summary.json"));
+    CHECK_FALSE(fs::exists(dir.path / "unplotted" / "timings.svg"));
   }
 
   TEST_CASE("record, replay and replay again: identical hashes and identical final mesh") {
