@@ -45,12 +45,15 @@ double get(const json& j, const char* key, double fallback = 0.0) {
   return j.is_object() && j.contains(key) && j[key].is_number() ? j[key].get<double>() : fallback;
 }
 
-// The plot's second title line: what ran, on which machine (the results record it; results from
-// before they did: the machine writing the report).
+// The machine the results were measured on (they record it), else this one (older results).
+std::string machine_of(const json& results) {
+  return results.is_object() && results.contains("machine") && results["machine"].is_string()
+             ? results["machine"].get<std::string>()
+             : machine_summary();
+}
+// The plot's second title line: what ran, on which machine.
 std::string measured_on(const json& results, const std::string& what) {
-  const std::string machine = results.is_object() && results.contains("machine") && results["machine"].is_string()
-                                  ? results["machine"].get<std::string>()
-                                  : machine_summary();
+  const std::string machine = machine_of(results);
   return what + (what.empty() ? "" : "; ") + "measured on " + machine;
 }
 
@@ -87,9 +90,10 @@ PlotSeries series(const std::string& name, bool markers, bool lines) {
 
 // The Pareto front of the points (smaller is better on both axes) as a wide grey band under them.
 PlotSeries front_series(const std::string& name, const std::vector<double>& x, const std::vector<double>& y) {
-  PlotSeries s = series(name, false, true);
+  PlotSeries s = series(name, true, true);  // markers: a one-point front shows too
   s.colour = "#cfcfcf";
   s.width = 9.0;
+  s.point_size = 2.2;
   for (size_t i : pareto_front(x, y)) {
     s.x.push_back(x[i]);
     s.y.push_back(y[i]);
@@ -155,7 +159,7 @@ Plot deform_plot(const json& r) {
   Plot plot;
   plot.title = "PBD: step time against error, by simulation resolution and iterations";
   plot.subtitle = measured_on(r, r.value("mesh", std::string()) + " at " + std::to_string(r.value("resolution", 0)) +
-                                     ", " + std::to_string(r.value("workers", 0)) + " workers");
+                                     ", " + std::to_string(r.value("workers", 0)) + " workers, labels: iterations");
   plot.x_label = "PBD + embedding step time, p50 (ms)";
   plot.log_x = true;
   const Scene defaults;
@@ -521,7 +525,7 @@ std::string bench_report(const BenchReportOptions& options) {
   std::ostringstream doc;
   doc << "# divvox benchmark report\n\n"
       << "Generated " << date << " by `tools/bench_report.sh" << (options.mode == "quick" ? " --quick" : "")
-      << "` (" << options.mode << " mode) on: " << machine_summary()
+      << "` (" << options.mode << " mode) on: " << machine_of(scaling.is_object() ? scaling : voxelize)
       << ". All figures in one table come from one run on this machine; compare ratios, not absolute times"
       << (fs::exists(results / "MACHINE.md") ? " (see [MACHINE.md](" + link + "/MACHINE.md))" : std::string())
       << ". The CSV and JSON files beside the plots in `" << link << "/` hold every number.\n\n## Headline\n\n"

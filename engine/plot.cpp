@@ -110,7 +110,9 @@ Axis make_axis(const std::vector<double>& values, bool log, bool from_zero, doub
 // The axis commands: range, log scale, ticks (labels off on the panels above the bottom one).
 std::string axis_commands(const char* name, const Axis& a, bool labels) {
   std::ostringstream s;
-  s << "set " << name << "range [" << g(a.lo) << ":" << g(a.hi) << "]\n";
+  // (Log ranges open a hair wider: gnuplot drops a tick that falls exactly on a range end such as 10.)
+  const double widen = a.log ? 1e-6 : 0.0;
+  s << "set " << name << "range [" << g(a.lo * (1 - widen)) << ":" << g(a.hi * (1 + widen)) << "]\n";
   if (a.log) {
     s << "set logscale " << name << "\nset " << name << "tics (";
     for (size_t i = 0; i < a.ticks.size(); ++i) {
@@ -333,7 +335,7 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
   }
   if (plot.same_y) values.assign(n, all_y);
   std::vector<Axis> ys;
-  for (size_t i = 0; i < n; ++i) ys.push_back(make_axis(values[i], panels[i].log_y, true, 0.0, 0.05, panel_h * H, 22.0));
+  for (size_t i = 0; i < n; ++i) ys.push_back(make_axis(values[i], panels[i].log_y, true, 0.03, 0.05, panel_h * H, 22.0));
   size_t chars = 0;
   for (const Axis& y : ys) chars = std::max(chars, label_chars(y));
   const double left = (46.0 + 7.0 * double(chars)) / W, right = 1.0 - 30.0 / W;
@@ -360,7 +362,7 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
   for (const Key& k : keys) room = k.covered > 0 ? std::max(room, k.height) : room;
   for (size_t i = 0; i < n; ++i) {
     if (!(plot.same_y ? room > 0.0 : keys[i].covered > 0)) continue;
-    ys[i] = make_axis(with_headroom(values[i], ys[i], plot.same_y ? room : keys[i].height), panels[i].log_y, true, 0.0,
+    ys[i] = make_axis(with_headroom(values[i], ys[i], plot.same_y ? room : keys[i].height), panels[i].log_y, true, 0.03,
                       0.0, panel_h * H, 22.0);
     keys[i] = place_key(panels[i], x, ys[i], (right - left) * W, panel_h * H, key_entries(plot, panels[i], i));
   }
@@ -417,8 +419,12 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
         s << "set label 1 " << quoted(plot.title) << " at screen 0.5, screen " << g(1.0 - 20.0 / H)
           << " center font ',14'\n";
         if (!plot.subtitle.empty()) {
+          // A long subtitle gets a smaller font rather than running off the edges (~6 px per character at 10).
+          size_t chars = 0;
+          for (unsigned char c : plot.subtitle) chars += (c & 0xC0) != 0x80;
+          const double font = std::clamp(10.0 * (W - 40.0) / (6.0 * double(chars)), 7.0, 10.0);
           s << "set label 2 " << quoted(plot.subtitle) << " at screen 0.5, screen " << g(1.0 - 40.0 / H)
-            << " center font ',10' tc rgb '#555555'\n";
+            << " center font '," << g(std::round(font * 2.0) / 2.0) << "' tc rgb '#555555'\n";
         }
       }
       const double t = top - double(i) * (panel_h + gap);
