@@ -506,6 +506,11 @@ std::string bench_report(const BenchReportOptions& options) {
       }
     }
     md << "\n";
+    if (fs::exists(results / "replay_timings.svg")) {
+      md << "The default recording replayed as `tools/run.sh` does (frames every 10 steps on the render thread where "
+            "EGL works), "
+            "its `timings.svg`:\n\n![replay timings](" << link << "/replay_timings.svg)\n\n";
+    }
   }
 
   // ---- Cutting only (no physics): the step-time targets --------------------------------------

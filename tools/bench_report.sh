@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Runs every benchmark and writes the report (issue 7): REPORT.md with SVG plots, the CSV/JSON
-# results beside them.
+# Runs every benchmark and writes the report (issue 7): REPORT.md with its plots (SVG + PNG, drawn by
+# gnuplot; skipped with a message without it), the CSV/JSON results beside them.
 #   tools/bench_report.sh            -> full mode: bench/REPORT.md, bench/results/ (the committed reference)
 #   tools/bench_report.sh --quick    -> quick mode (< 5 minutes): out/bench_quick/REPORT.md, out/bench_quick/results/
 #   tools/bench_report.sh --smoke    -> seconds, on the shipped bunny only (the test suite runs this)
@@ -107,6 +107,15 @@ step "cut-length (Experiment 2)";          "$divvox" bench cut-length "${length[
 step "quality (Fig. 13)";                  "$divvox" bench quality "${quality[@]}" --out "$results" >/dev/null
 step "deform (physics speed against error)"; "$divvox" bench deform "${deform[@]}" --out "$results" >/dev/null
 step "replay (determinism, throughput)";   "$divvox" bench replay "${replay[@]}" --out "$results" >/dev/null
+# The main job's replay (tools/run.sh: frames every 10 steps; no frames where EGL is missing): its timings plot.
+step "replay timings plot (default recording)"
+run="$results/replay_run"
+"$divvox" replay "$here/assets/recordings/bunny_cut.jsonl" --headless --frames 10 --out "$run" >/dev/null 2>&1 ||
+  "$divvox" replay "$here/assets/recordings/bunny_cut.jsonl" --headless --out "$run" >/dev/null
+for ext in svg png; do
+  if [[ -f "$run/timings.$ext" ]]; then cp "$run/timings.$ext" "$results/replay_timings.$ext"; else rm -f "$results/replay_timings.$ext"; fi
+done
+rm -rf "$run"
 if [[ -n "$peers_bin" ]]; then
   step "peers: CGAL clip";                 "$peers_bin" clip --mesh "$armadillo" "${clip[@]}" --out "$results" >/dev/null
   step "peers: OpenVDB";                   "$peers_bin" vdb --mesh "$armadillo" "${vdb[@]}" --out "$results" >/dev/null
@@ -118,4 +127,4 @@ report_mode=$mode
 "$divvox" bench report --results "$results" --out "$out/REPORT.md" --mode "$report_mode" >/dev/null
 echo "bench_report: $mode run took $((SECONDS - start)) s"
 echo "report: $out/REPORT.md"
-echo "results: $results/ (CSV, JSON, SVG)"
+echo "results: $results/ (CSV, JSON, SVG, PNG)"
