@@ -5,7 +5,6 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -23,22 +22,6 @@ std::string read_text(const fs::path& p) {
   s << in.rdbuf();
   return s.str();
 }
-
-// Sets an environment variable for the scope of a test, then restores it.
-struct ScopedEnv {
-  std::string name, old;
-  bool had = false;
-  ScopedEnv(const char* n, const std::string& value) : name(n) {
-    const char* v = std::getenv(n);
-    had = v != nullptr;
-    if (had) old = v;
-    setenv(n, value.c_str(), 1);
-  }
-  ~ScopedEnv() {
-    if (had) setenv(name.c_str(), old.c_str(), 1);
-    else unsetenv(name.c_str());
-  }
-};
 
 // The values of the explicit ticks in a gnuplot `set Xtics ("label" value, ...)` line.
 std::vector<std::pair<std::string, double>> explicit_ticks(const std::string& script, const std::string& axis) {
@@ -142,7 +125,7 @@ TEST_SUITE("plot") {
 
   TEST_CASE("without gnuplot: false, a one-line reason, and no stale output left") {
     dvx_test::TempDir dir;
-    const ScopedEnv env("DIVVOX_GNUPLOT", (dir.path / "no-such-gnuplot").string());
+    const dvx_test::ScopedEnv env("DIVVOX_GNUPLOT", (dir.path / "no-such-gnuplot").string());
     const fs::path svg = dir.path / "p.svg";
     std::ofstream(svg) << "stale";
     Plot plot;

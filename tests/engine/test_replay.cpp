@@ -153,13 +153,9 @@ TEST_SUITE("replay") {
       CHECK(fs::file_size(dir.path / "plotted" / "timings.png") > 1000);
     }
     // No gnuplot: the CSV and the summary are written, the plot is skipped, the replay succeeds.
-    const char* previous = std::getenv("DIVVOX_GNUPLOT");
-    const std::string saved = previous != nullptr ? previous : "";
-    setenv("DIVVOX_GNUPLOT", (dir.path / "no-such-gnuplot").string().c_str(), 1);
+    const dvx_test::ScopedEnv no_gnuplot("DIVVOX_GNUPLOT", (dir.path / "no-such-gnuplot").string());
     options.out_dir = (dir.path / "unplotted").string();
     const ReplayResult r = run_replay(options);
-    if (previous != nullptr) setenv("DIVVOX_GNUPLOT", saved.c_str(), 1);
-    else unsetenv("DIVVOX_GNUPLOT");
     CHECK(r.steps > 0);
     CHECK(fs::file_size(dir.path / "unplotted" / "timings.csv") > 100);
     CHECK(fs::exists(dir.path / "unplotted" / "summary.json"));
