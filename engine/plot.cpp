@@ -316,16 +316,27 @@ std::vector<size_t> pareto_front(const std::vector<double>& x, const std::vector
   return front;
 }
 
-std::string plot_script(const Plot& plot, const std::vector<std::string>& outputs) {
-  std::vector<PlotPanel> panels = plot.panels;
-  if (panels.empty()) panels.push_back({plot.y_label, plot.log_y, plot.series, plot.lines});
+namespace {
+
+// Where everything goes, in screen coordinates (0..1) of a W x H pixel figure, and the axes.
+struct Layout {
+  double W = 900, H = 500;
+  double top = 1, bottom = 0, gap = 0, panel_h = 1, left = 0, right = 1;
+  Axis x;
+  std::vector<Axis> ys;
+  std::vector<Key> keys;
+};
+
+Layout lay_out(const Plot& plot, const std::vector<PlotPanel>& panels) {
+  Layout L;
   const size_t n = panels.size();
-  const double W = plot.width;
-  const double H = plot.height > 0 ? plot.height : n == 1 ? 500.0 : 120.0 + 240.0 * double(n);
-  // Bands in screen coordinates: titles on top, the x axis at the bottom, the panels between.
-  const double top = 1.0 - ((plot.title.empty() ? 10.0 : 34.0) + (plot.subtitle.empty() ? 0.0 : 18.0)) / H;
-  const double bottom = 52.0 / H, gap = 10.0 / H;
-  const double panel_h = (top - bottom - gap * double(n - 1)) / double(n);
+  L.W = plot.width;
+  L.H = plot.height > 0 ? plot.height : n == 1 ? 500.0 : 120.0 + 240.0 * double(n);
+  // Bands: titles on top, the x axis at the bottom, the panels between.
+  L.top = 1.0 - ((plot.title.empty() ? 10.0 : 34.0) + (plot.subtitle.empty() ? 0.0 : 18.0)) / L.H;
+  L.bottom = 52.0 / L.H, L.gap = 10.0 / L.H;
+  L.panel_h = (L.top - L.bottom - L.gap * double(n - 1)) / double(n);
+  const double panel_px = L.panel_h * L.H;
   // y axes per panel (or one range for all), then the left margin their labels need.
   std::vector<std::vector<double>> values;
   std::vector<double> all_y;
@@ -334,11 +345,11 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
     all_y.insert(all_y.end(), values.back().begin(), values.back().end());
   }
   if (plot.same_y) values.assign(n, all_y);
-  std::vector<Axis> ys;
-  for (size_t i = 0; i < n; ++i) ys.push_back(make_axis(values[i], panels[i].log_y, true, 0.03, 0.05, panel_h * H, 22.0));
+  for (size_t i = 0; i < n; ++i) L.ys.push_back(make_axis(values[i], panels[i].log_y, true, 0.03, 0.05, panel_px, 22.0));
   size_t chars = 0;
-  for (const Axis& y : ys) chars = std::max(chars, label_chars(y));
-  const double left = (46.0 + 7.0 * double(chars)) / W, right = 1.0 - 30.0 / W;
+  for (const Axis& y : L.ys) chars = std::max(chars, label_chars(y));
+  L.left = (46.0 + 7.0 * double(chars)) / L.W, L.right = 1.0 - 30.0 / L.W;
+  const double width_px = (L.right - L.left) * L.W;
   // The x axis, shared (spans included); padded on both sides when points sit at its ends.
   std::vector<double> xs;
   bool points = false;
@@ -349,34 +360,34 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
   }
   for (const PlotSpan& span : plot.spans) xs.push_back(span.x0), xs.push_back(span.x1);
   const double x_pad = points ? 0.02 : 0.0;
-  Axis x = make_axis(xs, plot.log_x, false, x_pad, x_pad, (right - left) * W, 55.0);
-  if (std::isfinite(plot.x_lo) && std::isfinite(plot.x_hi)) {
-    x = make_axis({plot.x_lo, plot.x_hi}, plot.log_x, false, 0.0, 0.0, (right - left) * W, 55.0);
-  }
+  L.x = std::isfinite(plot.x_lo) && std::isfinite(plot.x_hi)
+            ? make_axis({plot.x_lo, plot.x_hi}, plot.log_x, false, 0.0, 0.0, width_px, 55.0)
+            : make_axis(xs, plot.log_x, false, x_pad, x_pad, width_px, 55.0);
   // The legends: where they cover the least; where every corner is taken, the y axis rises to make room.
-  std::vector<Key> keys;
   for (size_t i = 0; i < n; ++i) {
-    keys.push_back(place_key(panels[i], x, ys[i], (right - left) * W, panel_h * H, key_entries(plot, panels[i], i)));
+    L.keys.push_back(place_key(panels[i], L.x, L.ys[i], width_px, panel_px, key_entries(plot, panels[i], i)));
   }
   double room = 0.0;
-  for (const Key& k : keys) room = k.covered > 0 ? std::max(room, k.height) : room;
+  for (const Key& k : L.keys) room = k.covered > 0 ? std::max(room, k.height) : room;
   for (size_t i = 0; i < n; ++i) {
-    if (!(plot.same_y ? room > 0.0 : keys[i].covered > 0)) continue;
-    ys[i] = make_axis(with_headroom(values[i], ys[i], plot.same_y ? room : keys[i].height), panels[i].log_y, true, 0.03,
-                      0.0, panel_h * H, 22.0);
-    keys[i] = place_key(panels[i], x, ys[i], (right - left) * W, panel_h * H, key_entries(plot, panels[i], i));
+    if (!(plot.same_y ? room > 0.0 : L.keys[i].covered > 0)) continue;
+    const double fraction = plot.same_y ? room : L.keys[i].height;
+    L.ys[i] = make_axis(with_headroom(values[i], L.ys[i], fraction), panels[i].log_y, true, 0.03, 0.0, panel_px, 22.0);
+    L.keys[i] = place_key(panels[i], L.x, L.ys[i], width_px, panel_px, key_entries(plot, panels[i], i));
   }
+  return L;
+}
 
-  std::ostringstream s;
-  s << "# divvox plot: " << plot.title << "\nset encoding utf8\n";
-  // The data, once (datablocks survive `reset`).
-  for (size_t i = 0; i < n; ++i) {
+// The data as datablocks, once for every output ($pIsK: panel I, series K; $pIsKl: its point labels).
+void data_blocks(std::ostringstream& s, const std::vector<PlotPanel>& panels, const Layout& L) {
+  for (size_t i = 0; i < panels.size(); ++i) {
+    const auto usable_point = [&](const PlotSeries& p, size_t j) { return usable(p.x[j], L.x.log) && usable(p.y[j], L.ys[i].log); };
     for (size_t k = 0; k < panels[i].series.size(); ++k) {
       const PlotSeries& p = panels[i].series[k];
       s << "$p" << i << "s" << k << " << EOD\n";
       bool gap = false;  // a blank line breaks the curve where a value is missing
       for (size_t j = 0; j < p.x.size() && j < p.y.size(); ++j) {
-        if (usable(p.x[j], x.log) && usable(p.y[j], ys[i].log)) {
+        if (usable_point(p, j)) {
           s << g(p.x[j]) << " " << g(p.y[j]) << "\n";
           gap = false;
         } else if (!gap) {
@@ -390,49 +401,60 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
       for (size_t j = 0; j < p.x.size() && j < p.y.size() && j < p.point_labels.size(); ++j) {
         std::string label = p.point_labels[j];
         std::replace(label.begin(), label.end(), '"', '\'');
-        if (usable(p.x[j], x.log) && usable(p.y[j], ys[i].log)) s << g(p.x[j]) << " " << g(p.y[j]) << " \"" << label << "\"\n";
+        if (usable_point(p, j)) s << g(p.x[j]) << " " << g(p.y[j]) << " \"" << label << "\"\n";
       }
       s << "EOD\n";
     }
   }
-  for (const std::string& out : outputs) {
-    const bool png = fs::path(out).extension() == ".png";
-    s << "reset\n";
-    if (png) {
-      s << "set terminal pngcairo size " << int(W * 1.5) << "," << int(H * 1.5)
-        << " font 'DejaVu Sans,10' fontscale 1.5 linewidth 1.5 background rgb 'white'\n";
-    } else {
-      s << "set terminal svg size " << int(W) << "," << int(H) << " font 'DejaVu Sans," << kFontPx
-        << "' background rgb 'white'\n";
-    }
-    s << "set output " << quoted(out) << "\nset termoption noenhanced\nset multiplot\n";
-    s << "set border lc rgb '#444444'\nset grid back lt 1 lc rgb '#e2e2e2' lw 1\nset tics out nomirror\n";
-    s << "set style textbox opaque noborder margins 1,0\n";  // line labels stay readable over the curves
-    s << "set lmargin at screen " << g(left) << "\nset rmargin at screen " << g(right) << "\n";
-    for (size_t k = 0; k < plot.spans.size(); ++k) {
-      s << "set object " << k + 1 << " rect from " << g(plot.spans[k].x0) << ", graph 0 to " << g(plot.spans[k].x1)
-        << ", graph 1 back fs solid 1.0 noborder fc rgb '#e6e6e6'\n";
-    }
-    for (size_t i = 0; i < n; ++i) {
-      if (i == 0) {
-        // The titles are labels of the first panel (drawn once).
-        s << "set label 1 " << quoted(plot.title) << " at screen 0.5, screen " << g(1.0 - 20.0 / H)
-          << " center font ',14'\n";
-        if (!plot.subtitle.empty()) {
-          // A long subtitle gets a smaller font rather than running off the edges (~6 px per character at 10).
-          size_t chars = 0;
-          for (unsigned char c : plot.subtitle) chars += (c & 0xC0) != 0x80;
-          const double font = std::clamp(10.0 * (W - 40.0) / (6.0 * double(chars)), 7.0, 10.0);
-          s << "set label 2 " << quoted(plot.subtitle) << " at screen 0.5, screen " << g(1.0 - 40.0 / H)
-            << " center font '," << g(std::round(font * 2.0) / 2.0) << "' tc rgb '#555555'\n";
-        }
-      }
-      const double t = top - double(i) * (panel_h + gap);
-      s << "set tmargin at screen " << g(t) << "\nset bmargin at screen " << g(t - panel_h) << "\n";
-      panel_commands(s, plot, panels[i], i, x, ys[i], i + 1 == n, keys[i].corner);
-    }
-    s << "unset multiplot\nunset output\n";
+}
+
+// One output file: terminal (by extension), style, titles, shaded spans, then every panel.
+void figure_commands(std::ostringstream& s, const Plot& plot, const std::vector<PlotPanel>& panels, const Layout& L,
+                     const std::string& out) {
+  s << "reset\n";
+  if (fs::path(out).extension() == ".png") {
+    s << "set terminal pngcairo size " << int(L.W * 1.5) << "," << int(L.H * 1.5)
+      << " font 'DejaVu Sans,10' fontscale 1.5 linewidth 1.5 background rgb 'white'\n";
+  } else {
+    s << "set terminal svg size " << int(L.W) << "," << int(L.H) << " font 'DejaVu Sans," << kFontPx
+      << "' background rgb 'white'\n";
   }
+  s << "set output " << quoted(out) << "\nset termoption noenhanced\nset multiplot\n";
+  s << "set border lc rgb '#444444'\nset grid back lt 1 lc rgb '#e2e2e2' lw 1\nset tics out nomirror\n";
+  s << "set style textbox opaque noborder margins 1,0\n";  // line labels stay readable over the curves
+  s << "set lmargin at screen " << g(L.left) << "\nset rmargin at screen " << g(L.right) << "\n";
+  for (size_t k = 0; k < plot.spans.size(); ++k) {
+    s << "set object " << k + 1 << " rect from " << g(plot.spans[k].x0) << ", graph 0 to " << g(plot.spans[k].x1)
+      << ", graph 1 back fs solid 1.0 noborder fc rgb '#e6e6e6'\n";
+  }
+  // The titles are labels of the first panel (drawn once); a long subtitle gets a smaller font rather
+  // than running off the edges (~6 px per character at 10).
+  s << "set label 1 " << quoted(plot.title) << " at screen 0.5, screen " << g(1.0 - 20.0 / L.H) << " center font ',14'\n";
+  if (!plot.subtitle.empty()) {
+    size_t chars = 0;
+    for (unsigned char c : plot.subtitle) chars += (c & 0xC0) != 0x80;
+    const double font = std::clamp(10.0 * (L.W - 40.0) / (6.0 * double(chars)), 7.0, 10.0);
+    s << "set label 2 " << quoted(plot.subtitle) << " at screen 0.5, screen " << g(1.0 - 40.0 / L.H)
+      << " center font '," << g(std::round(font * 2.0) / 2.0) << "' tc rgb '#555555'\n";
+  }
+  for (size_t i = 0; i < panels.size(); ++i) {
+    const double t = L.top - double(i) * (L.panel_h + L.gap);
+    s << "set tmargin at screen " << g(t) << "\nset bmargin at screen " << g(t - L.panel_h) << "\n";
+    panel_commands(s, plot, panels[i], i, L.x, L.ys[i], i + 1 == panels.size(), L.keys[i].corner);
+  }
+  s << "unset multiplot\nunset output\n";
+}
+
+}  // namespace
+
+std::string plot_script(const Plot& plot, const std::vector<std::string>& outputs) {
+  std::vector<PlotPanel> panels = plot.panels;
+  if (panels.empty()) panels.push_back({plot.y_label, plot.log_y, plot.series, plot.lines});
+  const Layout layout = lay_out(plot, panels);
+  std::ostringstream s;
+  s << "# divvox plot: " << plot.title << "\nset encoding utf8\n";
+  data_blocks(s, panels, layout);
+  for (const std::string& out : outputs) figure_commands(s, plot, panels, layout, out);
   return s.str();
 }
 
