@@ -1,7 +1,9 @@
 #include "ui/input.h"
 
 #include "engine/errors.h"
+#include "sim/cut.h"
 
+#include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -16,47 +18,56 @@ Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vect
   return {camera_eye(camera), ray_direction(camera, viewport, pixel)};
 }
 
-bool ray_box(const Ray& ray, const Aabb& box, float& t_enter, float& t_exit) {
-  if (box.empty()) return false;
-  float t0 = -std::numeric_limits<float>::infinity(), t1 = std::numeric_limits<float>::infinity();
-  for (int a = 0; a < 3; ++a) {
-    const float lo = float(box.min[a]), hi = float(box.max[a]);
-    const float o = ray.origin[a], d = ray.direction[a];
-    if (std::abs(d) < 1e-12f) {
-      if (o < lo || o > hi) return false;
-      continue;
+bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit) {
+  const uint32_t n = uint32_t(positions.size());
+  const bool have_flags = flags.size() == triangles.size();
+  float best = std::numeric_limits<float>::infinity();
+  uint32_t best_tri = kDeadIndex;
+  const Vec3f& o = ray.origin;
+  const Vec3f& d = ray.direction;
+  for (uint32_t k = 0; k < uint32_t(triangles.size()); ++k) {
+    const Tri& t = triangles[k];
+    if (t[0] >= n || t[1] >= n || t[2] >= n) continue;  // dead slot
+    if (have_flags && (flags[k] & skip_flags) != 0) continue;
+    // Moller-Trumbore, two-sided.
+    const Vec3f& p0 = positions[t[0]];
+    const Vec3f e1 = positions[t[1]] - p0, e2 = positions[t[2]] - p0;
+    const Vec3f q = d.cross(e2);
+    const float det = e1.dot(q);
+    if (!(std::abs(det) > 1e-20f)) continue;  // parallel, degenerate or NaN
+    const float inv = 1.0f / det;
+    const Vec3f s = o - p0;
+    const float u = s.dot(q) * inv;
+    if (u < 0.0f || u > 1.0f) continue;
+    const Vec3f r = s.cross(e1);
+    const float v = d.dot(r) * inv;
+    if (v < 0.0f || u + v > 1.0f) continue;
+    const float dist = e2.dot(r) * inv;
+    if (dist > t_min && dist < best) {
+      best = dist;
+      best_tri = k;
     }
-    float ta = (lo - o) / d, tb = (hi - o) / d;
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
-    if (t0 > t1) return false;
   }
-  if (t1 < 0.0f) return false;
-  t_enter = t0;
-  t_exit = t1;
+  if (best_tri == kDeadIndex) return false;
+  hit.t = best;
+  hit.triangle = best_tri;
+  hit.point = o + best * d;
   return true;
 }
 
-CursorBlade blade_from_cursor(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
-                              const Aabb& box, double length, float depth) {
-  const Ray ray = cursor_ray(camera, viewport, pixel);
-  CursorBlade blade;
-  float t_enter = 0.0f, t_exit = 0.0f;
-  blade.hits_box = ray_box(ray, box, t_enter, t_exit);
-  if (depth > 0.0f) {
-    blade.depth = depth;
-  } else if (blade.hits_box) {
-    blade.depth = std::max(t_enter, 0.0f);
-  } else {
-    // The target's depth along this ray.
-    const float along = ray.direction.dot(camera_forward(camera));
-    blade.depth = along > 1e-6f ? camera.distance / along : camera.distance;
-  }
-  const Vec3d origin = ray.origin.cast<double>(), dir = ray.direction.cast<double>();
-  blade.pose.a = origin + double(blade.depth) * dir;
-  blade.pose.b = blade.pose.a + length * dir;
-  return blade;
+BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry, double depth, double lead,
+                       float tilt) {
+  // Tilt the ray toward the screen's bottom (rotate about the axis right x ray).
+  const Vec3f down = -camera_up(camera);
+  Vec3f side = down - down.dot(ray.direction) * ray.direction;
+  Vec3f dir = ray.direction;
+  if (side.squaredNorm() > 1e-12f) dir = std::cos(tilt) * ray.direction + std::sin(tilt) * side.normalized();
+  const Vec3d e = entry.cast<double>(), u = dir.cast<double>().normalized();
+  BladePose pose;
+  pose.a = e - lead * u;
+  pose.b = e + depth * u;
+  return pose;
 }
 
 void camera_orbit(Camera& camera, float dx, float dy, float radians_per_pixel) {
@@ -78,29 +89,6 @@ void camera_zoom(Camera& camera, float factor, float radius) {
   camera.distance = std::clamp(camera.distance * factor, 0.02f * radius, 200.0f * radius);
   camera.z_near = std::max(0.01f * camera.distance, 1e-5f * radius);
   camera.z_far = camera.distance + 4.0f * radius;
-}
-
-bool pick_point(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
-                const std::vector<Vec3f>& positions, float radius_pixels, Vec3f& picked) {
-  const Ray ray = cursor_ray(camera, viewport, pixel);
-  // A pixel's size at distance t along the ray is t * per_unit.
-  const float per_unit = 2.0f * std::tan(0.5f * camera.fov_y) / float(std::max(viewport.height, 1));
-  float best = std::numeric_limits<float>::infinity();
-  bool found = false;
-  for (const Vec3f& p : positions) {
-    if (!p.allFinite()) continue;
-    const Vec3f o = p - ray.origin;
-    const float t = o.dot(ray.direction);
-    if (t <= camera.z_near) continue;
-    const float off = (o - t * ray.direction).norm();
-    if (off > radius_pixels * per_unit * t) continue;
-    if (t < best) {
-      best = t;
-      picked = p;
-      found = true;
-    }
-  }
-  return found;
 }
 
 Vec3f drag_target(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel, const Vec3f& anchor) {

@@ -1,8 +1,13 @@
 #include "ui/overlay.h"
 
+#include "render/gl_program.h"
+
 #include <glad/gl.h>
 
 #include <Eigen/Core>
+
+#include <algorithm>
+#include <cstddef>
 
 namespace dvx {
 namespace {
@@ -21,66 +26,84 @@ out vec4 frag;
 void main() { frag = v_color; }
 )";
 
-uint32_t compile(GLenum type, const char* source, std::string& error) {
-  const GLuint shader = glCreateShader(type);
-  glShaderSource(shader, 1, &source, nullptr);
-  glCompileShader(shader);
-  GLint ok = 0;
-  glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    char log[1024] = {};
-    glGetShaderInfoLog(shader, sizeof log, nullptr, log);
-    error = std::string("overlay shader: ") + log;
-    glDeleteShader(shader);
-    return 0;
+// Lit solids: a headlight plus a key light from the upper left, metallic highlights.
+const char* kSolidVertex = R"(#version 450 core
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec3 normal;
+layout(location = 2) in vec4 color;
+uniform mat4 mvp;
+uniform mat4 view;
+out vec4 v_color;
+out vec3 v_normal;
+out vec3 v_eye;
+void main() {
+  gl_Position = mvp * vec4(position, 1.0);
+  v_color = color;
+  v_normal = mat3(view) * normal;
+  v_eye = (view * vec4(position, 1.0)).xyz;
+}
+)";
+
+const char* kSolidFragment = R"(#version 450 core
+in vec4 v_color;
+in vec3 v_normal;
+in vec3 v_eye;
+uniform float alpha;
+out vec4 frag;
+void main() {
+  vec3 n = normalize(v_normal);
+  vec3 v = normalize(-v_eye);
+  if (dot(n, v) < 0.0) n = -n;
+  const vec3 key = normalize(vec3(-0.4, 0.6, 0.7));
+  float diffuse = 0.55 * max(dot(n, key), 0.0) + 0.35 * max(dot(n, v), 0.0);
+  float spec = 0.6 * pow(max(dot(n, normalize(key + v)), 0.0), 40.0);
+  frag = vec4(v_color.rgb * (0.25 + diffuse) + vec3(spec), alpha);
+}
+)";
+
+// The program, the vertex array with `count` float attributes (sizes, byte offsets) read from one
+// buffer of `stride`-byte vertices, and that buffer with room for `capacity` vertices.
+bool init_overlay(OverlayProgram& o, const char* vertex, const char* fragment, size_t stride, const int* sizes,
+                  const size_t* offsets, int count, size_t capacity, std::string& error) {
+  o.program = gl_link_program(vertex, fragment, error);
+  if (o.program == 0) {
+    error = "overlay: " + error;
+    return false;
   }
-  return shader;
+  glCreateVertexArrays(1, &o.vertex_array);
+  glCreateBuffers(1, &o.buffer);
+  o.capacity = capacity;
+  glNamedBufferData(o.buffer, GLsizeiptr(capacity * stride), nullptr, GL_DYNAMIC_DRAW);
+  glVertexArrayVertexBuffer(o.vertex_array, 0, o.buffer, 0, GLsizei(stride));
+  for (int a = 0; a < count; ++a) {
+    glEnableVertexArrayAttrib(o.vertex_array, GLuint(a));
+    glVertexArrayAttribFormat(o.vertex_array, GLuint(a), sizes[a], GL_FLOAT, GL_FALSE, GLuint(offsets[a]));
+    glVertexArrayAttribBinding(o.vertex_array, GLuint(a), 0);
+  }
+  return true;
+}
+
+// Grows `buffer` to hold `count` vertices of `stride` bytes and fills it.
+void upload_vertices(uint32_t buffer, size_t& capacity, const void* data, size_t count, size_t stride) {
+  if (count > capacity) {
+    while (capacity < count) capacity *= 2;
+    glNamedBufferData(buffer, GLsizeiptr(capacity * stride), nullptr, GL_DYNAMIC_DRAW);
+  }
+  glNamedBufferSubData(buffer, 0, GLsizeiptr(count * stride), data);
 }
 
 }  // namespace
 
 bool overlay_init(LineOverlay& o, std::string& error) {
-  const GLuint vs = compile(GL_VERTEX_SHADER, kVertex, error);
-  if (vs == 0) return false;
-  const GLuint fs = compile(GL_FRAGMENT_SHADER, kFragment, error);
-  if (fs == 0) {
-    glDeleteShader(vs);
-    return false;
-  }
-  o.program = glCreateProgram();
-  glAttachShader(o.program, vs);
-  glAttachShader(o.program, fs);
-  glLinkProgram(o.program);
-  glDeleteShader(vs);
-  glDeleteShader(fs);
-  GLint ok = 0;
-  glGetProgramiv(o.program, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    error = "overlay program does not link";
-    return false;
-  }
-  glCreateVertexArrays(1, &o.vertex_array);
-  glCreateBuffers(1, &o.buffer);
-  o.capacity = 256;
-  glNamedBufferData(o.buffer, GLsizeiptr(o.capacity * sizeof(LineVertex)), nullptr, GL_DYNAMIC_DRAW);
-  glVertexArrayVertexBuffer(o.vertex_array, 0, o.buffer, 0, sizeof(LineVertex));
-  glEnableVertexArrayAttrib(o.vertex_array, 0);
-  glEnableVertexArrayAttrib(o.vertex_array, 1);
-  glVertexArrayAttribFormat(o.vertex_array, 0, 3, GL_FLOAT, GL_FALSE, offsetof(LineVertex, position));
-  glVertexArrayAttribFormat(o.vertex_array, 1, 4, GL_FLOAT, GL_FALSE, offsetof(LineVertex, color));
-  glVertexArrayAttribBinding(o.vertex_array, 0, 0);
-  glVertexArrayAttribBinding(o.vertex_array, 1, 0);
-  return true;
+  const int sizes[2] = {3, 4};
+  const size_t offsets[2] = {offsetof(LineVertex, position), offsetof(LineVertex, color)};
+  return init_overlay(o, kVertex, kFragment, sizeof(LineVertex), sizes, offsets, 2, 256, error);
 }
 
 void overlay_draw(LineOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
                   const std::vector<LineVertex>& vertices, float line_width) {
   if (vertices.empty() || o.program == 0) return;
-  if (vertices.size() > o.capacity) {
-    while (o.capacity < vertices.size()) o.capacity *= 2;
-    glNamedBufferData(o.buffer, GLsizeiptr(o.capacity * sizeof(LineVertex)), nullptr, GL_DYNAMIC_DRAW);
-  }
-  glNamedBufferSubData(o.buffer, 0, GLsizeiptr(vertices.size() * sizeof(LineVertex)), vertices.data());
+  upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(LineVertex));
   const Eigen::Matrix4f mvp = projection_matrix(camera, float(width) / float(std::max(height, 1))) * view_matrix(camera);
   glBindFramebuffer(GL_FRAMEBUFFER, framebuffer);
   glViewport(0, 0, width, height);
@@ -100,11 +123,50 @@ void overlay_draw(LineOverlay& o, uint32_t framebuffer, int width, int height, c
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
 }
 
-void overlay_destroy(LineOverlay& o) {
+void overlay_destroy(OverlayProgram& o) {
   if (o.buffer) glDeleteBuffers(1, &o.buffer);
   if (o.vertex_array) glDeleteVertexArrays(1, &o.vertex_array);
   if (o.program) glDeleteProgram(o.program);
-  o = LineOverlay();
+  o = OverlayProgram();
+}
+
+bool solid_overlay_init(SolidOverlay& o, std::string& error) {
+  const int sizes[3] = {3, 3, 4};
+  const size_t offsets[3] = {offsetof(SolidVertex, position), offsetof(SolidVertex, normal), offsetof(SolidVertex, color)};
+  return init_overlay(o, kSolidVertex, kSolidFragment, sizeof(SolidVertex), sizes, offsets, 3, 512, error);
+}
+
+void solid_overlay_draw(SolidOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
+                        const std::vector<SolidVertex>& vertices, float ghost_alpha) {
+  if (vertices.empty() || o.program == 0) return;
+  upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(SolidVertex));
+  const Eigen::Matrix4f view = view_matrix(camera);
+  const Eigen::Matrix4f mvp = projection_matrix(camera, float(width) / float(std::max(height, 1))) * view;
+  glBindFramebuffer(GL_FRAMEBUFFER, framebuffer);
+  glViewport(0, 0, width, height);
+  glDisable(GL_CULL_FACE);
+  glUseProgram(o.program);
+  glUniformMatrix4fv(glGetUniformLocation(o.program, "mvp"), 1, GL_FALSE, mvp.data());
+  glUniformMatrix4fv(glGetUniformLocation(o.program, "view"), 1, GL_FALSE, view.data());
+  glBindVertexArray(o.vertex_array);
+  const GLint alpha = glGetUniformLocation(o.program, "alpha");
+  // Pass 1: the parts behind the surface, faint (no depth test, no depth writes).
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
+  glDisable(GL_DEPTH_TEST);
+  glDepthMask(GL_FALSE);
+  glUniform1f(alpha, ghost_alpha);
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
+  // Pass 2: the visible parts, opaque, depth-tested against the surface and themselves.
+  glDisable(GL_BLEND);
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LEQUAL);
+  glDepthMask(GL_TRUE);
+  glUniform1f(alpha, 1.0f);
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
+  glBindVertexArray(0);
+  glUseProgram(0);
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
 }
 
 }  // namespace dvx
