@@ -18,59 +18,137 @@ constexpr uint32_t kMinVertexCapacity = 1024;
 constexpr uint32_t kMinTriangleCapacity = 2048;
 
 // Shared vertex stage: positions and normals to eye space (the view matrix is rigid, so its 3x3
-// part transforms normals too).
+// part transforms normals too). a_cut_normal: the cut-face normal where the GPU computed two.
 const char* kVertexShader = R"(#version 450 core
 layout(location = 0) in vec3 a_position;
 layout(location = 1) in vec3 a_normal;
+layout(location = 2) in vec3 a_cut_normal;
 layout(location = 0) uniform mat4 u_view_projection;
 layout(location = 1) uniform mat4 u_view;
 out vec3 v_eye_position;
 out vec3 v_eye_normal;
+out vec3 v_eye_cut_normal;
+out float v_rim;
 void main() {
   vec4 p = vec4(a_position, 1.0);
+  v_rim = dot(a_cut_normal, a_cut_normal) > 0.25 ? 1.0 : 0.0;  // the vertex touches a cut face
   v_eye_position = (u_view * p).xyz;
   v_eye_normal = mat3(u_view) * a_normal;
+  v_eye_cut_normal = mat3(u_view) * a_cut_normal;
   gl_Position = u_view_projection * p;
 }
 )";
 
 // Per-triangle flags: one byte per triangle slot, four to a word, indexed by gl_PrimitiveID
 // (the slot, since every slot is drawn in one call from 0).
-#define DVX_FLAG_BLOCK                                                        \
+#define DVX_FLAG_LOOKUP                                                       \
   "layout(std430, binding = 0) readonly buffer TriangleFlags { uint words[]; };\n" \
-  "uint triangle_flags() {\n"                                                 \
-  "  uint id = uint(gl_PrimitiveID);\n"                                       \
+  "uint triangle_flags_of(uint id) {\n"                                       \
   "  return (words[id >> 2] >> (8u * (id & 3u))) & 0xFFu;\n"                  \
   "}\n"
+#define DVX_FLAG_BLOCK DVX_FLAG_LOOKUP "uint triangle_flags() { return triangle_flags_of(uint(gl_PrimitiveID)); }\n"
 
-// Lit surface: two directional lights fixed to the camera (key from the upper left, weak fill from
-// the right) plus ambient, Blinn-Phong highlights (wet tissue is glossy). Two-sided: back faces
-// flip the normal, so views into a cut or through a hole are lit too. Without vertex normals (or
-// where a normal is zero) the face normal from screen-space derivatives gives flat shading.
+// Wet tissue: two lights fixed to the camera (key from the upper left, weak fill from the right),
+// wrapped diffuse (light bleeds past the terminator as in translucent tissue), a sharp and a broad
+// highlight and a Fresnel sheen (a wet, glossy film); the cut faces are darker, redder and wetter.
+// Two-sided: back faces flip the normal. Smooth normals come per vertex (the cut faces' own where
+// the GPU computed them: crisp rims); without them (or where one is zero) the face normal from
+// screen-space derivatives gives flat shading. A little dither keeps slow gradients from banding.
 const char* kSurfaceFragmentShader = "#version 450 core\n" DVX_FLAG_BLOCK R"(
 in vec3 v_eye_position;
 in vec3 v_eye_normal;
+in vec3 v_eye_cut_normal;
+in float v_rim;
 layout(location = 2) uniform vec3 u_surface_color;
 layout(location = 3) uniform vec3 u_cut_color;
 layout(location = 4) uniform int u_flat;
+layout(location = 6) uniform int u_split;
 out vec4 frag_color;
 void main() {
-  vec3 base = (triangle_flags() & 1u) != 0u ? u_cut_color : u_surface_color;
+  bool cut = (triangle_flags() & 1u) != 0u;
+  // The outer surface blushes toward the cut colour next to a cut's rim: an incision line that shows
+  // even while the slit is closed.
+  vec3 base = cut ? u_cut_color : mix(u_surface_color, 0.85 * u_cut_color, 0.85 * v_rim * v_rim);
   vec3 face = cross(dFdx(v_eye_position), dFdy(v_eye_position));  // always faces the eye
-  vec3 n = v_eye_normal;
+  vec3 n = (cut && u_split != 0) ? v_eye_cut_normal : v_eye_normal;
+  vec3 v = normalize(-v_eye_position);
   if (u_flat != 0 || dot(n, n) < 1e-12) {
     n = face;
-  } else if (!gl_FrontFacing) {
-    n = -n;
+  } else if (!gl_FrontFacing && dot(n, v) < 0.0) {
+    n = -n;  // a back face seen through a hole (not a sliver triangle folded against its neighbours)
   }
   n = dot(n, n) > 0.0 ? normalize(n) : vec3(0.0, 0.0, 1.0);
-  vec3 v = normalize(-v_eye_position);
   const vec3 key = normalize(vec3(-0.4, 0.6, 0.7));
   const vec3 fill = normalize(vec3(0.7, -0.1, 0.4));
-  float diffuse = 0.75 * max(dot(n, key), 0.0) + 0.30 * max(dot(n, fill), 0.0);
-  float specular = 0.30 * pow(max(dot(n, normalize(key + v)), 0.0), 48.0);
-  vec3 color = base * (0.22 + diffuse) + vec3(specular);
-  frag_color = vec4(min(color, vec3(1.0)), 1.0);
+  const float wrap = 0.35;
+  float diffuse = 0.72 * max((dot(n, key) + wrap) / (1.0 + wrap), 0.0) + 0.25 * max(dot(n, fill), 0.0);
+  float nh = max(dot(n, normalize(key + v)), 0.0);
+  float gloss = cut ? 1.3 : 1.0;
+  float specular = gloss * (0.45 * pow(nh, 90.0) + 0.08 * pow(nh, 14.0));
+  float fresnel = 0.12 * pow(1.0 - max(dot(n, v), 0.0), 4.0);
+  vec3 color = base * (0.20 + diffuse) + vec3(specular + fresnel) * vec3(1.0, 0.97, 0.95);
+  // Dither: +-0.5 of an 8-bit step, from a hash of the pixel.
+  float noise = fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715)))) - 0.5;
+  frag_color = vec4(clamp(color + noise / 255.0, 0.0, 1.0), 1.0);
+}
+)";
+
+// GPU normals, pass 1 (one invocation per triangle slot): the unit face normal times each
+// corner's angle, per corner (zero for dead, degenerate or non-finite triangles).
+const char* kTriangleNormalShader = "#version 450 core\n" DVX_FLAG_LOOKUP R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = 1) readonly buffer Positions { float pos[]; };
+layout(std430, binding = 2) readonly buffer Indices { uint idx[]; };
+layout(std430, binding = 3) writeonly buffer CornerNormals { float cornern[]; };
+layout(location = 0) uniform uint u_triangles;
+vec3 p_of(uint v) { return vec3(pos[3u * v], pos[3u * v + 1u], pos[3u * v + 2u]); }
+float corner(vec3 a, vec3 b) { return acos(clamp(dot(a, b) * inversesqrt(dot(a, a) * dot(b, b)), -1.0, 1.0)); }
+void main() {
+  uint t = gl_GlobalInvocationID.x;
+  if (t >= u_triangles) return;
+  uint i0 = idx[3u * t], i1 = idx[3u * t + 1u], i2 = idx[3u * t + 2u];
+  vec3 p0 = p_of(i0), p1 = p_of(i1), p2 = p_of(i2);
+  vec3 e01 = p1 - p0, e02 = p2 - p0, e12 = p2 - p1;
+  vec3 n = cross(e01, e02);
+  float len2 = dot(n, n);
+  vec3 w = vec3(0.0);
+  if ((triangle_flags_of(t) & 2u) == 0u && len2 > 1e-30 && !isinf(len2)) {
+    n *= inversesqrt(len2);
+    w = vec3(corner(e01, e02), corner(-e01, e12), corner(-e02, -e12));
+  }
+  for (uint c = 0u; c < 3u; ++c) {
+    vec3 q = w[c] * n;
+    cornern[9u * t + 3u * c] = q.x;
+    cornern[9u * t + 3u * c + 1u] = q.y;
+    cornern[9u * t + 3u * c + 2u] = q.z;
+  }
+}
+)";
+
+// GPU normals, pass 2 (one invocation per vertex slot): the sums over its corners, by class,
+// normalised (zero stays zero).
+const char* kVertexNormalShader = "#version 450 core\n" DVX_FLAG_LOOKUP R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = 3) readonly buffer CornerNormals { float cornern[]; };
+layout(std430, binding = 4) writeonly buffer SurfaceNormals { float sn[]; };
+layout(std430, binding = 5) writeonly buffer CutNormals { float cn[]; };
+layout(std430, binding = 6) readonly buffer AdjacencyOffsets { uint offsets[]; };
+layout(std430, binding = 7) readonly buffer Adjacency { uint corners[]; };
+layout(location = 0) uniform uint u_vertices;
+vec3 unit(vec3 a) { float l = dot(a, a); return l > 0.0 ? a * inversesqrt(l) : vec3(0.0); }
+void main() {
+  uint v = gl_GlobalInvocationID.x;
+  if (v >= u_vertices) return;
+  vec3 s = vec3(0.0), c = vec3(0.0);
+  for (uint k = offsets[v]; k < offsets[v + 1u]; ++k) {
+    uint e = corners[k];
+    vec3 q = vec3(cornern[3u * e], cornern[3u * e + 1u], cornern[3u * e + 2u]);
+    if ((triangle_flags_of(e / 3u) & 1u) != 0u) c += q; else s += q;
+  }
+  s = unit(s);
+  c = unit(c);
+  sn[3u * v] = s.x; sn[3u * v + 1u] = s.y; sn[3u * v + 2u] = s.z;
+  cn[3u * v] = c.x; cn[3u * v + 1u] = c.y; cn[3u * v + 2u] = c.z;
 }
 )";
 
@@ -140,6 +218,33 @@ GLuint link_program(const char* vertex_source, const char* fragment_source, std:
   return program;
 }
 
+// Links a compute program; 0 with a reason on failure.
+GLuint link_compute(const char* source, std::string& error) {
+  GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
+  glShaderSource(shader, 1, &source, nullptr);
+  glCompileShader(shader);
+  GLint ok = 0;
+  glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+  if (!ok) {
+    char log[1024] = {};
+    glGetShaderInfoLog(shader, sizeof log, nullptr, log);
+    error = std::string("GL: compute shader does not compile: ") + first_line(log);
+    glDeleteShader(shader);
+    return 0;
+  }
+  GLuint program = glCreateProgram();
+  glAttachShader(program, shader);
+  glLinkProgram(program);
+  glDeleteShader(shader);
+  glGetProgramiv(program, GL_LINK_STATUS, &ok);
+  if (!ok) {
+    error = "GL: compute program does not link";
+    glDeleteProgram(program);
+    return 0;
+  }
+  return program;
+}
+
 // Deletes the offscreen target's objects.
 void destroy_target(Renderer& r) {
   if (r.resolve_framebuffer && r.resolve_framebuffer != r.framebuffer) glDeleteFramebuffers(1, &r.resolve_framebuffer);
@@ -196,6 +301,56 @@ void allocate_vertex_buffers(Renderer& r, uint32_t capacity) {
   r.vertex_capacity = capacity;
   glNamedBufferData(r.position_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
   glNamedBufferData(r.normal_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.cut_normal_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+}
+
+// The vertex -> corner adjacency (CSR over vertex slots, corners 3t + c of live triangles) from
+// the CPU's triangle slots, uploaded whole.
+void rebuild_adjacency(Renderer& r, const Tri* triangles, uint32_t triangle_count, uint32_t vertex_count) {
+  std::vector<uint32_t>& offsets = r.scratch_offsets;
+  std::vector<uint32_t>& corners = r.scratch_adjacency;
+  offsets.assign(size_t(vertex_count) + 1, 0);
+  for (uint32_t t = 0; t < triangle_count; ++t) {
+    const Tri& tri = triangles[t];
+    if (tri[0] >= vertex_count || tri[1] >= vertex_count || tri[2] >= vertex_count) continue;
+    for (uint32_t v : tri) ++offsets[v + 1];
+  }
+  for (uint32_t v = 0; v < vertex_count; ++v) offsets[v + 1] += offsets[v];
+  corners.resize(offsets[vertex_count]);
+  std::vector<uint32_t>& fill = r.scratch_fill;
+  fill.assign(offsets.begin(), offsets.end() - 1);
+  for (uint32_t t = 0; t < triangle_count; ++t) {
+    const Tri& tri = triangles[t];
+    if (tri[0] >= vertex_count || tri[1] >= vertex_count || tri[2] >= vertex_count) continue;
+    for (uint32_t c = 0; c < 3; ++c) corners[fill[tri[c]]++] = 3 * t + c;
+  }
+  glNamedBufferData(r.adjacency_offset_buffer, GLsizeiptr(offsets.size() * 4), offsets.data(), GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.adjacency_buffer, GLsizeiptr(std::max<size_t>(corners.size(), 1) * 4),
+                    corners.empty() ? nullptr : corners.data(), GL_DYNAMIC_DRAW);
+  r.last_upload_bytes += uint64_t(offsets.size() + corners.size()) * 4;
+}
+
+// Pass 1 and 2 of the GPU normals (see Renderer), over every slot.
+void compute_normals(Renderer& r) {
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, r.flag_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 1, r.position_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 2, r.index_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 3, r.corner_normal_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 4, r.normal_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 5, r.cut_normal_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 6, r.adjacency_offset_buffer);
+  glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 7, r.adjacency_buffer);
+  glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+  glUseProgram(r.triangle_normal_program);
+  glUniform1ui(0, r.triangle_count);
+  glDispatchCompute((r.triangle_count + 63) / 64, 1, 1);
+  glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+  glUseProgram(r.vertex_normal_program);
+  glUniform1ui(0, r.vertex_count);
+  glDispatchCompute((r.vertex_count + 63) / 64, 1, 1);
+  glMemoryBarrier(GL_VERTEX_ATTRIB_ARRAY_BARRIER_BIT | GL_SHADER_STORAGE_BARRIER_BIT);
+  glUseProgram(0);
+  r.normals_stale = false;
 }
 
 // (Re)allocates the index and flag buffers for `capacity` triangle slots.
@@ -203,6 +358,7 @@ void allocate_triangle_buffers(Renderer& r, uint32_t capacity) {
   r.triangle_capacity = capacity;
   glNamedBufferData(r.index_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
   glNamedBufferData(r.flag_buffer, (GLsizeiptr(capacity) + 3) / 4 * 4, nullptr, GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.corner_normal_buffer, GLsizeiptr(capacity) * 36, nullptr, GL_DYNAMIC_DRAW);
 }
 
 // Capacity for `needed` slots: geometric growth so a growing cut re-uploads rarely.
@@ -235,7 +391,9 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
 
   r.surface_program = link_program(kVertexShader, kSurfaceFragmentShader, error);
   if (r.surface_program) r.wire_program = link_program(kVertexShader, kWireFragmentShader, error);
-  if (!r.surface_program || !r.wire_program) {
+  if (r.wire_program) r.triangle_normal_program = link_compute(kTriangleNormalShader, error);
+  if (r.triangle_normal_program) r.vertex_normal_program = link_compute(kVertexNormalShader, error);
+  if (!r.surface_program || !r.wire_program || !r.vertex_normal_program) {
     renderer_destroy(r);
     return false;
   }
@@ -245,12 +403,17 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
   glCreateBuffers(1, &r.normal_buffer);
   glCreateBuffers(1, &r.index_buffer);
   glCreateBuffers(1, &r.flag_buffer);
+  glCreateBuffers(1, &r.cut_normal_buffer);
+  glCreateBuffers(1, &r.corner_normal_buffer);
+  glCreateBuffers(1, &r.adjacency_offset_buffer);
+  glCreateBuffers(1, &r.adjacency_buffer);
   allocate_vertex_buffers(r, kMinVertexCapacity);
   allocate_triangle_buffers(r, kMinTriangleCapacity);
   glCreateVertexArrays(1, &r.vertex_array);
   glVertexArrayVertexBuffer(r.vertex_array, 0, r.position_buffer, 0, 12);
   glVertexArrayVertexBuffer(r.vertex_array, 1, r.normal_buffer, 0, 12);
-  for (GLuint a = 0; a < 2; ++a) {
+  glVertexArrayVertexBuffer(r.vertex_array, 2, r.cut_normal_buffer, 0, 12);
+  for (GLuint a = 0; a < 3; ++a) {
     glVertexArrayAttribFormat(r.vertex_array, a, 3, GL_FLOAT, GL_FALSE, 0);
     glVertexArrayAttribBinding(r.vertex_array, a, a);
   }
@@ -277,8 +440,11 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
   r.last_upload_bytes = 0;
   if (!r.vertex_array) return;  // not initialised
   const bool has_normals = mesh.normals != nullptr;
+  const bool gpu_normals = !has_normals && mesh.gpu_normals;
+  const uint32_t previous_vertex_count = r.vertex_count;
   // The first upload, growth, or a switch between smooth and flat shading re-sends everything.
-  bool vertices_full = mesh.full || !r.uploaded || has_normals != r.has_normals;
+  const bool split_normals = gpu_normals || (has_normals && mesh.cut_normals != nullptr);
+  bool vertices_full = mesh.full || !r.uploaded || has_normals != r.has_normals || split_normals != r.split_normals;
   bool triangles_full = mesh.full || !r.uploaded;
   if (mesh.vertex_count > r.vertex_capacity) {
     allocate_vertex_buffers(r, grown_capacity(r.vertex_capacity, mesh.vertex_count, kMinVertexCapacity));
@@ -297,7 +463,8 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
     const GLsizeiptr size = GLsizeiptr(ve - vb) * 12;
     glNamedBufferSubData(r.position_buffer, offset, size, mesh.positions + vb);
     if (has_normals) glNamedBufferSubData(r.normal_buffer, offset, size, mesh.normals + vb);
-    r.last_upload_bytes += uint64_t(size) * (has_normals ? 2 : 1);
+    if (has_normals && mesh.cut_normals) glNamedBufferSubData(r.cut_normal_buffer, offset, size, mesh.cut_normals + vb);
+    r.last_upload_bytes += uint64_t(size) * (has_normals ? (mesh.cut_normals ? 3 : 2) : 1);
   }
 
   // Triangle slots: dead ones (or ones naming a vertex that does not exist) become {0,0,0} with
@@ -322,8 +489,20 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
 
   r.vertex_count = mesh.vertex_count;
   r.triangle_count = mesh.triangle_count;
+  // GPU normals: the adjacency follows the triangles (and a change of vertex count).
+  if (gpu_normals && (tb < te || !r.gpu_normals || mesh.vertex_count != previous_vertex_count || r.adjacency_stale)) {
+    rebuild_adjacency(r, mesh.triangles, mesh.triangle_count, mesh.vertex_count);
+    r.adjacency_stale = false;
+  }
   r.has_normals = has_normals;
+  r.gpu_normals = gpu_normals;
+  r.split_normals = split_normals;
+  r.normals_stale = gpu_normals;
   r.uploaded = true;
+}
+
+void renderer_update_normals(Renderer& r) {
+  if (r.gpu_normals && r.normals_stale && r.triangle_normal_program && r.vertex_normal_program) compute_normals(r);
 }
 
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
@@ -344,20 +523,35 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glProgramUniformMatrix4fv(r.wire_program, 0, 1, GL_FALSE, view_projection.data());
   glProgramUniform3fv(r.surface_program, 2, 1, options.surface_color.data());
   glProgramUniform3fv(r.surface_program, 3, 1, options.cut_color.data());
-  glProgramUniform1i(r.surface_program, 4, r.has_normals ? 0 : 1);
+  glProgramUniform1i(r.surface_program, 4, r.has_normals || r.gpu_normals ? 0 : 1);
+  glProgramUniform1i(r.surface_program, 6, r.split_normals ? 1 : 0);
+  renderer_update_normals(r);
+  glBindFramebuffer(GL_FRAMEBUFFER, r.framebuffer);
   glProgramUniform3fv(r.wire_program, 5, 1, options.wire_color.data());
 
   // Both sides drawn and lit (no culling); normals only when the caller gave them.
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LEQUAL);
-  glDisable(GL_CULL_FACE);
+  if (options.cull_back_faces) {
+    glEnable(GL_CULL_FACE);
+    glCullFace(GL_BACK);
+    glFrontFace(GL_CCW);
+  } else {
+    glDisable(GL_CULL_FACE);
+  }
   glDisable(GL_BLEND);
   if (r.samples > 0) glEnable(GL_MULTISAMPLE);
-  if (r.has_normals) {
+  if (r.has_normals || r.gpu_normals) {
     glEnableVertexArrayAttrib(r.vertex_array, 1);
   } else {
     glDisableVertexArrayAttrib(r.vertex_array, 1);
     glVertexAttrib3f(1, 0.0f, 0.0f, 0.0f);
+  }
+  if (r.split_normals) {
+    glEnableVertexArrayAttrib(r.vertex_array, 2);
+  } else {
+    glDisableVertexArrayAttrib(r.vertex_array, 2);
+    glVertexAttrib3f(2, 0.0f, 0.0f, 0.0f);
   }
   glBindVertexArray(r.vertex_array);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, r.flag_buffer);
@@ -380,6 +574,7 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   }
   glUseProgram(0);
   glBindVertexArray(0);
+  glDisable(GL_CULL_FACE);
 }
 
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
@@ -409,7 +604,7 @@ bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
   return gl_check_errors(error);
 }
 
-void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height) {
+void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height, int x, int y) {
   if (!r.framebuffer) return;
   // A multisampled image resolves at its own size first (a resolving blit cannot scale).
   GLuint source = r.framebuffer;
@@ -418,7 +613,7 @@ void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int heig
                            GL_COLOR_BUFFER_BIT, GL_NEAREST);
     source = r.resolve_framebuffer;
   }
-  glBlitNamedFramebuffer(source, target_framebuffer, 0, 0, r.width, r.height, 0, 0, width, height,
+  glBlitNamedFramebuffer(source, target_framebuffer, 0, 0, r.width, r.height, x, y, x + width, y + height,
                          GL_COLOR_BUFFER_BIT, (width == r.width && height == r.height) ? GL_NEAREST : GL_LINEAR);
 }
 
@@ -426,8 +621,12 @@ void renderer_destroy(Renderer& r) {
   destroy_target(r);
   if (r.surface_program) glDeleteProgram(r.surface_program);
   if (r.wire_program) glDeleteProgram(r.wire_program);
+  if (r.triangle_normal_program) glDeleteProgram(r.triangle_normal_program);
+  if (r.vertex_normal_program) glDeleteProgram(r.vertex_normal_program);
   if (r.vertex_array) glDeleteVertexArrays(1, &r.vertex_array);
-  const GLuint buffers[] = {r.position_buffer, r.normal_buffer, r.index_buffer, r.flag_buffer};
+  const GLuint buffers[] = {r.position_buffer,   r.normal_buffer,         r.index_buffer,
+                            r.flag_buffer,       r.cut_normal_buffer,     r.corner_normal_buffer,
+                            r.adjacency_offset_buffer, r.adjacency_buffer};
   for (GLuint b : buffers)
     if (b) glDeleteBuffers(1, &b);
   r = Renderer{};

@@ -32,6 +32,7 @@ constexpr uint8_t kTriangleDead = 2;  // set by the renderer for unused slots; c
 struct RenderMesh {
   const Vec3f* positions = nullptr;       // (vertex_count)
   const Vec3f* normals = nullptr;         // (vertex_count) unit vertex normals; nullptr: flat shading
+  const Vec3f* cut_normals = nullptr;     // (vertex_count) with `normals`: the cut faces' own (render/normals.h)
   uint32_t vertex_count = 0;
   const Tri* triangles = nullptr;         // (triangle_count) counter-clockwise seen from outside
   uint32_t triangle_count = 0;
@@ -39,6 +40,10 @@ struct RenderMesh {
   uint32_t vertex_begin = 0, vertex_end = 0;      // dirty vertex slots [begin, end)
   uint32_t triangle_begin = 0, triangle_end = 0;  // dirty triangle slots [begin, end)
   bool full = true;                               // ignore the ranges, upload every slot
+  // No `normals`: the GPU computes smooth normals once per upload (compute shaders, angle-weighted,
+  // the cut faces and the outer surface separately, so cut rims stay crisp creases). False (and no
+  // normals): flat shading.
+  bool gpu_normals = false;
 };
 
 // A whole SurfaceMesh (full upload). `normals` / `flags` may be null or sized like the mesh.
@@ -47,6 +52,9 @@ RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* nor
 
 struct DrawOptions {
   bool wireframe = false;                         // overlay the triangle edges
+  // Skip back faces (the surface is closed, so none is visible from outside): on a software
+  // rasteriser, where triangle setup dominates, it saves about half the draw.
+  bool cull_back_faces = false;
   Vec3f surface_color = Vec3f(0.88f, 0.70f, 0.64f);  // pale organ capsule
   Vec3f cut_color = Vec3f(0.80f, 0.17f, 0.20f);      // exposed tissue on the cut faces
   Vec3f wire_color = Vec3f(0.20f, 0.12f, 0.12f);
@@ -79,6 +87,20 @@ struct Renderer {
   uint32_t normal_buffer = 0;    // (vertex_capacity x 3 floats)
   uint32_t index_buffer = 0;     // (triangle_capacity x 3 uint32)
   uint32_t flag_buffer = 0;      // (triangle_capacity bytes, rounded up to 4) SSBO binding 0
+  // GPU normals, in two passes without atomics (so the sums do not depend on scheduling): per
+  // triangle slot, its unit normal times each corner's angle (corner_normal_buffer, 3 corners x 3
+  // floats); then per vertex slot, the sums over the corners it is part of (the vertex -> corner
+  // adjacency, CSR, rebuilt on the CPU when triangles change: only on cut steps), the outer
+  // surface's into normal_buffer and the cut faces' into cut_normal_buffer. Each fragment takes
+  // the one of its triangle's class, so cut rims stay creases.
+  uint32_t cut_normal_buffer = 0;     // (vertex_capacity x 3 floats)
+  uint32_t corner_normal_buffer = 0;  // (triangle_capacity x 9 floats)
+  uint32_t adjacency_offset_buffer = 0, adjacency_buffer = 0;  // (vertex_capacity + 1), (3 x triangle_capacity) uint32
+  uint32_t triangle_normal_program = 0, vertex_normal_program = 0;
+  std::vector<uint32_t> scratch_offsets, scratch_adjacency, scratch_fill;
+  bool adjacency_stale = true;
+  bool gpu_normals = false, normals_stale = false;
+  bool split_normals = false;  // cut faces have their own normals (GPU-computed or given)
   uint32_t vertex_capacity = 0, triangle_capacity = 0;
   uint32_t vertex_count = 0, triangle_count = 0;
   bool has_normals = false;
@@ -96,12 +118,16 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
 bool renderer_resize(Renderer& r, int width, int height, std::string& error);
 // Sends the changed slots of `mesh` to the GPU (see RenderMesh).
 void renderer_upload(Renderer& r, const RenderMesh& mesh);
+// Runs the GPU normal passes when an upload made them stale (renderer_draw calls it too; calling it
+// first lets a caller time it on its own).
+void renderer_update_normals(Renderer& r);
 // Draws the uploaded surface into the offscreen target.
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
-// Copies the last image into another framebuffer (0: the window's), scaled to w x h.
-void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height);
+// Copies the last image into another framebuffer (0: the window's), scaled to w x h, its lower-left
+// corner at (x, y) of the target (GL's convention: y up).
+void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height, int x = 0, int y = 0);
 // Deletes every GL object (the context must still be current).
 void renderer_destroy(Renderer& r);
 

@@ -14,7 +14,7 @@ packages=(
   build-essential cmake pkg-config ninja-build
   libeigen3-dev libassimp-dev nlohmann-json3-dev libcli11-dev doctest-dev
   libglfw3-dev libimgui-dev libstb-dev libglvnd-dev libegl-dev libegl-mesa0 libgl1-mesa-dri
-  xvfb xauth
+  xvfb xauth xdotool
   gnuplot-nox
 )
 

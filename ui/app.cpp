@@ -6,6 +6,7 @@
 #include "engine/scene.h"
 #include "engine/timing.h"
 #include "render/camera.h"
+#include "render/normals.h"
 #include "render/renderer.h"
 #include "ui/app_state.h"
 #include "ui/input.h"
@@ -72,6 +73,23 @@ double coverage(const std::vector<uint8_t>& rgba, const Vec3f& background) {
   return pixels ? double(covered) / double(pixels) : 0.0;
 }
 
+// "p50 (p95)" of a sample, in ms.
+std::string percentiles(std::vector<double> v) {
+  if (v.empty()) return "-";
+  std::sort(v.begin(), v.end());
+  char text[64];
+  std::snprintf(text, sizeof text, "%.1f (%.1f)", v[v.size() / 2], v[std::min(v.size() - 1, size_t(0.95 * v.size()))]);
+  return text;
+}
+
+// The frame rate at quantile q of the frames (q = 0.05: the slowest 5 % run below it).
+double fps_percentile(std::vector<double> intervals_ms, double q) {
+  if (intervals_ms.empty()) return 0.0;
+  std::sort(intervals_ms.begin(), intervals_ms.end());
+  const double ms = intervals_ms[std::min(intervals_ms.size() - 1, size_t((1.0 - q) * double(intervals_ms.size())))];
+  return ms > 0 ? 1000.0 / ms : 0.0;
+}
+
 }  // namespace
 
 bool take_screenshot(AppState& app, const std::string& path, std::string& message) {
@@ -114,6 +132,39 @@ void load_play_poses(AppState& app, const std::string& path) {
   }
 }
 
+// The CPU's split normals (render/normals.h), reused between snapshots.
+struct SplitNormals {
+  std::vector<Vec3f> surface, cut;
+};
+
+// A snapshot to the renderer: every position (they all move), the dirty triangle slots, and the
+// normals computed once per snapshot: on the GPU (`split` null) or here.
+// Returns the CPU normals' time (ms).
+double upload_snapshot_split_normals(Renderer& renderer, const Snapshot& s, bool full, SplitNormals* split) {
+  RenderMesh mesh;
+  mesh.positions = s.positions.data();
+  mesh.vertex_count = uint32_t(s.positions.size());
+  mesh.triangles = s.triangles.data();
+  mesh.triangle_count = uint32_t(s.triangles.size());
+  mesh.triangle_flags = s.triangle_flags.data();
+  mesh.vertex_begin = 0;
+  mesh.vertex_end = mesh.vertex_count;
+  mesh.triangle_begin = s.dirty_triangle_begin;
+  mesh.triangle_end = s.dirty_triangle_end;
+  mesh.full = full;
+  const Clock::time_point t0 = Clock::now();
+  if (split) {
+    split_vertex_normals(s.positions, s.triangles, s.triangle_flags, split->surface, split->cut);
+    mesh.normals = split->surface.data();
+    mesh.cut_normals = split->cut.data();
+  } else {
+    mesh.gpu_normals = true;
+  }
+  const double normals_ms = ms_between(t0, Clock::now());
+  renderer_upload(renderer, mesh);
+  return normals_ms;
+}
+
 void frame_camera(AppState& app) {
   app.camera = frame_box(app.bounds, app.viewport.aspect());
   app.radius = float(0.5 * app.bounds.extent().norm());
@@ -130,6 +181,8 @@ void send_blade(AppState& app, const BladePose& pose, bool cutting) {
   c.blade = pose;
   c.cutting = cutting;
   app.sim->push({stamp, c});
+  // Paused: each blade move runs one step, so the cut shows at once.
+  if (app.status.paused) app.sim->step_once();
   app.blade_sent = true;
   app.last_cutting = cutting;
   app.last_blade_stamp = stamp;
@@ -144,9 +197,29 @@ void send_blade(AppState& app, const BladePose& pose, bool cutting) {
   }
 }
 
+void send_grab(AppState& app, GrabCommand::Kind kind, const Vec3f& target) {
+  StepCommands c;
+  c.grab.kind = kind;
+  c.grab.target = target.cast<double>();
+  c.grab.compliance = std::pow(10.0, -double(app.grab_strength));
+  app.sim->push_now(c);
+  if (app.status.paused) app.sim->step_once();
+}
+
+void set_cut_depth(AppState& app, float depth) {
+  app.cut_depth = std::clamp(depth, 0.5f * app.voxel_size, 2.0f * app.radius);
+}
+
 void handle_keys(AppState& app, GLFWwindow* window) {
   for (const auto& [key, mods] : g_events.keys) {
+    const bool ctrl = (mods & GLFW_MOD_CONTROL) != 0, shift = (mods & GLFW_MOD_SHIFT) != 0;
     switch (key) {
+      case GLFW_KEY_Z:
+        if (ctrl) request_undo(app, shift);
+        break;
+      case GLFW_KEY_Y:
+        if (ctrl) request_undo(app, true);
+        break;
       case GLFW_KEY_R:
       case GLFW_KEY_HOME: frame_camera(app); break;
       case GLFW_KEY_G: app.tool = Tool::kGrab; break;
@@ -156,16 +229,17 @@ void handle_keys(AppState& app, GLFWwindow* window) {
       case GLFW_KEY_KP_ADD: camera_zoom(app.camera, 0.9f, app.radius); break;
       case GLFW_KEY_MINUS:
       case GLFW_KEY_KP_SUBTRACT: camera_zoom(app.camera, 1.0f / 0.9f, app.radius); break;
+      case GLFW_KEY_RIGHT_BRACKET: set_cut_depth(app, app.cut_depth * 1.15f); break;
+      case GLFW_KEY_LEFT_BRACKET: set_cut_depth(app, app.cut_depth / 1.15f); break;
       case GLFW_KEY_SPACE: app.sim->set_paused(!app.status.paused); break;
       case GLFW_KEY_PERIOD: app.sim->step_once(); break;
       case GLFW_KEY_W: app.draw.wireframe = !app.draw.wireframe; break;
       case GLFW_KEY_T: app.show_trail = !app.show_trail; break;
-      case GLFW_KEY_D: app.blade_depth = 0.0f; break;  // back to the box entry
       case GLFW_KEY_F1: app.show_help = !app.show_help; break;
       case GLFW_KEY_F12: {
         std::string message;
         take_screenshot(app, default_screenshot_name(), message);
-        app.message = message;
+        show_message(app, message);
         std::printf("%s\n", message.c_str());
         break;
       }
@@ -178,25 +252,111 @@ void handle_keys(AppState& app, GLFWwindow* window) {
   g_events.keys.clear();
 }
 
+// The scalpel under the cursor: the entry is the deformed surface point under it (while dragging,
+// the outer surface only, so the blade does not dive into the slit it opens); off the tissue the
+// entry keeps its last eye distance (a drag that leaves the object stays at its depth).
+void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
+  app.hover_hit = false;
+  if (app.current && app.cursor_in_view) {
+    const uint8_t skip = app.left_down ? kTriangleCut : 0;
+    app.hover_hit = pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
+                                 app.camera.z_near, app.hover);
+  }
+  if (app.hover_hit) {
+    app.entry_t = app.hover.t;
+  } else if (!app.left_down || app.entry_t <= 0.0f) {
+    // Nothing under the cursor: the depth of the object's centre along the ray.
+    const Vec3f centre = (0.5 * (app.bounds.min + app.bounds.max)).cast<float>();
+    app.entry_t = std::max((centre - ray.origin).dot(ray.direction) - 0.5f * app.radius, app.camera.z_near);
+  }
+  const Vec3f entry = ray.origin + app.entry_t * ray.direction;
+  // The edge faces the drag's direction on screen.
+  if (delta.squaredNorm() > 0.25f) {
+    const Vec3f d = delta.x() * camera_right(app.camera) - delta.y() * camera_up(app.camera);
+    app.edge_dir = d.normalized();
+  }
+  app.blade_pose = scalpel_pose(app.camera, ray, entry, app.cut_depth, 2.0 * app.voxel_size);
+}
+
+void scalpel_mouse(AppState& app, bool left, bool free_mouse) {
+  if (left && !app.left_down && free_mouse && app.cursor_in_view) {
+    app.left_down = true;
+    app.trail.clear();
+    app.sim->keep_state();
+    app.cut_voxels_before = app.status.voxels_cut;
+    app.cut_pending = false;
+    app.drag_touched = app.hover_hit;
+    send_blade(app, app.blade_pose, false);  // the cut starts here
+  } else if (left && app.left_down) {
+    app.drag_touched |= app.hover_hit;
+    const BladePose& p = app.blade_pose;
+    if (p.a != app.last_sent_pose.a || p.b != app.last_sent_pose.b) send_blade(app, p, true);
+  } else if (!left && app.left_down) {
+    app.left_down = false;
+    send_blade(app, app.blade_pose, false);
+    app.cut_pending = true;
+    app.cut_release_stamp = app.last_blade_stamp;
+  }
+}
+
+void grab_mouse(AppState& app, bool left, bool free_mouse, const Ray& ray) {
+  if (left && !app.left_down && free_mouse && app.cursor_in_view) {
+    app.left_down = true;
+    SurfaceHit hit;
+    if (app.current && pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, 0,
+                                    app.camera.z_near, hit)) {
+      // The picked triangle's corner nearest the hit is the point highlighted while it moves.
+      const Tri& t = app.current->triangles[hit.triangle];
+      uint32_t best = t[0];
+      for (uint32_t v : t) {
+        if ((app.current->positions[v] - hit.point).squaredNorm() < (app.current->positions[best] - hit.point).squaredNorm()) best = v;
+      }
+      app.sim->keep_state();
+      app.grabbing = true;
+      app.grab_vertex = best;
+      app.grab_anchor = app.grab_target = hit.point;
+      send_grab(app, GrabCommand::kTarget, hit.point);
+    } else {
+      show_message(app, "grab: no tissue under the cursor");
+    }
+  } else if (left && app.left_down && app.grabbing) {
+    const Vec3f target = drag_target(app.camera, app.viewport, app.cursor, app.grab_anchor);
+    if (target != app.grab_target) {
+      send_grab(app, GrabCommand::kTarget, target);
+      app.grab_target = target;
+    }
+  } else if (!left && app.left_down) {
+    app.left_down = false;
+    if (app.grabbing) {
+      send_grab(app, GrabCommand::kRelease, Vec3f::Zero());
+      app.grabbing = false;
+    }
+  }
+}
+
 void handle_mouse(AppState& app, GLFWwindow* window) {
   double mx = 0, my = 0;
   glfwGetCursorPos(window, &mx, &my);
-  int ww = 1, wh = 1;
+  int ww = 1, wh = 1, fw = 1, fh = 1;
   glfwGetWindowSize(window, &ww, &wh);
-  // Window coordinates -> framebuffer pixels (HiDPI).
-  const Eigen::Vector2f pixel(float(mx) * float(app.viewport.width) / float(std::max(ww, 1)),
-                              float(my) * float(app.viewport.height) / float(std::max(wh, 1)));
+  glfwGetFramebufferSize(window, &fw, &fh);
+  // Window coordinates -> framebuffer pixels (HiDPI) -> view pixels (right of the panel).
+  const Eigen::Vector2f pixel(float(mx) * float(fw) / float(std::max(ww, 1)) - float(app.view_x),
+                              float(my) * float(fh) / float(std::max(wh, 1)));
   const Eigen::Vector2f delta = app.have_cursor ? Eigen::Vector2f(pixel - app.cursor) : Eigen::Vector2f::Zero();
   app.cursor = pixel;
   app.have_cursor = true;
+  app.cursor_in_view = pixel.x() >= 0 && pixel.y() >= 0 && pixel.x() < app.viewport.width && pixel.y() < app.viewport.height;
   const ImGuiIO& io = ImGui::GetIO();
-  const bool free_mouse = !io.WantCaptureMouse;
+  const bool free_mouse = !io.WantCaptureMouse && app.cursor_in_view;
   const bool shift = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
   const bool ctrl = glfwGetKey(window, GLFW_KEY_LEFT_CONTROL) == GLFW_PRESS ||
                     glfwGetKey(window, GLFW_KEY_RIGHT_CONTROL) == GLFW_PRESS;
   const bool left = glfwGetMouseButton(window, GLFW_MOUSE_BUTTON_LEFT) == GLFW_PRESS;
   const bool right = glfwGetMouseButton(window, GLFW_MOUSE_BUTTON_RIGHT) == GLFW_PRESS;
   const bool middle = glfwGetMouseButton(window, GLFW_MOUSE_BUTTON_MIDDLE) == GLFW_PRESS;
+  // A click in the view takes the keyboard from any text field (so shortcuts work again).
+  if (free_mouse && (left || right || middle) && io.WantCaptureKeyboard) ImGui::SetWindowFocus(nullptr);
 
   // Camera.
   if (free_mouse || app.camera_drag) {
@@ -209,123 +369,139 @@ void handle_mouse(AppState& app, GLFWwindow* window) {
   }
   // Wheel: zoom, or the scalpel's depth with ctrl.
   if (g_events.scroll != 0.0) {
-    if (ctrl && app.tool == Tool::kScalpel) {
-      if (app.blade_depth <= 0.0f) app.blade_depth = app.cursor_blade.depth;
-      app.blade_depth = std::max(app.camera.z_near, app.blade_depth - float(g_events.scroll) * 0.03f * app.radius);
+    if (ctrl) {
+      set_cut_depth(app, app.cut_depth * std::pow(1.15f, float(g_events.scroll)));
     } else {
       camera_zoom(app.camera, std::pow(0.9f, float(g_events.scroll)), app.radius);
     }
     g_events.scroll = 0.0;
   }
 
-  app.cursor_blade = blade_from_cursor(app.camera, app.viewport, pixel, app.bounds, app.status.scene.scalpel.length,
-                                       app.blade_depth);
+  const Ray ray = cursor_ray(app.camera, app.viewport, pixel);
+  aim_scalpel(app, ray, delta);
   if (app.status.playing && !app.status.play_done) return;  // the recording drives the tools
   if (!app.status.ready) return;
-
-  // Scalpel: left held cuts along the cursor ray.
-  if (app.tool == Tool::kScalpel) {
-    if (left && !app.left_down && free_mouse) {
-      app.left_down = true;
-      app.trail.clear();
-      send_blade(app, app.cursor_blade.pose, false);  // the cut starts here
-    } else if (left && app.left_down) {
-      const BladePose& p = app.cursor_blade.pose;
-      if (p.a != app.last_sent_pose.a || p.b != app.last_sent_pose.b) send_blade(app, p, true);
-    } else if (!left && app.left_down) {
-      app.left_down = false;
-      send_blade(app, app.cursor_blade.pose, false);
-    }
-  }
-  // Grab: left drag pulls the surface point under the cursor in the camera plane.
-  if (app.tool == Tool::kGrab) {
-    if (left && !app.left_down && free_mouse) {
-      app.left_down = true;
-      Vec3f picked;
-      if (app.current && pick_point(app.camera, app.viewport, pixel, app.current->positions, 6.0f, picked)) {
-        app.grabbing = true;
-        app.grab_anchor = picked;
-        StepCommands c;
-        c.grab.kind = GrabCommand::kTarget;
-        c.grab.target = picked.cast<double>();
-        app.sim->push_now(c);
-        app.grab_target = picked;
-      }
-    } else if (left && app.left_down && app.grabbing) {
-      const Vec3f target = drag_target(app.camera, app.viewport, pixel, app.grab_anchor);
-      if (target != app.grab_target) {
-        StepCommands c;
-        c.grab.kind = GrabCommand::kTarget;
-        c.grab.target = target.cast<double>();
-        app.sim->push_now(c);
-        app.grab_target = target;
-      }
-    } else if (!left && app.left_down) {
-      app.left_down = false;
-      if (app.grabbing) {
-        StepCommands c;
-        c.grab.kind = GrabCommand::kRelease;
-        app.sim->push_now(c);
-        app.grabbing = false;
-      }
-    }
-  }
+  if (app.tool == Tool::kScalpel) scalpel_mouse(app, left, free_mouse);
+  if (app.tool == Tool::kGrab) grab_mouse(app, left, free_mouse, ray);
 }
 
-// The blade and its trail as line segments.
-void overlay_lines(AppState& app, std::vector<LineVertex>& lines) {
-  lines.clear();
-  const auto add = [&](const Vec3d& a, const Vec3d& b, float r, float g, float bl, float alpha) {
-    lines.push_back({{float(a.x()), float(a.y()), float(a.z())}, {r, g, bl, alpha}});
-    lines.push_back({{float(b.x()), float(b.y()), float(b.z())}, {r, g, bl, alpha}});
-  };
-  std::vector<BladePose> trail;
-  BladePose blade;
-  bool blade_cutting = false, have_blade = false;
+// A finished drag says what it cut, once its last step has run.
+void report_cut(AppState& app) {
+  if (!app.cut_pending || app.status.step <= app.cut_release_stamp) return;
+  app.cut_pending = false;
+  const uint64_t cut = app.status.voxels_cut - std::min(app.status.voxels_cut, app.cut_voxels_before);
+  char text[256];
+  if (cut > 0) {
+    std::snprintf(text, sizeof text, "cut %llu voxels (ctrl+z undoes it)", static_cast<unsigned long long>(cut));
+  } else if (!app.drag_touched) {
+    std::snprintf(text, sizeof text, "the cut hit nothing: the cursor never crossed the tissue");
+  } else {
+    std::snprintf(text, sizeof text, "the cut hit nothing: drag across the tissue (deeper: ctrl+wheel or ])");
+  }
+  show_message(app, text);
+  std::printf("cut: %llu voxels\n", static_cast<unsigned long long>(cut));
+  std::fflush(stdout);
+}
+
+void add_line(std::vector<LineVertex>& lines, const Vec3d& a, const Vec3d& b, const Eigen::Vector4f& c) {
+  lines.push_back({{float(a.x()), float(a.y()), float(a.z())}, {c.x(), c.y(), c.z(), c.w()}});
+  lines.push_back({{float(b.x()), float(b.y()), float(b.z())}, {c.x(), c.y(), c.z(), c.w()}});
+}
+
+// The blade to draw: the recording's at the displayed step while playing, else the mouse's.
+bool blade_to_draw(AppState& app, BladePose& blade, bool& cutting, std::vector<BladePose>& trail) {
+  trail.clear();
   if (app.status.playing && !app.play_poses.empty() && app.current) {
-    // The recorded blade at the displayed step, and its recent cutting poses.
     const uint32_t step = app.current->step;
     auto it = std::upper_bound(app.play_poses.begin(), app.play_poses.end(), step,
                                [](uint32_t s, const PlayPose& p) { return s < p.step; });
-    if (it != app.play_poses.begin()) {
-      const auto last = it - 1;
-      blade = last->pose;
-      blade_cutting = last->cutting;
-      have_blade = true;
-      for (auto k = last; k >= app.play_poses.begin() && int(last - k) < app.trail_length; --k) {
-        if (!k->cutting) break;
-        trail.insert(trail.begin(), k->pose);
-        if (k == app.play_poses.begin()) break;
+    if (it == app.play_poses.begin()) return false;
+    const auto last = it - 1;
+    blade = last->pose;
+    cutting = last->cutting;
+    for (auto k = last; k >= app.play_poses.begin() && int(last - k) < app.trail_length; --k) {
+      if (!k->cutting) break;
+      trail.insert(trail.begin(), k->pose);
+      if (k == app.play_poses.begin()) break;
+    }
+    return true;
+  }
+  if (app.tool != Tool::kScalpel || !app.cursor_in_view) return false;
+  blade = app.blade_pose;
+  cutting = app.left_down;
+  trail.assign(app.trail.begin(), app.trail.end());
+  return true;
+}
+
+// The overlays: the scalpel (solid), its entry mark and trail, the grabbed point and its pull.
+void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector<SolidVertex>& solids) {
+  lines.clear();
+  solids.clear();
+  std::vector<BladePose> trail;
+  BladePose blade;
+  bool cutting = false;
+  if (blade_to_draw(app, blade, cutting, trail)) {
+    if (app.show_trail && trail.size() > 1) {
+      for (size_t k = 0; k + 1 < trail.size(); ++k) {
+        const float alpha = 0.25f + 0.6f * float(k) / float(trail.size());
+        add_line(lines, trail[k].b, trail[k + 1].b, Eigen::Vector4f(1.0f, 0.85f, 0.3f, alpha));
       }
     }
-  } else if (app.tool == Tool::kScalpel && app.have_cursor) {
-    blade = app.cursor_blade.pose;
-    blade_cutting = app.left_down;
-    have_blade = true;
-    trail.assign(app.trail.begin(), app.trail.end());
-  }
-  if (app.show_trail && trail.size() > 1) {
-    for (size_t k = 0; k + 1 < trail.size(); ++k) {
-      const float alpha = 0.25f + 0.6f * float(k) / float(trail.size());
-      add(trail[k].a, trail[k + 1].a, 1.0f, 0.85f, 0.3f, alpha);
-      add(trail[k].b, trail[k + 1].b, 1.0f, 0.85f, 0.3f, alpha);
-      if (k % 4 == 0) add(trail[k].a, trail[k].b, 1.0f, 0.85f, 0.3f, 0.35f * alpha);
+    ScalpelStyle style;
+    style.blade_width = std::max(0.05f * app.radius, 2.0f * app.voxel_size);
+    style.handle_length = 0.35f * app.radius;
+    if (cutting) style.edge_color = Vec3f(1.0f, 0.35f, 0.3f);
+    scalpel_mesh(blade.a.cast<float>(), blade.b.cast<float>(), app.edge_dir, style, solids);
+    // The entry mark: a ring in the view plane where the blade meets the surface.
+    if (app.hover_hit && !app.status.playing) {
+      const Vec3f c = app.hover.point, r = camera_right(app.camera), u = camera_up(app.camera);
+      const float radius = 0.012f * app.hover.t;
+      const Eigen::Vector4f colour = cutting ? Eigen::Vector4f(1.0f, 0.35f, 0.3f, 1.0f) : Eigen::Vector4f(0.4f, 0.95f, 1.0f, 1.0f);
+      for (int k = 0; k < 16; ++k) {
+        const float a0 = float(k) * 0.3926991f, a1 = float(k + 1) * 0.3926991f;
+        add_line(lines, (c + radius * (std::cos(a0) * r + std::sin(a0) * u)).cast<double>(),
+                 (c + radius * (std::cos(a1) * r + std::sin(a1) * u)).cast<double>(), colour);
+      }
     }
   }
-  if (have_blade) {
-    if (blade_cutting) {
-      add(blade.a, blade.b, 1.0f, 0.3f, 0.25f, 1.0f);
-    } else {
-      add(blade.a, blade.b, 0.85f, 0.9f, 1.0f, 0.9f);
+  if (app.grabbing && app.current && app.grab_vertex < app.current->positions.size()) {
+    const Vec3f p = app.current->positions[app.grab_vertex];
+    if (p.allFinite()) {
+      marker_mesh(p, 0.03f * app.radius, Vec3f(0.3f, 1.0f, 0.45f), solids);
+      add_line(lines, p.cast<double>(), app.grab_target.cast<double>(), Eigen::Vector4f(0.3f, 1.0f, 0.45f, 1.0f));
+      marker_mesh(app.grab_target, 0.015f * app.radius, Vec3f(1.0f, 1.0f, 1.0f), solids);
     }
-  }
-  if (app.grabbing) {
-    const Vec3d a = app.grab_anchor.cast<double>(), b = app.grab_target.cast<double>();
-    add(a, b, 0.3f, 1.0f, 0.4f, 1.0f);
   }
 }
 
+// The depth next to the cursor while aiming (ImGui's foreground layer, so it is never hidden).
+void cursor_label(AppState& app) {
+  if (app.tool != Tool::kScalpel || !app.cursor_in_view || app.status.playing) return;
+  char text[96];
+  if (app.hover_hit || app.left_down) {
+    std::snprintf(text, sizeof text, "depth %.2f", app.cut_depth);
+  } else {
+    std::snprintf(text, sizeof text, "no tissue here");
+  }
+  const ImVec2 at(float(app.view_x) + app.cursor.x() + 18.0f, app.cursor.y() + 12.0f);
+  ImGui::GetForegroundDrawList()->AddText(at, IM_COL32(230, 240, 255, 230), text);
+}
+
 }  // namespace
+
+void show_message(AppState& app, const std::string& text, double seconds) {
+  app.message = text;
+  app.message_until = seconds > 0 ? glfwGetTime() + seconds : 0.0;
+}
+
+void request_undo(AppState& app, bool redo) {
+  if (app.left_down) return;  // not in the middle of a drag
+  if (redo) {
+    app.sim->redo();
+  } else {
+    app.sim->undo();
+  }
+}
 
 int run_window(const WindowOptions& options) {
   AppState app;
@@ -383,11 +559,17 @@ int run_window(const WindowOptions& options) {
   glfwGetFramebufferSize(window, &fb_w, &fb_h);
   fb_w = std::max(fb_w, 16);
   fb_h = std::max(fb_h, 16);
-  // MSAA on a GPU; none on a software rasteriser (llvmpipe), where it costs a lot.
-  const int samples = gl_renderer.find("llvmpipe") != std::string::npos || gl_renderer.find("softpipe") != std::string::npos ? 0 : 4;
+  // The 3D view: right of the docked panel.
+  app.panel_width = panel_width_for(fb_w);
+  app.view_x = app.panel_width;
+  const int view_w = std::max(fb_w - app.view_x, 16);
+  // 4x MSAA on a GPU, 2x on a software rasteriser (llvmpipe), where every sample costs CPU time.
+  const bool software = gl_renderer.find("llvmpipe") != std::string::npos || gl_renderer.find("softpipe") != std::string::npos;
+  int samples = software ? 2 : 4;
+  if (const char* msaa = std::getenv("DIVVOX_MSAA")) samples = std::clamp(std::atoi(msaa), 0, 16);
   Renderer renderer;
   std::string error;
-  if (!renderer_init(renderer, fb_w, fb_h, error, samples)) {
+  if (!renderer_init(renderer, view_w, fb_h, error, samples)) {
     std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
     glfwDestroyWindow(window);
     glfwTerminate();
@@ -395,6 +577,8 @@ int run_window(const WindowOptions& options) {
   }
   LineOverlay overlay;
   if (!overlay_init(overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no blade overlay)\n", error.c_str());
+  SolidOverlay solid_overlay;
+  if (!solid_overlay_init(solid_overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
 
   glfwSetScrollCallback(window, on_scroll);
   glfwSetKeyCallback(window, on_key);
@@ -409,8 +593,9 @@ int run_window(const WindowOptions& options) {
   app.sim = &sim;
   app.renderer = &renderer;
   app.gl_renderer = gl_renderer;
-  app.viewport = {fb_w, fb_h};
+  app.viewport = {view_w, fb_h};
   app.window_options = options;
+  app.draw.cull_back_faces = true;
   std::snprintf(app.record_path, sizeof app.record_path, "%s",
                 options.record_path.empty() ? "divvox_recording.jsonl" : options.record_path.c_str());
   if (!options.play_path.empty()) {
@@ -430,10 +615,20 @@ int run_window(const WindowOptions& options) {
   int exit_code = kExitOk;
   uint64_t generation = 0, last_sequence = 0;
   uint64_t counted_frames = 0;
-  std::vector<Vec3f> normals;
   std::vector<LineVertex> lines;
+  std::vector<SolidVertex> solids;
   Clock::time_point last_frame = Clock::now(), first_counted;
   std::vector<double> render_ms_all, interval_ms_all;
+  // DIVVOX_FRAME_PROFILE=1: glFinish after each phase, so the phase times below are the GPU's too
+  // (costs some pipelining; for measuring only).
+  const char* profile_env = std::getenv("DIVVOX_FRAME_PROFILE");
+  const bool profile = profile_env != nullptr && std::string(profile_env) == "1";
+  // Normals on the GPU, except on a software rasteriser (there its compute passes run on the same
+  // CPU cores, ~40x slower than the plain loop); DIVVOX_GPU_NORMALS=0/1 overrides.
+  bool gpu_normals = !software;
+  if (const char* g = std::getenv("DIVVOX_GPU_NORMALS")) gpu_normals = std::string(g) == "1";
+  SplitNormals split;
+  std::vector<double> phase_ms[6];  // upload, normals, draw, overlays + blit, panels, swap
   while (!glfwWindowShouldClose(window)) {
     glfwPollEvents();
     app.status = sim.status();
@@ -447,6 +642,12 @@ int run_window(const WindowOptions& options) {
       app.bounds = app.status.bounds;
       app.edit = scene_edit_of(app.status.scene);
       frame_camera(app);
+      app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.resolution, 1));
+      app.cut_depth = float(app.status.scene.scalpel.length);
+      set_cut_depth(app, app.cut_depth);
+      app.cut_pending = false;
+      app.restores_seen = app.status.restores;
+      app.undo_notes_seen = app.status.undo_notes;
       app.trail.clear();
       app.blade_sent = false;
       app.last_blade_stamp = 0;
@@ -454,10 +655,33 @@ int run_window(const WindowOptions& options) {
       app.latency_probe_stamp = 0;
       if (app.status.playing) load_play_poses(app, app.status.play_path);
     }
-    // Window resize: a new offscreen target.
+    // An undo or redo ran: the mouse's stamps start again from the restored step.
+    if (app.status.restores != app.restores_seen) {
+      app.restores_seen = app.status.restores;
+      app.blade_sent = false;
+      app.last_blade_stamp = 0;
+      app.trail.clear();
+      app.grabbing = app.cut_pending = false;
+      app.latency_probe_stamp = 0;
+    }
+    if (app.status.undo_notes != app.undo_notes_seen) {
+      app.undo_notes_seen = app.status.undo_notes;
+      show_message(app, app.status.undo_note, 4.0);
+    }
+    if (app.message_until > 0.0 && glfwGetTime() > app.message_until) {
+      app.message.clear();
+      app.message_until = 0.0;
+    }
+    report_cut(app);
+    // Window resize: a new panel width and offscreen target.
     glfwGetFramebufferSize(window, &fb_w, &fb_h);
-    if (fb_w >= 16 && fb_h >= 16 && (fb_w != renderer.width || fb_h != renderer.height)) {
-      if (renderer_resize(renderer, fb_w, fb_h, error)) app.viewport = {fb_w, fb_h};
+    if (fb_w >= 16 && fb_h >= 16) {
+      app.panel_width = panel_width_for(fb_w);
+      app.view_x = app.panel_width;
+      const int vw = std::max(fb_w - app.view_x, 16);
+      if ((vw != renderer.width || fb_h != renderer.height) && renderer_resize(renderer, vw, fb_h, error)) {
+        app.viewport = {vw, fb_h};
+      }
     }
 
     ImGui_ImplOpenGL3_NewFrame();
@@ -468,10 +692,11 @@ int run_window(const WindowOptions& options) {
 
     // The newest snapshot: upload what changed.
     const Clock::time_point t0 = Clock::now();
+    double cpu_normals_ms = 0.0;
     if (const Snapshot* s = sim.exchange().take()) {
       app.current = s;
-      upload_snapshot(renderer, *s, s->sequence != last_sequence + 1 || s->sequence == sim.generation_first_sequence(),
-                      normals);
+      const bool full = s->sequence != last_sequence + 1 || s->sequence == sim.generation_first_sequence();
+      cpu_normals_ms = upload_snapshot_split_normals(renderer, *s, full, gpu_normals ? nullptr : &split);
       last_sequence = s->sequence;
       app.triangles = 0;
       for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
@@ -481,18 +706,31 @@ int run_window(const WindowOptions& options) {
         app.latency_probe_stamp = 0;
       }
     }
+    if (profile) glFinish();
     const Clock::time_point t1 = Clock::now();
+    renderer_update_normals(renderer);
+    if (profile) glFinish();
+    const Clock::time_point t1n = Clock::now();
     renderer_draw(renderer, app.camera, app.draw);
-    overlay_lines(app, lines);
-    overlay_draw(overlay, renderer.resolve_framebuffer, renderer.width, renderer.height, app.camera, lines);
-    renderer_blit(renderer, 0, fb_w, fb_h);
+    if (profile) glFinish();
+    const Clock::time_point t1d = Clock::now();
+    overlay_geometry(app, lines, solids);
+    solid_overlay_draw(solid_overlay, renderer.framebuffer, renderer.width, renderer.height, app.camera, solids);
+    overlay_draw(overlay, renderer.framebuffer, renderer.width, renderer.height, app.camera, lines);
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    glClearColor(0.1f, 0.1f, 0.12f, 1.0f);
+    glClear(GL_COLOR_BUFFER_BIT);
+    renderer_blit(renderer, 0, renderer.width, renderer.height, app.view_x, 0);
+    if (profile) glFinish();
     const Clock::time_point t2 = Clock::now();
 
+    cursor_label(app);
     draw_panels(app);
     ImGui::Render();
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     glViewport(0, 0, fb_w, fb_h);
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+    if (profile) glFinish();
     const Clock::time_point t3 = Clock::now();
     glfwSwapBuffers(window);
     const Clock::time_point t4 = Clock::now();
@@ -501,6 +739,14 @@ int run_window(const WindowOptions& options) {
     const double render_ms = ms_between(t0, t3), interval = ms_between(last_frame, t4);
     last_frame = t4;
     app.push_frame(ms_between(t0, t1), ms_between(t1, t2), render_ms, interval);
+    if (app.status.ready && app.current != nullptr) {
+      phase_ms[0].push_back(ms_between(t0, t1) - cpu_normals_ms);
+      phase_ms[1].push_back(ms_between(t1, t1n) + cpu_normals_ms);
+      phase_ms[2].push_back(ms_between(t1n, t1d));
+      phase_ms[3].push_back(ms_between(t1d, t2));
+      phase_ms[4].push_back(ms_between(t2, t3));
+      phase_ms[5].push_back(ms_between(t3, t4));
+    }
     ++app.frame;
     if (app.status.ready && app.current != nullptr) {
       if (counted_frames == 0) first_counted = t4;
@@ -534,6 +780,11 @@ int run_window(const WindowOptions& options) {
                 seconds > 0 ? double(counted_frames - 1) / seconds : 0.0,
                 render_ms_all[render_ms_all.size() / 2], render_ms_all[std::min(render_ms_all.size() - 1, size_t(0.99 * render_ms_all.size()))],
                 app.status.step, gl_renderer.c_str());
+    std::printf("window: %s phase ms p50 (p95): upload %s, normals %s, draw %s, overlays+blit %s, panels %s, swap %s; fps p50 %.1f p5 %.1f\n",
+                profile ? "(profiled)" : "(not profiled: phases overlap on the GPU)", percentiles(phase_ms[0]).c_str(),
+                percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
+                percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms_all, 0.5),
+                fps_percentile(interval_ms_all, 0.05));
     if (!app.latency_frames.empty()) {
       std::printf("input to cut latency: %.2f frames mean over %zu cuts\n", latency / double(app.latency_frames.size()),
                   app.latency_frames.size());
@@ -552,6 +803,7 @@ int run_window(const WindowOptions& options) {
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
   overlay_destroy(overlay);
+  solid_overlay_destroy(solid_overlay);
   renderer_destroy(renderer);
   glfwDestroyWindow(window);
   glfwTerminate();

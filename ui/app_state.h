@@ -32,32 +32,49 @@ struct AppState {
   SimStatus status;                  // copied from the simulation thread each frame
   const Snapshot* current = nullptr;  // the snapshot on screen (valid until the next take)
 
-  // View.
+  // View: the 3D view fills the window right of the docked panel (`view_x` framebuffer pixels in);
+  // the renderer's image is the view's size, so the camera frames what is visible.
   Camera camera;
-  Viewport viewport;
+  Viewport viewport;  // the 3D view (not the window)
+  int view_x = 0, panel_width = 0;
   Aabb bounds;
-  float radius = 1.0f;
+  float radius = 1.0f, voxel_size = 0.1f;
   DrawOptions draw;
-  bool show_trail = true, show_help = false;
+  bool show_trail = false, show_help = false;
   int trail_length = 48;
 
   // Tools.
   Tool tool = Tool::kScalpel;
-  Eigen::Vector2f cursor = Eigen::Vector2f::Zero();
-  bool have_cursor = false, left_down = false, camera_drag = false;
-  CursorBlade cursor_blade;
-  float blade_depth = 0.0f;  // > 0: set with ctrl+wheel
+  Eigen::Vector2f cursor = Eigen::Vector2f::Zero();  // view pixels
+  bool have_cursor = false, cursor_in_view = false, left_down = false, camera_drag = false;
+  // The scalpel: aimed at the surface point under the cursor (`hover`), `cut_depth` into the tissue.
+  bool hover_hit = false;
+  SurfaceHit hover;
+  float entry_t = 0.0f;      // eye distance of the blade's entry (kept while a drag leaves the object)
+  float cut_depth = 1.0f;    // scene units, set live (ctrl+wheel, [ and ], the Tools slider)
+  BladePose blade_pose;      // the pose under the cursor now
+  Vec3f edge_dir = Vec3f(1, 0, 0);  // world direction the blade's edge faces (the drag's direction)
   bool blade_sent = false, last_cutting = false;
   uint32_t last_blade_stamp = 0;
   BladePose last_sent_pose;
   std::deque<BladePose> trail;
+  // A drag's outcome: voxels cut between its press and the step after its release.
+  bool cut_pending = false;
+  uint32_t cut_release_stamp = 0;
+  uint64_t cut_voxels_before = 0;
+  bool drag_touched = false;  // the cursor was over the tissue during the drag
+  // Grab: the surface vertex slot picked (highlighted as it moves) and where it is pulled.
   bool grabbing = false;
+  uint32_t grab_vertex = 0;
   Vec3f grab_anchor = Vec3f::Zero(), grab_target = Vec3f::Zero();
+  float grab_strength = 7.0f;  // -log10 of the grab compliance (7: 1e-7)
   std::vector<PlayPose> play_poses;
+  uint64_t restores_seen = 0, undo_notes_seen = 0;
 
   // Panels.
   SceneEdit edit;
   std::string edit_error, message;
+  double message_until = 0.0;  // glfw time when `message` stops showing (0: until replaced)
   char scene_path[512] = {};
   char record_path[512] = {};
   char play_path[512] = {};
@@ -86,8 +103,14 @@ struct AppState {
   }
 };
 
-// The ImGui panels (ui/panels.cpp).
+// The ImGui panels (ui/panels.cpp): docked on the left, `app.panel_width` wide, the window's height.
 void draw_panels(AppState& app);
+// The docked panel's width for a framebuffer width (fixed per window size: never dragged).
+int panel_width_for(int framebuffer_width);
+// A status-line message for `seconds` (0: until replaced).
+void show_message(AppState& app, const std::string& text, double seconds = 6.0);
+// Undo / redo requests (keys and buttons).
+void request_undo(AppState& app, bool redo);
 // Reads the last scene image back and writes it as PNG; `message` says what happened.
 bool take_screenshot(AppState& app, const std::string& path, std::string& message);
 std::string default_screenshot_name();

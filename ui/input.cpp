@@ -1,7 +1,9 @@
 #include "ui/input.h"
 
 #include "engine/errors.h"
+#include "sim/cut.h"
 
+#include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -57,6 +59,58 @@ CursorBlade blade_from_cursor(const Camera& camera, const Viewport& viewport, co
   blade.pose.a = origin + double(blade.depth) * dir;
   blade.pose.b = blade.pose.a + length * dir;
   return blade;
+}
+
+bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit) {
+  const uint32_t n = uint32_t(positions.size());
+  const bool have_flags = flags.size() == triangles.size();
+  float best = std::numeric_limits<float>::infinity();
+  uint32_t best_tri = kDeadIndex;
+  const Vec3f& o = ray.origin;
+  const Vec3f& d = ray.direction;
+  for (uint32_t k = 0; k < uint32_t(triangles.size()); ++k) {
+    const Tri& t = triangles[k];
+    if (t[0] >= n || t[1] >= n || t[2] >= n) continue;  // dead slot
+    if (have_flags && (flags[k] & skip_flags) != 0) continue;
+    // Moller-Trumbore, two-sided.
+    const Vec3f& p0 = positions[t[0]];
+    const Vec3f e1 = positions[t[1]] - p0, e2 = positions[t[2]] - p0;
+    const Vec3f q = d.cross(e2);
+    const float det = e1.dot(q);
+    if (!(std::abs(det) > 1e-20f)) continue;  // parallel, degenerate or NaN
+    const float inv = 1.0f / det;
+    const Vec3f s = o - p0;
+    const float u = s.dot(q) * inv;
+    if (u < 0.0f || u > 1.0f) continue;
+    const Vec3f r = s.cross(e1);
+    const float v = d.dot(r) * inv;
+    if (v < 0.0f || u + v > 1.0f) continue;
+    const float dist = e2.dot(r) * inv;
+    if (dist > t_min && dist < best) {
+      best = dist;
+      best_tri = k;
+    }
+  }
+  if (best_tri == kDeadIndex) return false;
+  hit.t = best;
+  hit.triangle = best_tri;
+  hit.point = o + best * d;
+  return true;
+}
+
+BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry, double depth, double lead,
+                       float tilt) {
+  // Tilt the ray toward the screen's bottom (rotate about the axis right x ray).
+  const Vec3f down = -camera_up(camera);
+  Vec3f side = down - down.dot(ray.direction) * ray.direction;
+  Vec3f dir = ray.direction;
+  if (side.squaredNorm() > 1e-12f) dir = std::cos(tilt) * ray.direction + std::sin(tilt) * side.normalized();
+  const Vec3d e = entry.cast<double>(), u = dir.cast<double>().normalized();
+  BladePose pose;
+  pose.a = e - lead * u;
+  pose.b = e + depth * u;
+  return pose;
 }
 
 void camera_orbit(Camera& camera, float dx, float dy, float radians_per_pixel) {

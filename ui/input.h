@@ -38,6 +38,25 @@ struct CursorBlade {
 CursorBlade blade_from_cursor(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
                               const Aabb& box, double length, float depth = 0.0f);
 
+// Surface picking: the nearest triangle the ray crosses (either side; Moller-Trumbore) among live
+// slots (kDeadIndex and non-finite corners skipped). Triangles whose flags share a bit with
+// `skip_flags` are ignored (during a drag the scalpel ignores cut faces, so it does not dive into
+// the slit it just opened). False when the ray hits nothing in front of `t_min`.
+struct SurfaceHit {
+  float t = 0.0f;        // distance along the ray
+  uint32_t triangle = 0;  // slot
+  Vec3f point = Vec3f::Zero();
+};
+bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit);
+
+// The scalpel aimed at a surface point: the blade enters at `entry` (on the surface under the
+// cursor) and goes `depth` into the tissue along the cursor ray tilted by `tilt` radians toward the
+// bottom of the screen (a pen-held scalpel: tilted, the blade's depth shows on screen; untilted it
+// would be seen end-on). The sweep starts `lead` before the entry, so the surface itself is cut.
+BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry, double depth, double lead,
+                       float tilt = 0.35f);
+
 // Camera moves by mouse. Orbit: yaw/pitch by pixels dragged (pitch kept within +-89 degrees);
 // target and distance unchanged. Pan: the target moves in the view plane so the point under the
 // cursor at the target's depth follows the cursor; distance and angles unchanged. Zoom: distance

@@ -21,6 +21,41 @@ out vec4 frag;
 void main() { frag = v_color; }
 )";
 
+// Lit solids: a headlight plus a key light from the upper left, metallic highlights.
+const char* kSolidVertex = R"(#version 450 core
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec3 normal;
+layout(location = 2) in vec4 color;
+uniform mat4 mvp;
+uniform mat4 view;
+out vec4 v_color;
+out vec3 v_normal;
+out vec3 v_eye;
+void main() {
+  gl_Position = mvp * vec4(position, 1.0);
+  v_color = color;
+  v_normal = mat3(view) * normal;
+  v_eye = (view * vec4(position, 1.0)).xyz;
+}
+)";
+
+const char* kSolidFragment = R"(#version 450 core
+in vec4 v_color;
+in vec3 v_normal;
+in vec3 v_eye;
+uniform float alpha;
+out vec4 frag;
+void main() {
+  vec3 n = normalize(v_normal);
+  vec3 v = normalize(-v_eye);
+  if (dot(n, v) < 0.0) n = -n;
+  const vec3 key = normalize(vec3(-0.4, 0.6, 0.7));
+  float diffuse = 0.55 * max(dot(n, key), 0.0) + 0.35 * max(dot(n, v), 0.0);
+  float spec = 0.6 * pow(max(dot(n, normalize(key + v)), 0.0), 40.0);
+  frag = vec4(v_color.rgb * (0.25 + diffuse) + vec3(spec), alpha);
+}
+)";
+
 uint32_t compile(GLenum type, const char* source, std::string& error) {
   const GLuint shader = glCreateShader(type);
   glShaderSource(shader, 1, &source, nullptr);
@@ -37,28 +72,44 @@ uint32_t compile(GLenum type, const char* source, std::string& error) {
   return shader;
 }
 
-}  // namespace
-
-bool overlay_init(LineOverlay& o, std::string& error) {
-  const GLuint vs = compile(GL_VERTEX_SHADER, kVertex, error);
-  if (vs == 0) return false;
-  const GLuint fs = compile(GL_FRAGMENT_SHADER, kFragment, error);
+uint32_t link(const char* vertex, const char* fragment, std::string& error) {
+  const GLuint vs = compile(GL_VERTEX_SHADER, vertex, error);
+  if (vs == 0) return 0;
+  const GLuint fs = compile(GL_FRAGMENT_SHADER, fragment, error);
   if (fs == 0) {
     glDeleteShader(vs);
-    return false;
+    return 0;
   }
-  o.program = glCreateProgram();
-  glAttachShader(o.program, vs);
-  glAttachShader(o.program, fs);
-  glLinkProgram(o.program);
+  const GLuint program = glCreateProgram();
+  glAttachShader(program, vs);
+  glAttachShader(program, fs);
+  glLinkProgram(program);
   glDeleteShader(vs);
   glDeleteShader(fs);
   GLint ok = 0;
-  glGetProgramiv(o.program, GL_LINK_STATUS, &ok);
+  glGetProgramiv(program, GL_LINK_STATUS, &ok);
   if (!ok) {
     error = "overlay program does not link";
-    return false;
+    glDeleteProgram(program);
+    return 0;
   }
+  return program;
+}
+
+// Grows `buffer` to hold `count` vertices of `stride` bytes and fills it.
+void upload_vertices(uint32_t buffer, size_t& capacity, const void* data, size_t count, size_t stride) {
+  if (count > capacity) {
+    while (capacity < count) capacity *= 2;
+    glNamedBufferData(buffer, GLsizeiptr(capacity * stride), nullptr, GL_DYNAMIC_DRAW);
+  }
+  glNamedBufferSubData(buffer, 0, GLsizeiptr(count * stride), data);
+}
+
+}  // namespace
+
+bool overlay_init(LineOverlay& o, std::string& error) {
+  o.program = link(kVertex, kFragment, error);
+  if (o.program == 0) return false;
   glCreateVertexArrays(1, &o.vertex_array);
   glCreateBuffers(1, &o.buffer);
   o.capacity = 256;
@@ -76,11 +127,7 @@ bool overlay_init(LineOverlay& o, std::string& error) {
 void overlay_draw(LineOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
                   const std::vector<LineVertex>& vertices, float line_width) {
   if (vertices.empty() || o.program == 0) return;
-  if (vertices.size() > o.capacity) {
-    while (o.capacity < vertices.size()) o.capacity *= 2;
-    glNamedBufferData(o.buffer, GLsizeiptr(o.capacity * sizeof(LineVertex)), nullptr, GL_DYNAMIC_DRAW);
-  }
-  glNamedBufferSubData(o.buffer, 0, GLsizeiptr(vertices.size() * sizeof(LineVertex)), vertices.data());
+  upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(LineVertex));
   const Eigen::Matrix4f mvp = projection_matrix(camera, float(width) / float(std::max(height, 1))) * view_matrix(camera);
   glBindFramebuffer(GL_FRAMEBUFFER, framebuffer);
   glViewport(0, 0, width, height);
@@ -105,6 +152,64 @@ void overlay_destroy(LineOverlay& o) {
   if (o.vertex_array) glDeleteVertexArrays(1, &o.vertex_array);
   if (o.program) glDeleteProgram(o.program);
   o = LineOverlay();
+}
+
+bool solid_overlay_init(SolidOverlay& o, std::string& error) {
+  o.program = link(kSolidVertex, kSolidFragment, error);
+  if (o.program == 0) return false;
+  glCreateVertexArrays(1, &o.vertex_array);
+  glCreateBuffers(1, &o.buffer);
+  o.capacity = 512;
+  glNamedBufferData(o.buffer, GLsizeiptr(o.capacity * sizeof(SolidVertex)), nullptr, GL_DYNAMIC_DRAW);
+  glVertexArrayVertexBuffer(o.vertex_array, 0, o.buffer, 0, sizeof(SolidVertex));
+  const GLint sizes[3] = {3, 3, 4};
+  const GLuint offsets[3] = {offsetof(SolidVertex, position), offsetof(SolidVertex, normal), offsetof(SolidVertex, color)};
+  for (GLuint a = 0; a < 3; ++a) {
+    glEnableVertexArrayAttrib(o.vertex_array, a);
+    glVertexArrayAttribFormat(o.vertex_array, a, sizes[a], GL_FLOAT, GL_FALSE, offsets[a]);
+    glVertexArrayAttribBinding(o.vertex_array, a, 0);
+  }
+  return true;
+}
+
+void solid_overlay_draw(SolidOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
+                        const std::vector<SolidVertex>& vertices, float ghost_alpha) {
+  if (vertices.empty() || o.program == 0) return;
+  upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(SolidVertex));
+  const Eigen::Matrix4f view = view_matrix(camera);
+  const Eigen::Matrix4f mvp = projection_matrix(camera, float(width) / float(std::max(height, 1))) * view;
+  glBindFramebuffer(GL_FRAMEBUFFER, framebuffer);
+  glViewport(0, 0, width, height);
+  glDisable(GL_CULL_FACE);
+  glUseProgram(o.program);
+  glUniformMatrix4fv(glGetUniformLocation(o.program, "mvp"), 1, GL_FALSE, mvp.data());
+  glUniformMatrix4fv(glGetUniformLocation(o.program, "view"), 1, GL_FALSE, view.data());
+  glBindVertexArray(o.vertex_array);
+  const GLint alpha = glGetUniformLocation(o.program, "alpha");
+  // Pass 1: the parts behind the surface, faint (no depth test, no depth writes).
+  glEnable(GL_BLEND);
+  glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
+  glDisable(GL_DEPTH_TEST);
+  glDepthMask(GL_FALSE);
+  glUniform1f(alpha, ghost_alpha);
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
+  // Pass 2: the visible parts, opaque, depth-tested against the surface and themselves.
+  glDisable(GL_BLEND);
+  glEnable(GL_DEPTH_TEST);
+  glDepthFunc(GL_LEQUAL);
+  glDepthMask(GL_TRUE);
+  glUniform1f(alpha, 1.0f);
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
+  glBindVertexArray(0);
+  glUseProgram(0);
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+}
+
+void solid_overlay_destroy(SolidOverlay& o) {
+  if (o.buffer) glDeleteBuffers(1, &o.buffer);
+  if (o.vertex_array) glDeleteVertexArrays(1, &o.vertex_array);
+  if (o.program) glDeleteProgram(o.program);
+  o = SolidOverlay();
 }
 
 }  // namespace dvx

@@ -1,7 +1,10 @@
-// A tiny GL line renderer for the window's overlays (the scalpel blade and its swept trail):
-// coloured 3D segments drawn into the renderer's resolved image, on top of the surface.
+// The window's overlays: coloured 3D segments (the blade's trail, the grab line, the entry mark)
+// drawn on top of the surface, and small lit solids (the scalpel, the grabbed point) drawn into the
+// renderer's framebuffer against its depth: hidden parts (the blade inside the tissue) show through
+// as a faint ghost, so the blade's depth stays visible.
 #pragma once
 
+#include "render/blade_mesh.h"
 #include "render/camera.h"
 
 #include <cstdint>
@@ -25,5 +28,16 @@ bool overlay_init(LineOverlay& overlay, std::string& error);
 void overlay_draw(LineOverlay& overlay, uint32_t framebuffer, int width, int height, const Camera& camera,
                   const std::vector<LineVertex>& vertices, float line_width = 2.0f);
 void overlay_destroy(LineOverlay& overlay);
+
+struct SolidOverlay {
+  uint32_t program = 0, vertex_array = 0, buffer = 0;
+  size_t capacity = 0;
+};
+bool solid_overlay_init(SolidOverlay& overlay, std::string& error);
+// Draws `vertices` (GL_TRIANGLES) into `framebuffer` (which must have the scene's depth): first the
+// parts behind the surface at `ghost_alpha`, then the visible parts opaque.
+void solid_overlay_draw(SolidOverlay& overlay, uint32_t framebuffer, int width, int height, const Camera& camera,
+                        const std::vector<SolidVertex>& vertices, float ghost_alpha = 0.35f);
+void solid_overlay_destroy(SolidOverlay& overlay);
 
 }  // namespace dvx

@@ -1,4 +1,7 @@
-// The window's ImGui panels: scene, simulation, tools, view, performance, recording, help.
+// The window's ImGui panel, docked on the left at a fixed width (it cannot be dragged, resized or
+// seen through; the 3D view starts right of it): a status line, then tools, simulation, view,
+// performance, scene, recording and help sections, the rarely used ones collapsed. Every label
+// fits at 1280x720 (items take half the width, long text wraps).
 #include "engine/errors.h"
 #include "ui/app_state.h"
 
@@ -32,7 +35,7 @@ void open_scene_file(AppState& app, const std::string& path) {
     const Scene scene = load_scene(path);
     app.sim->open(scene, scene.solver.dt);
     app.edit_error.clear();
-    app.message = "opening " + path;
+    show_message(app, "opening " + path, 4.0);
   } catch (const InputError& e) {
     app.edit_error = e.what();
   }
@@ -50,13 +53,13 @@ void plot(const char* label, const std::vector<float>& values, const char* unit)
 }
 
 void scene_panel(AppState& app) {
-  if (!ImGui::CollapsingHeader("Scene", ImGuiTreeNodeFlags_DefaultOpen)) return;
+  if (!ImGui::CollapsingHeader("Scene")) return;
   ImGui::TextWrapped("%s", app.status.scene.file.empty() ? "(scene built in code)" : app.status.scene.file.c_str());
   ImGui::InputText("scene file", app.scene_path, sizeof app.scene_path);
-  ImGui::SameLine();
   if (ImGui::Button("Open")) open_scene_file(app, app.scene_path);
   for (const std::string& f : scene_files()) {
-    if (ImGui::Selectable(f.c_str(), f == app.status.scene.file)) {
+    const std::string name = std::filesystem::path(f).filename().string();
+    if (ImGui::Selectable(name.c_str(), std::filesystem::path(f) == std::filesystem::path(app.status.scene.file))) {
       std::snprintf(app.scene_path, sizeof app.scene_path, "%s", f.c_str());
       open_scene_file(app, f);
     }
@@ -74,7 +77,7 @@ void scene_panel(AppState& app) {
   ImGui::InputInt("iterations", &e.iterations);
   ImGui::InputDouble("damping", &e.damping, 0, 0, "%.3g");
   ImGui::InputScalarN("gravity", ImGuiDataType_Double, e.gravity, 3);
-  ImGui::InputDouble("scalpel length", &e.scalpel_length, 0, 0, "%.4g");
+  ImGui::InputDouble("cut depth", &e.scalpel_length, 0, 0, "%.4g");
   if (ImGui::Button("Apply (rebuild)")) {
     Scene scene;
     std::string error;
@@ -90,20 +93,25 @@ void scene_panel(AppState& app) {
     e = scene_edit_of(app.status.scene);
     app.edit_error.clear();
   }
-  if (!app.edit_error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "%s", app.edit_error.c_str());
+  if (!app.edit_error.empty()) {
+    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
+    ImGui::TextWrapped("%s", app.edit_error.c_str());
+    ImGui::PopStyleColor();
+  }
 }
 
 void simulation_panel(AppState& app) {
   if (!ImGui::CollapsingHeader("Simulation", ImGuiTreeNodeFlags_DefaultOpen)) return;
   const SimStatus& s = app.status;
-  ImGui::Text("step %u  (%.1f s simulated)%s", s.step, s.step * s.dt, s.loading ? "  loading..." : "");
+  ImGui::Text("step %u  (%.1f s)%s%s", s.step, s.step * s.dt, s.paused ? "  paused" : "", s.loading ? "  loading..." : "");
   if (ImGui::Button(s.paused ? "Play" : "Pause")) app.sim->set_paused(!s.paused);
   ImGui::SameLine();
   if (ImGui::Button("Step")) app.sim->step_once();
   ImGui::SameLine();
   if (ImGui::Button("Reset")) app.sim->open(s.scene, s.dt);
+  if (!ImGui::TreeNode("solver")) return;
   const bool locked = s.recording || s.playing;
-  if (locked) ImGui::TextDisabled("(solver edits are off while recording or playing)");
+  if (locked) ImGui::TextWrapped("(solver edits are off while recording or playing)");
   ImGui::BeginDisabled(locked);
   ImGui::InputFloat("dt##sim", &app.ui_dt, 0, 0, "%.5f");
   ImGui::InputInt("iterations##sim", &app.ui_iterations);
@@ -112,7 +120,7 @@ void simulation_panel(AppState& app) {
     if (app.ui_dt >= 1e-6f && app.ui_dt <= 1.0f && app.ui_iterations >= 1 && app.ui_iterations <= 10000) {
       app.sim->set_solver(app.ui_dt, app.ui_iterations, Vec3d(app.ui_gravity[0], app.ui_gravity[1], app.ui_gravity[2]));
     } else {
-      app.message = "dt must be in [1e-6, 1], iterations in [1, 10000]";
+      show_message(app, "dt must be in [1e-6, 1], iterations in [1, 10000]");
     }
   }
   ImGui::SameLine();
@@ -122,7 +130,12 @@ void simulation_panel(AppState& app) {
     for (int k = 0; k < 3; ++k) app.ui_gravity[k] = float(s.scene.gravity[k]);
   }
   ImGui::EndDisabled();
-  if (!s.error.empty()) ImGui::TextColored(ImVec4(1, 0.4f, 0.4f, 1), "%s", s.error.c_str());
+  ImGui::TreePop();
+  if (!s.error.empty()) {
+    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
+    ImGui::TextWrapped("%s", s.error.c_str());
+    ImGui::PopStyleColor();
+  }
 }
 
 void tools_panel(AppState& app) {
@@ -132,12 +145,24 @@ void tools_panel(AppState& app) {
   ImGui::SameLine();
   ImGui::RadioButton("grab (G)", &tool, 1);
   app.tool = tool == 0 ? Tool::kScalpel : Tool::kGrab;
-  if (app.blade_depth > 0.0f) {
-    ImGui::Text("blade depth %.3g (ctrl+wheel; D: back to the box entry)", app.blade_depth);
-  } else {
-    ImGui::Text("blade starts at the bounding box (ctrl+wheel sets a depth)");
+  float depth = app.cut_depth;
+  if (ImGui::SliderFloat("cut depth", &depth, 0.5f * app.voxel_size, 2.0f * app.radius, "%.2f",
+                         ImGuiSliderFlags_Logarithmic)) {
+    app.cut_depth = depth;
   }
-  ImGui::Text("scalpel length %.3g", app.status.scene.scalpel.length);
+  ImGui::TextDisabled("ctrl+wheel or [ ] also set it");
+  ImGui::SliderFloat("pull strength", &app.grab_strength, 3.0f, 9.0f, "%.1f");
+  ImGui::TextDisabled("grab compliance 1e-%.1f", app.grab_strength);
+  const SimStatus& s = app.status;
+  ImGui::BeginDisabled(s.undo_levels == 0 || s.recording || s.playing);
+  if (ImGui::Button("Undo (ctrl+z)")) request_undo(app, false);
+  ImGui::EndDisabled();
+  ImGui::SameLine();
+  ImGui::BeginDisabled(s.redo_levels == 0 || s.recording || s.playing);
+  if (ImGui::Button("Redo (ctrl+shift+z)")) request_undo(app, true);
+  ImGui::EndDisabled();
+  ImGui::TextDisabled("%u undo, %u redo kept%s", s.undo_levels, s.redo_levels,
+                      s.recording || s.playing ? " (off while recording)" : "");
 }
 
 void view_panel(AppState& app) {
@@ -155,12 +180,12 @@ void view_panel(AppState& app) {
   if (ImGui::Button("Save (F12)")) {
     std::string message;
     take_screenshot(app, app.screenshot_path[0] ? std::string(app.screenshot_path) : default_screenshot_name(), message);
-    app.message = message;
+    show_message(app, message);
   }
 }
 
 void performance_panel(AppState& app) {
-  if (!ImGui::CollapsingHeader("Performance", ImGuiTreeNodeFlags_DefaultOpen)) return;
+  if (!ImGui::CollapsingHeader("Performance")) return;
   std::vector<float> cut, surface, deform, total;
   for (const StepTimings& t : app.status.timings) {
     cut.push_back(float(t.cut_ms));
@@ -175,76 +200,118 @@ void performance_panel(AppState& app) {
   plot("render ms", app.render_ms, "ms");
   plot("FPS", app.fps, "fps");
   const SimStatus& s = app.status;
-  ImGui::Text("voxels %u, divided voxels %u, sim voxels divided %u", s.occupied_voxels, s.divided_voxels,
-              s.sim_voxels_divided);
-  ImGui::Text("particles %u, triangles %llu", s.particles, static_cast<unsigned long long>(app.triangles));
+  ImGui::TextWrapped("voxels %u, divided %u, sim voxels divided %u", s.occupied_voxels, s.divided_voxels,
+                     s.sim_voxels_divided);
+  ImGui::TextWrapped("particles %u, triangles %llu", s.particles, static_cast<unsigned long long>(app.triangles));
   if (!app.latency_frames.empty()) {
     double mean = 0;
     for (double l : app.latency_frames) mean += l;
     ImGui::Text("input to cut latency %.1f frames", mean / double(app.latency_frames.size()));
   }
-  ImGui::TextDisabled("%s", app.gl_renderer.c_str());
+  ImGui::PushStyleColor(ImGuiCol_Text, ImGui::GetStyleColorVec4(ImGuiCol_TextDisabled));
+  ImGui::TextWrapped("%s", app.gl_renderer.c_str());
+  ImGui::PopStyleColor();
 }
 
 void recording_panel(AppState& app) {
-  if (!ImGui::CollapsingHeader("Recording", ImGuiTreeNodeFlags_DefaultOpen)) return;
+  if (!ImGui::CollapsingHeader("Recording")) return;
   const SimStatus& s = app.status;
   ImGui::InputText("record to", app.record_path, sizeof app.record_path);
   if (!s.recording) {
     if (ImGui::Button("Record (restarts the scene)")) app.sim->start_recording(app.record_path);
   } else {
-    ImGui::TextColored(ImVec4(1, 0.3f, 0.3f, 1), "recording %s", s.recording_path.c_str());
+    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.3f, 0.3f, 1));
+    ImGui::TextWrapped("recording %s", s.recording_path.c_str());
+    ImGui::PopStyleColor();
     if (ImGui::Button("Stop recording")) app.sim->stop_recording();
   }
   ImGui::Separator();
-  ImGui::InputText("recording", app.play_path, sizeof app.play_path);
-  ImGui::SameLine();
+  ImGui::InputText("play file", app.play_path, sizeof app.play_path);
   if (ImGui::Button("Play")) {
     try {
       app.sim->play(app.play_path);
-      app.message = std::string("playing ") + app.play_path;
+      show_message(app, std::string("playing ") + app.play_path, 4.0);
     } catch (const InputError& e) {
-      app.message = e.what();
+      show_message(app, e.what(), 10.0);
     }
   }
   if (s.playing) {
-    ImGui::Text("%s: step %u / %u, hashes %u checked, %u differ", s.play_path.c_str(), std::min(s.step, s.play_last),
-                s.play_last, s.hash_checked, s.hash_mismatched);
-    if (s.play_done) ImGui::Text("final hash %s", s.final_hash.c_str());
+    ImGui::TextWrapped("%s: step %u / %u, hashes %u checked, %u differ", s.play_path.c_str(),
+                       std::min(s.step, s.play_last), s.play_last, s.hash_checked, s.hash_mismatched);
+    if (s.play_done) ImGui::TextWrapped("final hash %s", s.final_hash.c_str());
   }
 }
 
 void help_panel(AppState& app) {
-  if (!ImGui::CollapsingHeader("Help (F1)", app.show_help ? ImGuiTreeNodeFlags_DefaultOpen : 0)) return;
-  ImGui::TextUnformatted(
-      "left drag        scalpel: cut along the cursor ray / grab: pull the surface\n"
-      "right drag       orbit\n"
-      "middle drag      pan (also shift + right drag)\n"
-      "wheel, + / -     zoom\n"
-      "ctrl + wheel     scalpel depth along the ray (D: back to the box entry)\n"
-      "S or C / G       scalpel / grab tool\n"
-      "R or Home        reset the view (frame the object)\n"
-      "space / .        pause-play / one step\n"
-      "W / T            wireframe / blade trail\n"
-      "F12              screenshot (PNG in the working directory)\n"
-      "F1               this help\n"
-      "shift + Esc      quit");
+  ImGui::SetNextItemOpen(app.show_help, ImGuiCond_Always);
+  app.show_help = ImGui::CollapsingHeader("Help (F1)");
+  if (!app.show_help) return;
+  static const char* const kKeys[][2] = {
+      {"left drag", "scalpel: cut from the surface point under the cursor, 'cut depth' deep / grab: pull the surface"},
+      {"ctrl+wheel, [ ]", "cut depth"},
+      {"ctrl+z, ctrl+shift+z", "undo, redo a cut or a grab"},
+      {"right drag", "orbit"},
+      {"middle drag", "pan (also shift + right drag)"},
+      {"wheel, + -", "zoom"},
+      {"S or C, G", "scalpel, grab tool"},
+      {"R or Home", "reset the view"},
+      {"space, .", "pause / play, one step"},
+      {"W, T", "wireframe, blade trail"},
+      {"F12", "screenshot (PNG in the working directory)"},
+      {"F1", "this help"},
+      {"shift+Esc", "quit"}};
+  if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingStretchProp)) {
+    ImGui::TableSetupColumn("key", ImGuiTableColumnFlags_WidthFixed, 0.36f * float(app.panel_width));
+    ImGui::TableSetupColumn("action", ImGuiTableColumnFlags_WidthStretch);
+    for (const auto& row : kKeys) {
+      ImGui::TableNextRow();
+      ImGui::TableSetColumnIndex(0);
+      ImGui::TextWrapped("%s", row[0]);
+      ImGui::TableSetColumnIndex(1);
+      ImGui::TextWrapped("%s", row[1]);
+    }
+    ImGui::EndTable();
+  }
 }
 
 }  // namespace
 
+int panel_width_for(int framebuffer_width) {
+  return std::clamp(int(0.3f * float(framebuffer_width)), std::min(300, framebuffer_width / 2), 400);
+}
+
 void draw_panels(AppState& app) {
-  ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
-  ImGui::SetNextWindowSize(ImVec2(380, float(std::max(200, app.viewport.height - 16))), ImGuiCond_FirstUseEver);
-  ImGui::Begin("divvox");
-  if (!app.message.empty()) ImGui::TextWrapped("%s", app.message.c_str());
-  scene_panel(app);
-  simulation_panel(app);
+  // Docked: the left strip of the window, full height; fixed, opaque, no title bar.
+  ImGui::SetNextWindowPos(ImVec2(0, 0), ImGuiCond_Always);
+  ImGui::SetNextWindowSize(ImVec2(float(app.panel_width), float(app.viewport.height)), ImGuiCond_Always);
+  ImGui::SetNextWindowBgAlpha(1.0f);
+  const ImGuiWindowFlags flags = ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoCollapse |
+                                 ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoSavedSettings |
+                                 ImGuiWindowFlags_NoBringToFrontOnFocus;
+  ImGui::Begin("divvox", nullptr, flags);
+  ImGui::PushItemWidth(0.5f * float(app.panel_width));
+  // Status line: the last message, else what the window is doing.
+  const SimStatus& s = app.status;
+  const float fps = app.fps.empty() ? 0.0f : mean_of(app.fps);
+  ImGui::Text("divvox  %.0f fps  %s", fps, s.loading ? "loading..." : s.paused ? "paused" : "");
+  if (!app.message.empty()) {
+    ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1.0f, 0.85f, 0.45f, 1.0f));
+    ImGui::TextWrapped("%s", app.message.c_str());
+    ImGui::PopStyleColor();
+  } else if (s.playing && !s.play_done) {
+    ImGui::TextWrapped("playing step %u / %u", std::min(s.step, s.play_last), s.play_last);
+  } else {
+    ImGui::TextDisabled("%s", app.tool == Tool::kScalpel ? "left drag cuts, right drag orbits" : "left drag pulls the tissue");
+  }
+  ImGui::Separator();
   tools_panel(app);
+  simulation_panel(app);
   view_panel(app);
   performance_panel(app);
+  scene_panel(app);
   recording_panel(app);
   help_panel(app);
+  ImGui::PopItemWidth();
   ImGui::End();
 }
 

@@ -187,6 +187,13 @@ void SimRunner::do_open(OpenRequest& request) {
   status_.final_hash.clear();
   status_.occupied_voxels = session_->model.occupied_voxels;
   status_.divided_voxels = 0;
+  status_.voxels_cut = 0;
+  undo_stack_.clear();
+  redo_stack_.clear();
+  status_.undo_levels = status_.redo_levels = 0;
+  status_.undo_note.clear();
+  keep_request_ = false;
+  undo_request_ = 0;
   next_step_.store(0);
   lock.unlock();
   // The first snapshot of this session: the renderer uploads it in full.
@@ -249,6 +256,7 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   status_.timings.push_back(report.timings);
   if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
   status_.divided_voxels = uint32_t(s.cut.divided.size());
+  status_.voxels_cut += report.cut.voxels_cut;
   if (s.pbd) {
     status_.sim_voxels_divided = uint32_t(sim_voxels_divided(*s.pbd));
     status_.particles = uint32_t(s.pbd->position.size() - s.pbd->free_particles.size());
@@ -274,6 +282,101 @@ void SimRunner::finish_recording() {
     }
   }
   writer_.reset();
+}
+
+// ---- Undo ------------------------------------------------------------------------------------
+
+void SimRunner::keep_state() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (status_.recording || status_.playing) return;
+  keep_request_ = true;
+  wake_.notify_all();
+}
+
+void SimRunner::undo() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++undo_request_;
+  wake_.notify_all();
+}
+
+void SimRunner::redo() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  --undo_request_;
+  wake_.notify_all();
+}
+
+SimRunner::KeptState SimRunner::kept_of_session() const {
+  const Session& s = *session_;
+  KeptState k;
+  k.cut = s.cut;
+  if (s.pbd) k.pbd = std::make_unique<PbdState>(*s.pbd);
+  k.blade = s.blade;
+  k.rest_blade = s.rest_blade;
+  k.have_blade = s.have_blade;
+  k.cutting = s.cutting;
+  k.rest_blade_valid = s.rest_blade_valid;
+  k.step = s.step;
+  k.hash = session_hash(s);
+  return k;
+}
+
+// Carries out one undo (or redo) request with the lock held on entry and exit: swaps the session's
+// state with the newest kept one, publishes it in full, drops the queued commands (they were meant
+// for steps that are now undone).
+void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
+  undo_request_ += redo ? 1 : -1;
+  std::vector<KeptState>& from = redo ? redo_stack_ : undo_stack_;
+  std::vector<KeptState>& to = redo ? undo_stack_ : redo_stack_;
+  const char* what = redo ? "redo" : "undo";
+  if (status_.recording || status_.playing) {
+    status_.undo_note = std::string(what) + " is off while recording or playing";
+    ++status_.undo_notes;
+    return;
+  }
+  if (from.empty()) {
+    status_.undo_note = std::string("nothing to ") + what;
+    ++status_.undo_notes;
+    return;
+  }
+  KeptState kept = std::move(from.back());
+  from.pop_back();
+  queue_.clear();
+  lock.unlock();
+  const Clock::time_point t0 = Clock::now();
+  KeptState now = kept_of_session();
+  Session& s = *session_;
+  s.cut = std::move(kept.cut);
+  if (kept.pbd) s.pbd = std::move(kept.pbd);
+  s.blade = kept.blade;
+  s.rest_blade = kept.rest_blade;
+  s.have_blade = kept.have_blade;
+  s.cutting = kept.cutting;
+  s.rest_blade_valid = kept.rest_blade_valid;
+  s.step = kept.step;
+  const uint64_t hash = session_hash(s);
+  // A full upload of the restored surface (the renderer's slots no longer match).
+  history_ = DirtyHistory();
+  history_.first_sequence = published_ + 1;
+  generation_first_sequence_.store(published_ + 1);
+  publish(StepTimings());
+  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  std::printf("%s: back to step %u (hash %s, kept %s) in %.1f ms\n", what, s.step, hash_hex(hash).c_str(),
+              hash_hex(kept.hash).c_str(), ms);
+  std::fflush(stdout);
+  lock.lock();
+  if (to.size() == kUndoLevels) to.erase(to.begin());
+  to.push_back(std::move(now));
+  next_step_.store(s.step);
+  status_.step = s.step;
+  status_.divided_voxels = uint32_t(s.cut.divided.size());
+  status_.undo_levels = uint32_t(undo_stack_.size());
+  status_.redo_levels = uint32_t(redo_stack_.size());
+  ++status_.restores;
+  status_.restore_ms = ms;
+  char note[96];
+  std::snprintf(note, sizeof note, "%s: back to step %u (%.0f ms)", what, s.step, ms);
+  status_.undo_note = note;
+  ++status_.undo_notes;
 }
 
 void SimRunner::run() {
@@ -315,6 +418,23 @@ void SimRunner::run() {
       }
       status_.dt = req_dt_;
       status_.scene = s.scene;
+    }
+    if (undo_request_ != 0 && session_) {
+      do_restore(undo_request_ < 0, lock);
+      continue;
+    }
+    if (keep_request_ && session_) {
+      keep_request_ = false;
+      if (undo_stack_.size() == kUndoLevels) undo_stack_.erase(undo_stack_.begin());
+      lock.unlock();
+      KeptState kept = kept_of_session();
+      std::printf("undo: kept step %u (hash %s)\n", kept.step, hash_hex(kept.hash).c_str());
+      std::fflush(stdout);
+      lock.lock();
+      undo_stack_.push_back(std::move(kept));
+      redo_stack_.clear();
+      status_.undo_levels = uint32_t(undo_stack_.size());
+      status_.redo_levels = 0;
     }
     if (!session_ || (paused_ && single_steps_ == 0)) {
       wake_.wait_for(lock, std::chrono::milliseconds(50));

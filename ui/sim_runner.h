@@ -44,6 +44,13 @@ struct SimStatus {
   std::string play_path;
   uint32_t play_last = 0, hash_checked = 0, hash_mismatched = 0;
   std::string final_hash;
+  // Cutting feedback and undo (see SimRunner::keep_state).
+  uint64_t voxels_cut = 0;  // voxels cut since the session opened (sum of the steps' voxels_cut)
+  uint32_t undo_levels = 0, redo_levels = 0;
+  uint64_t restores = 0;    // +1 per undo or redo carried out
+  double restore_ms = 0.0;  // how long the last one took
+  std::string undo_note;    // what the last undo / redo did (or why it did not)
+  uint64_t undo_notes = 0;  // +1 per note
 };
 
 class SimRunner {
@@ -78,6 +85,15 @@ class SimRunner {
   void set_solver(double dt, int iterations, const Vec3d& gravity);
   void stop();
 
+  // Undo / redo (off while recording or playing: a recording is one unbroken session). keep_state
+  // keeps a copy of the state before the next step (call it with an action's first command: the
+  // press of a cut or a grab); undo restores the newest kept state (the current one goes on the redo
+  // stack), redo the reverse. Sessions are deterministic, so a restored state continues exactly as it
+  // did the first time. The copy excludes the immutable voxel model and the mesh.
+  void keep_state();
+  void undo();
+  void redo();
+
   SimStatus status();
   uint32_t next_step() const { return next_step_.load(); }
   bool play_done() const { return play_done_.load(); }
@@ -94,6 +110,18 @@ class SimRunner {
   void do_step(std::unique_lock<std::mutex>& lock);
   void publish(const StepTimings& timings);
   void finish_recording();
+  // Undo (sim_runner.cpp, the section "Undo").
+  struct KeptState {
+    CutState cut;
+    std::unique_ptr<PbdState> pbd;
+    BladePose blade, rest_blade;
+    bool have_blade = false, cutting = false, rest_blade_valid = false;
+    uint32_t step = 0;
+    uint64_t hash = 0;
+  };
+  static constexpr size_t kUndoLevels = 8;
+  KeptState kept_of_session() const;
+  void do_restore(bool redo, std::unique_lock<std::mutex>& lock);
 
   SnapshotExchange exchange_;
   std::thread thread_;
@@ -110,6 +138,8 @@ class SimRunner {
   double req_dt_ = 0;
   int req_iterations_ = 0;
   Vec3d req_gravity_;
+  bool keep_request_ = false;
+  int undo_request_ = 0;  // > 0: undo, < 0: redo
   SimStatus status_;
   // Simulation-thread only.
   std::unique_ptr<Session> session_;
@@ -117,6 +147,7 @@ class SimRunner {
   std::shared_ptr<Recording> playing_;
   size_t play_line_ = 0;
   DirtyHistory history_;
+  std::vector<KeptState> undo_stack_, redo_stack_;
   uint64_t published_ = 0;
   std::atomic<uint64_t> generation_first_sequence_{1};
   std::atomic<uint32_t> next_step_{0};
