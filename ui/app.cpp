@@ -647,6 +647,9 @@ int run_window(const WindowOptions& options) {
       set_cut_depth(app, app.cut_depth);
       app.cut_pending = false;
       app.restores_seen = app.status.restores;
+      std::printf("window: ready (%s, panel %d px, view %dx%d)\n", app.status.scene.file.c_str(), app.panel_width,
+                  app.viewport.width, app.viewport.height);
+      std::fflush(stdout);
       app.undo_notes_seen = app.status.undo_notes;
       app.trail.clear();
       app.blade_sent = false;
@@ -790,6 +793,8 @@ int run_window(const WindowOptions& options) {
                   app.latency_frames.size());
     }
   }
+  std::printf("window: layout panel %d px (drawn %.0f px), view %dx%d\n", app.panel_width, app.panel_drawn_width,
+              app.viewport.width, app.viewport.height);
   const SimStatus final_status = sim.status();
   if (final_status.playing && final_status.hash_mismatched > 0) {
     std::fprintf(stderr, "divvox: error: %s: the window's simulation diverged from the recording (%u of %u hashes differ)\n",

@@ -37,6 +37,7 @@ struct AppState {
   Camera camera;
   Viewport viewport;  // the 3D view (not the window)
   int view_x = 0, panel_width = 0;
+  float panel_drawn_width = 0.0f;  // the panel's width as ImGui drew it (tests: it never changes)
   Aabb bounds;
   float radius = 1.0f, voxel_size = 0.1f;
   DrawOptions draw;

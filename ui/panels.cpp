@@ -312,6 +312,7 @@ void draw_panels(AppState& app) {
   recording_panel(app);
   help_panel(app);
   ImGui::PopItemWidth();
+  app.panel_drawn_width = ImGui::GetWindowSize().x;
   ImGui::End();
 }
 

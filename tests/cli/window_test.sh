@@ -4,6 +4,10 @@
 # object (5-95 % of the pixels differ from the background), and exit 0. Without a display it must
 # exit 2 with the one-line "no display" message. Skips (exit 0) when xvfb-run is missing, unless
 # DIVVOX_REQUIRE_GL=1 (tools/test.sh), where that is a failure.
+# With xdotool, real mouse input (tests/cli/window_input.sh): scalpel drags across the default
+# scene's thick middle and across an ear cut (their --record files replay headless with
+# voxels_cut > 0), ctrl+z restores the kept state's hash, a drag at the panel's edge leaves its
+# width alone.
 # Usage: window_test.sh DIVVOX REPO
 set -u
 divvox=$1
@@ -104,6 +108,19 @@ fi
 echo "screenshot coverage: ${cover:-?} %"
 if [[ -z $cover ]] || ! awk -v c="$cover" 'BEGIN { exit !(c >= 5 && c <= 95) }'; then
   fail "screenshot coverage '${cover}' % not in [5, 95]"
+fi
+
+# Real input (xdotool): each case in its own X server.
+if command -v xdotool >/dev/null 2>&1; then
+  for case in middle ear undo; do
+    timeout 300 xvfb-run -a -s "-screen 0 1280x720x24" bash "$repo/tests/cli/window_input.sh" "$divvox" "$repo" "$case" \
+      "$tmp/input_$case" >"$tmp/input_$case.log" 2>&1
+    code=$?
+    sed 's/^/    /' "$tmp/input_$case.log"
+    [[ $code -eq 0 ]] || fail "window input case '$case' (exit $code)"
+  done
+else
+  echo "SKIP: xdotool not installed (tools/setup.sh installs it); no real-input checks"
 fi
 
 if [[ $failures -ne 0 ]]; then

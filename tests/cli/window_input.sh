@@ -1,0 +1,102 @@
+#!/usr/bin/env bash
+# One real-input case of the window test, run inside an X server (xvfb-run): starts the window on
+# the default scene at 1280x720, drives it with xdotool, checks what it printed.
+#   middle: a scalpel drag across the bunny's body; ear: across its right ear (thin, far from the
+#           bounding box's faces). Both with --record; the recording must replay headless with
+#           voxels_cut > 0 and its hashes matching.
+#   undo:   a cut, then ctrl+z: the restored state's hash equals the hash kept before the cut;
+#           then a drag starting on the panel's edge: the panel keeps its width.
+# Usage: window_input.sh DIVVOX REPO CASE OUTDIR
+set -u
+divvox=$1
+repo=$2
+case=$3
+out=$4
+mkdir -p "$out"
+cd "$out" || exit 1
+fail() {
+  echo "FAIL ($case): $*"
+  exit 1
+}
+
+record=()
+[[ $case != undo ]] && record=(--record "$out/session.jsonl")
+"$divvox" "$repo/assets/scenes/bunny.json" --size 1280x720 "${record[@]}" >"$out/win.out" 2>"$out/win.err" &
+pid=$!
+trap 'kill $pid 2>/dev/null' EXIT
+
+# Waits (up to $2 s) until the window's stdout has a line matching $1.
+wait_for() {
+  local deadline=$((SECONDS + $2))
+  while ! grep -q "$1" "$out/win.out" 2>/dev/null; do
+    kill -0 $pid 2>/dev/null || fail "the window exited before printing '$1': $(cat "$out/win.err")"
+    ((SECONDS < deadline)) || fail "no '$1' within $2 s"
+    sleep 0.5
+  done
+}
+# A left drag from ($1,$2) to ($3,$4) in $5 moves, slow enough for a few frames per move on a
+# loaded software rasteriser.
+drag() {
+  xdotool mousemove "$1" "$2"
+  sleep 1
+  xdotool mousedown 1
+  sleep 0.5
+  local k
+  for ((k = 1; k <= $5; ++k)); do
+    xdotool mousemove $(($1 + ($3 - $1) * k / $5)) $(($2 + ($4 - $2) * k / $5))
+    sleep 0.4
+  done
+  sleep 0.5
+  xdotool mouseup 1
+}
+
+wait_for "^window: ready" 150
+panel=$(sed -n 's/^window: ready.*panel \([0-9]*\) px.*/\1/p' "$out/win.out" | head -1)
+sleep 2
+# Window coordinates of the default view at 1280x720 (panel on the left): the body's middle, the ear.
+case $case in
+  middle) drag 680 430 900 450 12 ;;
+  ear) drag 745 190 830 212 10 ;;
+  undo) drag 680 430 900 450 12 ;;
+esac
+wait_for "^cut: " 60
+cut=$(sed -n 's/^cut: \([0-9]*\) voxels.*/\1/p' "$out/win.out" | head -1)
+echo "$case: the window says cut $cut voxels"
+[[ ${cut:-0} -gt 0 ]] || fail "the drag cut nothing"
+
+if [[ $case == undo ]]; then
+  kept=$(sed -n 's/^undo: kept step \([0-9]*\) (hash \([0-9a-f]*\)).*/\1 \2/p' "$out/win.out" | tail -1)
+  [[ -n $kept ]] || fail "no state was kept at the press"
+  xdotool key ctrl+z
+  wait_for "^undo: back to" 30
+  line=$(grep "^undo: back to" "$out/win.out" | head -1)
+  echo "$line"
+  step=$(sed -n 's/^undo: back to step \([0-9]*\) (hash \([0-9a-f]*\), kept \([0-9a-f]*\)).*/\1 \2 \3/p' <<<"$line")
+  read -r s_step s_hash s_kept <<<"$step"
+  [[ "$s_step $s_hash" == "$kept" ]] || fail "undo restored step/hash '$s_step $s_hash', kept '$kept'"
+  [[ $s_hash == "$s_kept" ]] || fail "restored hash $s_hash != kept $s_kept"
+  # A drag starting on the panel's right edge must not resize it.
+  drag $((panel - 1)) 300 900 320 6
+  sleep 1
+fi
+
+xdotool key shift+Escape
+for _ in $(seq 60); do kill -0 $pid 2>/dev/null || break; sleep 0.5; done
+kill -0 $pid 2>/dev/null && fail "the window did not close on shift+Esc"
+wait $pid
+code=$?
+trap - EXIT
+[[ $code -eq 0 ]] || fail "the window exited $code: $(cat "$out/win.err")"
+grep "^window:" "$out/win.out"
+drawn=$(sed -n 's/^window: layout panel [0-9]* px (drawn \([0-9]*\) px).*/\1/p' "$out/win.out")
+[[ -n $drawn && $drawn == "$panel" ]] || fail "the panel is $drawn px wide at the end, $panel at the start"
+
+if [[ $case != undo ]]; then
+  "$divvox" replay "$out/session.jsonl" --headless --out "$out/replay" >"$out/replay.out" 2>&1 || fail "replay failed: $(cat "$out/replay.out")"
+  voxels=$(python3 -c "import json,sys; d=json.load(open(sys.argv[1])); print(d['cut']['voxels_cut'], d['hash_checks']['checked'], d['hash_checks']['mismatched'])" "$out/replay/summary.json")
+  read -r v checked mismatched <<<"$voxels"
+  echo "$case: headless replay voxels_cut $v, hashes $checked checked, $mismatched differ"
+  [[ $v -gt 0 ]] || fail "the recording replays with voxels_cut 0"
+  [[ $checked -gt 0 && $mismatched -eq 0 ]] || fail "replay hashes: $checked checked, $mismatched differ"
+fi
+echo "$case: ok"
