@@ -18,49 +18,6 @@ Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vect
   return {camera_eye(camera), ray_direction(camera, viewport, pixel)};
 }
 
-bool ray_box(const Ray& ray, const Aabb& box, float& t_enter, float& t_exit) {
-  if (box.empty()) return false;
-  float t0 = -std::numeric_limits<float>::infinity(), t1 = std::numeric_limits<float>::infinity();
-  for (int a = 0; a < 3; ++a) {
-    const float lo = float(box.min[a]), hi = float(box.max[a]);
-    const float o = ray.origin[a], d = ray.direction[a];
-    if (std::abs(d) < 1e-12f) {
-      if (o < lo || o > hi) return false;
-      continue;
-    }
-    float ta = (lo - o) / d, tb = (hi - o) / d;
-    if (ta > tb) std::swap(ta, tb);
-    t0 = std::max(t0, ta);
-    t1 = std::min(t1, tb);
-    if (t0 > t1) return false;
-  }
-  if (t1 < 0.0f) return false;
-  t_enter = t0;
-  t_exit = t1;
-  return true;
-}
-
-CursorBlade blade_from_cursor(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
-                              const Aabb& box, double length, float depth) {
-  const Ray ray = cursor_ray(camera, viewport, pixel);
-  CursorBlade blade;
-  float t_enter = 0.0f, t_exit = 0.0f;
-  blade.hits_box = ray_box(ray, box, t_enter, t_exit);
-  if (depth > 0.0f) {
-    blade.depth = depth;
-  } else if (blade.hits_box) {
-    blade.depth = std::max(t_enter, 0.0f);
-  } else {
-    // The target's depth along this ray.
-    const float along = ray.direction.dot(camera_forward(camera));
-    blade.depth = along > 1e-6f ? camera.distance / along : camera.distance;
-  }
-  const Vec3d origin = ray.origin.cast<double>(), dir = ray.direction.cast<double>();
-  blade.pose.a = origin + double(blade.depth) * dir;
-  blade.pose.b = blade.pose.a + length * dir;
-  return blade;
-}
-
 bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
                   const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit) {
   const uint32_t n = uint32_t(positions.size());
@@ -132,29 +89,6 @@ void camera_zoom(Camera& camera, float factor, float radius) {
   camera.distance = std::clamp(camera.distance * factor, 0.02f * radius, 200.0f * radius);
   camera.z_near = std::max(0.01f * camera.distance, 1e-5f * radius);
   camera.z_far = camera.distance + 4.0f * radius;
-}
-
-bool pick_point(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
-                const std::vector<Vec3f>& positions, float radius_pixels, Vec3f& picked) {
-  const Ray ray = cursor_ray(camera, viewport, pixel);
-  // A pixel's size at distance t along the ray is t * per_unit.
-  const float per_unit = 2.0f * std::tan(0.5f * camera.fov_y) / float(std::max(viewport.height, 1));
-  float best = std::numeric_limits<float>::infinity();
-  bool found = false;
-  for (const Vec3f& p : positions) {
-    if (!p.allFinite()) continue;
-    const Vec3f o = p - ray.origin;
-    const float t = o.dot(ray.direction);
-    if (t <= camera.z_near) continue;
-    const float off = (o - t * ray.direction).norm();
-    if (off > radius_pixels * per_unit * t) continue;
-    if (t < best) {
-      best = t;
-      picked = p;
-      found = true;
-    }
-  }
-  return found;
 }
 
 Vec3f drag_target(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel, const Vec3f& anchor) {

@@ -1,6 +1,6 @@
 // The window's input mapping as plain maths (no GL, no GLFW, no ImGui), unit-tested without a
-// window: the cursor ray, the scalpel pose under the cursor, the orbit camera's mouse moves, grab
-// picking, and the validation of the scene panel's edits.
+// window: the cursor ray, surface picking, the scalpel's pose, the orbit camera's mouse moves, the
+// grab's drag, and the validation of the scene panel's edits.
 #pragma once
 
 #include "engine/scene.h"
@@ -21,22 +21,6 @@ struct Ray {
 
 // The ray from the eye through a pixel (image coordinates: x right, y down, origin top-left).
 Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel);
-
-// Slab test: the parameters where the ray enters and leaves the box (t_enter may be negative when
-// the origin is inside). False when the ray misses the box or the box lies behind the origin.
-bool ray_box(const Ray& ray, const Aabb& box, float& t_enter, float& t_exit);
-
-// The scalpel under the cursor: the blade lies along the cursor ray, from its first hit with the
-// object's bounding box (or `depth` along the ray when depth > 0: the depth set with ctrl+wheel)
-// extending `length` deeper. A ray that misses the box (and no depth set) puts the blade's start
-// at the depth of the camera target.
-struct CursorBlade {
-  BladePose pose;
-  bool hits_box = false;
-  float depth = 0.0f;  // distance from the eye to the blade's start along the ray
-};
-CursorBlade blade_from_cursor(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
-                              const Aabb& box, double length, float depth = 0.0f);
 
 // Surface picking: the nearest triangle the ray crosses (either side; Moller-Trumbore) among live
 // slots (kDeadIndex and non-finite corners skipped). Triangles whose flags share a bit with
@@ -65,10 +49,6 @@ void camera_orbit(Camera& camera, float dx_pixels, float dy_pixels, float radian
 void camera_pan(Camera& camera, const Viewport& viewport, float dx_pixels, float dy_pixels);
 void camera_zoom(Camera& camera, float factor, float radius);
 
-// Grab picking: the frontmost live position (finite) within `radius_pixels` of the cursor ray.
-// False when none is.
-bool pick_point(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel,
-                const std::vector<Vec3f>& positions, float radius_pixels, Vec3f& picked);
 // Where a grabbed point goes when the cursor moves: the point of the cursor ray at the same view
 // depth as `anchor` (the drag stays in the camera plane through the picked point).
 Vec3f drag_target(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel, const Vec3f& anchor);

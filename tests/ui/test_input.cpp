@@ -1,13 +1,15 @@
-// The window's input mapping, without a window: cursor ray -> blade pose, camera mouse moves,
-// grab picking, scene panel validation.
+// The window's input mapping, without a window: surface picking, the scalpel's pose, camera mouse
+// moves, grab drags, scene panel validation.
 #include "ui/input.h"
 
 #include "engine/scene.h"
+#include "sim/cut.h"
 
 #include <nlohmann/json.hpp>
 
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 
 using namespace dvx;
@@ -26,64 +28,67 @@ double distance_to_line(const Vec3d& p, const Vec3d& origin, const Vec3d& dir) {
   return (o - o.dot(dir) * dir).norm();
 }
 
-bool on_box_surface(const Vec3d& p, const Aabb& b, double tol) {
-  bool inside = true, on_face = false;
-  for (int a = 0; a < 3; ++a) {
-    inside &= p[a] >= b.min[a] - tol && p[a] <= b.max[a] + tol;
-    on_face |= std::abs(p[a] - b.min[a]) < tol || std::abs(p[a] - b.max[a]) < tol;
-  }
-  return inside && on_face;
-}
-
 }  // namespace
 
-TEST_CASE("blade: the blade lies on the cursor ray, starts at the box entry, has the scene's length") {
+// Two unit squares facing +z at z = 0 and z = -1 (two triangles each), the back one flagged cut.
+struct TwoSquares {
+  std::vector<Vec3f> positions;
+  std::vector<Tri> triangles;
+  std::vector<uint8_t> flags;
+  TwoSquares() {
+    for (float z : {0.0f, -1.0f}) {
+      const uint32_t b = uint32_t(positions.size());
+      positions.insert(positions.end(), {Vec3f(-1, -1, z), Vec3f(1, -1, z), Vec3f(1, 1, z), Vec3f(-1, 1, z)});
+      triangles.push_back({b, b + 1, b + 2});
+      triangles.push_back({b, b + 2, b + 3});
+    }
+    flags = {0, 0, 1, 1};
+  }
+};
+
+TEST_CASE("pick: the nearest triangle on the ray, either side; dead slots, NaN and skipped classes ignored") {
+  TwoSquares m;
+  SurfaceHit hit;
+  const Ray ray{Vec3f(0.2f, 0.3f, 5.0f), Vec3f(0, 0, -1)};
+  REQUIRE(pick_surface(ray, m.positions, m.triangles, m.flags, 0, 0.0f, hit));
+  CHECK(hit.t == doctest::Approx(5.0f));
+  CHECK(hit.triangle < 2);
+  CHECK((hit.point - Vec3f(0.2f, 0.3f, 0.0f)).norm() < 1e-5f);
+  // From behind (the back side of the cut square) and skipping cut faces.
+  const Ray back{Vec3f(0.2f, 0.3f, -5.0f), Vec3f(0, 0, 1)};
+  REQUIRE(pick_surface(back, m.positions, m.triangles, m.flags, 0, 0.0f, hit));
+  CHECK(hit.t == doctest::Approx(4.0f));
+  CHECK(hit.triangle >= 2);
+  REQUIRE(pick_surface(back, m.positions, m.triangles, m.flags, 1, 0.0f, hit));
+  CHECK(hit.t == doctest::Approx(5.0f));
+  // t_min: hits nearer than it do not count.
+  REQUIRE(pick_surface(ray, m.positions, m.triangles, m.flags, 0, 5.5f, hit));
+  CHECK(hit.t == doctest::Approx(6.0f));
+  // Misses: beside the squares, pointing away, dead slots, NaN corners.
+  CHECK_FALSE(pick_surface({Vec3f(3, 0, 5), Vec3f(0, 0, -1)}, m.positions, m.triangles, m.flags, 0, 0.0f, hit));
+  CHECK_FALSE(pick_surface({Vec3f(0, 0, 5), Vec3f(0, 0, 1)}, m.positions, m.triangles, m.flags, 0, 0.0f, hit));
+  const std::vector<Tri> dead(m.triangles.size(), Tri{kDeadIndex, kDeadIndex, kDeadIndex});
+  CHECK_FALSE(pick_surface(ray, m.positions, dead, m.flags, 0, 0.0f, hit));
+  const std::vector<Vec3f> nan_positions(m.positions.size(), Vec3f::Constant(std::nanf("")));
+  CHECK_FALSE(pick_surface(ray, nan_positions, m.triangles, m.flags, 0, 0.0f, hit));
+}
+
+TEST_CASE("scalpel: the blade enters at the picked point, reaches the set depth, tilts toward the screen's bottom") {
   const Aabb box = unit_box();
   const Camera camera = frame_box(box, 16.0f / 9.0f);
   const Viewport viewport{1280, 720};
-  for (const Eigen::Vector2f pixel : {Eigen::Vector2f(640, 360), Eigen::Vector2f(600.5f, 300.25f), Eigen::Vector2f(700, 420)}) {
-    const CursorBlade blade = blade_from_cursor(camera, viewport, pixel, box, 0.75);
-    CHECK(blade.hits_box);
-    const Ray ray = cursor_ray(camera, viewport, pixel);
-    const Vec3d o = ray.origin.cast<double>(), d = ray.direction.cast<double>();
-    CHECK(distance_to_line(blade.pose.a, o, d) < 1e-5);
-    CHECK(distance_to_line(blade.pose.b, o, d) < 1e-5);
-    CHECK((blade.pose.b - blade.pose.a).norm() == doctest::Approx(0.75).epsilon(1e-6));
-    CHECK((blade.pose.b - blade.pose.a).dot(d) > 0.0);  // points away from the eye
-    CHECK(on_box_surface(blade.pose.a, box, 1e-4));
+  const Ray ray = cursor_ray(camera, viewport, {700, 400});
+  const Vec3f entry = ray.origin + 3.0f * ray.direction;
+  for (const float tilt : {0.0f, 0.35f}) {
+    const BladePose pose = scalpel_pose(camera, ray, entry, 0.8, 0.05, tilt);
+    const Vec3d e = entry.cast<double>(), u = (pose.b - pose.a).normalized();
+    CHECK((pose.b - e).norm() == doctest::Approx(0.8).epsilon(1e-5));   // depth past the entry
+    CHECK((e - pose.a).norm() == doctest::Approx(0.05).epsilon(1e-4));  // starts a little before it
+    CHECK(distance_to_line(e, pose.a, u) < 1e-5);                       // through the entry
+    const double angle = std::acos(std::clamp(u.dot(ray.direction.cast<double>()), -1.0, 1.0));
+    CHECK(angle == doctest::Approx(tilt).epsilon(1e-3));
+    if (tilt > 0) CHECK(u.dot(camera_up(camera).cast<double>()) < 0.0);  // toward the bottom of the screen
   }
-  // The centre pixel's ray goes through the target (the box centre).
-  const CursorBlade centre = blade_from_cursor(camera, viewport, Eigen::Vector2f(640, 360), box, 1.0);
-  CHECK(distance_to_line(Vec3d::Zero(), cursor_ray(camera, viewport, {640, 360}).origin.cast<double>(),
-                         cursor_ray(camera, viewport, {640, 360}).direction.cast<double>()) < 1e-3);
-  CHECK(centre.depth < camera.distance);
-}
-
-TEST_CASE("blade: a set depth wins; a ray that misses the box lands at the target's depth") {
-  const Aabb box = unit_box();
-  const Camera camera = frame_box(box, 1.0f);
-  const Viewport viewport{500, 500};
-  const CursorBlade deep = blade_from_cursor(camera, viewport, {250, 250}, box, 0.5, 2.5f);
-  CHECK(deep.depth == doctest::Approx(2.5f));
-  CHECK((deep.pose.a - camera_eye(camera).cast<double>()).norm() == doctest::Approx(2.5).epsilon(1e-5));
-  const CursorBlade miss = blade_from_cursor(camera, viewport, {1, 1}, box, 0.5);
-  CHECK_FALSE(miss.hits_box);
-  const float depth_along_forward = (miss.pose.a.cast<float>() - camera_eye(camera)).dot(camera_forward(camera));
-  CHECK(depth_along_forward == doctest::Approx(camera.distance).epsilon(1e-4));
-}
-
-TEST_CASE("ray_box: entry, exit, misses and an origin inside") {
-  const Aabb box = unit_box();
-  float t0 = 0, t1 = 0;
-  CHECK(ray_box({Vec3f(0, 0, 5), Vec3f(0, 0, -1)}, box, t0, t1));
-  CHECK(t0 == doctest::Approx(4.0f));
-  CHECK(t1 == doctest::Approx(6.0f));
-  CHECK_FALSE(ray_box({Vec3f(0, 3, 5), Vec3f(0, 0, -1)}, box, t0, t1));
-  CHECK_FALSE(ray_box({Vec3f(0, 0, 5), Vec3f(0, 0, 1)}, box, t0, t1));  // box behind
-  CHECK(ray_box({Vec3f(0, 0, 0), Vec3f(1, 0, 0)}, box, t0, t1));
-  CHECK(t0 < 0.0f);
-  CHECK(t1 == doctest::Approx(1.0f));
-  CHECK_FALSE(ray_box({Vec3f(0, 0, 5), Vec3f(0, 0, -1)}, Aabb(), t0, t1));  // empty box
 }
 
 TEST_CASE("camera: orbit keeps target and distance, pan keeps distance and angles, zoom keeps target") {
@@ -129,18 +134,12 @@ TEST_CASE("camera: orbit keeps target and distance, pan keeps distance and angle
   CHECK(std::isfinite(z.distance));
 }
 
-TEST_CASE("pick: the frontmost point near the cursor ray; drags stay in the camera plane") {
+TEST_CASE("grab: drags stay in the camera plane") {
   const Aabb box = unit_box();
   const Camera c = frame_box(box, 1.0f);
   const Viewport viewport{400, 400};
   const Vec3f eye = camera_eye(c), f = camera_forward(c);
-  const Vec3f front = eye + 0.8f * c.distance * f, back = eye + 1.2f * c.distance * f;
-  const float nan = std::nanf("");
-  std::vector<Vec3f> points = {back, front, Vec3f(nan, nan, nan), Vec3f(5, 5, 5)};
-  Vec3f picked;
-  REQUIRE(pick_point(c, viewport, {200, 200}, points, 4.0f, picked));
-  CHECK((picked - front).norm() < 1e-6f);
-  CHECK_FALSE(pick_point(c, viewport, {10, 10}, points, 4.0f, picked));
+  const Vec3f front = eye + 0.8f * c.distance * f;
   const Vec3f moved = drag_target(c, viewport, {260, 180}, front);
   CHECK((moved - eye).dot(f) == doctest::Approx((front - eye).dot(f)).epsilon(1e-4));
 }
