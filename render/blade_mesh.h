@@ -20,7 +20,7 @@ struct ScalpelStyle {
   float handle_length = 1.0f;  // behind the blade's back end, scene units
   Vec3f blade_color = Vec3f(0.80f, 0.83f, 0.88f);
   Vec3f edge_color = Vec3f(0.95f, 0.97f, 1.0f);
-  Vec3f handle_color = Vec3f(0.16f, 0.42f, 0.36f);
+  Vec3f handle_color = Vec3f(0.46f, 0.52f, 0.60f);
 };
 
 // Appends the scalpel's triangles (3 vertices each, outward normals) to `out`: the blade from `back`

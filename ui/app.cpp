@@ -451,7 +451,9 @@ void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector
     style.blade_width = std::max(0.05f * app.radius, 2.0f * app.voxel_size);
     style.handle_length = 0.35f * app.radius;
     if (cutting) style.edge_color = Vec3f(1.0f, 0.35f, 0.3f);
-    scalpel_mesh(blade.a.cast<float>(), blade.b.cast<float>(), app.edge_dir, style, solids);
+    // The steel shows a quarter of the depth above the entry (drawn only: the cutting edge is a..b).
+    const Vec3f a = blade.a.cast<float>(), b = blade.b.cast<float>();
+    scalpel_mesh(a - 0.25f * (b - a), b, app.edge_dir, style, solids);
     // The entry mark: a ring in the view plane where the blade meets the surface.
     if (app.hover_hit && !app.status.playing) {
       const Vec3f c = app.hover.point, r = camera_right(app.camera), u = camera_up(app.camera);

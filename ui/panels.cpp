@@ -45,11 +45,21 @@ float mean_of(const std::vector<float>& v) {
   return v.empty() ? 0.0f : std::accumulate(v.begin(), v.end(), 0.0f) / float(v.size());
 }
 
-void plot(const char* label, const std::vector<float>& values, const char* unit) {
+// `last_nonzero`: the overlay shows the latest non-zero value (cut and surface times are zero on the
+// steps that do not cut, so the latest value would read 0.00 between the steps of a cut).
+void plot(const char* label, const std::vector<float>& values, const char* unit, bool last_nonzero = false) {
+  float shown = values.empty() ? 0.0f : values.back();
+  if (last_nonzero) {
+    for (auto it = values.rbegin(); it != values.rend(); ++it) {
+      if (*it > 0.0f) {
+        shown = *it;
+        break;
+      }
+    }
+  }
   char overlay[64];
-  std::snprintf(overlay, sizeof overlay, "%.2f %s (mean %.2f)", values.empty() ? 0.0f : values.back(), unit,
-                mean_of(values));
-  ImGui::PlotLines(label, values.data(), int(values.size()), 0, overlay, 0.0f, FLT_MAX, ImVec2(0, 50));
+  std::snprintf(overlay, sizeof overlay, "%s%.2f %s (mean %.2f)", last_nonzero ? "last " : "", shown, unit, mean_of(values));
+  ImGui::PlotLines(label, values.data(), int(values.size()), 0, overlay, 0.0f, FLT_MAX, ImVec2(0, 40));
 }
 
 void scene_panel(AppState& app) {
@@ -193,8 +203,8 @@ void performance_panel(AppState& app) {
     deform.push_back(float(t.deform_ms));
     total.push_back(float(t.total_ms));
   }
-  plot("cut ms", cut, "ms");
-  plot("surface ms", surface, "ms");
+  plot("cut ms", cut, "ms", true);
+  plot("surface ms", surface, "ms", true);
   plot("deform ms", deform, "ms");
   plot("step ms", total, "ms");
   plot("render ms", app.render_ms, "ms");
