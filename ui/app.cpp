@@ -27,6 +27,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <filesystem>
+#include <unistd.h>
 
 namespace dvx {
 namespace {
@@ -71,6 +72,43 @@ double coverage(const std::vector<uint8_t>& rgba, const Vec3f& background) {
     covered += d > 12 ? 1 : 0;
   }
   return pixels ? double(covered) / double(pixels) : 0.0;
+}
+
+// CPU seconds used so far by this process's threads, by kind (Linux /proc; zeros elsewhere): the
+// main (render) thread, the GL driver's threads (llvmpipe's rasteriser), the rest (the simulation
+// thread and its workers). Wall-clock frame times mean little on a shared, loaded machine; CPU time
+// per frame does not depend on the load.
+struct ThreadCpu {
+  double main = 0, driver = 0, other = 0;
+};
+ThreadCpu thread_cpu() {
+  ThreadCpu cpu;
+  const double tick = double(sysconf(_SC_CLK_TCK));
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator("/proc/self/task", ec)) {
+    std::FILE* f = std::fopen((entry.path() / "stat").c_str(), "r");
+    if (!f) continue;
+    char buffer[1024] = {};
+    const size_t n = std::fread(buffer, 1, sizeof buffer - 1, f);
+    std::fclose(f);
+    const std::string stat(buffer, n);
+    const size_t open = stat.find('('), close = stat.rfind(')');
+    if (open == std::string::npos || close == std::string::npos) continue;
+    const std::string name = stat.substr(open + 1, close - open - 1);
+    unsigned long utime = 0, stime = 0;
+    // Fields after the name: state(3) ... utime(14) stime(15).
+    if (std::sscanf(stat.c_str() + close + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %lu %lu", &utime, &stime) != 2) continue;
+    const double seconds = double(utime + stime) / tick;
+    const bool is_main = entry.path().filename() == std::to_string(getpid());
+    if (is_main) {
+      cpu.main += seconds;
+    } else if (name.rfind("llvmpipe", 0) == 0 || name.rfind("gallium", 0) == 0 || name.rfind("softpipe", 0) == 0) {
+      cpu.driver += seconds;
+    } else {
+      cpu.other += seconds;
+    }
+  }
+  return cpu;
 }
 
 // "p50 (p95)" of a sample, in ms.
@@ -565,9 +603,10 @@ int run_window(const WindowOptions& options) {
   app.panel_width = panel_width_for(fb_w);
   app.view_x = app.panel_width;
   const int view_w = std::max(fb_w - app.view_x, 16);
-  // 4x MSAA on a GPU, 2x on a software rasteriser (llvmpipe), where every sample costs CPU time.
+  // 4x MSAA on a GPU; none on a software rasteriser (llvmpipe), where 2x or 4x triples the
+  // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128).
   const bool software = gl_renderer.find("llvmpipe") != std::string::npos || gl_renderer.find("softpipe") != std::string::npos;
-  int samples = software ? 2 : 4;
+  int samples = software ? 0 : 4;
   if (const char* msaa = std::getenv("DIVVOX_MSAA")) samples = std::clamp(std::atoi(msaa), 0, 16);
   Renderer renderer;
   std::string error;
@@ -631,6 +670,8 @@ int run_window(const WindowOptions& options) {
   if (const char* g = std::getenv("DIVVOX_GPU_NORMALS")) gpu_normals = std::string(g) == "1";
   SplitNormals split;
   std::vector<double> phase_ms[6];  // upload, normals, draw, overlays + blit, panels, swap
+  ThreadCpu cpu_start;
+  uint32_t step_start = 0;
   while (!glfwWindowShouldClose(window)) {
     glfwPollEvents();
     app.status = sim.status();
@@ -754,7 +795,11 @@ int run_window(const WindowOptions& options) {
     }
     ++app.frame;
     if (app.status.ready && app.current != nullptr) {
-      if (counted_frames == 0) first_counted = t4;
+      if (counted_frames == 0) {
+        first_counted = t4;
+        cpu_start = thread_cpu();
+        step_start = app.status.step;
+      }
       ++counted_frames;
       render_ms_all.push_back(render_ms);
       if (counted_frames > 1) interval_ms_all.push_back(interval);
@@ -790,6 +835,11 @@ int run_window(const WindowOptions& options) {
                 percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
                 percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms_all, 0.5),
                 fps_percentile(interval_ms_all, 0.05));
+    const ThreadCpu cpu_end = thread_cpu();
+    const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
+    std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
+                1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
+                1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
     if (!app.latency_frames.empty()) {
       std::printf("input to cut latency: %.2f frames mean over %zu cuts\n", latency / double(app.latency_frames.size()),
                   app.latency_frames.size());
