@@ -311,10 +311,10 @@ SimRunner::KeptState SimRunner::kept_of_session() const {
   k.cut = s.cut;
   if (s.pbd) k.pbd = std::make_unique<PbdState>(*s.pbd);
   k.blade = s.blade;
-  k.rest_blade = s.rest_blade;
+  k.sweep = s.sweep;
+  k.sweep_stats = s.sweep_stats;
   k.have_blade = s.have_blade;
   k.cutting = s.cutting;
-  k.rest_blade_valid = s.rest_blade_valid;
   k.step = s.step;
   k.hash = session_hash(s);
   return k;
@@ -348,10 +348,10 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   s.cut = std::move(kept.cut);
   if (kept.pbd) s.pbd = std::move(kept.pbd);
   s.blade = kept.blade;
-  s.rest_blade = kept.rest_blade;
+  s.sweep = std::move(kept.sweep);
+  s.sweep_stats = kept.sweep_stats;
   s.have_blade = kept.have_blade;
   s.cutting = kept.cutting;
-  s.rest_blade_valid = kept.rest_blade_valid;
   s.step = kept.step;
   const uint64_t hash = session_hash(s);
   // A full upload of the restored surface (the renderer's slots no longer match).

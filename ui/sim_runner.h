@@ -114,8 +114,10 @@ class SimRunner {
   struct KeptState {
     CutState cut;
     std::unique_ptr<PbdState> pbd;
-    BladePose blade, rest_blade;
-    bool have_blade = false, cutting = false, rest_blade_valid = false;
+    BladePose blade;
+    SweepMapper sweep;
+    SweepMapStats sweep_stats;
+    bool have_blade = false, cutting = false;
     uint32_t step = 0;
     uint64_t hash = 0;
   };

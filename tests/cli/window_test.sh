@@ -119,6 +119,8 @@ if command -v xdotool >/dev/null 2>&1; then
     sed 's/^/    /' "$tmp/input_$case.log"
     [[ $code -eq 0 ]] || fail "window input case '$case' (exit $code)"
   done
+elif [[ ${DIVVOX_REQUIRE_GL:-} == 1 ]]; then
+  fail "xdotool not installed, but DIVVOX_REQUIRE_GL=1 (tools/setup.sh installs it)"
 else
   echo "SKIP: xdotool not installed (tools/setup.sh installs it); no real-input checks"
 fi
