@@ -11,8 +11,8 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 scene=${2:-$here/assets/scenes/bunny.json}
 seconds=${3:-20}
 resolution=${4:-}
-if [[ $# -lt 4 ]] && command -v xvfb-run >/dev/null && [[ -z ${DISPLAY:-} ]]; then
-  exec xvfb-run -a -s "-screen 0 1280x720x24" "$0" "$divvox" "$scene" "$seconds" "${resolution:-0}"
+if [[ -z ${DISPLAY:-} && -z ${WINDOW_FPS_IN_XVFB:-} ]]; then
+  WINDOW_FPS_IN_XVFB=1 exec xvfb-run -a -s "-screen 0 1280x720x24" "$0" "$divvox" "$scene" "$seconds" "${resolution:-0}"
 fi
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
