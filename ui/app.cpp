@@ -128,6 +128,58 @@ double fps_percentile(std::vector<double> intervals_ms, double q) {
   return ms > 0 ? 1000.0 / ms : 0.0;
 }
 
+// The window's frame statistics from the first frame showing a scene, printed at exit.
+struct FrameStats {
+  std::string gl_renderer;
+  bool profiled = false;
+  uint64_t counted_frames = 0;
+  Clock::time_point first, last;
+  std::vector<double> render_ms, interval_ms;
+  std::vector<double> phase_ms[6];  // upload, normals, draw, overlays + blit, panels, swap
+  ThreadCpu cpu_start;
+  uint32_t step_start = 0;
+
+  void add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end) {
+    if (counted_frames == 0) {
+      first = end;
+      cpu_start = thread_cpu();
+      step_start = app.status.step;
+    }
+    last = end;
+    ++counted_frames;
+    render_ms.push_back(render);
+    if (counted_frames > 1) interval_ms.push_back(interval);
+    for (int k = 0; k < 6; ++k) phase_ms[k].push_back(phases[k]);
+  }
+
+  void print(const AppState& app) const {
+    if (counted_frames < 2) return;
+    const double seconds = std::chrono::duration<double>(last - first).count();
+    std::vector<double> sorted = render_ms;
+    std::sort(sorted.begin(), sorted.end());
+    std::printf("window: %llu frames in %.2f s (%.1f fps), render ms p50 %.2f p99 %.2f, %u steps, %s\n",
+                static_cast<unsigned long long>(counted_frames), seconds,
+                seconds > 0 ? double(counted_frames - 1) / seconds : 0.0, sorted[sorted.size() / 2],
+                sorted[std::min(sorted.size() - 1, size_t(0.99 * sorted.size()))], app.status.step, gl_renderer.c_str());
+    std::printf("window: %s phase ms p50 (p95): upload %s, normals %s, draw %s, overlays+blit %s, panels %s, swap %s; fps p50 %.1f p5 %.1f\n",
+                profiled ? "(profiled)" : "(not profiled: phases overlap on the GPU)", percentiles(phase_ms[0]).c_str(),
+                percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
+                percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms, 0.5),
+                fps_percentile(interval_ms, 0.05));
+    const ThreadCpu cpu_end = thread_cpu();
+    const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
+    std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
+                1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
+                1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
+    if (!app.latency_frames.empty()) {
+      double latency = 0.0;
+      for (double l : app.latency_frames) latency += l;
+      std::printf("input to cut latency: %.2f frames mean over %zu cuts\n", latency / double(app.latency_frames.size()),
+                  app.latency_frames.size());
+    }
+  }
+};
+
 }  // namespace
 
 bool take_screenshot(AppState& app, const std::string& path, std::string& message) {
@@ -527,6 +579,52 @@ void cursor_label(AppState& app) {
   ImGui::GetForegroundDrawList()->AddText(at, IM_COL32(230, 240, 255, 230), text);
 }
 
+// The mouse's commands start afresh (a new session, or an undo / redo: stamps from the new step).
+void reset_mouse_commands(AppState& app) {
+  app.trail.clear();
+  app.blade_sent = false;
+  app.last_blade_stamp = 0;
+  app.grabbing = app.cut_pending = false;
+  app.latency_probe_stamp = 0;
+}
+
+// Follows the simulation's status each frame: a new session reframes the camera and resets the
+// tools; undo / redo and their notes; messages expire; a finished drag reports what it cut.
+void follow_simulation(AppState& app, uint64_t& generation) {
+  if (app.status.generation != generation && app.status.ready) {
+    generation = app.status.generation;
+    app.bounds = app.status.bounds;
+    app.edit = scene_edit_of(app.status.scene);
+    frame_camera(app);
+    app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.resolution, 1));
+    app.cut_depth = float(app.status.scene.scalpel.length);
+    set_cut_depth(app, app.cut_depth);
+    app.cut_pending = false;
+    app.restores_seen = app.status.restores;
+    std::printf("window: ready (%s, panel %d px, view %dx%d)\n", app.status.scene.file.c_str(), app.panel_width,
+                app.viewport.width, app.viewport.height);
+    std::fflush(stdout);
+    app.undo_notes_seen = app.status.undo_notes;
+    reset_mouse_commands(app);
+    app.left_down = false;
+    if (app.status.playing) load_play_poses(app, app.status.play_path);
+  }
+  // An undo or redo ran: the mouse's stamps start again from the restored step.
+  if (app.status.restores != app.restores_seen) {
+    app.restores_seen = app.status.restores;
+    reset_mouse_commands(app);
+  }
+  if (app.status.undo_notes != app.undo_notes_seen) {
+    app.undo_notes_seen = app.status.undo_notes;
+    show_message(app, app.status.undo_note, 4.0);
+  }
+  if (app.message_until > 0.0 && glfwGetTime() > app.message_until) {
+    app.message.clear();
+    app.message_until = 0.0;
+  }
+  report_cut(app);
+}
+
 }  // namespace
 
 void show_message(AppState& app, const std::string& text, double seconds) {
@@ -655,23 +753,21 @@ int run_window(const WindowOptions& options) {
 
   int exit_code = kExitOk;
   uint64_t generation = 0, last_sequence = 0;
-  uint64_t counted_frames = 0;
   std::vector<LineVertex> lines;
   std::vector<SolidVertex> solids;
-  Clock::time_point last_frame = Clock::now(), first_counted;
-  std::vector<double> render_ms_all, interval_ms_all;
-  // DIVVOX_FRAME_PROFILE=1: glFinish after each phase, so the phase times below are the GPU's too
-  // (costs some pipelining; for measuring only).
+  Clock::time_point last_frame = Clock::now();
+  FrameStats stats;
+  stats.gl_renderer = gl_renderer;
+  // DIVVOX_FRAME_PROFILE=1: glFinish after each phase, so the phase times are the GPU's too (costs
+  // some pipelining; for measuring only).
   const char* profile_env = std::getenv("DIVVOX_FRAME_PROFILE");
   const bool profile = profile_env != nullptr && std::string(profile_env) == "1";
+  stats.profiled = profile;
   // Normals on the GPU, except on a software rasteriser (there its compute passes run on the same
   // CPU cores, ~40x slower than the plain loop); DIVVOX_GPU_NORMALS=0/1 overrides.
   bool gpu_normals = !software;
   if (const char* g = std::getenv("DIVVOX_GPU_NORMALS")) gpu_normals = std::string(g) == "1";
   SplitNormals split;
-  std::vector<double> phase_ms[6];  // upload, normals, draw, overlays + blit, panels, swap
-  ThreadCpu cpu_start;
-  uint32_t step_start = 0;
   while (!glfwWindowShouldClose(window)) {
     glfwPollEvents();
     app.status = sim.status();
@@ -680,45 +776,7 @@ int run_window(const WindowOptions& options) {
       exit_code = kExitBadInput;
       break;
     }
-    if (app.status.generation != generation && app.status.ready) {
-      generation = app.status.generation;
-      app.bounds = app.status.bounds;
-      app.edit = scene_edit_of(app.status.scene);
-      frame_camera(app);
-      app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.resolution, 1));
-      app.cut_depth = float(app.status.scene.scalpel.length);
-      set_cut_depth(app, app.cut_depth);
-      app.cut_pending = false;
-      app.restores_seen = app.status.restores;
-      std::printf("window: ready (%s, panel %d px, view %dx%d)\n", app.status.scene.file.c_str(), app.panel_width,
-                  app.viewport.width, app.viewport.height);
-      std::fflush(stdout);
-      app.undo_notes_seen = app.status.undo_notes;
-      app.trail.clear();
-      app.blade_sent = false;
-      app.last_blade_stamp = 0;
-      app.left_down = app.grabbing = false;
-      app.latency_probe_stamp = 0;
-      if (app.status.playing) load_play_poses(app, app.status.play_path);
-    }
-    // An undo or redo ran: the mouse's stamps start again from the restored step.
-    if (app.status.restores != app.restores_seen) {
-      app.restores_seen = app.status.restores;
-      app.blade_sent = false;
-      app.last_blade_stamp = 0;
-      app.trail.clear();
-      app.grabbing = app.cut_pending = false;
-      app.latency_probe_stamp = 0;
-    }
-    if (app.status.undo_notes != app.undo_notes_seen) {
-      app.undo_notes_seen = app.status.undo_notes;
-      show_message(app, app.status.undo_note, 4.0);
-    }
-    if (app.message_until > 0.0 && glfwGetTime() > app.message_until) {
-      app.message.clear();
-      app.message_until = 0.0;
-    }
-    report_cut(app);
+    follow_simulation(app, generation);
     // Window resize: a new panel width and offscreen target.
     glfwGetFramebufferSize(window, &fb_w, &fb_h);
     if (fb_w >= 16 && fb_h >= 16) {
@@ -785,26 +843,13 @@ int run_window(const WindowOptions& options) {
     const double render_ms = ms_between(t0, t3), interval = ms_between(last_frame, t4);
     last_frame = t4;
     app.push_frame(ms_between(t0, t1), ms_between(t1, t2), render_ms, interval);
-    if (app.status.ready && app.current != nullptr) {
-      phase_ms[0].push_back(ms_between(t0, t1) - cpu_normals_ms);
-      phase_ms[1].push_back(ms_between(t1, t1n) + cpu_normals_ms);
-      phase_ms[2].push_back(ms_between(t1n, t1d));
-      phase_ms[3].push_back(ms_between(t1d, t2));
-      phase_ms[4].push_back(ms_between(t2, t3));
-      phase_ms[5].push_back(ms_between(t3, t4));
-    }
     ++app.frame;
     if (app.status.ready && app.current != nullptr) {
-      if (counted_frames == 0) {
-        first_counted = t4;
-        cpu_start = thread_cpu();
-        step_start = app.status.step;
-      }
-      ++counted_frames;
-      render_ms_all.push_back(render_ms);
-      if (counted_frames > 1) interval_ms_all.push_back(interval);
+      const double phases[6] = {ms_between(t0, t1) - cpu_normals_ms, ms_between(t1, t1n) + cpu_normals_ms,
+                                ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3), ms_between(t3, t4)};
+      stats.add(app, phases, render_ms, interval, t4);
     }
-    if (options.exit_after_frames > 0 && counted_frames >= uint64_t(options.exit_after_frames)) {
+    if (options.exit_after_frames > 0 && stats.counted_frames >= uint64_t(options.exit_after_frames)) {
       const bool playing = app.status.playing && !sim.play_done();
       if (!playing) break;
     }
@@ -820,31 +865,7 @@ int run_window(const WindowOptions& options) {
       exit_code = kExitBadInput;
     }
   }
-  if (counted_frames > 1) {
-    std::sort(render_ms_all.begin(), render_ms_all.end());
-    const double seconds = std::chrono::duration<double>(last_frame - first_counted).count();
-    double latency = 0.0;
-    for (double l : app.latency_frames) latency += l;
-    std::printf("window: %llu frames in %.2f s (%.1f fps), render ms p50 %.2f p99 %.2f, %u steps, %s\n",
-                static_cast<unsigned long long>(counted_frames), seconds,
-                seconds > 0 ? double(counted_frames - 1) / seconds : 0.0,
-                render_ms_all[render_ms_all.size() / 2], render_ms_all[std::min(render_ms_all.size() - 1, size_t(0.99 * render_ms_all.size()))],
-                app.status.step, gl_renderer.c_str());
-    std::printf("window: %s phase ms p50 (p95): upload %s, normals %s, draw %s, overlays+blit %s, panels %s, swap %s; fps p50 %.1f p5 %.1f\n",
-                profile ? "(profiled)" : "(not profiled: phases overlap on the GPU)", percentiles(phase_ms[0]).c_str(),
-                percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
-                percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms_all, 0.5),
-                fps_percentile(interval_ms_all, 0.05));
-    const ThreadCpu cpu_end = thread_cpu();
-    const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
-    std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
-                1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
-                1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
-    if (!app.latency_frames.empty()) {
-      std::printf("input to cut latency: %.2f frames mean over %zu cuts\n", latency / double(app.latency_frames.size()),
-                  app.latency_frames.size());
-    }
-  }
+  stats.print(app);
   std::printf("window: layout panel %d px (drawn %.0f px), view %dx%d\n", app.panel_width, app.panel_drawn_width,
               app.viewport.width, app.viewport.height);
   const SimStatus final_status = sim.status();
