@@ -24,11 +24,9 @@ void slot_normals(const Snapshot& s, std::vector<Vec3f>& normals) {
 
 }  // namespace
 
-void upload_snapshot(Renderer& renderer, const Snapshot& s, bool full, std::vector<Vec3f>& normals) {
-  slot_normals(s, normals);
+RenderMesh snapshot_render_mesh(const Snapshot& s, bool full) {
   RenderMesh mesh;
   mesh.positions = s.positions.data();
-  mesh.normals = normals.data();
   mesh.vertex_count = uint32_t(s.positions.size());
   mesh.triangles = s.triangles.data();
   mesh.triangle_count = uint32_t(s.triangles.size());
@@ -38,6 +36,13 @@ void upload_snapshot(Renderer& renderer, const Snapshot& s, bool full, std::vect
   mesh.triangle_begin = s.dirty_triangle_begin;
   mesh.triangle_end = s.dirty_triangle_end;
   mesh.full = full;
+  return mesh;
+}
+
+void upload_snapshot(Renderer& renderer, const Snapshot& s, bool full, std::vector<Vec3f>& normals) {
+  slot_normals(s, normals);
+  RenderMesh mesh = snapshot_render_mesh(s, full);
+  mesh.normals = normals.data();
   renderer_upload(renderer, mesh);
 }
 

@@ -10,6 +10,10 @@
 
 namespace dvx {
 
+// A snapshot as the renderer's mesh view: every vertex slot (they all move), the triangle slots of
+// its dirty range unless `full`; no normals (the caller adds them).
+RenderMesh snapshot_render_mesh(const Snapshot& snapshot, bool full);
+
 // Uploads a snapshot to the renderer: positions and normals (area-weighted, computed here into
 // `normals`) in full, triangles by the snapshot's dirty range unless `full`.
 void upload_snapshot(Renderer& renderer, const Snapshot& snapshot, bool full, std::vector<Vec3f>& normals);

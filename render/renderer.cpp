@@ -1,5 +1,7 @@
 #include "render/renderer.h"
 
+#include "render/gl_program.h"
+
 #include <glad/gl.h>
 
 #include <algorithm>
@@ -163,88 +165,6 @@ void main() {
 }
 )";
 
-// First line of a shader or program info log, for one-line errors.
-std::string first_line(const std::string& log) {
-  const size_t end = log.find('\n');
-  return end == std::string::npos ? log : log.substr(0, end);
-}
-
-// Compiles one stage; 0 with the log's first line in `error` on failure.
-GLuint compile_shader(GLenum stage, const char* source, std::string& error) {
-  GLuint shader = glCreateShader(stage);
-  glShaderSource(shader, 1, &source, nullptr);
-  glCompileShader(shader);
-  GLint ok = 0;
-  glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    GLint length = 0;
-    glGetShaderiv(shader, GL_INFO_LOG_LENGTH, &length);
-    std::string log(size_t(std::max(length, 1)), '\0');
-    glGetShaderInfoLog(shader, length, nullptr, log.data());
-    error = std::string("GL: ") + (stage == GL_VERTEX_SHADER ? "vertex" : "fragment") +
-            " shader does not compile: " + first_line(log.c_str());
-    glDeleteShader(shader);
-    return 0;
-  }
-  return shader;
-}
-
-// Links a vertex + fragment program; 0 with a reason on failure.
-GLuint link_program(const char* vertex_source, const char* fragment_source, std::string& error) {
-  GLuint vs = compile_shader(GL_VERTEX_SHADER, vertex_source, error);
-  if (!vs) return 0;
-  GLuint fs = compile_shader(GL_FRAGMENT_SHADER, fragment_source, error);
-  if (!fs) {
-    glDeleteShader(vs);
-    return 0;
-  }
-  GLuint program = glCreateProgram();
-  glAttachShader(program, vs);
-  glAttachShader(program, fs);
-  glLinkProgram(program);
-  glDeleteShader(vs);
-  glDeleteShader(fs);
-  GLint ok = 0;
-  glGetProgramiv(program, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    GLint length = 0;
-    glGetProgramiv(program, GL_INFO_LOG_LENGTH, &length);
-    std::string log(size_t(std::max(length, 1)), '\0');
-    glGetProgramInfoLog(program, length, nullptr, log.data());
-    error = "GL: program does not link: " + first_line(log.c_str());
-    glDeleteProgram(program);
-    return 0;
-  }
-  return program;
-}
-
-// Links a compute program; 0 with a reason on failure.
-GLuint link_compute(const char* source, std::string& error) {
-  GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
-  glShaderSource(shader, 1, &source, nullptr);
-  glCompileShader(shader);
-  GLint ok = 0;
-  glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    char log[1024] = {};
-    glGetShaderInfoLog(shader, sizeof log, nullptr, log);
-    error = std::string("GL: compute shader does not compile: ") + first_line(log);
-    glDeleteShader(shader);
-    return 0;
-  }
-  GLuint program = glCreateProgram();
-  glAttachShader(program, shader);
-  glLinkProgram(program);
-  glDeleteShader(shader);
-  glGetProgramiv(program, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    error = "GL: compute program does not link";
-    glDeleteProgram(program);
-    return 0;
-  }
-  return program;
-}
-
 // Deletes the offscreen target's objects.
 void destroy_target(Renderer& r) {
   if (r.resolve_framebuffer && r.resolve_framebuffer != r.framebuffer) glDeleteFramebuffers(1, &r.resolve_framebuffer);
@@ -389,10 +309,10 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
   r.samples = samples;
   if (!create_target(r, error)) return false;
 
-  r.surface_program = link_program(kVertexShader, kSurfaceFragmentShader, error);
-  if (r.surface_program) r.wire_program = link_program(kVertexShader, kWireFragmentShader, error);
-  if (r.wire_program) r.triangle_normal_program = link_compute(kTriangleNormalShader, error);
-  if (r.triangle_normal_program) r.vertex_normal_program = link_compute(kVertexNormalShader, error);
+  r.surface_program = gl_link_program(kVertexShader, kSurfaceFragmentShader, error);
+  if (r.surface_program) r.wire_program = gl_link_program(kVertexShader, kWireFragmentShader, error);
+  if (r.wire_program) r.triangle_normal_program = gl_link_compute(kTriangleNormalShader, error);
+  if (r.triangle_normal_program) r.vertex_normal_program = gl_link_compute(kVertexNormalShader, error);
   if (!r.surface_program || !r.wire_program || !r.vertex_normal_program) {
     renderer_destroy(r);
     return false;

@@ -231,17 +231,7 @@ struct SplitNormals {
 // normals computed once per snapshot: on the GPU (`split` null) or here.
 // Returns the CPU normals' time (ms).
 double upload_snapshot_split_normals(Renderer& renderer, const Snapshot& s, bool full, SplitNormals* split) {
-  RenderMesh mesh;
-  mesh.positions = s.positions.data();
-  mesh.vertex_count = uint32_t(s.positions.size());
-  mesh.triangles = s.triangles.data();
-  mesh.triangle_count = uint32_t(s.triangles.size());
-  mesh.triangle_flags = s.triangle_flags.data();
-  mesh.vertex_begin = 0;
-  mesh.vertex_end = mesh.vertex_count;
-  mesh.triangle_begin = s.dirty_triangle_begin;
-  mesh.triangle_end = s.dirty_triangle_end;
-  mesh.full = full;
+  RenderMesh mesh = snapshot_render_mesh(s, full);
   const Clock::time_point t0 = Clock::now();
   if (split) {
     split_vertex_normals(s.positions, s.triangles, s.triangle_flags, split->surface, split->cut);
@@ -881,7 +871,7 @@ int run_window(const WindowOptions& options) {
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
   overlay_destroy(overlay);
-  solid_overlay_destroy(solid_overlay);
+  overlay_destroy(solid_overlay);
   renderer_destroy(renderer);
   glfwDestroyWindow(window);
   glfwTerminate();

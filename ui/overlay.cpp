@@ -1,8 +1,13 @@
 #include "ui/overlay.h"
 
+#include "render/gl_program.h"
+
 #include <glad/gl.h>
 
 #include <Eigen/Core>
+
+#include <algorithm>
+#include <cstddef>
 
 namespace dvx {
 namespace {
@@ -56,44 +61,26 @@ void main() {
 }
 )";
 
-uint32_t compile(GLenum type, const char* source, std::string& error) {
-  const GLuint shader = glCreateShader(type);
-  glShaderSource(shader, 1, &source, nullptr);
-  glCompileShader(shader);
-  GLint ok = 0;
-  glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-  if (!ok) {
-    char log[1024] = {};
-    glGetShaderInfoLog(shader, sizeof log, nullptr, log);
-    error = std::string("overlay shader: ") + log;
-    glDeleteShader(shader);
-    return 0;
+// The program, the vertex array with `count` float attributes (sizes, byte offsets) read from one
+// buffer of `stride`-byte vertices, and that buffer with room for `capacity` vertices.
+bool init_overlay(OverlayProgram& o, const char* vertex, const char* fragment, size_t stride, const int* sizes,
+                  const size_t* offsets, int count, size_t capacity, std::string& error) {
+  o.program = gl_link_program(vertex, fragment, error);
+  if (o.program == 0) {
+    error = "overlay: " + error;
+    return false;
   }
-  return shader;
-}
-
-uint32_t link(const char* vertex, const char* fragment, std::string& error) {
-  const GLuint vs = compile(GL_VERTEX_SHADER, vertex, error);
-  if (vs == 0) return 0;
-  const GLuint fs = compile(GL_FRAGMENT_SHADER, fragment, error);
-  if (fs == 0) {
-    glDeleteShader(vs);
-    return 0;
+  glCreateVertexArrays(1, &o.vertex_array);
+  glCreateBuffers(1, &o.buffer);
+  o.capacity = capacity;
+  glNamedBufferData(o.buffer, GLsizeiptr(capacity * stride), nullptr, GL_DYNAMIC_DRAW);
+  glVertexArrayVertexBuffer(o.vertex_array, 0, o.buffer, 0, GLsizei(stride));
+  for (int a = 0; a < count; ++a) {
+    glEnableVertexArrayAttrib(o.vertex_array, GLuint(a));
+    glVertexArrayAttribFormat(o.vertex_array, GLuint(a), sizes[a], GL_FLOAT, GL_FALSE, GLuint(offsets[a]));
+    glVertexArrayAttribBinding(o.vertex_array, GLuint(a), 0);
   }
-  const GLuint program = glCreateProgram();
-  glAttachShader(program, vs);
-  glAttachShader(program, fs);
-  glLinkProgram(program);
-  glDeleteShader(vs);
-  glDeleteShader(fs);
-  GLint ok = 0;
-  glGetProgramiv(program, GL_LINK_STATUS, &ok);
-  if (!ok) {
-    error = "overlay program does not link";
-    glDeleteProgram(program);
-    return 0;
-  }
-  return program;
+  return true;
 }
 
 // Grows `buffer` to hold `count` vertices of `stride` bytes and fills it.
@@ -108,20 +95,9 @@ void upload_vertices(uint32_t buffer, size_t& capacity, const void* data, size_t
 }  // namespace
 
 bool overlay_init(LineOverlay& o, std::string& error) {
-  o.program = link(kVertex, kFragment, error);
-  if (o.program == 0) return false;
-  glCreateVertexArrays(1, &o.vertex_array);
-  glCreateBuffers(1, &o.buffer);
-  o.capacity = 256;
-  glNamedBufferData(o.buffer, GLsizeiptr(o.capacity * sizeof(LineVertex)), nullptr, GL_DYNAMIC_DRAW);
-  glVertexArrayVertexBuffer(o.vertex_array, 0, o.buffer, 0, sizeof(LineVertex));
-  glEnableVertexArrayAttrib(o.vertex_array, 0);
-  glEnableVertexArrayAttrib(o.vertex_array, 1);
-  glVertexArrayAttribFormat(o.vertex_array, 0, 3, GL_FLOAT, GL_FALSE, offsetof(LineVertex, position));
-  glVertexArrayAttribFormat(o.vertex_array, 1, 4, GL_FLOAT, GL_FALSE, offsetof(LineVertex, color));
-  glVertexArrayAttribBinding(o.vertex_array, 0, 0);
-  glVertexArrayAttribBinding(o.vertex_array, 1, 0);
-  return true;
+  const int sizes[2] = {3, 4};
+  const size_t offsets[2] = {offsetof(LineVertex, position), offsetof(LineVertex, color)};
+  return init_overlay(o, kVertex, kFragment, sizeof(LineVertex), sizes, offsets, 2, 256, error);
 }
 
 void overlay_draw(LineOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
@@ -147,29 +123,17 @@ void overlay_draw(LineOverlay& o, uint32_t framebuffer, int width, int height, c
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
 }
 
-void overlay_destroy(LineOverlay& o) {
+void overlay_destroy(OverlayProgram& o) {
   if (o.buffer) glDeleteBuffers(1, &o.buffer);
   if (o.vertex_array) glDeleteVertexArrays(1, &o.vertex_array);
   if (o.program) glDeleteProgram(o.program);
-  o = LineOverlay();
+  o = OverlayProgram();
 }
 
 bool solid_overlay_init(SolidOverlay& o, std::string& error) {
-  o.program = link(kSolidVertex, kSolidFragment, error);
-  if (o.program == 0) return false;
-  glCreateVertexArrays(1, &o.vertex_array);
-  glCreateBuffers(1, &o.buffer);
-  o.capacity = 512;
-  glNamedBufferData(o.buffer, GLsizeiptr(o.capacity * sizeof(SolidVertex)), nullptr, GL_DYNAMIC_DRAW);
-  glVertexArrayVertexBuffer(o.vertex_array, 0, o.buffer, 0, sizeof(SolidVertex));
-  const GLint sizes[3] = {3, 3, 4};
-  const GLuint offsets[3] = {offsetof(SolidVertex, position), offsetof(SolidVertex, normal), offsetof(SolidVertex, color)};
-  for (GLuint a = 0; a < 3; ++a) {
-    glEnableVertexArrayAttrib(o.vertex_array, a);
-    glVertexArrayAttribFormat(o.vertex_array, a, sizes[a], GL_FLOAT, GL_FALSE, offsets[a]);
-    glVertexArrayAttribBinding(o.vertex_array, a, 0);
-  }
-  return true;
+  const int sizes[3] = {3, 3, 4};
+  const size_t offsets[3] = {offsetof(SolidVertex, position), offsetof(SolidVertex, normal), offsetof(SolidVertex, color)};
+  return init_overlay(o, kSolidVertex, kSolidFragment, sizeof(SolidVertex), sizes, offsets, 3, 512, error);
 }
 
 void solid_overlay_draw(SolidOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
@@ -203,13 +167,6 @@ void solid_overlay_draw(SolidOverlay& o, uint32_t framebuffer, int width, int he
   glBindVertexArray(0);
   glUseProgram(0);
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
-}
-
-void solid_overlay_destroy(SolidOverlay& o) {
-  if (o.buffer) glDeleteBuffers(1, &o.buffer);
-  if (o.vertex_array) glDeleteVertexArrays(1, &o.vertex_array);
-  if (o.program) glDeleteProgram(o.program);
-  o = SolidOverlay();
 }
 
 }  // namespace dvx

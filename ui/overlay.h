@@ -18,26 +18,25 @@ struct LineVertex {
   float color[4];
 };
 
-struct LineOverlay {
+// A program, its vertex array and a growing vertex buffer: the line overlay or the solid one.
+struct OverlayProgram {
   uint32_t program = 0, vertex_array = 0, buffer = 0;
   size_t capacity = 0;  // vertices the buffer holds
 };
+using LineOverlay = OverlayProgram;
+using SolidOverlay = OverlayProgram;
 
 bool overlay_init(LineOverlay& overlay, std::string& error);
 // Draws `vertices` (pairs: GL_LINES) into `framebuffer` (width x height) with the camera.
 void overlay_draw(LineOverlay& overlay, uint32_t framebuffer, int width, int height, const Camera& camera,
                   const std::vector<LineVertex>& vertices, float line_width = 2.0f);
-void overlay_destroy(LineOverlay& overlay);
 
-struct SolidOverlay {
-  uint32_t program = 0, vertex_array = 0, buffer = 0;
-  size_t capacity = 0;
-};
 bool solid_overlay_init(SolidOverlay& overlay, std::string& error);
 // Draws `vertices` (GL_TRIANGLES) into `framebuffer` (which must have the scene's depth): first the
 // parts behind the surface at `ghost_alpha`, then the visible parts opaque.
 void solid_overlay_draw(SolidOverlay& overlay, uint32_t framebuffer, int width, int height, const Camera& camera,
                         const std::vector<SolidVertex>& vertices, float ghost_alpha = 0.35f);
-void solid_overlay_destroy(SolidOverlay& overlay);
+
+void overlay_destroy(OverlayProgram& overlay);
 
 }  // namespace dvx
