@@ -8,7 +8,8 @@
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
-# Packages (DESIGN §6). libgl1-mesa-dri is the software rasterizer; xvfb-run needs xauth; gnuplot-nox
+# Packages (DESIGN §6). libgl1-mesa-dri is the software rasterizer; xvfb-run needs xauth; xdotool
+# drives the window test's real mouse input; gnuplot-nox
 # draws the plots (timings.svg, the benchmark report; without it they are skipped, never fatal).
 packages=(
   build-essential cmake pkg-config ninja-build
