@@ -745,6 +745,18 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
 }
 
 void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
+  // Each piece's 8 corners in float, once (a piece serves ~40 surface vertices).
+  s.piece_corners.resize(s.pieces.size() * 24);
+  for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
+    if (s.pieces[slot].sim_voxel == kDeadIndex) continue;
+    float* out = &s.piece_corners[24 * size_t(slot)];
+    for (int c = 0; c < 8; ++c) {
+      const Vec3d& p = s.position[s.pieces[slot].particles[c]];
+      for (int a = 0; a < 3; ++a) out[3 * c + a] = float(p[a]);
+    }
+  }
+  // Trilinear interpolation in float by lerps along x, then y, then z (the deformed surface is
+  // float anyway and not part of the state hash); free slots keep their rest position.
   const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
   parallel(tasks, count, 4096, [&](uint32_t slot) {
     const VertexEmbedding& e = s.embedding[slot];
@@ -753,14 +765,16 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       s.deformed[slot] = cut.surface.positions[slot];
       return;
     }
-    const uint32_t* particles = s.pieces[piece].particles;
-    const double u = e.local.x(), v = e.local.y(), w = e.local.z();
-    Vec3d p = Vec3d::Zero();
-    for (int c = 0; c < 8; ++c) {
-      const double weight = ((c & 1) ? u : 1.0 - u) * (((c >> 1) & 1) ? v : 1.0 - v) * (((c >> 2) & 1) ? w : 1.0 - w);
-      p += weight * s.position[particles[c]];
+    const float* p = &s.piece_corners[24 * size_t(piece)];
+    const float u = e.local.x(), v = e.local.y(), w = e.local.z();
+    float out[3];
+    for (int a = 0; a < 3; ++a) {
+      const float x0 = p[a] + u * (p[3 + a] - p[a]), x1 = p[6 + a] + u * (p[9 + a] - p[6 + a]);
+      const float x2 = p[12 + a] + u * (p[15 + a] - p[12 + a]), x3 = p[18 + a] + u * (p[21 + a] - p[18 + a]);
+      const float y0 = x0 + v * (x1 - x0), y1 = x2 + v * (x3 - x2);
+      out[a] = y0 + w * (y1 - y0);
     }
-    s.deformed[slot] = p.cast<float>();
+    s.deformed[slot] = Vec3f(out[0], out[1], out[2]);
   });
 }
 
@@ -771,19 +785,29 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   const uint32_t n = uint32_t(s.position.size());
   double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
+  // Shape-matching rest frames of the live pieces, once per step (masses change only between steps).
+  s.shape_rest.resize(s.pieces.size());
+  for (const std::vector<uint32_t>& group : s.piece_groups) {
+    for (const uint32_t slot : group) {
+      const uint32_t* particles = s.pieces[slot].particles;
+      double rest[24];
+      for (int k = 0; k < 8; ++k) {
+        for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
+      }
+      shape_matching_rest(w, particles, rest, 8, s.shape_rest[slot]);
+    }
+  }
   // One constraint of each kind (the loops below run them colour by colour; overflow serially).
+  // A soft constraint without a time step does nothing (solve_distance's rule).
+  const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
+  const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
   const auto stretch = [&](uint8_t c, uint32_t i) {
     const StretchConstraint& k = s.stretch_groups[c][i];
-    solve_distance(x, w, k.a, k.b, k.rest, params.stretch_compliance, h, s.stretch_lambda[c][i]);
+    solve_distance_alpha(x, w, k.a, k.b, k.rest, alpha, s.stretch_lambda[c][i]);
   };
   const auto shape = [&](uint8_t c, uint32_t i) {
     const uint32_t slot = s.piece_groups[c][i];
-    const uint32_t* particles = s.pieces[slot].particles;
-    double rest[24];
-    for (int k = 0; k < 8; ++k) {
-      for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
-    }
-    solve_shape_matching(x, w, particles, rest, 8, params.shape_stiffness, s.rotation[slot]);
+    solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot]);
   };
   for (int sub = 0; sub < substeps; ++sub) {
     // Predict.
@@ -800,10 +824,10 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
     double grab_lambda[3] = {0, 0, 0};
     for (int it = 0; it < params.iterations; ++it) {
       // Stretching, colour by colour; the overflow colour serially.
-      for (uint8_t c = 0; c < kOverflowColour; ++c) {
+      for (uint8_t c = 0; c < kOverflowColour && stretch_on; ++c) {
         parallel(tasks, uint32_t(s.stretch_groups[c].size()), 2048, [&](uint32_t i) { stretch(c, i); });
       }
-      for (uint32_t i = 0; i < s.stretch_groups[kOverflowColour].size(); ++i) stretch(kOverflowColour, i);
+      for (uint32_t i = 0; i < s.stretch_groups[kOverflowColour].size() && stretch_on; ++i) stretch(kOverflowColour, i);
       // Shape matching, the same way.
       for (uint8_t c = 0; c < kOverflowColour; ++c) {
         parallel(tasks, uint32_t(s.piece_groups[c].size()), 256, [&](uint32_t i) { shape(c, i); });

@@ -42,6 +42,7 @@
 
 #include "sim/cut.h"
 #include "sim/flat_map.h"
+#include "sim/pbd_kernels.h"
 #include "sim/voxel_model.h"
 
 #include <Eigen/Geometry>
@@ -175,6 +176,10 @@ struct PbdData {
   double grab_compliance = 1e-4;
   std::vector<Vec3f> deformed;  // (surface vertex slots)
   uint64_t steps = 0;
+  // Per-step scratch of pbd_step (masses and rest positions change only between steps): the
+  // shape-matching rest frame of each piece slot, and each piece's corners in float for the embedding.
+  std::vector<ShapeRest> shape_rest;
+  std::vector<float> piece_corners;  // (piece slots x 8 corners x 3)
 };
 
 // Model and data together (what the engine holds). Field names of the data are forwarded for the

@@ -84,57 +84,37 @@ inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d&
   return std::hypot(c, curvature) - curvature;
 }
 
-// Masses, centres and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0)
-// need. Returns false when no particle of the cluster can move (then nothing is to be done).
+// Centre and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0) need,
+// from its rest frame (shape_matching_rest). The same Eigen expressions as the one-shot version had
+// (Eigen's 3x3 product sums its rows in an order of its own), so results are bit-identical.
 constexpr int kShapeRotationIterations = 3;
 
-bool shape_matching_frame(const double* x, const double* inv_mass, const uint32_t* indices, const double* rest,
-                          int count, Quaterniond& rotation, Vector3d& centre, Vector3d& rest_centre, Matrix3d& rot) {
-  if (count <= 0) return false;
-  // Mean mass of the free particles; anchored ones weigh kAnchorWeight times that.
-  constexpr double kAnchorWeight = 1e6;
-  double free_mass = 0.0;
-  int free_count = 0;
+void shape_matching_frame(const double* x, const uint32_t* indices, const ShapeRest& r, Quaterniond& rotation,
+                          Vector3d& centre, Matrix3d& rot) {
+  const int count = r.count;
+  Vector3d sum_x = Vector3d::Zero();
   for (int k = 0; k < count; ++k) {
-    const double w = inv_mass[indices[k]];
-    if (w > 0.0) {
-      free_mass += 1.0 / w;
-      ++free_count;
-    }
-  }
-  if (free_count == 0) return false;
-  const double anchored_mass = kAnchorWeight * free_mass / free_count;
-
-  // Mass centres, current and rest.
-  double total = 0.0;
-  Vector3d sum_x = Vector3d::Zero(), sum_r = Vector3d::Zero();
-  for (int k = 0; k < count; ++k) {
-    const double w = inv_mass[indices[k]];
-    const double m = w > 0.0 ? 1.0 / w : anchored_mass;
     const double* xi = x + 3 * size_t(indices[k]);
-    const double* ri = rest + 3 * size_t(k);
-    sum_x += m * Vector3d(xi[0], xi[1], xi[2]);
-    sum_r += m * Vector3d(ri[0], ri[1], ri[2]);
-    total += m;
+    sum_x += r.mass[k] * Vector3d(xi[0], xi[1], xi[2]);
   }
-  centre = sum_x / total;
-  rest_centre = sum_r / total;
+  centre = sum_x / r.total;
 
   // A = sum_i m_i (x_i - c)(r_i - c0)^T, its rotation warm-started from the previous one.
   Matrix3d a = Matrix3d::Zero();
   for (int k = 0; k < count; ++k) {
-    const double w = inv_mass[indices[k]];
-    const double m = w > 0.0 ? 1.0 / w : anchored_mass;
     const double* xi = x + 3 * size_t(indices[k]);
-    const double* ri = rest + 3 * size_t(k);
+    const double* q = r.offset + 3 * k;
     const Vector3d p = Vector3d(xi[0], xi[1], xi[2]) - centre;
-    const Vector3d q = Vector3d(ri[0], ri[1], ri[2]) - rest_centre;
-    a += (m * p) * q.transpose();
+    a += (r.mass[k] * p) * Vector3d(q[0], q[1], q[2]).transpose();
   }
   // Warm-started every solve, so a few iterations per call converge over the solver iterations.
   rotation = extract_rotation(a, rotation, kShapeRotationIterations);
   rot = rotation.toRotationMatrix();
-  return true;
+}
+
+// Goal of particle k: c + R q_k.
+inline Vector3d shape_goal(const Vector3d& centre, const Matrix3d& rot, const double* q) {
+  return centre + rot * Vector3d(q[0], q[1], q[2]);
 }
 
 }  // namespace
@@ -233,58 +213,88 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
 
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
                     double dt, double& lambda) {
-  const double wi = inv_mass[i], wj = inv_mass[j];
-  const double w_sum = wi + wj;
-  if (!(w_sum > 0.0)) return;  // both anchored: nothing can move
   // alpha~ = compliance / dt^2; a soft constraint without a time step does nothing.
   double alpha = 0.0;
   if (compliance > 0.0) {
     if (!(dt > 0.0)) return;
     alpha = compliance / (dt * dt);
   }
-  double* xi = x + 3 * size_t(i);
-  double* xj = x + 3 * size_t(j);
-  const Vector3d d(xi[0] - xj[0], xi[1] - xj[1], xi[2] - xj[2]);
-  const double length = d.norm();
-  // Coincident (or non-finite) particles: no direction to push along.
-  if (!(length > std::max(1e-12 * rest, 1e-300)) || !std::isfinite(length)) return;
-  const Vector3d n = d / length;
-  const double c = length - rest;
-  const double dlambda = (-c - alpha * lambda) / (w_sum + alpha);
-  lambda += dlambda;
-  for (int k = 0; k < 3; ++k) {
-    xi[k] += wi * dlambda * n[k];
-    xj[k] -= wj * dlambda * n[k];
+  solve_distance_alpha(x, inv_mass, i, j, rest, alpha, lambda);
+}
+
+bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const double* rest, int count,
+                         ShapeRest& out) {
+  out.count = 0;
+  if (count <= 0 || count > kShapeMaxParticles) return false;
+  // Mean mass of the free particles; anchored ones weigh kAnchorWeight times that.
+  constexpr double kAnchorWeight = 1e6;
+  double free_mass = 0.0;
+  int free_count = 0;
+  for (int k = 0; k < count; ++k) {
+    const double w = inv_mass[indices[k]];
+    if (w > 0.0) {
+      free_mass += 1.0 / w;
+      ++free_count;
+    }
+  }
+  if (free_count == 0) return false;
+  const double anchored_mass = kAnchorWeight * free_mass / free_count;
+
+  // Masses and the rest mass centre, then the offsets from it.
+  double total = 0.0;
+  Vector3d sum_r = Vector3d::Zero();
+  for (int k = 0; k < count; ++k) {
+    const double w = inv_mass[indices[k]];
+    const double m = w > 0.0 ? 1.0 / w : anchored_mass;
+    out.mass[k] = m;
+    out.moves[k] = w > 0.0;
+    sum_r += m * Vector3d(rest[3 * k], rest[3 * k + 1], rest[3 * k + 2]);
+    total += m;
+  }
+  out.total = total;
+  const Vector3d rest_centre = sum_r / total;
+  for (int k = 0; k < count; ++k) {
+    const Vector3d q = Vector3d(rest[3 * k], rest[3 * k + 1], rest[3 * k + 2]) - rest_centre;
+    for (int e = 0; e < 3; ++e) out.offset[3 * k + e] = q[e];
+  }
+  out.count = count;
+  return true;
+}
+
+void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r, double stiffness,
+                          Quaterniond& rotation) {
+  if (r.count == 0) return;
+  Vector3d centre;
+  Matrix3d rot;
+  shape_matching_frame(x, indices, r, rotation, centre, rot);
+  // Goals depend only on the frame computed above, so moving particles one by one is the same as
+  // applying shape_matching_corrections' deltas.
+  for (int k = 0; k < r.count; ++k) {
+    if (!r.moves[k]) continue;
+    double* xi = x + 3 * size_t(indices[k]);
+    const Vector3d goal = shape_goal(centre, rot, r.offset + 3 * k);
+    for (int e = 0; e < 3; ++e) xi[e] += stiffness * (goal[e] - xi[e]);
   }
 }
 
 void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* indices, const double* rest, int count,
                           double stiffness, Quaterniond& rotation) {
-  Vector3d centre, rest_centre;
-  Matrix3d rot;
-  if (!shape_matching_frame(x, inv_mass, indices, rest, count, rotation, centre, rest_centre, rot)) return;
-  // Goals depend only on the frame computed above, so moving particles one by one is the same as
-  // applying shape_matching_corrections' deltas.
-  for (int k = 0; k < count; ++k) {
-    if (!(inv_mass[indices[k]] > 0.0)) continue;
-    double* xi = x + 3 * size_t(indices[k]);
-    const double* ri = rest + 3 * size_t(k);
-    const Vector3d goal = centre + rot * (Vector3d(ri[0], ri[1], ri[2]) - rest_centre);
-    for (int e = 0; e < 3; ++e) xi[e] += stiffness * (goal[e] - xi[e]);
-  }
+  ShapeRest r;
+  if (shape_matching_rest(inv_mass, indices, rest, count, r)) solve_shape_matching(x, indices, r, stiffness, rotation);
 }
 
 void shape_matching_corrections(const double* x, const double* inv_mass, const uint32_t* indices, const double* rest,
                                 int count, double stiffness, Quaterniond& rotation, double* delta) {
   for (int k = 0; k < 3 * count; ++k) delta[k] = 0.0;
-  Vector3d centre, rest_centre;
+  ShapeRest r;
+  if (!shape_matching_rest(inv_mass, indices, rest, count, r)) return;
+  Vector3d centre;
   Matrix3d rot;
-  if (!shape_matching_frame(x, inv_mass, indices, rest, count, rotation, centre, rest_centre, rot)) return;
+  shape_matching_frame(x, indices, r, rotation, centre, rot);
   for (int k = 0; k < count; ++k) {
-    if (!(inv_mass[indices[k]] > 0.0)) continue;
+    if (!r.moves[k]) continue;
     const double* xi = x + 3 * size_t(indices[k]);
-    const double* ri = rest + 3 * size_t(k);
-    const Vector3d goal = centre + rot * (Vector3d(ri[0], ri[1], ri[2]) - rest_centre);
+    const Vector3d goal = shape_goal(centre, rot, r.offset + 3 * k);
     for (int e = 0; e < 3; ++e) delta[3 * k + e] = stiffness * (goal[e] - xi[e]);
   }
 }

@@ -6,6 +6,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 
 namespace dvx {
@@ -29,7 +31,30 @@ Eigen::Quaterniond extract_rotation(const Eigen::Matrix3d& a, const Eigen::Quate
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
                     double dt, double& lambda);
 
-// One shape-matching constraint (Müller et al. 2005) over `count` particles (indices), rest positions
+// The same with alpha~ = compliance / dt^2 computed once by the caller (0 for a rigid constraint; the
+// caller skips a soft constraint without a time step), inlined into the solver's colour-group loop.
+inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double alpha,
+                                 double& lambda) {
+  const double wi = inv_mass[i], wj = inv_mass[j];
+  const double w_sum = wi + wj;
+  if (!(w_sum > 0.0)) return;  // both anchored: nothing can move
+  double* xi = x + 3 * size_t(i);
+  double* xj = x + 3 * size_t(j);
+  const Eigen::Vector3d d(xi[0] - xj[0], xi[1] - xj[1], xi[2] - xj[2]);
+  const double length = d.norm();
+  // Coincident (or non-finite) particles: no direction to push along.
+  if (!(length > std::max(1e-12 * rest, 1e-300)) || !std::isfinite(length)) return;
+  const double c = length - rest;
+  const double dlambda = (-c - alpha * lambda) / (w_sum + alpha);
+  lambda += dlambda;
+  for (int k = 0; k < 3; ++k) {
+    const double n = d[k] / length;
+    xi[k] += wi * dlambda * n;
+    xj[k] -= wj * dlambda * n;
+  }
+}
+
+// One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions
 // `rest` (double[3] per listed particle, in the same order as indices), masses from inv_mass (w = 0
 // particles count as heavy: use a large fixed mass for them in the centroid, e.g. weight 1e6 x the
 // others' mean, so anchored particles pin the cluster). Computes the current mass centre c, the rest
@@ -44,5 +69,28 @@ void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* ind
 void shape_matching_corrections(const double* x, const double* inv_mass, const uint32_t* indices,
                                 const double* rest, int count, double stiffness, Eigen::Quaterniond& rotation,
                                 double* delta);
+
+// The rest frame of one shape-matching cluster of up to kShapeMaxParticles particles: what stays the
+// same between solves while the cluster's masses and rest positions do (the solver builds it once per
+// step: cuts and anchoring change masses only between steps). Masses (anchored particles weigh
+// kAnchorWeight x the free particles' mean), their total, and the rest offsets r_i - c0 from the rest
+// mass centre. Solving from it gives bit-identical results to solve_shape_matching above (the same
+// operations in the same order), with no divisions and no rest-centre sums per solve.
+constexpr int kShapeMaxParticles = 8;
+struct ShapeRest {
+  int count = 0;  // 0: no particle can move (the cluster is skipped)
+  double total = 0.0;
+  double mass[kShapeMaxParticles];
+  uint8_t moves[kShapeMaxParticles];    // inverse mass > 0
+  double offset[3 * kShapeMaxParticles];  // r_i - c0
+};
+
+// Builds the rest frame (count <= kShapeMaxParticles); false (out.count = 0) when no particle moves.
+bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const double* rest, int count,
+                         ShapeRest& out);
+
+// solve_shape_matching from a prebuilt rest frame.
+void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& rest, double stiffness,
+                          Eigen::Quaterniond& rotation);
 
 }  // namespace dvx
