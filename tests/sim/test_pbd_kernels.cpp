@@ -441,4 +441,77 @@ TEST_SUITE("pbd_kernels") {
         }
     }
   }
+
+  // The solver's path (rest frame built once, solves from it) against a plain reference: mass
+  // centres, A, its polar rotation by SVD, goals c + R (r_i - c0), with anchored particles weighing
+  // 1e6 x the free mean. Warm-started from the SVD rotation, the kernel's few rotation iterations
+  // must land on it: goals agree to 1e-9 of the cube's size.
+  TEST_CASE("solve_shape_matching from a prebuilt rest frame equals a reference implementation") {
+    Rng rng(41);
+    for (int trial = 0; trial < 200; ++trial) {
+      Cube cube;
+      for (int c = 0; c < Cube::kCount; ++c)
+        cube.inv_mass[cube.indices[c]] = trial % 3 == 0 && c == trial % 8 ? 0.0 : rng.uniform(0.5, 2.0);
+      const Matrix3d deform = rng.rotation().toRotationMatrix() * random_stretch(rng, 0.7, 1.3);
+      const Vector3d shift = rng.vec(-2, 2);
+      cube.place([&](const Vector3d& p) { return Vector3d(deform * p + shift + rng.vec(-0.05, 0.05)); });
+      // Reference.
+      double free_mass = 0.0;
+      int free_count = 0;
+      for (int c = 0; c < Cube::kCount; ++c) {
+        const double w = cube.inv_mass[cube.indices[c]];
+        if (w > 0.0) free_mass += 1.0 / w, ++free_count;
+      }
+      std::array<double, 8> m;
+      double total = 0.0;
+      Vector3d cx = Vector3d::Zero(), cr = Vector3d::Zero();
+      for (int c = 0; c < Cube::kCount; ++c) {
+        const double w = cube.inv_mass[cube.indices[c]];
+        m[c] = w > 0.0 ? 1.0 / w : 1e6 * free_mass / free_count;
+        cx += m[c] * cube.pos(c);
+        cr += m[c] * cube.rest_of(c);
+        total += m[c];
+      }
+      cx /= total;
+      cr /= total;
+      Matrix3d a = Matrix3d::Zero();
+      for (int c = 0; c < Cube::kCount; ++c) a += m[c] * (cube.pos(c) - cx) * (cube.rest_of(c) - cr).transpose();
+      Eigen::JacobiSVD<Matrix3d> svd(a, Eigen::ComputeFullU | Eigen::ComputeFullV);
+      const Matrix3d polar = svd.matrixU() * svd.matrixV().transpose();
+      REQUIRE(polar.determinant() > 0.0);
+      std::array<Vector3d, 8> goal;
+      for (int c = 0; c < Cube::kCount; ++c) goal[c] = cx + polar * (cube.rest_of(c) - cr);
+      // The kernel.
+      ShapeRest rest;
+      REQUIRE(shape_matching_rest(cube.inv_mass.data(), cube.indices.data(), cube.rest.data(), Cube::kCount, rest));
+      Quaterniond rotation(polar);
+      const std::vector<double> before = cube.x;
+      solve_shape_matching(cube.x.data(), cube.indices.data(), rest, 1.0, rotation);
+      for (int c = 0; c < Cube::kCount; ++c) {
+        const uint32_t i = cube.indices[c];
+        const Vector3d expected = cube.inv_mass[i] > 0.0 ? goal[c] : get(before, i);
+        CHECK((cube.pos(c) - expected).norm() < 1e-9);
+      }
+    }
+  }
+
+  // The solver's inlined stretch (alpha~ hoisted) against the XPBD formula written out.
+  TEST_CASE("solve_distance_alpha equals the XPBD distance update written out") {
+    Rng rng(43);
+    for (int trial = 0; trial < 500; ++trial) {
+      std::vector<double> x = {rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-1, 1),
+                               rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-1, 1)};
+      const std::vector<double> w = {trial % 5 == 0 ? 0.0 : rng.uniform(0.1, 2.0), rng.uniform(0.1, 2.0)};
+      const double rest = rng.uniform(0.1, 2.0), alpha = trial % 2 ? 0.0 : rng.uniform(0.0, 1.0);
+      double lambda = rng.uniform(-0.1, 0.1);
+      const Vector3d d = get(x, 0) - get(x, 1);
+      const double dl = (-(d.norm() - rest) - alpha * lambda) / (w[0] + w[1] + alpha);
+      const Vector3d xi = get(x, 0) + w[0] * dl * d.normalized(), xj = get(x, 1) - w[1] * dl * d.normalized();
+      const double lambda_expected = lambda + dl;
+      solve_distance_alpha(x.data(), w.data(), 0, 1, rest, alpha, lambda);
+      CHECK((get(x, 0) - xi).norm() < 1e-14);
+      CHECK((get(x, 1) - xj).norm() < 1e-14);
+      CHECK(std::fabs(lambda - lambda_expected) < 1e-14);
+    }
+  }
 }
