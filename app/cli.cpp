@@ -221,6 +221,11 @@ int run_cli(int argc, char** argv) {
   bench_deform_cmd->add_option("--iterations", bench_deform_options.iterations, "Iteration counts")
       ->delimiter(',')
       ->capture_default_str();
+  bench_deform_cmd->add_option("--substep-budgets", bench_deform_options.substep_budgets,
+                               "Substeps x iterations budgets of the small-steps sweep")
+      ->delimiter(',')
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
   bench_deform_cmd->add_option("--seconds", bench_deform_options.seconds, "Simulated time compared")->capture_default_str();
   bench_deform_cmd->add_option("--workers", bench_deform_options.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
   bench_deform_cmd->add_option("--target-mesh", bench_deform_options.target_mesh, "Mesh of the speed target (default: armadillo)");

@@ -52,6 +52,9 @@ struct BenchDeformOptions {
   int resolution = 64;
   std::vector<int> sim_resolutions = {8, 16, 32};
   std::vector<int> iterations = {1, 2, 5, 10, 20, 50};
+  // Small steps (Macklin et al. 2019) at equal cost: for each budget B, every substeps s > 1 dividing
+  // B runs with B / s iterations, next to the iterations sweep (s = 1).
+  std::vector<int> substep_budgets = {10};
   double seconds = 2.0;  // simulated time at which the surfaces are compared
   int workers = 2;
   // The speed target: PBD + embedding per step on a large surface.

@@ -48,8 +48,9 @@ void make_scenario(const TriMesh& mesh, const std::string& path, int resolution,
   }
 }
 
-PbdParams anchored_params(const Scenario& s, int resolution, int sim_resolution, int iterations) {
+PbdParams anchored_params(const Scenario& s, int resolution, int sim_resolution, int iterations, int substeps = 1) {
   PbdParams p;
+  p.substeps = substeps;
   p.resolution = resolution;
   p.sim_resolution = sim_resolution;
   p.iterations = iterations;
@@ -103,7 +104,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
 
   std::ostringstream csv;
   csv << "mesh,scenario,resolution,sim_resolution,iterations,steps,step_p50_ms,step_p99_ms,relative_error,particles,"
-         "shape_constraints,stretch_constraints\n";
+         "shape_constraints,stretch_constraints,substeps\n";
   nlohmann::json rows = nlohmann::json::array(), target_json;
   for (const bool through : {false, true}) {
     const std::string scenario = through ? "through_cut" : "anchored";
@@ -114,22 +115,31 @@ std::string bench_deform(const BenchDeformOptions& options) {
     const int most = *std::max_element(options.iterations.begin(), options.iterations.end());
     PbdState reference;
     simulate(s, anchored_params(s, options.resolution, finest, most), steps, pool, reference);
+    // One run: a CSV row and a JSON row.
+    const auto measure = [&](int sim, int iterations, int substeps) {
+      if (options.progress) {
+        std::fprintf(stderr, "divvox bench deform: %s sim %d iterations %d substeps %d\n", scenario.c_str(), sim,
+                     iterations, substeps);
+      }
+      PbdState run;
+      const std::vector<double> times =
+          simulate(s, anchored_params(s, options.resolution, sim, iterations, substeps), steps, pool, run);
+      const double error = relative_error(s.cut, run, reference);
+      const double p50 = quantile(times, 0.5);
+      csv << name << ',' << scenario << ',' << options.resolution << ',' << sim << ',' << iterations << ',' << steps
+          << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ',' << live_particles(run) << ','
+          << live_pieces(run) << ',' << stretch_count(run) << ',' << substeps << '\n';
+      rows.push_back({{"scenario", scenario}, {"sim_resolution", sim}, {"iterations", iterations},
+                      {"substeps", substeps}, {"step_p50_ms", p50}, {"step_p99_ms", quantile(times, 0.99)},
+                      {"relative_error", error}, {"particles", run.position.size() - run.free_particles.size()}});
+    };
     for (int sim : options.sim_resolutions) {
-      for (int iterations : options.iterations) {
-        if (options.progress) {
-          std::fprintf(stderr, "divvox bench deform: %s sim %d iterations %d\n", scenario.c_str(), sim, iterations);
+      for (int iterations : options.iterations) measure(sim, iterations, 1);
+      // Small steps at equal cost: substeps x iterations = budget.
+      for (int budget : options.substep_budgets) {
+        for (int substeps = 2; substeps <= budget; ++substeps) {
+          if (budget % substeps == 0) measure(sim, budget / substeps, substeps);
         }
-        PbdState run;
-        const std::vector<double> times = simulate(s, anchored_params(s, options.resolution, sim, iterations), steps, pool, run);
-        const double error = relative_error(s.cut, run, reference);
-        const double p50 = quantile(times, 0.5);
-        csv << name << ',' << scenario << ',' << options.resolution << ',' << sim << ',' << iterations << ',' << steps
-            << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ','
-            << live_particles(run) << ',' << live_pieces(run) << ','
-            << stretch_count(run) << '\n';
-        rows.push_back({{"scenario", scenario}, {"sim_resolution", sim}, {"iterations", iterations},
-                        {"step_p50_ms", p50}, {"step_p99_ms", quantile(times, 0.99)}, {"relative_error", error},
-                        {"particles", run.position.size() - run.free_particles.size()}});
       }
     }
   }

@@ -173,13 +173,19 @@ Plot deform_plot(const json& r) {
     for (const json& row : r["rows"]) {
       if (row["scenario"] != scenario || get(row, "relative_error") <= 0.0) continue;  // the reference itself
       const int sim = row["sim_resolution"], iterations = row["iterations"];
-      PlotSeries& s = by_sim.try_emplace(sim, series("sim " + std::to_string(sim), true, true)).first->second;
+      // The small-steps sweep (substeps > 1, labels substeps x iterations) in its own series per sim.
+      const int substeps = row.value("substeps", 1);
+      const int key = substeps > 1 ? -sim : sim;
+      const std::string label = "sim " + std::to_string(sim) + (substeps > 1 ? ", substeps x iterations" : "");
+      PlotSeries& s = by_sim.try_emplace(key, series(label, true, true)).first->second;
       s.x.push_back(get(row, "step_p50_ms"));
       s.y.push_back(get(row, "relative_error"));
-      s.point_labels.push_back(std::to_string(iterations));
+      s.point_labels.push_back(substeps > 1 ? std::to_string(substeps) + "x" + std::to_string(iterations)
+                                            : std::to_string(iterations));
       all_x.push_back(s.x.back());
       all_y.push_back(s.y.back());
-      if (sim == defaults.sim_resolution && iterations == defaults.solver.iterations) {
+      if (sim == defaults.sim_resolution && iterations == defaults.solver.iterations &&
+          substeps == defaults.solver.substeps) {
         chosen.x.push_back(s.x.back());
         chosen.y.push_back(s.y.back());
       }
