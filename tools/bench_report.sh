@@ -6,8 +6,8 @@
 #   tools/bench_report.sh --smoke    -> seconds, on the shipped bunny only (the test suite runs this)
 # Options: --out DIR (report at DIR/REPORT.md, results in DIR/results), --bin DIR (use this divvox
 # build, skip set-up), --no-peers (skip the CGAL / OpenVDB comparison).
-# The peers (CGAL clip, OpenVDB) are built into build-peers/ with -DDIVVOX_BENCH_PEERS=ON from
-# Debian's libcgal-dev and libopenvdb-dev, installed when missing and running as root (or sudo).
+# The peers (CGAL clip, OpenVDB, Bullet soft body) are built into build-peers/ with -DDIVVOX_BENCH_PEERS=ON
+# from Debian's libcgal-dev, libopenvdb-dev and libbullet-dev, installed when missing and running as root (or sudo).
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
@@ -44,7 +44,7 @@ divvox="$bin/divvox"
 # The peer comparison tool: Debian packages, then its own build folder.
 peers_bin=""
 if ((peers)); then
-  if "$here/tools/setup.sh" --only libcgal-dev libopenvdb-dev; then
+  if "$here/tools/setup.sh" --only libcgal-dev libopenvdb-dev libbullet-dev; then
     pb="$here/build-peers"
     if [[ ! -f "$pb/CMakeCache.txt" ]]; then
       cmake -S "$here" -B "$pb" -G Ninja -DCMAKE_BUILD_TYPE=Release -DDIVVOX_BENCH_PEERS=ON -DDIVVOX_GRAPHICS=OFF \
@@ -53,7 +53,7 @@ if ((peers)); then
     cmake --build "$pb" --target divvox_peers --parallel "$(nproc)" >"$pb.build.log" 2>&1 || { cat "$pb.build.log"; exit 1; }
     peers_bin="$pb/tools/peers/divvox_peers"
   else
-    echo "bench_report: could not install libcgal-dev libopenvdb-dev; the report leaves CGAL and OpenVDB out" >&2
+    echo "bench_report: could not install libcgal-dev libopenvdb-dev libbullet-dev; the report leaves CGAL, OpenVDB and Bullet out" >&2
   fi
 fi
 
@@ -73,6 +73,7 @@ case "$mode" in
     deform=()
     replay=(--repeats 3)
     vdb=(--resolutions 64,128,256,512 --repeats 3)
+    bullet=(--iterations 5,10,20 --reference-iterations 100 --seconds 1)
     clip=(--repeats 5)
     ;;
   quick)
@@ -84,6 +85,7 @@ case "$mode" in
     deform=(--sim-resolutions 8,16 --iterations 2,5,10,20 --seconds 1 --target-resolution 128)
     replay=(--repeats 1)
     vdb=(--resolutions 64,128,256 --repeats 1)
+    bullet=(--iterations 10 --reference-iterations 50 --seconds 0.5)
     clip=(--repeats 2)
     ;;
   smoke)
@@ -119,6 +121,7 @@ rm -rf "$run"
 if [[ -n "$peers_bin" ]]; then
   step "peers: CGAL clip";                 "$peers_bin" clip --mesh "$armadillo" "${clip[@]}" --out "$results" >/dev/null
   step "peers: OpenVDB";                   "$peers_bin" vdb --mesh "$armadillo" "${vdb[@]}" --out "$results" >/dev/null
+  step "peers: Bullet soft body";          "$peers_bin" bullet --scene "$here/assets/scenes/bunny.json" "${bullet[@]}" --out "$results" >/dev/null
 else
   rm -f "$results"/peers_*.json "$results"/peers_*.csv
 fi

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Smoke test of divvox_peers (CGAL clip, OpenVDB extraction) on the shipped bunny: both run and
+# Smoke test of divvox_peers (CGAL clip, OpenVDB extraction, Bullet soft body) on the shipped bunny: both run and
 # write sane reports; a missing mesh -> one line naming the file, exit 2.
 # Usage: peers_test.sh DIVVOX_PEERS SOURCE_DIR
 set -u
@@ -57,6 +57,27 @@ if "$peers" vdb --mesh "$mesh" --resolutions 32 --repeats 1 --error-samples 2000
   [[ $(wc -l <"$tmp/out/peers_vdb.csv") -eq 2 ]] || fail "peers_vdb.csv: want a header and one row"
 else
   fail "vdb exited $?: $(cat "$tmp/vdb.err")"
+fi
+
+# Bullet soft body on the shipped scene's PBD model: both sag (down), times measured, the same links.
+if "$peers" bullet --scene "$repo/assets/scenes/bunny.json" --iterations 5 --reference-iterations 10 --seconds 0.1 \
+  --out "$tmp/out" >"$tmp/bullet.out" 2>"$tmp/bullet.err"; then
+  grep -q "wrote $tmp/out/peers_bullet.json" "$tmp/bullet.out" || fail "bullet: no 'wrote' line"
+  check "$tmp/out/peers_bullet.json" \
+    'd["status"] == "ok"' \
+    'd["tool"] == "bullet_softbody"' \
+    'len(d["rows"]) == 1 and d["rows"][0]["iterations"] == 5' \
+    'd["rows"][0]["bullet_links"] == d["stretch_constraints"]' \
+    'd["rows"][0]["divvox_sag"] > 0 and d["rows"][0]["bullet_sag"] > 0' \
+    'd["rows"][0]["divvox_step_ms_p50"] > 0 and d["rows"][0]["bullet_step_ms_p50"] > 0'
+  [[ $(wc -l <"$tmp/out/peers_bullet.csv") -eq 2 ]] || fail "peers_bullet.csv: want a header and one row"
+else
+  fail "bullet exited $?: $(cat "$tmp/bullet.err")"
+fi
+"$peers" bullet --scene "$tmp/missing.json" --out "$tmp/bad" >/dev/null 2>"$tmp/bad.err"
+code=$?
+if [[ $code -ne 2 ]] || ! grep -q "missing.json" "$tmp/bad.err"; then
+  fail "bullet with a missing scene: exit $code (want 2), stderr: $(cat "$tmp/bad.err")"
 fi
 
 # Bad input: a missing mesh -> exit 2, one stderr line naming the file (both subcommands).

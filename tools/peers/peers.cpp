@@ -60,8 +60,8 @@ std::string csv_text(const std::vector<CsvRow>& rows) {
 
 namespace {
 
-// "64,128,256" -> resolutions in [1, 4096].
-std::vector<int> parse_resolutions(const std::string& text) {
+// "64,128,256" -> integers in [low, high] (resolutions, iteration counts).
+std::vector<int> parse_list(const std::string& text, const std::string& flag, int low, int high) {
   std::vector<int> values;
   size_t start = 0;
   while (start <= text.size()) {
@@ -70,10 +70,10 @@ std::vector<int> parse_resolutions(const std::string& text) {
     try {
       size_t used = 0;
       const int value = std::stoi(item, &used);
-      if (used != item.size() || value < 1 || value > 4096) throw std::invalid_argument(item);
+      if (used != item.size() || value < low || value > high) throw std::invalid_argument(item);
       values.push_back(value);
     } catch (const std::exception&) {
-      throw_input("--resolutions", "'" + item + "' is not a resolution in [1, 4096]");
+      throw_input(flag, "'" + item + "' is not an integer in [" + std::to_string(low) + ", " + std::to_string(high) + "]");
     }
     start = end + 1;
   }
@@ -88,7 +88,7 @@ int main(int argc, char** argv) {
   using namespace dvx::peers;
 
   // Subcommands and their flags.
-  CLI::App app{"divvox_peers: divvox's benchmark inputs through CGAL (clip) and OpenVDB (level set)"};
+  CLI::App app{"divvox_peers: divvox's benchmark inputs through CGAL (clip), OpenVDB (level set) and Bullet (soft body)"};
   app.require_subcommand(1);
 
   ClipOptions clip;
@@ -115,6 +115,20 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   vdb_cmd->add_option("--out,-o", vdb.out_dir, "Output folder")->required();
 
+  BulletOptions bullet;
+  std::string bullet_iterations = "5,10,20";
+  CLI::App* bullet_cmd = app.add_subcommand(
+      "bullet", "Bullet soft body (btSoftBody) on divvox's PBD particles and links of a scene, at the same\n"
+                "iterations, dt, damping and gravity: time per step against divvox's pbd_step, sag under gravity\n"
+                "against a converged reference (divvox at many iterations) -> peers_bullet.json/.csv");
+  bullet_cmd->add_option("--scene,-s", bullet.scene, "Scene file")->required();
+  bullet_cmd->add_option("--iterations", bullet_iterations, "Comma-separated iteration counts")->capture_default_str();
+  bullet_cmd->add_option("--reference-iterations", bullet.reference_iterations, "Iterations of the converged reference")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  bullet_cmd->add_option("--seconds", bullet.seconds, "Simulated time from rest")->check(CLI::Range(0.01, 60.0))->capture_default_str();
+  bullet_cmd->add_option("--out,-o", bullet.out_dir, "Output folder")->required();
+
   // Bad flags: one line, exit 2.
   try {
     app.parse(argc, argv);
@@ -132,8 +146,11 @@ int main(int argc, char** argv) {
     std::string written;
     if (clip_cmd->parsed()) {
       written = run_clip(clip);
+    } else if (bullet_cmd->parsed()) {
+      bullet.iterations = parse_list(bullet_iterations, "--iterations", 1, 100000);
+      written = run_bullet(bullet);
     } else {
-      vdb.resolutions = parse_resolutions(resolutions);
+      vdb.resolutions = parse_list(resolutions, "--resolutions", 1, 4096);
       written = run_vdb(vdb);
     }
     std::printf("wrote %s\n", written.c_str());

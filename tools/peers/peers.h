@@ -1,7 +1,8 @@
 // divvox_peers: the same inputs divvox uses, through two peer libraries, so the report can set
-// them side by side: CGAL's remeshing cut (clip by a plane, paper Fig. 13) and OpenVDB's static
-// surface extraction (mesh -> narrow-band level set -> mesh) at divvox's voxel size.
-// Only clip_cgal.cpp sees CGAL and only vdb.cpp sees OpenVDB (both are slow to compile).
+// them side by side: CGAL's remeshing cut (clip by a plane, paper Fig. 13), OpenVDB's static
+// surface extraction (mesh -> narrow-band level set -> mesh) at divvox's voxel size, and Bullet's
+// soft body on divvox's own PBD particles and links.
+// Only clip_cgal.cpp sees CGAL, only vdb.cpp OpenVDB, only bullet.cpp Bullet.
 #pragma once
 
 #include "sim/mesh.h"
@@ -30,10 +31,19 @@ struct VdbOptions {
   std::string out_dir;
 };
 
+struct BulletOptions {
+  std::string scene;                            // divvox scene file (its PBD model is given to Bullet)
+  std::vector<int> iterations{5, 10, 20};       // solver iterations compared
+  int reference_iterations = 100;               // divvox at this many iterations is the converged reference
+  double seconds = 1.0;                         // simulated time from rest
+  std::string out_dir;
+};
+
 // Each writes DIR/peers_<name>.json and .csv and returns the JSON path. Throw InputError on bad
 // input; a peer library failing is measured, not thrown (the JSON's "status" says so).
 std::string run_clip(const ClipOptions& options);
 std::string run_vdb(const VdbOptions& options);
+std::string run_bullet(const BulletOptions& options);
 
 // Loads a mesh; every failure becomes an InputError naming the file.
 TriMesh load_input(const std::string& path);
