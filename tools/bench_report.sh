@@ -94,7 +94,7 @@ case "$mode" in
     scaling=(--mesh "$bunny" --resolutions 16,32 --steps 10 --sim-resolution 8)
     length=(--mesh "$bunny" --resolution 32 --repeats 1 --lengths 5 --steps 20)
     quality=(--mesh "$bunny" --resolutions 24,48 --repeats 1 --steps 20)
-    deform=(--mesh "$bunny" --resolution 32 --sim-resolutions 4,8 --iterations 2,5 --seconds 0.2
+    deform=(--mesh "$bunny" --resolution 32 --sim-resolutions 4,8 --iterations 2,5 --substep-budgets 4 --seconds 0.2
             --target-mesh "$bunny" --target-resolution 32)
     replay=(--repeats 1 --recording "$here/assets/recordings/bunny_cut.jsonl")
     ;;
