@@ -323,17 +323,10 @@ nlohmann::json summary_json(const ReplayOptions& options, const Playback& playba
         {"edges_cut", state.edge_cuts.size()},
         {"sim_voxels_divided", pbd ? sim_voxels_divided(*pbd) : 0},
         {"explicit_bytes", cut_memory_bytes(state)}}},
-      {"surface",
-       {{"vertices", final.stats.vertices},
-        {"triangles", final.stats.triangles},
-        {"boundary_edges", final.stats.boundary_edges},
-        {"nonmanifold_edges", final.stats.nonmanifold_edges},
-        {"misoriented_edges", final.stats.misoriented_edges},
-        {"components", final.stats.components},
-        {"volume", final.stats.volume},
-        {"initial_volume", run.initial_volume}}},
+      {"surface", surface_stats_json(final.stats)},
       {"nonfinite_values", final.nonfinite},
   };
+  summary["surface"]["initial_volume"] = run.initial_volume;
   if (pbd) {
     summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(*pbd)}};
     summary["kinetic_energy"] = kinetic_energy(*pbd);

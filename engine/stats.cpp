@@ -28,4 +28,16 @@ nlohmann::json percentiles_json(const std::vector<double>& values) {
           {"count", sorted.size()}};
 }
 
+nlohmann::json surface_stats_json(const SurfaceStats& s) {
+  return {{"vertices", s.vertices},
+          {"triangles", s.triangles},
+          {"boundary_edges", s.boundary_edges},
+          {"nonmanifold_edges", s.nonmanifold_edges},
+          {"misoriented_edges", s.misoriented_edges},
+          {"components", s.components},
+          {"euler", s.euler},
+          {"volume", s.volume},
+          {"area", s.area}};
+}
+
 }  // namespace dvx
