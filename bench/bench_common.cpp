@@ -10,13 +10,6 @@
 
 namespace dvx {
 
-double quantile(std::vector<double> values, double q) {
-  if (values.empty()) return 0.0;
-  std::sort(values.begin(), values.end());
-  const double rank = std::ceil(std::clamp(q, 0.0, 1.0) * double(values.size()));
-  return values[std::min(values.size() - 1, size_t(std::max(rank, 1.0)) - 1)];
-}
-
 std::string shared_or_bunny(const std::string& file_name) {
   const std::filesystem::path shared = std::filesystem::path(DIVVOX_SHARED_ASSETS_DEFAULT) / file_name;
   if (std::filesystem::exists(shared)) return shared.string();

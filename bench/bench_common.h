@@ -1,7 +1,9 @@
-// Pieces every `divvox bench` experiment shares: sample statistics, the default meshes, the cut
-// path (one path in scene units for every resolution), the least-squares line of Experiment 2.
+// Pieces every `divvox bench` experiment shares (with engine/stats.h and engine/timing.h): the default
+// meshes, the cut path (one path in scene units for every resolution), the least-squares line of
+// Experiment 2.
 #pragma once
 
+#include "engine/stats.h"
 #include "engine/timing.h"
 #include "sim/cut.h"
 #include "sim/mesh.h"
@@ -11,9 +13,6 @@
 #include <vector>
 
 namespace dvx {
-
-// Nearest-rank quantile (q in [0, 1]) of a sample; 0 for an empty sample.
-double quantile(std::vector<double> values, double q);
 
 // A shared mesh from ../shared/assets when present, else the shipped bunny.
 std::string shared_or_bunny(const std::string& file_name);

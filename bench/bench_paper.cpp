@@ -39,10 +39,6 @@ std::string csv_field(std::string text) {
   return text;
 }
 
-nlohmann::json percentiles(const std::vector<double>& v) {
-  return {{"p50", quantile(v, 0.5)}, {"p99", quantile(v, 0.99)}, {"max", quantile(v, 1.0)}, {"count", v.size()}};
-}
-
 // ---------------------------------------------------------------------------------------------
 // Experiment 1: one (mesh, resolution) with the physics running, measured in a child process.
 
@@ -97,8 +93,8 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
           {"init_ms", session.init_ms},
           {"cutting_steps", total.size()},
           {"voxels_cut", voxels_cut},
-          {"step_ms", {{"cut", percentiles(cut)}, {"surface", percentiles(surface)}, {"deform", percentiles(deform)},
-                       {"total", percentiles(total)}, {"every_step", percentiles(all_steps)}}},
+          {"step_ms", {{"cut", percentiles_json(cut)}, {"surface", percentiles_json(surface)}, {"deform", percentiles_json(deform)},
+                       {"total", percentiles_json(total)}, {"every_step", percentiles_json(all_steps)}}},
           {"model_bytes", model_bytes},
           {"cut_bytes", cut_bytes},
           {"bytes_per_occupied_voxel", session.model.occupied_voxels

@@ -353,14 +353,18 @@ RecordingWriter::~RecordingWriter() {
   if (fd_ >= 0) ::close(fd_);
 }
 
-void RecordingWriter::write_blade(uint32_t step, const BladePose& blade, bool cutting) {
+json blade_line(uint32_t step, const BladePose& blade, bool cutting) {
   // JSON has no NaN: a non-finite pose would make the file unreadable from here on.
   if (!blade.a.allFinite() || !blade.b.allFinite()) {
     throw std::invalid_argument("recording: non-finite blade pose at step " + std::to_string(step));
   }
-  write_line({{"step", step},
-              {"blade", {{blade.a.x(), blade.a.y(), blade.a.z()}, {blade.b.x(), blade.b.y(), blade.b.z()}}},
-              {"cutting", cutting}});
+  return {{"step", step},
+          {"blade", {{blade.a.x(), blade.a.y(), blade.a.z()}, {blade.b.x(), blade.b.y(), blade.b.z()}}},
+          {"cutting", cutting}};
+}
+
+void RecordingWriter::write_blade(uint32_t step, const BladePose& blade, bool cutting) {
+  write_line(blade_line(step, blade, cutting));
 }
 
 void RecordingWriter::write_hash(uint32_t step, const std::string& hash) {

@@ -22,6 +22,9 @@
 namespace dvx {
 
 constexpr int kRecordingVersion = 1;
+// A state hash every this many steps (from step 0, and after the last step) in the recordings divvox
+// writes: the window's and `replay --record`'s default (engine/playback.h: SessionRecorder).
+constexpr uint32_t kHashEvery = 60;
 
 // One step line (a blade pose and/or a hash; other keys kept raw for later layers).
 struct RecordedStep {
@@ -52,6 +55,10 @@ struct Recording {
 // points (NaN/Inf: the message names the step), non-boolean "cutting", a hash that is not a hex
 // string. A truncated (unterminated, unparsable) last line is dropped with a warning.
 Recording read_recording(const std::string& path);
+
+// The step line of a blade pose: {"step", "blade": [[ax,ay,az],[bx,by,bz]], "cutting"}. Throws
+// std::invalid_argument for a non-finite pose (JSON has no NaN: the file would be unreadable).
+nlohmann::json blade_line(uint32_t step, const BladePose& blade, bool cutting);
 
 // Writes recordings line by line, flushing after each line so a crash loses at most the line
 // being written.

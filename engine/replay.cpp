@@ -2,10 +2,12 @@
 
 #include "engine/errors.h"
 #include "engine/output.h"
-#include "engine/recording.h"
+#include "engine/playback.h"
+#include "engine/plot.h"
 #include "engine/session.h"
 #include "engine/snapshot.h"
-#include "engine/plot.h"
+#include "engine/stats.h"
+#include "engine/timing.h"
 #ifdef DIVVOX_HAS_RENDER
 #include "engine/headless_render.h"
 #endif
@@ -16,13 +18,13 @@
 
 #include <nlohmann/json.hpp>
 
-#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
-#include <atomic>
-#include <csignal>
+#include <functional>
 #include <memory>
 #include <sstream>
 #include <thread>
@@ -34,26 +36,135 @@ namespace {
 std::atomic<bool> g_interrupted{false};
 void on_sigint(int) { g_interrupted.store(true); }
 
+// What the step loop did.
+struct ReplayRun {
+  std::vector<StepReport> rows;  // (steps run) one per step
+  uint64_t voxels_cut = 0;
+  uint32_t steps_done = 0;
+  bool interrupted = false;
+  HashChecks checks;
+  double initial_volume = 0.0;  // of the uncut surface
+  double wall_s = 0.0;          // from the first step to the last output written
+};
 
-
-// {"mean","p50","p95","p99","max"} of a sample (empty: zeros).
-nlohmann::json percentiles(std::vector<double> values) {
-  if (values.empty()) return {{"mean", 0.0}, {"p50", 0.0}, {"p95", 0.0}, {"p99", 0.0}, {"max", 0.0}, {"count", 0}};
-  std::sort(values.begin(), values.end());
-  double sum = 0.0;
-  for (double v : values) sum += v;
-  const auto at = [&](double q) {
-    const size_t i = size_t(std::ceil(q * double(values.size()))) - 1;
-    return values[std::min(i, values.size() - 1)];
-  };
-  return {{"mean", sum / double(values.size())},
-          {"p50", at(0.50)},
-          {"p95", at(0.95)},
-          {"p99", at(0.99)},
-          {"max", values.back()},
-          {"count", values.size()}};
+// The recording's camera for frames from this step on: usable only with a finite target and a
+// positive distance (otherwise the default framing).
+void publish_camera(Snapshot& slot, bool on, const CameraCommand& c) {
+  slot.has_camera = on;
+  slot.camera_target = c.target;
+  slot.camera_distance = c.distance;
+  slot.camera_yaw = c.yaw;
+  slot.camera_pitch = c.pitch;
 }
 
+// Steps the session through the playback: each step's recorded commands, then the hash check and the
+// recorder; with `exchange`, every step's surface goes to the render thread.
+void simulate(const Playback& playback, const ReplayOptions& options, bool check_hashes, Session& session,
+              SessionRecorder* recorder, SnapshotExchange* exchange, ReplayRun& run) {
+  PlaybackCursor cursor;
+  DirtyHistory dirty_history;
+  CameraCommand camera;
+  bool camera_on = false;
+  const uint32_t last = playback.last_step();
+  const Clock::time_point start = Clock::now();
+  for (uint32_t step = 0; step <= last && !playback.steps.empty(); ++step) {
+    if (g_interrupted.load()) {
+      run.interrupted = true;
+      break;
+    }
+    // --speed realtime: a step every dt of wall-clock time.
+    if (options.realtime) std::this_thread::sleep_until(start + std::chrono::duration<double>(playback.dt * step));
+    // The recorded commands of this step (none: the blade keeps its pose).
+    const PlaybackStep* recorded = next_commands(playback, cursor, step);
+    const StepCommands commands = recorded ? recorded->commands : StepCommands();
+    const CameraCommand* camera_set = recorded && recorded->has_camera ? &recorded->camera : nullptr;
+    if (camera_set != nullptr) {
+      camera = *camera_set;
+      camera_on = camera.target.allFinite() && camera.distance > 0.0f;
+    }
+    const StepReport row = session_step(session, commands);
+    run.voxels_cut += row.cut.voxels_cut;
+    run.rows.push_back(row);
+
+    // Determinism: compare with the recorded hash; record what was applied.
+    if (recorded && check_hashes) check_hash(*recorded, session, run.checks);
+    if (recorder) recorder->record(step, commands, camera_set, session);
+
+    // Hand the surface to the render thread (capture frames every frames_every steps).
+    if (exchange != nullptr) {
+      const bool capture = options.frames_every > 0 && step % options.frames_every == 0;
+      exchange->publish(
+          [&](Snapshot& slot, uint64_t slot_sequence) {
+            fill_snapshot(slot, slot_sequence, session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr,
+                          dirty_history, step, row.timings);
+            publish_camera(slot, camera_on, camera);
+          },
+          capture);
+      session.cut.surface.clear_dirty();
+    }
+    run.steps_done = step + 1;
+    if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
+  }
+}
+
+// The simulation on its own thread and the EGL render thread here (EGL contexts belong to the thread
+// that made them). Throws InputError when rendering is impossible.
+void simulate_and_render(const std::function<void(SnapshotExchange*)>& simulate_on, const ReplayOptions& options,
+                         const Session& session, std::vector<FrameRow>& frames) {
+#ifdef DIVVOX_HAS_RENDER
+  std::string error;
+  if (!probe_headless_render(error)) throw_input(options.recording, "headless rendering: " + error);
+  HeadlessRenderOptions ro;
+  ro.width = options.width;
+  ro.height = options.height;
+  ro.frames_dir = options.frames_every > 0 ? (std::filesystem::path(options.out_dir) / "frames").string() : "";
+  ro.wireframe = options.wireframe;
+  ro.framing = mesh_bounds(session.input.mesh);
+  if (!ro.frames_dir.empty()) make_output_dir(ro.frames_dir);
+  SnapshotExchange exchange;
+  std::thread sim_thread([&] {
+    simulate_on(&exchange);
+    exchange.finish();
+  });
+  const bool rendered = run_headless_render(exchange, ro, frames, error);
+  sim_thread.join();
+  if (!rendered) throw_input(options.recording, "headless rendering: " + error);
+#else
+  (void)simulate_on;
+  (void)session;
+  (void)frames;
+  throw_input(options.recording, "this build has no renderer (configured with -DDIVVOX_GRAPHICS=OFF); drop --frames");
+#endif
+}
+
+// Per-step samples of each phase for summary.json: cut, surface and total over the steps whose blade
+// sweep crossed lattice edges; deform (with the physics) and step over every step.
+struct PhaseSamples {
+  std::vector<double> cut, surface, total, deform, step;
+};
+
+// timings.csv (one row per step) and the phase samples.
+PhaseSamples write_timings_csv(const std::vector<StepReport>& rows, bool physics, const std::filesystem::path& out) {
+  std::ostringstream csv;
+  csv << "step,cut_ms,surface_ms,deform_ms,total_ms,cut_voxels,edges_hit,edges_cut,voxels_divided,"
+         "vertices_changed,triangles_changed,cutting,sim_voxels_cut\n";
+  PhaseSamples samples;
+  for (const StepReport& r : rows) {
+    if (physics) samples.deform.push_back(r.timings.deform_ms);
+    samples.step.push_back(r.timings.total_ms);
+    csv << r.step << ',' << r.timings.cut_ms << ',' << r.timings.surface_ms << ',' << r.timings.deform_ms << ','
+        << r.timings.total_ms << ',' << r.cut.voxels_cut << ',' << r.cut.edges_hit << ',' << r.cut.edges_cut << ','
+        << r.cut.voxels_divided << ',' << r.cut.vertices_changed << ',' << r.cut.triangles_changed << ','
+        << (r.cutting ? 1 : 0) << ',' << r.sim_voxels_cut << '\n';
+    if (r.cut.edges_hit > 0) {
+      samples.cut.push_back(r.timings.cut_ms);
+      samples.surface.push_back(r.timings.surface_ms);
+      samples.total.push_back(r.timings.total_ms);
+    }
+  }
+  write_text_file((out / "timings.csv").string(), csv.str());
+  return samples;
+}
 
 // timings.svg and timings.png: one panel per phase against the step (the same log time axis in each),
 // the cutting steps shaded, each phase's p50 / p99 (over the samples summary.json uses) and the frame
@@ -80,7 +191,7 @@ void write_timings_plot(const std::string& recording, const std::vector<StepRepo
       if (!std::isnan(v)) sample.push_back(v);
     }
     PlotPanel p{std::string(name) + " ms", true, {s}, {}};
-    const nlohmann::json stats = percentiles(sample);
+    const nlohmann::json stats = percentiles_json(sample);
     for (const char* q : {"p50", "p99"}) {
       char label[96];
       std::snprintf(label, sizeof label, "%s %.3g ms (%s)", q, stats[q].get<double>(), over);
@@ -126,266 +237,96 @@ void write_timings_plot(const std::string& recording, const std::vector<StepRepo
     std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", error.c_str());
   }
 }
-}  // namespace
 
-ReplayResult run_replay(const ReplayOptions& options) {
-  const Recording recording = read_recording(options.recording);
-  for (const std::string& warning : recording.warnings) std::fprintf(stderr, "divvox: warning: %s\n", warning.c_str());
+// Per-frame samples of the render thread: upload + draw + readback, and the interval between frames.
+struct FrameSamples {
+  std::vector<double> render, interval;
+  size_t rendered = 0;
+};
 
-  // The simulation of the recording's scene.
-  const Scene& scene = recording.scene;
-  Session session;
-  open_session(scene, recording.dt, options.physics, options.workers, session, options.progress);
-  const SurfaceStats initial = surface_stats(compact_surface(session.cut.surface));
-
-  make_output_dir(options.out_dir);
-  std::unique_ptr<RecordingWriter> writer;
-  if (!options.record_path.empty()) {
-    writer = std::make_unique<RecordingWriter>(options.record_path, scene, recording.dt, options.physics ? 1 : 0);
+// frame_timings.csv (when frames were rendered) and the frame samples.
+FrameSamples write_frame_timings(const std::vector<FrameRow>& frames, const std::filesystem::path& out) {
+  FrameSamples samples;
+  samples.rendered = frames.size();
+  if (frames.empty()) return samples;
+  std::ostringstream f;
+  f << "frame,step,upload_ms,draw_ms,readback_ms,frame_interval_ms,written\n";
+  for (const FrameRow& r : frames) {
+    f << r.frame << ',' << r.step << ',' << r.upload_ms << ',' << r.draw_ms << ',' << r.readback_ms << ','
+      << r.interval_ms << ',' << (r.written ? 1 : 0) << '\n';
+    samples.render.push_back(r.upload_ms + r.draw_ms + r.readback_ms);
+    if (r.frame > 0) samples.interval.push_back(r.interval_ms);
   }
-  // Hashes taken in the other mode cannot match: say so instead of reporting a divergence.
-  const bool check_hashes = recording.physics < 0 || recording.physics == (options.physics ? 1 : 0);
-  if (!check_hashes) {
-    std::fprintf(stderr, "divvox: warning: %s: its state hashes were taken with the physics %s; not checked\n",
-                 options.recording.c_str(), recording.physics ? "on" : "off");
-  }
+  write_text_file((out / "frame_timings.csv").string(), f.str());
+  return samples;
+}
 
-  // Step through the recording: a line sets the pose (kept until the next line); the sweep from the
-  // previous step's pose to this step's cuts when this step is cutting.
-  ReplayResult result;
-  std::vector<StepReport> rows;
-  uint64_t totals_voxels_cut = 0;
-  size_t line = 0;
-  const uint32_t last = recording.last_step();
-  uint32_t steps_done = 0;
-  DirtyHistory dirty_history;
-  Snapshot camera;  // only its camera fields: the recording's camera so far
-  const Clock::time_point start = Clock::now();
-  // The simulation loop (on its own thread when a render thread draws its snapshots).
-  const auto simulate = [&](SnapshotExchange* exchange) {
-  for (uint32_t step = 0; step <= last && !recording.steps.empty(); ++step) {
-    if (g_interrupted.load()) {
-      result.interrupted = true;
-      break;
-    }
-    // --speed realtime: a step every dt of wall-clock time.
-    if (options.realtime) std::this_thread::sleep_until(start + std::chrono::duration<double>(recording.dt * step));
-    // The recording's lines for this step become the step's commands.
-    StepCommands commands;
-    std::string recorded_hash;
-    for (; line < recording.steps.size() && recording.steps[line].step == step; ++line) {
-      const RecordedStep& r = recording.steps[line];
-      if (r.has_blade) {
-        commands.has_blade = true;
-        commands.blade = r.blade;
-        commands.cutting = r.cutting;
-      }
-      if (r.has_hash && check_hashes) recorded_hash = r.hash;
-      if (r.extra.is_object() && r.extra.contains("camera")) {
-        // {"target": [x,y,z], "distance": d, "yaw": radians, "pitch": radians}: the frames' camera from here on.
-        const nlohmann::json& c = r.extra["camera"];
-        const auto number = [&](const char* key) {
-          if (!c.is_object() || !c.contains(key) || !c[key].is_number() || !std::isfinite(c[key].get<double>())) {
-            throw_input(options.recording, "line " + std::to_string(r.line) +
-                                               ": camera must be {\"target\": [x,y,z], \"distance\": d, \"yaw\": a, "
-                                               "\"pitch\": b}");
-          }
-          return float(c[key].get<double>());
-        };
-        if (!c.is_object() || !c.contains("target") || !c["target"].is_array() || c["target"].size() != 3) number("target");
-        for (int a = 0; a < 3; ++a) {
-          if (!c["target"][a].is_number()) number("target");
-          camera.camera_target[a] = float(c["target"][a].get<double>());
-        }
-        camera.camera_distance = number("distance");
-        camera.camera_yaw = number("yaw");
-        camera.camera_pitch = number("pitch");
-        camera.has_camera = camera.camera_target.allFinite() && camera.camera_distance > 0.0f;
-      }
-      if (r.extra.is_object() && r.extra.contains("grab")) {
-        commands.grab = parse_grab(r.extra["grab"], options.recording, r.line);
-        if (writer) writer->write_line({{"step", step}, {"grab", r.extra["grab"]}});
-      }
-    }
-    const StepReport row = session_step(session, commands);
-    totals_voxels_cut += row.cut.voxels_cut;
-    rows.push_back(row);
-    if (writer && session.have_blade) writer->write_blade(step, session.blade, session.cutting);
-
-    // Determinism: compare with the recorded hash, write ours.
-    const bool want_hash = !recorded_hash.empty() || (writer && options.hash_every > 0 && step % options.hash_every == 0);
-    if (want_hash) {
-      const std::string hash = hash_hex(session_hash(session));
-      if (!recorded_hash.empty()) {
-        ++result.hash_checked;
-        if (hash != recorded_hash) {
-          ++result.hash_mismatched;
-          if (result.first_mismatch_step < 0) result.first_mismatch_step = step;
-        }
-      }
-      if (writer && options.hash_every > 0 && step % options.hash_every == 0) writer->write_hash(step, hash);
-    }
-    // Hand the surface to the render thread (capture frames every frames_every steps).
-    if (exchange != nullptr) {
-      const bool capture = options.frames_every > 0 && step % options.frames_every == 0;
-      exchange->publish(
-          [&](Snapshot& slot, uint64_t slot_sequence) {
-            fill_snapshot(slot, slot_sequence, session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr,
-                          dirty_history, step, row.timings);
-            slot.has_camera = camera.has_camera;
-            slot.camera_target = camera.camera_target;
-            slot.camera_distance = camera.camera_distance;
-            slot.camera_yaw = camera.camera_yaw;
-            slot.camera_pitch = camera.camera_pitch;
-          },
-          capture);
-      session.cut.surface.clear_dirty();
-    }
-    steps_done = step + 1;
-    if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
-  }
-  };
-
-  // Threads: simulation here, or simulation on a thread and rendering here (EGL contexts belong to
-  // the thread that made them).
-  std::vector<FrameRow> frames;
-  const bool render = options.render || options.frames_every > 0;
-  const std::string frames_dir = options.frames_every > 0 ? (std::filesystem::path(options.out_dir) / "frames").string() : "";
-  std::signal(SIGINT, on_sigint);
-  if (render) {
-#ifdef DIVVOX_HAS_RENDER
-    std::string render_error;
-    if (!probe_headless_render(render_error)) throw_input(options.recording, "headless rendering: " + render_error);
-    if (!frames_dir.empty()) make_output_dir(frames_dir);
-    HeadlessRenderOptions ro;
-    ro.width = options.width;
-    ro.height = options.height;
-    ro.frames_dir = frames_dir;
-    ro.wireframe = options.wireframe;
-    ro.framing = mesh_bounds(session.input.mesh);
-    SnapshotExchange exchange;
-    std::thread sim_thread([&] {
-      simulate(&exchange);
-      exchange.finish();
-    });
-    const bool rendered = run_headless_render(exchange, ro, frames, render_error);
-    sim_thread.join();
-    if (!rendered) throw_input(options.recording, "headless rendering: " + render_error);
-    for (const FrameRow& f : frames) result.frames_written += f.written ? 1 : 0;
-#else
-    throw_input(options.recording, "this build has no renderer (configured with -DDIVVOX_GRAPHICS=OFF); drop --frames");
-#endif
-  } else {
-    simulate(nullptr);
-  }
-  std::signal(SIGINT, SIG_DFL);
-
-  if (options.progress) std::fprintf(stderr, "\n");
-  result.steps = steps_done;
-  result.final_hash = hash_hex(session_hash(session));
-  const CutState& state = session.cut;
-  const PbdState* pbd = session.pbd.get();
-  if (writer && steps_done > 0 && (options.hash_every == 0 || (steps_done - 1) % options.hash_every != 0)) {
-    writer->write_hash(steps_done - 1, result.final_hash);
-  }
-
-  // Final surface and its checks.
-  // (The topology checks run on the rest-space surface; final.ply is the deformed one.)
-  const SurfaceMesh final_surface = compact_surface(state.surface);
-  const SurfaceStats stats = surface_stats(final_surface);
+// The final surface: its checks on the rest-space surface, the deformed one for final.ply, and the
+// count of non-finite values in both (and in the particles).
+struct FinalSurface {
+  SurfaceStats stats;
+  SurfaceMesh deformed;
   uint64_t nonfinite = 0;
-  for (const Vec3f& p : final_surface.positions) nonfinite += p.allFinite() ? 0 : 1;
-  SurfaceMesh deformed_surface = final_surface;
-  if (pbd) {
-    nonfinite += count_nonfinite(*pbd);
-    CutSurface deformed = state.surface;
+};
+FinalSurface final_surface(const Session& session) {
+  FinalSurface f;
+  const SurfaceMesh rest = compact_surface(session.cut.surface);
+  f.stats = surface_stats(rest);
+  for (const Vec3f& p : rest.positions) f.nonfinite += p.allFinite() ? 0 : 1;
+  f.deformed = rest;
+  if (const PbdState* pbd = session.pbd.get()) {
+    f.nonfinite += count_nonfinite(*pbd);
+    CutSurface deformed = session.cut.surface;
     for (size_t slot = 0; slot < deformed.positions.size() && slot < pbd->deformed.size(); ++slot) {
       if (deformed.vertex_piece[slot] != CutSurface::kFreeKey) deformed.positions[slot] = pbd->deformed[slot];
     }
-    deformed_surface = compact_surface(deformed);
+    f.deformed = compact_surface(deformed);
   }
+  return f;
+}
 
-  // timings.csv
-  std::ostringstream csv;
-  csv << "step,cut_ms,surface_ms,deform_ms,total_ms,cut_voxels,edges_hit,edges_cut,voxels_divided,"
-         "vertices_changed,triangles_changed,cutting,sim_voxels_cut\n";
-  std::vector<double> cut_ms, surface_ms, total_ms, deform_ms, step_ms;
-  for (const StepReport& r : rows) {
-    if (pbd) deform_ms.push_back(r.timings.deform_ms);
-    step_ms.push_back(r.timings.total_ms);
-    csv << r.step << ',' << r.timings.cut_ms << ',' << r.timings.surface_ms << ',' << r.timings.deform_ms << ','
-        << r.timings.total_ms << ',' << r.cut.voxels_cut << ','
-        << r.cut.edges_hit << ',' << r.cut.edges_cut << ',' << r.cut.voxels_divided << ','
-        << r.cut.vertices_changed << ',' << r.cut.triangles_changed << ',' << (r.cutting ? 1 : 0) << ','
-        << r.sim_voxels_cut << '\n';
-    if (r.cut.edges_hit > 0) {
-      cut_ms.push_back(r.timings.cut_ms);
-      surface_ms.push_back(r.timings.surface_ms);
-      total_ms.push_back(r.timings.total_ms);
-    }
-  }
-  const std::filesystem::path out(options.out_dir);
-  write_text_file((out / "timings.csv").string(), csv.str());
-  // Per-frame timings of the render thread.
-  std::vector<double> render_ms, interval_ms;
-  if (!frames.empty()) {
-    std::ostringstream f;
-    f << "frame,step,upload_ms,draw_ms,readback_ms,frame_interval_ms,written\n";
-    for (const FrameRow& r : frames) {
-      f << r.frame << ',' << r.step << ',' << r.upload_ms << ',' << r.draw_ms << ',' << r.readback_ms << ','
-        << r.interval_ms << ',' << (r.written ? 1 : 0) << '\n';
-      render_ms.push_back(r.upload_ms + r.draw_ms + r.readback_ms);
-      if (r.frame > 0) interval_ms.push_back(r.interval_ms);
-    }
-    write_text_file((out / "frame_timings.csv").string(), f.str());
-  }
-  write_timings_plot(options.recording, rows, frames, pbd != nullptr, out);
-  save_ply((out / "final.ply").string(), deformed_surface);
-
-  // summary.json (DESIGN §1 contract: the fields that apply without physics).
+// summary.json (DESIGN §1 contract: the fields that apply without physics).
+nlohmann::json summary_json(const ReplayOptions& options, const Playback& playback, const Session& session,
+                            const ReplayResult& result, const ReplayRun& run, const PhaseSamples& phases,
+                            const FrameSamples& frames, const FinalSurface& final) {
+  const CutState& state = session.cut;
+  const PbdState* pbd = session.pbd.get();
   nlohmann::json summary = {
       {"recording", options.recording},
-      {"scene", scene_to_json(scene)},
+      {"scene", scene_to_json(playback.scene)},
       {"physics", bool(pbd)},
       {"workers", pbd ? session.pool->workers() : 1},
       {"steps", result.steps},
-      {"dt", recording.dt},
+      {"dt", playback.dt},
       {"final_hash", result.final_hash},
       {"hash_checks",
        {{"checked", result.hash_checked},
         {"mismatched", result.hash_mismatched},
         {"first_mismatch_step", result.first_mismatch_step}}},
       {"timing_ms",
-       {{"cut", percentiles(cut_ms)},
-        {"surface", percentiles(surface_ms)},
-        {"deform", percentiles(deform_ms)},
-        {"total", percentiles(total_ms)},
-        {"step", percentiles(step_ms)},
-        {"render", percentiles(render_ms)},
-        {"frame_interval", percentiles(interval_ms)}}},
-      {"frames", {{"rendered", frames.size()}, {"written", result.frames_written}, {"size", {options.width, options.height}}}},
+       {{"cut", percentiles_json(phases.cut)},
+        {"surface", percentiles_json(phases.surface)},
+        {"deform", percentiles_json(phases.deform)},
+        {"total", percentiles_json(phases.total)},
+        {"step", percentiles_json(phases.step)},
+        {"render", percentiles_json(frames.render)},
+        {"frame_interval", percentiles_json(frames.interval)}}},
+      {"frames", {{"rendered", frames.rendered}, {"written", result.frames_written}, {"size", {options.width, options.height}}}},
       {"interrupted", result.interrupted},
-      {"wall_s", std::chrono::duration<double>(Clock::now() - start).count()},
+      {"wall_s", run.wall_s},
       {"timing_note", "cut, surface, total: over steps whose blade sweep crossed lattice edges; deform and step: every step"},
       {"init_ms", session.init_ms},
       {"lattice", {session.model.lattice.nx, session.model.lattice.ny, session.model.lattice.nz}},
       {"cut",
-       {{"voxels_cut", totals_voxels_cut},
+       {{"voxels_cut", run.voxels_cut},
         {"voxels_divided", state.divided.size()},
         {"edges_cut", state.edge_cuts.size()},
         {"sim_voxels_divided", pbd ? sim_voxels_divided(*pbd) : 0},
         {"explicit_bytes", cut_memory_bytes(state)}}},
-      {"surface",
-       {{"vertices", stats.vertices},
-        {"triangles", stats.triangles},
-        {"boundary_edges", stats.boundary_edges},
-        {"nonmanifold_edges", stats.nonmanifold_edges},
-        {"misoriented_edges", stats.misoriented_edges},
-        {"components", stats.components},
-        {"volume", stats.volume},
-        {"initial_volume", initial.volume}}},
-      {"nonfinite_values", nonfinite},
+      {"surface", surface_stats_json(final.stats)},
+      {"nonfinite_values", final.nonfinite},
   };
+  summary["surface"]["initial_volume"] = run.initial_volume;
   if (pbd) {
     summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(*pbd)}};
     summary["kinetic_energy"] = kinetic_energy(*pbd);
@@ -393,8 +334,65 @@ ReplayResult run_replay(const ReplayOptions& options) {
     summary["shape_constraints"] = live_pieces(*pbd);
     summary["stretch_constraints"] = stretch_count(*pbd);
   }
+  return summary;
+}
+
+}  // namespace
+
+ReplayResult run_replay(const ReplayOptions& options) {
+  const Playback playback = load_playback(options.recording);
+  for (const std::string& warning : playback.warnings) std::fprintf(stderr, "divvox: warning: %s\n", warning.c_str());
+
+  // The simulation of the recording's scene; the recorder of the replayed session.
+  Session session;
+  open_session(playback.scene, playback.dt, options.physics, options.workers, session, options.progress);
+  ReplayRun run;
+  run.initial_volume = surface_stats(compact_surface(session.cut.surface)).volume;
+  make_output_dir(options.out_dir);
+  std::unique_ptr<SessionRecorder> recorder;
+  if (!options.record_path.empty()) {
+    recorder = std::make_unique<SessionRecorder>(options.record_path, playback.scene, playback.dt, options.physics,
+                                                 options.hash_every);
+  }
+  std::string warning;
+  const bool check_hashes = hashes_apply(playback, options.physics, warning);
+  if (!check_hashes) std::fprintf(stderr, "divvox: warning: %s\n", warning.c_str());
+
+  // The step loop: here, or on a thread while this one renders.
+  std::vector<FrameRow> frames;
+  const auto simulate_on = [&](SnapshotExchange* exchange) {
+    simulate(playback, options, check_hashes, session, recorder.get(), exchange, run);
+  };
+  const Clock::time_point start = Clock::now();
+  std::signal(SIGINT, on_sigint);
+  if (options.render || options.frames_every > 0) {
+    simulate_and_render(simulate_on, options, session, frames);
+  } else {
+    simulate_on(nullptr);
+  }
+  std::signal(SIGINT, SIG_DFL);
+  if (options.progress) std::fprintf(stderr, "\n");
+
+  ReplayResult result;
+  result.steps = run.steps_done;
+  result.interrupted = run.interrupted;
+  result.hash_checked = run.checks.checked;
+  result.hash_mismatched = run.checks.mismatched;
+  result.first_mismatch_step = run.checks.first_mismatch_step;
+  for (const FrameRow& f : frames) result.frames_written += f.written ? 1 : 0;
+  result.final_hash = hash_hex(session_hash(session));
+  if (recorder) recorder->finish(session);
+
+  // The outputs: timings, plot, frame timings, final surface, summary.
+  const std::filesystem::path out(options.out_dir);
+  const FinalSurface final = final_surface(session);
+  const PhaseSamples phases = write_timings_csv(run.rows, session.pbd != nullptr, out);
+  const FrameSamples frame_samples = write_frame_timings(frames, out);
+  write_timings_plot(options.recording, run.rows, frames, session.pbd != nullptr, out);
+  save_ply((out / "final.ply").string(), final.deformed);
+  run.wall_s = std::chrono::duration<double>(Clock::now() - start).count();  // the steps and the outputs
   result.summary_path = (out / "summary.json").string();
-  write_json_file(result.summary_path, summary);
+  write_json_file(result.summary_path, summary_json(options, playback, session, result, run, phases, frame_samples, final));
   return result;
 }
 

@@ -2,6 +2,8 @@
 // model step by step and writes summary.json, timings.csv and final.ply.
 #pragma once
 
+#include "engine/recording.h"
+
 #include <cstdint>
 #include <string>
 
@@ -18,7 +20,7 @@ struct ReplayOptions {
   bool wireframe = false;
   bool realtime = false;         // pace the simulation at dt per step (default: as fast as possible)
   std::string record_path;       // when set: write the replayed session (poses + hashes) here
-  uint32_t hash_every = 60;      // with record_path: a state hash every N steps
+  uint32_t hash_every = kHashEvery;  // with record_path: a state hash every N steps
   bool progress = false;
 };
 

@@ -5,8 +5,6 @@
 #include "sim/state_hash.h"
 #include "sim/voxelize.h"
 
-#include <nlohmann/json.hpp>
-
 #include <chrono>
 
 namespace dvx {
@@ -118,35 +116,6 @@ uint64_t session_hash(const Session& s) {
     h = f.value;
   }
   return h;
-}
-
-GrabCommand parse_grab(const nlohmann::json& grab, const std::string& file, uint32_t line) {
-  GrabCommand g;
-  if (grab.is_string() && grab.get<std::string>() == "release") {
-    g.kind = GrabCommand::kRelease;
-    return g;
-  }
-  const auto bad = [&] {
-    throw_input(file, "line " + std::to_string(line) +
-                          ": grab must be {\"target\": [x,y,z], \"compliance\": c} or \"release\"");
-  };
-  if (!grab.is_object() || !grab.contains("target") || !grab["target"].is_array() || grab["target"].size() != 3) bad();
-  for (int a = 0; a < 3; ++a) {
-    if (!grab["target"][a].is_number()) bad();
-    g.target[a] = grab["target"][a].get<double>();
-  }
-  if (!g.target.allFinite()) bad();
-  if (grab.contains("compliance")) {
-    if (!grab["compliance"].is_number() || !(grab["compliance"].get<double>() >= 0.0)) bad();
-    g.compliance = grab["compliance"].get<double>();
-  }
-  g.kind = GrabCommand::kTarget;
-  return g;
-}
-
-nlohmann::json grab_to_json(const GrabCommand& g) {
-  if (g.kind == GrabCommand::kRelease) return "release";
-  return {{"target", {g.target.x(), g.target.y(), g.target.z()}}, {"compliance", g.compliance}};
 }
 
 }  // namespace dvx

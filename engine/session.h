@@ -12,8 +12,6 @@
 #include "sim/pbd.h"
 #include "sim/world_to_rest.h"
 
-#include <nlohmann/json_fwd.hpp>
-
 #include <memory>
 #include <string>
 
@@ -73,10 +71,5 @@ StepReport session_step(Session& session, const StepCommands& commands);
 
 // State hash: the cut surface, and the live particles when the physics runs.
 uint64_t session_hash(const Session& session);
-
-// A grab command from a recording's "grab" value: {"target": [x,y,z], "compliance": c} or "release".
-// Throws InputError naming `file` and `line` otherwise.
-GrabCommand parse_grab(const nlohmann::json& grab, const std::string& file, uint32_t line);
-nlohmann::json grab_to_json(const GrabCommand& grab);
 
 }  // namespace dvx

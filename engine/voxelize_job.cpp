@@ -3,6 +3,7 @@
 #include "engine/errors.h"
 #include "engine/resources.h"
 #include "engine/scene.h"
+#include "engine/stats.h"
 #include "engine/timing.h"
 #include "sim/contour.h"
 #include "sim/voxelize.h"
@@ -125,16 +126,7 @@ nlohmann::json voxelize_report(const VoxelizeJobOptions& options, const Voxelize
         {"metrics", r.ms.metrics},
         {"error", r.ms.error},
         {"total", r.ms.total}}},
-      {"surface",
-       {{"vertices", r.stats.vertices},
-        {"triangles", r.stats.triangles},
-        {"boundary_edges", r.stats.boundary_edges},
-        {"nonmanifold_edges", r.stats.nonmanifold_edges},
-        {"misoriented_edges", r.stats.misoriented_edges},
-        {"components", r.stats.components},
-        {"euler", r.stats.euler},
-        {"volume", r.stats.volume},
-        {"area", r.stats.area}}},
+      {"surface", surface_stats_json(r.stats)},
       {"input",
        {{"triangles", r.input.mesh.triangles.size()},
         {"vertices", r.input.mesh.positions.size()},

@@ -1,7 +1,7 @@
 #include "ui/app.h"
 
 #include "engine/errors.h"
-#include "engine/recording.h"
+#include "engine/playback.h"
 #include "engine/render_snapshot.h"
 #include "engine/scene.h"
 #include "engine/timing.h"
@@ -210,15 +210,12 @@ std::string default_screenshot_name() {
 
 namespace {
 
-// The played recording's poses by step (for drawing the blade and its trail while playing).
-void load_play_poses(AppState& app, const std::string& path) {
+// The played recording's poses by step (for drawing the blade and its trail while playing), from the
+// playback the simulation thread runs (read once).
+void load_play_poses(AppState& app, const Playback& playback) {
   app.play_poses.clear();
-  try {
-    const Recording r = read_recording(path);
-    for (const RecordedStep& s : r.steps) {
-      if (s.has_blade) app.play_poses.push_back({s.step, s.blade, s.cutting});
-    }
-  } catch (const std::exception&) {
+  for (const PlaybackStep& s : playback.steps) {
+    if (s.commands.has_blade) app.play_poses.push_back({s.step, s.commands.blade, s.commands.cutting});
   }
 }
 
@@ -597,7 +594,7 @@ void follow_simulation(AppState& app, uint64_t& generation) {
     app.undo_notes_seen = app.status.undo_notes;
     reset_mouse_commands(app);
     app.left_down = false;
-    if (app.status.playing) load_play_poses(app, app.status.play_path);
+    if (app.status.playing && app.status.playback) load_play_poses(app, *app.status.playback);
   }
   // An undo or redo ran: the mouse's stamps start again from the restored step.
   if (app.status.restores != app.restores_seen) {
@@ -635,11 +632,13 @@ int run_window(const WindowOptions& options) {
   AppState app;
   // Bad input first (exit 2 before any window opens).
   Scene scene;
+  std::shared_ptr<const Playback> playback;
   try {
     if (options.play_path.empty()) {
       scene = load_scene(options.scene_path);
     } else {
-      (void)read_recording(options.play_path);  // validates it
+      playback = std::make_shared<const Playback>(load_playback(options.play_path));  // read once, validated
+      for (const std::string& w : playback->warnings) std::fprintf(stderr, "divvox: warning: %s\n", w.c_str());
     }
   } catch (const InputError& e) {
     std::fprintf(stderr, "divvox: error: %s\n", e.what());
@@ -727,15 +726,9 @@ int run_window(const WindowOptions& options) {
   app.draw.cull_back_faces = true;
   std::snprintf(app.record_path, sizeof app.record_path, "%s",
                 options.record_path.empty() ? "divvox_recording.jsonl" : options.record_path.c_str());
-  if (!options.play_path.empty()) {
+  if (playback) {
     std::snprintf(app.play_path, sizeof app.play_path, "%s", options.play_path.c_str());
-    load_play_poses(app, options.play_path);
-    try {
-      sim.play(options.play_path);
-    } catch (const InputError& e) {
-      std::fprintf(stderr, "divvox: error: %s\n", e.what());
-      return kExitBadInput;
-    }
+    sim.play(playback);
   } else {
     sim.open(scene, scene.solver.dt, options.record_path);
   }

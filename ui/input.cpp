@@ -145,14 +145,4 @@ bool apply_scene_edit(const Scene& base, const SceneEdit& e, Scene& out, std::st
   return true;
 }
 
-bool parse_window_size(const std::string& text, int& width, int& height) {
-  int w = 0, h = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X')) return false;
-  if (w < 16 || h < 16 || w > 8192 || h > 8192) return false;
-  width = w;
-  height = h;
-  return true;
-}
-
 }  // namespace dvx

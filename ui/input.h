@@ -70,7 +70,4 @@ SceneEdit scene_edit_of(const Scene& scene);
 // with the reason ("sim_resolution: ...") when a value is out of range.
 bool apply_scene_edit(const Scene& base, const SceneEdit& edit, Scene& out, std::string& error);
 
-// "WxH" with 16 <= W, H <= 8192.
-bool parse_window_size(const std::string& text, int& width, int& height);
-
 }  // namespace dvx

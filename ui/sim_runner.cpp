@@ -1,6 +1,7 @@
 #include "ui/sim_runner.h"
 
 #include "engine/errors.h"
+#include "engine/timing.h"
 #include "sim/state_hash.h"
 
 #include <algorithm>
@@ -49,14 +50,15 @@ void SimRunner::open(const Scene& scene, double dt, const std::string& record_pa
 }
 
 void SimRunner::play(const std::string& recording_path) {
-  auto recording = std::make_shared<Recording>(read_recording(recording_path));  // throws InputError
-  for (const std::string& w : recording->warnings) std::fprintf(stderr, "divvox: warning: %s\n", w.c_str());
-  // Grab values are checked here, so a bad one is refused before anything starts.
-  for (const RecordedStep& r : recording->steps) {
-    if (r.extra.is_object() && r.extra.contains("grab")) parse_grab(r.extra["grab"], recording_path, r.line);
-  }
+  // Read and typed once (a bad grab or camera is refused here, before anything starts).
+  auto playback = std::make_shared<const Playback>(load_playback(recording_path));  // throws InputError
+  for (const std::string& w : playback->warnings) std::fprintf(stderr, "divvox: warning: %s\n", w.c_str());
+  play(std::move(playback));
+}
+
+void SimRunner::play(std::shared_ptr<const Playback> playback) {
   std::lock_guard<std::mutex> lock(mutex_);
-  open_request_ = std::make_unique<OpenRequest>(OpenRequest{recording->scene, recording->dt, "", recording});
+  open_request_ = std::make_unique<OpenRequest>(OpenRequest{playback->scene, playback->dt, "", playback});
   status_.loading = true;
   wake_.notify_all();
 }
@@ -129,11 +131,11 @@ void SimRunner::publish(const StepTimings& timings) {
 void SimRunner::do_open(OpenRequest& request) {
   auto session = std::make_unique<Session>();
   std::string error;
-  std::unique_ptr<RecordingWriter> writer;
+  std::unique_ptr<SessionRecorder> recorder;
   try {
     open_session(request.scene, request.dt, true, default_workers(), *session);
     if (!request.record_path.empty()) {
-      writer = std::make_unique<RecordingWriter>(request.record_path, request.scene, request.dt, 1);
+      recorder = std::make_unique<SessionRecorder>(request.record_path, request.scene, request.dt, true);
     }
   } catch (const InputError& e) {
     error = e.what();
@@ -149,26 +151,17 @@ void SimRunner::do_open(OpenRequest& request) {
     std::fprintf(stderr, "divvox: error: %s\n", error.c_str());
     return;
   }
-  // The new session replaces the old one; the queue starts empty (or with the played commands).
+  // The new session replaces the old one; the queue starts empty, a played recording at its start.
   session_ = std::move(session);
-  writer_ = std::move(writer);
+  recorder_ = std::move(recorder);
   playing_ = request.play;
-  play_line_ = 0;
+  play_cursor_ = PlaybackCursor();
   play_done_.store(false);
   queue_.clear();
-  if (playing_) {
-    for (const RecordedStep& r : playing_->steps) {
-      StampedCommands c;
-      c.step = r.step;
-      if (r.has_blade) {
-        c.commands.has_blade = true;
-        c.commands.blade = r.blade;
-        c.commands.cutting = r.cutting;
-      }
-      if (r.extra.is_object() && r.extra.contains("grab")) c.commands.grab = parse_grab(r.extra["grab"], playing_->file, r.line);
-      if (c.commands.has_blade || c.commands.grab.kind != GrabCommand::kNone) queue_.push_back(c);
-    }
-  }
+  // The window always runs the physics: hashes taken without it are not compared.
+  std::string warning;
+  check_hashes_ = !playing_ || hashes_apply(*playing_, true, warning);
+  if (!check_hashes_) std::fprintf(stderr, "divvox: warning: %s\n", warning.c_str());
   status_.error.clear();
   status_.ready = true;
   status_.scene = session_->scene;
@@ -177,11 +170,12 @@ void SimRunner::do_open(OpenRequest& request) {
   ++status_.generation;
   status_.step = 0;
   status_.timings.clear();
-  status_.recording = writer_ != nullptr;
+  status_.recording = recorder_ != nullptr;
   status_.recording_path = request.record_path;
   status_.playing = playing_ != nullptr;
   status_.play_done = false;
   status_.play_path = playing_ ? playing_->file : "";
+  status_.playback = playing_;
   status_.play_last = playing_ ? playing_->last_step() : 0;
   status_.hash_checked = status_.hash_mismatched = 0;
   status_.final_hash.clear();
@@ -206,8 +200,10 @@ void SimRunner::do_open(OpenRequest& request) {
 void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   Session& s = *session_;
   const uint32_t step = s.step;
-  // This step's commands: every queued entry stamped up to it.
+  // This step's commands: the played recording's, then every queued entry stamped up to it (later win).
   StepCommands commands;
+  const PlaybackStep* recorded = playing_ ? next_commands(*playing_, play_cursor_, step) : nullptr;
+  if (recorded != nullptr) commands = recorded->commands;
   while (!queue_.empty() && queue_.front().step <= step) {
     merge(commands, queue_.front().commands);
     queue_.pop_front();
@@ -216,37 +212,26 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
 
   const StepReport report = session_step(s, commands);
   // Record what was applied, at the step it was applied to.
-  if (writer_) {
+  if (recorder_) {
     try {
-      if (commands.has_blade) writer_->write_blade(step, commands.blade, commands.cutting);
-      if (commands.grab.kind != GrabCommand::kNone) writer_->write_line({{"step", step}, {"grab", grab_to_json(commands.grab)}});
-      if (step % kHashEvery == 0) writer_->write_hash(step, hash_hex(session_hash(s)));
+      recorder_->record(step, commands, nullptr, s);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "divvox: error: recording: %s\n", e.what());
-      writer_.reset();
+      recorder_.reset();
     }
   }
   // Playback: the recording's hashes are checked; its last step prints the final hash.
-  bool checked = false, mismatched = false, done = false;
+  HashChecks checks;
+  if (recorded != nullptr && check_hashes_ && !check_hash(*recorded, s, checks)) {
+    std::fprintf(stderr, "divvox: warning: %s: state hash differs from the recording at step %u\n",
+                 playing_->file.c_str(), step);
+  }
+  const bool done = playing_ && !play_done_.load() && step >= playing_->last_step();
   std::string final_hash;
-  if (playing_ && !play_done_.load()) {
-    for (; play_line_ < playing_->steps.size() && playing_->steps[play_line_].step <= step; ++play_line_) {
-      const RecordedStep& r = playing_->steps[play_line_];
-      if (r.step == step && r.has_hash) {
-        checked = true;
-        if (hash_hex(session_hash(s)) != r.hash) {
-          mismatched = true;
-          std::fprintf(stderr, "divvox: warning: %s: state hash differs from the recording at step %u\n",
-                       playing_->file.c_str(), step);
-        }
-      }
-    }
-    if (step >= playing_->last_step()) {
-      done = true;
-      final_hash = hash_hex(session_hash(s));
-      std::printf("final hash %s (played %s to step %u)\n", final_hash.c_str(), playing_->file.c_str(), step);
-      std::fflush(stdout);
-    }
+  if (done) {
+    final_hash = hash_hex(session_hash(s));
+    std::printf("final hash %s (played %s to step %u)\n", final_hash.c_str(), playing_->file.c_str(), step);
+    std::fflush(stdout);
   }
   publish(report.timings);
 
@@ -261,9 +246,9 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
     status_.sim_voxels_divided = uint32_t(sim_voxels_divided(*s.pbd));
     status_.particles = uint32_t(s.pbd->position.size() - s.pbd->free_particles.size());
   }
-  status_.recording = writer_ != nullptr;
-  if (checked) ++status_.hash_checked;
-  if (mismatched) ++status_.hash_mismatched;
+  status_.recording = recorder_ != nullptr;
+  status_.hash_checked += checks.checked;
+  status_.hash_mismatched += checks.mismatched;
   if (done) {
     status_.play_done = true;
     status_.final_hash = final_hash;
@@ -273,15 +258,14 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
 
 void SimRunner::finish_recording() {
   // The state after the last step ends the recording (unless the periodic hash already did).
-  if (writer_ && session_ && session_->step > 0) {
-    const uint32_t last = session_->step - 1;
+  if (recorder_ && session_) {
     try {
-      if (last % kHashEvery != 0) writer_->write_hash(last, hash_hex(session_hash(*session_)));
+      recorder_->finish(*session_);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "divvox: error: recording: %s\n", e.what());
     }
   }
-  writer_.reset();
+  recorder_.reset();
 }
 
 // ---- Undo ------------------------------------------------------------------------------------

@@ -1,12 +1,13 @@
 // The window's simulation thread: one Session stepped at the fixed dt in real time, fed
 // StepCommands from a mutex-protected queue (each stamped with the step it applies to), publishing
 // a snapshot after every step through a SnapshotExchange (fill_snapshot, as the headless replay
-// does). The mouse and a played recording feed the same queue; the thread records the commands it
-// applied (RecordingWriter, a state hash every 60 steps), so a recording made here replays bit for
-// bit with `divvox replay`.
+// does). The mouse feeds the queue; a played recording feeds each step its recorded commands through
+// the playback module (engine/playback.h: next_commands, check_hash), as headless replay does; the
+// thread records the commands it applied (SessionRecorder: a state hash every kHashEvery steps), so
+// a recording made here replays bit for bit with `divvox replay`.
 #pragma once
 
-#include "engine/recording.h"
+#include "engine/playback.h"
 #include "engine/session.h"
 #include "engine/snapshot.h"
 
@@ -42,6 +43,7 @@ struct SimStatus {
   std::string recording_path;
   bool playing = false, play_done = false;
   std::string play_path;
+  std::shared_ptr<const Playback> playback;  // the recording being played (its blade poses are drawn)
   uint32_t play_last = 0, hash_checked = 0, hash_mismatched = 0;
   std::string final_hash;
   // Cutting feedback and undo (see SimRunner::keep_state).
@@ -55,7 +57,6 @@ struct SimStatus {
 
 class SimRunner {
  public:
-  static constexpr uint32_t kHashEvery = 60;
   static constexpr size_t kTimingHistory = 300;
 
   SimRunner();
@@ -71,9 +72,11 @@ class SimRunner {
   // (Re)builds the session from `scene` (stops recording and playback). `record_path`: record it
   // from step 0. On failure the previous session stays and status().error says why.
   void open(const Scene& scene, double dt, const std::string& record_path = "");
-  // Plays a recording: rebuilds its scene and feeds its commands at their steps; prints
-  // "final hash X" on stdout after its last step. Throws InputError for a bad recording.
+  // Plays a recording: rebuilds its scene and feeds its commands at their steps; checks its hashes
+  // (when taken with the physics on: the window always runs it); prints "final hash X" on stdout after
+  // its last step. The path form reads it (throws InputError for a bad recording).
   void play(const std::string& recording_path);
+  void play(std::shared_ptr<const Playback> playback);
   void start_recording(const std::string& path);  // restarts the current scene and records from step 0
   void stop_recording();
   void push(const StampedCommands& commands);
@@ -103,7 +106,7 @@ class SimRunner {
     Scene scene;
     double dt;
     std::string record_path;
-    std::shared_ptr<Recording> play;
+    std::shared_ptr<const Playback> play;
   };
   void run();
   void do_open(OpenRequest& request);
@@ -145,9 +148,10 @@ class SimRunner {
   SimStatus status_;
   // Simulation-thread only.
   std::unique_ptr<Session> session_;
-  std::unique_ptr<RecordingWriter> writer_;
-  std::shared_ptr<Recording> playing_;
-  size_t play_line_ = 0;
+  std::unique_ptr<SessionRecorder> recorder_;
+  std::shared_ptr<const Playback> playing_;
+  PlaybackCursor play_cursor_;
+  bool check_hashes_ = true;  // the played recording's hashes were taken with the physics on
   DirtyHistory history_;
   std::vector<KeptState> undo_stack_, redo_stack_;
   uint64_t published_ = 0;

@@ -46,7 +46,7 @@ TEST_CASE("least-squares line: exact, noisy and degenerate samples") {
   CHECK(quantile({3, 1, 2}, 0.0) == 1.0);
 }
 
-TEST_CASE("bench cut-length: cut voxels grow with the cut length; fits are well formed") {
+TEST_CASE("bench cut-length: cut voxels grow with the cut length, fits are well formed") {
   TempDir dir;
   BenchCutLengthOptions o;
   o.mesh = source_path("assets/meshes/bunny_npm.obj");

@@ -183,14 +183,3 @@ TEST_CASE("scene panel: edits pass the scene file's validation; bad values are r
   nan_edit.gravity[0] = std::nan("");
   CHECK_FALSE(apply_scene_edit(base, nan_edit, out, error));
 }
-
-TEST_CASE("size: WxH within [16, 8192]") {
-  int w = 0, h = 0;
-  CHECK(parse_window_size("1280x720", w, h));
-  CHECK(w == 1280);
-  CHECK(h == 720);
-  CHECK_FALSE(parse_window_size("1280", w, h));
-  CHECK_FALSE(parse_window_size("8x8", w, h));
-  CHECK_FALSE(parse_window_size("1280x720x3", w, h));
-  CHECK_FALSE(parse_window_size("axb", w, h));
-}
