@@ -118,6 +118,24 @@ struct VertexEmbedding {
   Vec3f local;         // rest position in the sim voxel's frame ([0,1]^3 inside it)
 };
 
+// Label pairs that touch across a face between two simulation voxels, per face (scratch of a cut step).
+struct FaceCache {
+  FlatMap offset;               // face (lower sim voxel * 3 + axis) -> offset in data
+  std::vector<uint16_t> data;   // count, then pairs (lower label << 8 | upper label)
+  void clear() {
+    offset.clear();
+    data.clear();
+  }
+};
+
+// Scratch of the local relabelling (sim/pbd.cpp relabel_local).
+struct LocalSearch {
+  std::vector<uint32_t> owner;    // (block nodes) search group of a visited node, kDeadIndex otherwise
+  std::vector<uint32_t> queue, visited, parent, pending;
+  std::vector<uint8_t> dropped, new_label;
+  int32_t active[256] = {};       // per label: groups still running
+};
+
 // The topology: what cuts edit.
 struct PbdModel {
   // Simulation grid.
@@ -159,9 +177,12 @@ struct PbdModel {
   PbdParams params;
 
   // Scratch reused between cut steps (no allocation in steady state).
-  std::vector<uint32_t> scratch_parent, scratch_sim, scratch_near, scratch_old_slots;
+  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots;
   std::vector<uint8_t> scratch_labels, scratch_mark;
   std::vector<uint64_t> scratch_corners;
+  FaceCache face_cache;
+  LocalSearch search;
+  std::vector<uint64_t> scratch_changed;
 };
 
 // The dynamic state: what a step writes.
