@@ -246,14 +246,6 @@ void update_mass(PbdState& s, uint32_t p) {
 
 // ---- Colour groups -------------------------------------------------------------------------
 
-// First colour not in `taken` (bits 0..62), else the overflow colour.
-uint8_t first_free_colour(uint64_t taken) {
-  const uint64_t free_bits = ~taken & ((uint64_t(1) << kOverflowColour) - 1);
-  return free_bits == 0 ? kOverflowColour : uint8_t(__builtin_ctzll(free_bits));
-}
-
-uint64_t colour_bit(uint8_t colour) { return colour == kOverflowColour ? 0 : uint64_t(1) << colour; }
-
 uint64_t pair_key(uint32_t a, uint32_t b) { return (uint64_t(a) << 32) | b; }
 
 // One more piece edge uses particle pair (a, b): the constraint is created (and coloured) on first use.
@@ -273,9 +265,8 @@ void add_stretch(PbdState& s, uint32_t a, uint32_t b) {
     handle = uint32_t(s.stretch_handles.size());
     s.stretch_handles.emplace_back();
   }
-  const uint8_t colour = first_free_colour(s.stretch_busy[a] | s.stretch_busy[b]);
-  s.stretch_busy[a] |= colour_bit(colour);
-  s.stretch_busy[b] |= colour_bit(colour);
+  const uint32_t ends[2] = {a, b};
+  const uint8_t colour = take_colour(s.stretch_busy.data(), ends, 2);
   std::vector<StretchConstraint>& group = s.stretch_groups[colour];
   s.stretch_handles[handle] = {colour, uint32_t(group.size()), 1};
   group.push_back({a, b, (s.rest[a] - s.rest[b]).norm(), handle});
@@ -293,8 +284,8 @@ void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
   if (--h.refs > 0) return;
   std::vector<StretchConstraint>& group = s.stretch_groups[h.colour];
   std::vector<double>& lambda = s.stretch_lambda[h.colour];
-  s.stretch_busy[a] &= ~colour_bit(h.colour);
-  s.stretch_busy[b] &= ~colour_bit(h.colour);
+  const uint32_t ends[2] = {a, b};
+  release_colour(s.stretch_busy.data(), ends, 2, h.colour);
   const uint32_t last = uint32_t(group.size() - 1);
   if (h.index != last) {
     group[h.index] = group[last];
@@ -311,15 +302,12 @@ void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
 // A piece joins the dynamics: masses, constraint references, shape-matching colour.
 void attach_piece(PbdState& s, uint32_t slot) {
   SimPiece& piece = s.pieces[slot];
-  uint64_t taken = 0;
   for (uint32_t p : piece.particles) {
     ++s.refs[p];
     s.mass_eighths[p] += piece.eighths;
-    taken |= s.shape_busy[p];
   }
   for (const auto& e : kCubeEdges) add_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
-  piece.colour = first_free_colour(taken);
-  for (uint32_t p : piece.particles) s.shape_busy[p] |= colour_bit(piece.colour);
+  piece.colour = take_colour(s.shape_busy.data(), piece.particles, 8);
   piece.colour_slot = uint32_t(s.piece_groups[piece.colour].size());
   s.piece_groups[piece.colour].push_back(slot);
 }
@@ -330,8 +318,8 @@ void detach_piece(PbdState& s, uint32_t slot) {
   for (uint32_t p : piece.particles) {
     --s.refs[p];
     s.mass_eighths[p] -= piece.eighths;
-    s.shape_busy[p] &= ~colour_bit(piece.colour);
   }
+  release_colour(s.shape_busy.data(), piece.particles, 8, piece.colour);
   for (const auto& e : kCubeEdges) remove_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
   std::vector<uint32_t>& group = s.piece_groups[piece.colour];
   const uint32_t last = uint32_t(group.size() - 1);
@@ -766,23 +754,6 @@ void grow_embedding(const CutState& cut, PbdState& s) {
   }
 }
 
-// Runs f(i) for i in [0, count) through the task runner (chunks of `grain`).
-template <typename F>
-void parallel(const TaskRunner& tasks, uint32_t count, uint32_t grain, F&& f) {
-  if (count == 0) return;
-  if (tasks.parallel_for == nullptr) {
-    for (uint32_t i = 0; i < count; ++i) f(i);
-    return;
-  }
-  tasks.parallel_for(
-      tasks.context, count, grain,
-      [](uint32_t begin, uint32_t end, void* user) {
-        F& fn = *static_cast<F*>(user);
-        for (uint32_t i = begin; i < end; ++i) fn(i);
-      },
-      &f);
-}
-
 // Coarse corner id (I,J,K) packed for sorting.
 uint64_t corner_id(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
   return uint64_t(I) + uint64_t(s.sx + 1) * (uint64_t(J) + uint64_t(s.sy + 1) * uint64_t(K));
@@ -1018,16 +989,9 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
     for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     double grab_lambda[3] = {0, 0, 0};
     for (int it = 0; it < params.iterations; ++it) {
-      // Stretching, colour by colour; the overflow colour serially.
-      for (uint8_t c = 0; c < kOverflowColour; ++c) {
-        parallel(tasks, uint32_t(s.stretch_groups[c].size()), 2048, [&](uint32_t i) { stretch(c, i); });
-      }
-      for (uint32_t i = 0; i < s.stretch_groups[kOverflowColour].size(); ++i) stretch(kOverflowColour, i);
-      // Shape matching, the same way.
-      for (uint8_t c = 0; c < kOverflowColour; ++c) {
-        parallel(tasks, uint32_t(s.piece_groups[c].size()), 256, [&](uint32_t i) { shape(c, i); });
-      }
-      for (uint32_t i = 0; i < s.piece_groups[kOverflowColour].size(); ++i) shape(kOverflowColour, i);
+      // Stretching, colour by colour (the overflow colour serially), then shape matching the same way.
+      solve_colour_groups(tasks, 2048, [&](uint8_t c) { return uint32_t(s.stretch_groups[c].size()); }, stretch);
+      solve_colour_groups(tasks, 256, [&](uint8_t c) { return uint32_t(s.piece_groups[c].size()); }, shape);
       // Grab: a compliant attachment of one particle to its target (XPBD, per axis).
       if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) {
         const double alpha = s.grab_compliance / (h * h);

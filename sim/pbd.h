@@ -40,6 +40,7 @@
 // of workers.
 #pragma once
 
+#include "sim/colouring.h"
 #include "sim/cut.h"
 #include "sim/flat_map.h"
 #include "sim/voxel_model.h"
@@ -51,14 +52,6 @@
 #include <vector>
 
 namespace dvx {
-
-// The task interface: run fn(begin, end, user) over chunks of [0, count), possibly concurrently,
-// and return when all are done. A null parallel_for runs serially.
-struct TaskRunner {
-  void* context = nullptr;
-  void (*parallel_for)(void* context, uint32_t count, uint32_t grain,
-                       void (*fn)(uint32_t begin, uint32_t end, void* user), void* user) = nullptr;
-};
 
 struct PbdParams {
   int resolution = 128;              // fine voxels along the longest axis (the scene's resolution)
@@ -73,10 +66,6 @@ struct PbdParams {
   double damping = 0.01;             // fraction of velocity removed per substep
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
 };
-
-// Colours 0..62 are parallel groups; kOverflowColour is solved serially.
-constexpr uint8_t kOverflowColour = 63;
-constexpr int kColourGroups = 64;
 
 // A shape-matching cluster: one piece of one simulation voxel. Slot kDeadIndex sim_voxel: free.
 struct SimPiece {
