@@ -177,6 +177,9 @@ int run_cli(int argc, char** argv) {
   replay->add_option("--out,-o", replay_options.out_dir, "Output folder")->capture_default_str();
   std::string frame_size = "1280x720", speed = "max";
   replay->add_option("--frames", replay_options.frames_every, "Write DIR/frames/frame_NNNNN.png every N steps (EGL)");
+  replay->add_option("--meshes", replay_options.meshes_every,
+                     "Write DIR/meshes/mesh_NNNNN.ply every N steps and after the last: the deformed surface in world "
+                     "space, binary PLY with a face property `uchar cut` (1 on cut faces)");
   replay->add_option("--size", frame_size, "Frame size WxH")->capture_default_str();
   replay->add_flag("--render", replay_options.render, "Render every step offscreen (frame timings) without writing PNGs");
   replay->add_flag("--wireframe", replay_options.wireframe, "Overlay the triangle edges in frames");

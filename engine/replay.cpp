@@ -161,6 +161,17 @@ ReplayResult run_replay(const ReplayOptions& options) {
   DirtyHistory dirty_history;
   Snapshot camera;  // only its camera fields: the recording's camera so far
   const Clock::time_point start = Clock::now();
+  // Per-step meshes: the deformed surface in world space with its cut faces marked.
+  const std::string meshes_dir = (std::filesystem::path(options.out_dir) / "meshes").string();
+  if (options.meshes_every > 0) make_output_dir(meshes_dir);
+  int64_t last_mesh = -1;
+  const auto write_step_mesh = [&](uint32_t step) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "mesh_%05u.ply", step);
+    write_cut_mesh_ply((std::filesystem::path(meshes_dir) / name).string(), session.cut.surface,
+                       session.pbd ? &session.pbd->deformed : nullptr);
+    last_mesh = step;
+  };
   // The simulation loop (on its own thread when a render thread draws its snapshots).
   const auto simulate = [&](SnapshotExchange* exchange) {
   for (uint32_t step = 0; step <= last && !recording.steps.empty(); ++step) {
@@ -242,6 +253,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
       session.cut.surface.clear_dirty();
     }
     steps_done = step + 1;
+    if (options.meshes_every > 0 && (step % options.meshes_every == 0 || step == last)) write_step_mesh(step);
     if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
   }
   };
@@ -281,6 +293,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   std::signal(SIGINT, SIG_DFL);
 
   if (options.progress) std::fprintf(stderr, "\n");
+  if (options.meshes_every > 0 && steps_done > 0 && last_mesh != int64_t(steps_done) - 1) write_step_mesh(steps_done - 1);
   result.steps = steps_done;
   result.final_hash = hash_hex(session_hash(session));
   const CutState& state = session.cut;

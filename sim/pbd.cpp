@@ -1016,6 +1016,10 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
 
 uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }
 
+uint32_t vertex_sim_piece(const PbdState& s, uint32_t slot) {
+  return slot < s.embedding.size() ? embedded_piece(s, s.embedding[slot]) : kDeadIndex;
+}
+
 uint32_t piece_at_rest(const VoxelModel& model, const PbdState& s, const Vec3d& rest) {
   const Vec3d g = (rest - s.origin) / s.sim_size;
   if (!g.allFinite()) return kDeadIndex;

@@ -211,6 +211,8 @@ void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {
 // The piece slot holding rest point `rest` (the label of the fine node nearest to it, in the
 // simulation voxel containing it), kDeadIndex when that node holds no material.
 uint32_t piece_at_rest(const VoxelModel& model, const PbdState& state, const Vec3d& rest);
+// The piece slot a surface vertex slot is embedded in, kDeadIndex when none.
+uint32_t vertex_sim_piece(const PbdState& state, uint32_t slot);
 // The piece slot of label `label` in simulation voxel sv, kDeadIndex when none.
 uint32_t piece_slot(const PbdState& state, uint32_t sv, uint8_t label);
 // True when the fine node nearest to local point u ([0,1]^3 in the piece's simulation voxel, clamped
