@@ -708,6 +708,21 @@ bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   return true;
 }
 
+// Relabels a whole (labelled) block; new pieces inherit from the old piece of the same node.
+void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv) {
+  const uint32_t nodes = block_nodes(s);
+  s.scratch_labels.resize(2 * size_t(nodes));
+  s.scratch_old_slots.resize(kLabelSlots);
+  const SimDivided& div = s.divided[s.voxel_divided[sv]];
+  uint8_t* old = s.scratch_labels.data() + nodes;
+  const uint8_t old_count = s.pieces_in_voxel[sv];
+  std::copy(s.labels.begin() + div.first_label, s.labels.begin() + div.first_label + nodes, old);
+  std::copy(s.label_slots.begin() + div.first_slot, s.label_slots.begin() + div.first_slot + kLabelSlots,
+            s.scratch_old_slots.begin());
+  const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent2, s.scratch_labels.data());
+  set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
+}
+
 // ---- Embedding -----------------------------------------------------------------------------
 
 // Embeds a live surface vertex slot: its fine piece's simulation voxel, one node of the fine piece,
@@ -825,17 +840,23 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s) {
-  // Simulation voxels holding changed fine voxels.
-  std::vector<uint32_t>& affected = s.scratch_sim;
-  affected.clear();
+  // Changed divided fine voxels by simulation voxel (sim voxel << 32 | fine voxel), and the simulation
+  // voxels holding them.
+  std::vector<uint64_t>& changed = s.scratch_changed;
+  changed.clear();
   for (uint32_t voxel : cut.changed_voxels) {
     if (cut.divided_of.get(voxel) == kDeadIndex) continue;
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
-    const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
-    if (has_pieces(s, sv)) affected.push_back(sv);
+    changed.push_back(uint64_t(sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio)) << 32 | voxel);
   }
-  sorted_unique(affected);
+  std::sort(changed.begin(), changed.end());
+  std::vector<uint32_t>& affected = s.scratch_sim;
+  affected.clear();
+  for (uint64_t c : changed) {
+    const uint32_t sv = uint32_t(c >> 32);
+    if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
+  }
 
   if (!affected.empty()) {
     // The voxels whose pieces may change particles: the affected ones and their neighbours.
@@ -864,34 +885,15 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
         detach_piece(s, slot);
       });
     }
-    // Relabel the affected voxels locally, from their changed fine voxels (grouped by block).
-    std::vector<uint64_t>& changed = s.scratch_changed;
-    changed.clear();
-    for (uint32_t voxel : cut.changed_voxels) {
-      if (cut.divided_of.get(voxel) == kDeadIndex) continue;
-      int32_t vc[3];
-      model.lattice.voxel_coords(voxel, vc);
-      changed.push_back(uint64_t(sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio)) << 32 | voxel);
-    }
-    std::sort(changed.begin(), changed.end());
+    // Relabel the affected voxels locally, from their changed fine voxels.
     std::vector<uint32_t>& fine = s.scratch_parent;
     for (size_t i = 0; i < changed.size();) {
       const uint32_t sv = uint32_t(changed[i] >> 32);
       fine.clear();
       for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
-      if (!has_pieces(s, sv) || relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size())) continue;
-      // The whole block, new pieces inheriting from the old piece of the same node.
-      const uint32_t nodes = block_nodes(s);
-      s.scratch_labels.resize(2 * size_t(nodes));
-      s.scratch_old_slots.resize(kLabelSlots);
-      const SimDivided& div = s.divided[s.voxel_divided[sv]];  // the local search gave it labels
-      uint8_t* old = s.scratch_labels.data() + nodes;
-      const uint8_t old_count = s.pieces_in_voxel[sv];
-      std::copy(s.labels.begin() + div.first_label, s.labels.begin() + div.first_label + nodes, old);
-      std::copy(s.label_slots.begin() + div.first_slot, s.label_slots.begin() + div.first_slot + kLabelSlots,
-                s.scratch_old_slots.begin());
-      const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent2, s.scratch_labels.data());
-      set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
+      if (has_pieces(s, sv) && !relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size())) {
+        relabel_block(model, cut, s, sv);
+      }
     }
     // Corner particles of the affected voxels.
     std::vector<uint64_t> corners;
