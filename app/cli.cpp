@@ -94,6 +94,9 @@ CLI::App* add_replay(CLI::App& app, ReplayOptions& o, RawFlags& raw) {
       ->capture_default_str();
   replay->add_option("--out,-o", o.out_dir, "Output folder")->capture_default_str();
   replay->add_option("--frames", o.frames_every, "Write DIR/frames/frame_NNNNN.png every N steps (EGL)");
+  replay->add_option("--meshes", o.meshes_every,
+                     "Write DIR/meshes/mesh_NNNNN.ply every N steps and after the last: the deformed surface in world "
+                     "space, binary PLY with a face property `uchar cut` (1 on cut faces)");
   replay->add_option("--size", raw.frame_size, "Frame size WxH")->capture_default_str();
   replay->add_flag("--render", o.render, "Render every step offscreen (frame timings) without writing PNGs");
   replay->add_flag("--wireframe", o.wireframe, "Overlay the triangle edges in frames");

@@ -101,6 +101,13 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
                                            ? double(model_bytes + cut_bytes) / double(session.model.occupied_voxels)
                                            : 0.0},
           {"peak_rss_bytes", peak_rss_bytes()},
+          {"world_to_rest", {{"samples", session.sweep_stats.samples},
+                             {"piece_tests", session.sweep_stats.piece_tests},
+                             {"rest_quads", session.sweep_stats.quads},
+                             {"ms", session.map_ms},
+                             {"us_per_sample", session.sweep_stats.samples
+                                                   ? 1000.0 * session.map_ms / double(session.sweep_stats.samples)
+                                                   : 0.0}}},
           {"surface_triangles", stats.triangles},
           {"boundary_edges", stats.boundary_edges},
           {"components", stats.components},

@@ -31,4 +31,34 @@ void write_text_file(const std::string& path, const std::string& text) {
 
 void write_json_file(const std::string& path, const nlohmann::json& json) { write_text_file(path, json.dump(2) + "\n"); }
 
+void write_cut_mesh_ply(const std::string& path, const CutSurface& surface, const std::vector<Vec3f>* deformed) {
+  // Live vertex slots, renumbered.
+  std::vector<uint32_t> index(surface.positions.size(), kDeadIndex);
+  std::string vertices, faces;
+  uint32_t vertex_count = 0, face_count = 0;
+  for (uint32_t slot = 0; slot < surface.positions.size(); ++slot) {
+    if (surface.vertex_piece[slot] == CutSurface::kFreeKey) continue;
+    index[slot] = vertex_count++;
+    const Vec3f p = deformed && slot < deformed->size() ? (*deformed)[slot] : surface.positions[slot];
+    vertices.append(reinterpret_cast<const char*>(p.data()), 3 * sizeof(float));
+  }
+  for (size_t t = 0; t < surface.triangles.size(); ++t) {
+    const Tri& tri = surface.triangles[t];
+    if (tri[0] == kDeadIndex) continue;
+    const uint8_t three = 3, cut = t < surface.triangle_cut.size() && surface.triangle_cut[t] ? 1 : 0;
+    faces.push_back(char(three));
+    for (uint32_t v : tri) {
+      const int32_t i = int32_t(index[v]);
+      faces.append(reinterpret_cast<const char*>(&i), sizeof(i));
+    }
+    faces.push_back(char(cut));
+    ++face_count;
+  }
+  const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(vertex_count) +
+                             "\nproperty float x\nproperty float y\nproperty float z\nelement face " +
+                             std::to_string(face_count) +
+                             "\nproperty list uchar int vertex_indices\nproperty uchar cut\nend_header\n";
+  write_text_file(path, header + vertices + faces);
+}
+
 }  // namespace dvx

@@ -4,7 +4,10 @@
 
 #include <nlohmann/json_fwd.hpp>
 
+#include "sim/cut.h"
+
 #include <string>
+#include <vector>
 
 namespace dvx {
 
@@ -13,5 +16,9 @@ void make_output_dir(const std::string& dir);
 // Writes text atomically; throws std::runtime_error on I/O failure.
 void write_text_file(const std::string& path, const std::string& text);
 void write_json_file(const std::string& path, const nlohmann::json& json);
+
+// The surface's live slots as a binary PLY (float x y z; faces with a `uchar cut` property, 1 on cut
+// faces), at the `deformed` positions when given (world space), else the rest positions.
+void write_cut_mesh_ply(const std::string& path, const CutSurface& surface, const std::vector<Vec3f>* deformed);
 
 }  // namespace dvx

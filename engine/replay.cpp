@@ -45,7 +45,17 @@ struct ReplayRun {
   HashChecks checks;
   double initial_volume = 0.0;  // of the uncut surface
   double wall_s = 0.0;          // from the first step to the last output written
+  int64_t last_mesh = -1;       // step of the last DIR/meshes file written (-1: none)
 };
+
+// --meshes: DIR/meshes/mesh_NNNNN.ply, the deformed surface in world space with its cut faces marked.
+void write_step_mesh(const ReplayOptions& options, const Session& session, uint32_t step, ReplayRun& run) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "mesh_%05u.ply", step);
+  write_cut_mesh_ply((std::filesystem::path(options.out_dir) / "meshes" / name).string(), session.cut.surface,
+                     session.pbd ? &session.pbd->deformed : nullptr);
+  run.last_mesh = step;
+}
 
 // The recording's camera for frames from this step on: usable only with a finite target and a
 // positive distance (otherwise the default framing).
@@ -103,6 +113,9 @@ void simulate(const Playback& playback, const ReplayOptions& options, bool check
       session.cut.surface.clear_dirty();
     }
     run.steps_done = step + 1;
+    if (options.meshes_every > 0 && (step % options.meshes_every == 0 || step == last)) {
+      write_step_mesh(options, session, step, run);
+    }
     if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
   }
 }
@@ -349,6 +362,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   ReplayRun run;
   run.initial_volume = surface_stats(compact_surface(session.cut.surface)).volume;
   make_output_dir(options.out_dir);
+  if (options.meshes_every > 0) make_output_dir((std::filesystem::path(options.out_dir) / "meshes").string());
   std::unique_ptr<SessionRecorder> recorder;
   if (!options.record_path.empty()) {
     recorder = std::make_unique<SessionRecorder>(options.record_path, playback.scene, playback.dt, options.physics,
@@ -372,6 +386,10 @@ ReplayResult run_replay(const ReplayOptions& options) {
   }
   std::signal(SIGINT, SIG_DFL);
   if (options.progress) std::fprintf(stderr, "\n");
+  // An interrupted replay still ends with the mesh of its last step.
+  if (options.meshes_every > 0 && run.steps_done > 0 && run.last_mesh != int64_t(run.steps_done) - 1) {
+    write_step_mesh(options, session, run.steps_done - 1, run);
+  }
 
   ReplayResult result;
   result.steps = run.steps_done;

@@ -16,6 +16,7 @@ struct ReplayOptions {
   int workers = 2;               // threads for the PBD loops (results do not depend on it)
   bool render = false;           // draw every published snapshot offscreen (EGL) on a render thread
   uint32_t frames_every = 0;     // > 0: write DIR/frames/frame_NNNNN.png every N steps (implies render)
+  uint32_t meshes_every = 0;     // > 0: write DIR/meshes/mesh_NNNNN.ply every N steps and after the last
   int width = 1280, height = 720;
   bool wireframe = false;
   bool realtime = false;         // pace the simulation at dt per step (default: as fast as possible)

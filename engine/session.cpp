@@ -84,7 +84,15 @@ StepReport session_step(Session& s, const StepCommands& commands) {
   if (s.cutting && had_blade && (s.pbd || !same_pose(previous, s.blade))) {
     if (s.pbd) {
       // The world-space sweep mapped into rest space through the deformed pieces.
-      pbd_cut_divide(s.model, s.cut, *s.pbd, previous, s.blade, s.sweep, report.cut, &s.sweep_stats);
+      const Clock::time_point m0 = Clock::now();
+      map_sweep(s.model, *s.pbd, previous, s.blade, s.sweep, &s.sweep_stats);
+      s.map_ms += ms_between(m0, Clock::now());
+      uint32_t hits = 0;
+      for (const RestQuad& q : s.sweep.quads) {
+        cut_divide(s.model, s.cut, q.from, q.to, report.cut);
+        hits += report.cut.edges_hit;
+      }
+      report.cut.edges_hit = hits;
     } else {
       cut_divide(s.model, s.cut, previous, s.blade, report.cut);
     }

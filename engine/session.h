@@ -55,6 +55,7 @@ struct Session {
   BladePose blade;
   SweepMapper sweep;
   SweepMapStats sweep_stats;  // accumulated over the session
+  double map_ms = 0.0;        // time spent mapping the blade to rest space, accumulated
   bool have_blade = false, cutting = false;
   uint32_t step = 0;  // the next step to run
 };

@@ -99,10 +99,19 @@ uint8_t label_block(const VoxelModel& model, const CutState& cut, const PbdModel
   for (int32_t z = 0; z < r && c[2] * r + z < l.nz; ++z) {
     for (int32_t y = 0; y < r && c[1] * r + y < l.ny; ++y) {
       for (int32_t x = 0; x < r && c[0] * r + x < l.nx; ++x) {
-        const uint32_t voxel = l.voxel(c[0] * r + x, c[1] * r + y, c[2] * r + z);
-        uint8_t corner_piece[8], pieces = 0;
-        voxel_pieces(model, cut, voxel, corner_piece, pieces);
-        if (pieces == 0) continue;
+        const int32_t i = c[0] * r + x, j = c[1] * r + y, k = c[2] * r + z;
+        const uint32_t voxel = l.voxel(i, j, k);
+        // Inside corners; an uncut voxel is one piece of all of them (voxel_pieces' rule, without the call).
+        uint8_t corner_piece[8], pieces = 0, inside = 0;
+        for (int q = 0; q < 8; ++q) {
+          inside |= uint8_t(model.is_inside(l.node(i + (q & 1), j + ((q >> 1) & 1), k + ((q >> 2) & 1))) << q);
+        }
+        if (inside == 0) continue;
+        if (cut.divided_of.get(voxel) == kDeadIndex) {
+          for (int q = 0; q < 8; ++q) corner_piece[q] = (inside >> q) & 1 ? 0 : kNoPiece;
+        } else {
+          voxel_pieces(model, cut, voxel, corner_piece, pieces);
+        }
         // Join each inside corner to the first corner of its piece.
         uint32_t first[8] = {kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex};
         for (int q = 0; q < 8; ++q) {
@@ -237,14 +246,6 @@ void update_mass(PbdState& s, uint32_t p) {
 
 // ---- Colour groups -------------------------------------------------------------------------
 
-// First colour not in `taken` (bits 0..62), else the overflow colour.
-uint8_t first_free_colour(uint64_t taken) {
-  const uint64_t free_bits = ~taken & ((uint64_t(1) << kOverflowColour) - 1);
-  return free_bits == 0 ? kOverflowColour : uint8_t(__builtin_ctzll(free_bits));
-}
-
-uint64_t colour_bit(uint8_t colour) { return colour == kOverflowColour ? 0 : uint64_t(1) << colour; }
-
 uint64_t pair_key(uint32_t a, uint32_t b) { return (uint64_t(a) << 32) | b; }
 
 // One more piece edge uses particle pair (a, b): the constraint is created (and coloured) on first use.
@@ -264,9 +265,8 @@ void add_stretch(PbdState& s, uint32_t a, uint32_t b) {
     handle = uint32_t(s.stretch_handles.size());
     s.stretch_handles.emplace_back();
   }
-  const uint8_t colour = first_free_colour(s.stretch_busy[a] | s.stretch_busy[b]);
-  s.stretch_busy[a] |= colour_bit(colour);
-  s.stretch_busy[b] |= colour_bit(colour);
+  const uint32_t ends[2] = {a, b};
+  const uint8_t colour = take_colour(s.stretch_busy.data(), ends, 2);
   std::vector<StretchConstraint>& group = s.stretch_groups[colour];
   s.stretch_handles[handle] = {colour, uint32_t(group.size()), 1};
   group.push_back({a, b, (s.rest[a] - s.rest[b]).norm(), handle});
@@ -284,8 +284,8 @@ void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
   if (--h.refs > 0) return;
   std::vector<StretchConstraint>& group = s.stretch_groups[h.colour];
   std::vector<double>& lambda = s.stretch_lambda[h.colour];
-  s.stretch_busy[a] &= ~colour_bit(h.colour);
-  s.stretch_busy[b] &= ~colour_bit(h.colour);
+  const uint32_t ends[2] = {a, b};
+  release_colour(s.stretch_busy.data(), ends, 2, h.colour);
   const uint32_t last = uint32_t(group.size() - 1);
   if (h.index != last) {
     group[h.index] = group[last];
@@ -302,15 +302,12 @@ void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
 // A piece joins the dynamics: masses, constraint references, shape-matching colour.
 void attach_piece(PbdState& s, uint32_t slot) {
   SimPiece& piece = s.pieces[slot];
-  uint64_t taken = 0;
   for (uint32_t p : piece.particles) {
     ++s.refs[p];
     s.mass_eighths[p] += piece.eighths;
-    taken |= s.shape_busy[p];
   }
   for (const auto& e : kCubeEdges) add_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
-  piece.colour = first_free_colour(taken);
-  for (uint32_t p : piece.particles) s.shape_busy[p] |= colour_bit(piece.colour);
+  piece.colour = take_colour(s.shape_busy.data(), piece.particles, 8);
   piece.colour_slot = uint32_t(s.piece_groups[piece.colour].size());
   s.piece_groups[piece.colour].push_back(slot);
 }
@@ -321,8 +318,8 @@ void detach_piece(PbdState& s, uint32_t slot) {
   for (uint32_t p : piece.particles) {
     --s.refs[p];
     s.mass_eighths[p] -= piece.eighths;
-    s.shape_busy[p] &= ~colour_bit(piece.colour);
   }
+  release_colour(s.shape_busy.data(), piece.particles, 8, piece.colour);
   for (const auto& e : kCubeEdges) remove_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
   std::vector<uint32_t>& group = s.piece_groups[piece.colour];
   const uint32_t last = uint32_t(group.size() - 1);
@@ -356,13 +353,51 @@ struct CornerMembers {
   }
 };
 
+// Label pairs (a in simulation voxel lo, b in its neighbour hi along `axis`) that share a fine node on
+// their common face, cached per face for the cut step (each face serves its 4 corners).
+const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t lo, const int32_t loc[3], int axis,
+                           uint32_t hi, const int32_t hic[3], FaceCache& cache, uint32_t& count) {
+  const uint64_t key = uint64_t(lo) * 3 + uint64_t(axis);
+  uint32_t at = cache.offset.get(key);
+  if (at == kDeadIndex) {
+    at = uint32_t(cache.data.size());
+    cache.offset.set(key, at);
+    cache.data.push_back(0);
+    const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;
+    const int u_axis = (axis + 1) % 3, v_axis = (axis + 2) % 3;
+    int32_t node[3];
+    node[axis] = hic[axis] * s.ratio;
+    for (int32_t v = 0; v <= s.ratio; ++v) {
+      for (int32_t u = 0; u <= s.ratio; ++u) {
+        node[u_axis] = loc[u_axis] * s.ratio + u;
+        node[v_axis] = loc[v_axis] * s.ratio + v;
+        const uint8_t a = node_label(model, s, lo, loc, node[0], node[1], node[2]);
+        if (a == kNoPiece) continue;
+        const uint8_t b = node_label(model, s, hi, hic, node[0], node[1], node[2]);
+        if (b == kNoPiece) continue;
+        const uint16_t pair = uint16_t(a << 8 | b);
+        if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) == cache.data.end()) {
+          cache.data.push_back(pair);
+          ++cache.data[at];
+        }
+        if (single) {  // one possible pair, found
+          v = s.ratio + 1;
+          break;
+        }
+      }
+    }
+  }
+  count = cache.data[at];
+  return cache.data.data() + at + 1;
+}
+
 // Fills the members around corner (I,J,K) and unites those joined by a fine node on their common
-// boundary (the three planes through the corner); stops as soon as everything is one group.
-void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_t J, int32_t K, CornerMembers& m) {
+// boundary: the 12 faces between the (up to) 8 simulation voxels around the corner.
+void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_t J, int32_t K, CornerMembers& m,
+                   FaceCache& cache) {
   m.count = 0;
   uint32_t voxels[8];
   int32_t vcs[8][3];
-  int groups = 0;
   for (int q = 0; q < 8; ++q) {
     const int32_t c[3] = {I - 1 + (q & 1), J - 1 + ((q >> 1) & 1), K - 1 + ((q >> 2) & 1)};
     voxels[q] = kDeadIndex;
@@ -379,34 +414,17 @@ void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_
       m.corner[m.count] = corner;
       m.parent[m.count] = m.count;
       ++m.count;
-      ++groups;
     }
   }
-  const int32_t r = s.ratio;
-  const int32_t ci = I * r, cj = J * r, ck = K * r;
-  for (int32_t c = -r; c <= r && groups > 1; ++c) {
-    for (int32_t b = -r; b <= r && groups > 1; ++b) {
-      // Only nodes shared by several voxels: on one of the three planes through the corner.
-      const bool line_only = b != 0 && c != 0;
-      for (int32_t a = line_only ? 0 : -r; a <= (line_only ? 0 : r) && groups > 1; ++a) {
-        const int32_t i = ci + a, j = cj + b, k = ck + c;
-        if (!fine_inside(model, i, j, k)) continue;
-        int first = -1;
-        for (int q = 0; q < 8; ++q) {
-          if (voxels[q] == kDeadIndex) continue;
-          const int dx = q & 1, dy = (q >> 1) & 1, dz = (q >> 2) & 1;
-          if ((dx == 0 ? a > 0 : a < 0) || (dy == 0 ? b > 0 : b < 0) || (dz == 0 ? c > 0 : c < 0)) continue;
-          const uint8_t label = node_label(model, s, voxels[q], vcs[q], i, j, k);
-          if (label == kNoPiece) continue;
-          const int x = m.find(m.base[q] + label);
-          if (first < 0) {
-            first = x;
-          } else if (x != first) {
-            m.parent[std::max(x, first)] = std::min(x, first);
-            first = std::min(x, first);
-            --groups;
-          }
-        }
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int q = 0; q < 8; ++q) {
+      const int upper = q | (1 << axis);
+      if ((q >> axis) & 1 || voxels[q] == kDeadIndex || voxels[upper] == kDeadIndex) continue;
+      uint32_t count = 0;
+      const uint16_t* pairs = face_pairs(model, s, voxels[q], vcs[q], axis, voxels[upper], vcs[upper], cache, count);
+      for (uint32_t i = 0; i < count; ++i) {
+        const int a = m.find(m.base[q] + (pairs[i] >> 8)), b = m.find(m.base[upper] + (pairs[i] & 0xFF));
+        if (a != b) m.parent[std::max(a, b)] = std::min(a, b);
       }
     }
   }
@@ -415,7 +433,7 @@ void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_
 // Assigns particles at coarse corner (I,J,K): one per material group of the pieces around it.
 // Existing particles are kept where possible (the smallest not yet claimed by another group).
 void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, int32_t K, CornerMembers& m) {
-  corner_groups(model, s, I, J, K, m);
+  corner_groups(model, s, I, J, K, m, s.face_cache);
   uint32_t claimed[CornerMembers::kMax];
   int claimed_count = 0;
   for (int g = 0; g < m.count; ++g) {
@@ -504,6 +522,207 @@ void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const u
   if (count == 0) s.voxel_piece[sv] = kDeadIndex;
 }
 
+// ---- Local relabelling after a cut ---------------------------------------------------------
+
+// Fine voxels of the block around a node each add one eighth (1, 2, 4 or 8 of them).
+uint64_t node_eighths(const Lattice& l, const PbdModel& s, const int32_t c[3], int32_t x, int32_t y, int32_t z) {
+  const auto around = [&](int32_t t, int32_t first, int32_t n) {
+    return uint64_t((t > 0 && first + t - 1 < n) + (t < s.ratio && first + t < n));
+  };
+  return around(x, c[0] * s.ratio, l.nx) * around(y, c[1] * s.ratio, l.ny) * around(z, c[2] * s.ratio, l.nz);
+}
+
+// Pieces of a fine voxel (global coords): the uncut rule inline, voxel_pieces for divided voxels.
+void fine_pieces(const VoxelModel& model, const CutState& cut, int32_t i, int32_t j, int32_t k, uint8_t corner_piece[8]) {
+  const Lattice& l = model.lattice;
+  const uint32_t voxel = l.voxel(i, j, k);
+  if (cut.divided_of.get(voxel) == kDeadIndex) {
+    for (int q = 0; q < 8; ++q) {
+      corner_piece[q] = model.is_inside(l.node(i + (q & 1), j + ((q >> 1) & 1), k + ((q >> 2) & 1))) ? 0 : kNoPiece;
+    }
+    return;
+  }
+  uint8_t count = 0;
+  voxel_pieces(model, cut, voxel, corner_piece, count);
+}
+
+// Gives an undivided simulation voxel explicit labels (all inside nodes: its one piece).
+void materialise_labels(const VoxelModel& model, PbdState& s, uint32_t sv) {
+  if (s.voxel_divided[sv] != kDeadIndex) return;
+  const uint32_t d = uint32_t(s.divided.size());
+  s.voxel_divided[sv] = d;
+  s.divided.push_back({sv, uint32_t(s.labels.size()), uint32_t(s.label_slots.size()), s.pieces_in_voxel[sv]});
+  s.labels.resize(s.labels.size() + block_nodes(s), kNoPiece);
+  s.label_slots.resize(s.label_slots.size() + kLabelSlots, kDeadIndex);
+  s.label_slots[s.divided[d].first_slot] = s.voxel_piece[sv];
+  s.voxel_piece[sv] = kDeadIndex;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  uint8_t* labels = s.labels.data() + s.divided[d].first_label;
+  for (int32_t z = 0; z <= s.ratio; ++z) {
+    for (int32_t y = 0; y <= s.ratio; ++y) {
+      for (int32_t x = 0; x <= s.ratio; ++x) {
+        labels[block_index(s, x, y, z)] = fine_inside(model, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z) ? 0 : kNoPiece;
+      }
+    }
+  }
+}
+
+// Splits the pieces of simulation voxel sv that the changed fine voxels [first, last) (in the block)
+// separated. Cuts only remove material connections, so only labels of the changed voxels' nodes can
+// split, and every node of such a label is joined to one of those nodes. A breadth-first search runs
+// from all of them at once (one group per seed; groups that meet unite) and a label stops searching
+// when one group of it is left running: the groups that ran out are new pieces, the one left keeps
+// the label. The cost is the material around the new cut (the smaller side of a split), not the block.
+// Returns false (having changed nothing) when the search grew past a quarter of the block: a full
+// relabel is then cheaper (it looks each fine voxel up once, the search once per corner).
+bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, const uint32_t* first,
+                   const uint32_t* last) {
+  materialise_labels(model, s, sv);
+  SimDivided& div = s.divided[s.voxel_divided[sv]];
+  uint8_t* labels = s.labels.data() + div.first_label;
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  LocalSearch& w = s.search;
+  w.owner.resize(block_nodes(s), kDeadIndex);
+  w.queue.clear();
+  w.visited.clear();
+  w.parent.clear();
+  w.pending.clear();
+  w.dropped.clear();
+  std::fill(w.active, w.active + 256, 0);
+  const auto find = [&](uint32_t x) {
+    while (w.parent[x] != x) x = w.parent[x] = w.parent[w.parent[x]];
+    return x;
+  };
+  // Seeds: the inside corners of the changed fine voxels.
+  for (const uint32_t* v = first; v != last; ++v) {
+    int32_t vc[3];
+    l.voxel_coords(*v, vc);
+    for (int q = 0; q < 8; ++q) {
+      const int32_t x = vc[0] + (q & 1) - c[0] * r, y = vc[1] + ((q >> 1) & 1) - c[1] * r, z = vc[2] + ((q >> 2) & 1) - c[2] * r;
+      const uint32_t b = block_index(s, x, y, z);
+      if (labels[b] == kNoPiece || w.owner[b] != kDeadIndex) continue;
+      const uint32_t g = uint32_t(w.parent.size());
+      w.parent.push_back(g);
+      w.pending.push_back(1);
+      w.dropped.push_back(0);
+      ++w.active[labels[b]];
+      w.owner[b] = g;
+      w.queue.push_back(b);
+      w.visited.push_back(b);
+    }
+  }
+  // Breadth first from all seeds at once.
+  const size_t budget = block_nodes(s) / 4 + 64;
+  for (size_t head = 0; head < w.queue.size(); ++head) {
+    if (w.visited.size() > budget) {
+      for (uint32_t b : w.visited) w.owner[b] = kDeadIndex;
+      return false;
+    }
+    const uint32_t b = w.queue[head];
+    const uint8_t label = labels[b];
+    uint32_t g = find(w.owner[b]);
+    --w.pending[g];
+    if (w.active[label] <= 1) {
+      // The last group of its label still running: it keeps the label (no need to finish it).
+      w.dropped[g] = 1;
+      if (w.pending[g] == 0) --w.active[label];
+      continue;
+    }
+    const int32_t x = int32_t(b % uint32_t(n)), y = int32_t((b / uint32_t(n)) % uint32_t(n)), z = int32_t(b / uint32_t(n * n));
+    for (int o = 0; o < 8; ++o) {
+      const int32_t vx = x - 1 + (o & 1), vy = y - 1 + ((o >> 1) & 1), vz = z - 1 + ((o >> 2) & 1);
+      if (vx < 0 || vy < 0 || vz < 0 || vx >= r || vy >= r || vz >= r) continue;
+      if (c[0] * r + vx >= l.nx || c[1] * r + vy >= l.ny || c[2] * r + vz >= l.nz) continue;
+      uint8_t corner_piece[8];
+      fine_pieces(model, cut, c[0] * r + vx, c[1] * r + vy, c[2] * r + vz, corner_piece);
+      const int self = (1 - (o & 1)) | ((1 - ((o >> 1) & 1)) << 1) | ((1 - ((o >> 2) & 1)) << 2);
+      for (int q = 0; q < 8; ++q) {
+        if (q == self || corner_piece[q] == kNoPiece || corner_piece[q] != corner_piece[self]) continue;
+        const uint32_t m = block_index(s, vx + (q & 1), vy + ((q >> 1) & 1), vz + ((q >> 2) & 1));
+        if (w.owner[m] == kDeadIndex) {
+          w.owner[m] = g;
+          w.queue.push_back(m);
+          w.visited.push_back(m);
+          ++w.pending[g];
+          continue;
+        }
+        const uint32_t h = find(w.owner[m]);
+        if (h == g) continue;
+        // Two groups met: one group, running while either was.
+        const int running = (w.pending[g] > 0) + (w.pending[h] > 0);
+        const uint32_t root = std::min(g, h), other = std::max(g, h);
+        w.parent[other] = root;
+        w.pending[root] = w.pending[g] + w.pending[h];
+        w.dropped[root] = uint8_t(w.dropped[g] | w.dropped[h]);
+        w.active[label] -= running - (w.pending[root] > 0);
+        g = root;
+      }
+    }
+    if (w.pending[g] == 0) --w.active[label];
+  }
+  // Groups that ran out are pieces of their own; per label one group keeps it (the one left running,
+  // else the first).
+  uint8_t keeper_found[256] = {};
+  w.new_label.assign(w.parent.size(), kNoPiece);
+  for (uint32_t g = 0; g < w.parent.size(); ++g) {
+    if (find(g) == g && w.dropped[g]) keeper_found[labels[w.visited[g]]] = 1;  // seed g is visited[g]
+  }
+  for (uint32_t g = 0; g < w.parent.size(); ++g) {
+    if (find(g) != g) continue;
+    const uint8_t label = labels[w.visited[g]];
+    if (w.dropped[g]) continue;
+    if (!keeper_found[label]) {
+      keeper_found[label] = 1;
+      continue;
+    }
+    if (div.piece_count >= kMaxSimPieces) continue;  // beyond the label range: stays merged
+    w.new_label[g] = div.piece_count++;
+  }
+  // Relabel the nodes of the new pieces; their volumes move from the old piece to the new.
+  const uint32_t count_before = s.pieces_in_voxel[sv];
+  for (uint8_t p = uint8_t(count_before); p < div.piece_count; ++p) s.label_slots[div.first_slot + p] = kDeadIndex;
+  for (uint32_t b : w.visited) {
+    const uint32_t g = find(w.owner[b]);
+    w.owner[b] = kDeadIndex;
+    const uint8_t to = w.new_label[g];
+    if (to == kNoPiece) continue;
+    const uint8_t from = labels[b];
+    const int32_t x = int32_t(b % uint32_t(n)), y = int32_t((b / uint32_t(n)) % uint32_t(n)), z = int32_t(b / uint32_t(n * n));
+    const uint64_t e = node_eighths(l, s, c, x, y, z);
+    uint32_t& slot = s.label_slots[div.first_slot + to];
+    if (slot == kDeadIndex) {
+      const uint32_t old = s.label_slots[div.first_slot + from];
+      slot = new_piece(s, sv, to);
+      std::copy(s.pieces[old].particles, s.pieces[old].particles + 8, s.pieces[slot].particles);
+      s.rotation[slot] = s.rotation[old];
+    }
+    s.pieces[s.label_slots[div.first_slot + from]].eighths -= e;
+    s.pieces[slot].eighths += e;
+    labels[b] = to;
+  }
+  s.pieces_in_voxel[sv] = div.piece_count;
+  return true;
+}
+
+// Relabels a whole (labelled) block; new pieces inherit from the old piece of the same node.
+void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv) {
+  const uint32_t nodes = block_nodes(s);
+  s.scratch_labels.resize(2 * size_t(nodes));
+  s.scratch_old_slots.resize(kLabelSlots);
+  const SimDivided& div = s.divided[s.voxel_divided[sv]];
+  uint8_t* old = s.scratch_labels.data() + nodes;
+  const uint8_t old_count = s.pieces_in_voxel[sv];
+  std::copy(s.labels.begin() + div.first_label, s.labels.begin() + div.first_label + nodes, old);
+  std::copy(s.label_slots.begin() + div.first_slot, s.label_slots.begin() + div.first_slot + kLabelSlots,
+            s.scratch_old_slots.begin());
+  const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent2, s.scratch_labels.data());
+  set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
+}
+
 // ---- Embedding -----------------------------------------------------------------------------
 
 // Embeds a live surface vertex slot: its fine piece's simulation voxel, one node of the fine piece,
@@ -548,23 +767,6 @@ void grow_embedding(const CutState& cut, PbdState& s) {
     s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
     s.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
   }
-}
-
-// Runs f(i) for i in [0, count) through the task runner (chunks of `grain`).
-template <typename F>
-void parallel(const TaskRunner& tasks, uint32_t count, uint32_t grain, F&& f) {
-  if (count == 0) return;
-  if (tasks.parallel_for == nullptr) {
-    for (uint32_t i = 0; i < count; ++i) f(i);
-    return;
-  }
-  tasks.parallel_for(
-      tasks.context, count, grain,
-      [](uint32_t begin, uint32_t end, void* user) {
-        F& fn = *static_cast<F*>(user);
-        for (uint32_t i = begin; i < end; ++i) fn(i);
-      },
-      &f);
 }
 
 // Coarse corner id (I,J,K) packed for sorting.
@@ -624,6 +826,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
       for (int32_t I = 0; I <= s.sx; ++I) assign_corner(model, s, I, J, K, members);
     }
   }
+  s.face_cache = FaceCache{};
   // Constraints, colours and masses.
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
     if (s.pieces[slot].sim_voxel != kDeadIndex) attach_piece(s, slot);
@@ -637,17 +840,23 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s) {
-  // Simulation voxels holding changed fine voxels.
-  std::vector<uint32_t>& affected = s.scratch_sim;
-  affected.clear();
+  // Changed divided fine voxels by simulation voxel (sim voxel << 32 | fine voxel), and the simulation
+  // voxels holding them.
+  std::vector<uint64_t>& changed = s.scratch_changed;
+  changed.clear();
   for (uint32_t voxel : cut.changed_voxels) {
     if (cut.divided_of.get(voxel) == kDeadIndex) continue;
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
-    const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
-    if (has_pieces(s, sv)) affected.push_back(sv);
+    changed.push_back(uint64_t(sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio)) << 32 | voxel);
   }
-  sorted_unique(affected);
+  std::sort(changed.begin(), changed.end());
+  std::vector<uint32_t>& affected = s.scratch_sim;
+  affected.clear();
+  for (uint64_t c : changed) {
+    const uint32_t sv = uint32_t(c >> 32);
+    if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
+  }
 
   if (!affected.empty()) {
     // The voxels whose pieces may change particles: the affected ones and their neighbours.
@@ -676,33 +885,15 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
         detach_piece(s, slot);
       });
     }
-    // Relabel the affected voxels.
-    const uint32_t nodes = block_nodes(s);
-    s.scratch_labels.resize(2 * size_t(nodes));
-    s.scratch_old_slots.resize(kLabelSlots);
-    for (uint32_t sv : affected) {
-      uint8_t* old = s.scratch_labels.data() + nodes;
-      const uint32_t d = s.voxel_divided[sv];
-      const uint8_t old_count = s.pieces_in_voxel[sv];
-      if (d != kDeadIndex) {
-        std::copy(s.labels.begin() + s.divided[d].first_label, s.labels.begin() + s.divided[d].first_label + nodes, old);
-        std::copy(s.label_slots.begin() + s.divided[d].first_slot,
-                  s.label_slots.begin() + s.divided[d].first_slot + kLabelSlots, s.scratch_old_slots.begin());
-      } else {
-        int32_t c[3];
-        sim_voxel_coords(s, sv, c);
-        for (int32_t z = 0; z <= s.ratio; ++z) {
-          for (int32_t y = 0; y <= s.ratio; ++y) {
-            for (int32_t x = 0; x <= s.ratio; ++x) {
-              old[block_index(s, x, y, z)] =
-                  fine_inside(model, c[0] * s.ratio + x, c[1] * s.ratio + y, c[2] * s.ratio + z) ? 0 : kNoPiece;
-            }
-          }
-        }
-        s.scratch_old_slots[0] = s.voxel_piece[sv];
+    // Relabel the affected voxels locally, from their changed fine voxels.
+    std::vector<uint32_t>& fine = s.scratch_parent;
+    for (size_t i = 0; i < changed.size();) {
+      const uint32_t sv = uint32_t(changed[i] >> 32);
+      fine.clear();
+      for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
+      if (has_pieces(s, sv) && !relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size())) {
+        relabel_block(model, cut, s, sv);
       }
-      const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
-      set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
     }
     // Corner particles of the affected voxels.
     std::vector<uint64_t> corners;
@@ -713,6 +904,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
       for (int q = 0; q < 8; ++q) corners.push_back(corner_id(s, c[0] + (q & 1), c[1] + ((q >> 1) & 1), c[2] + ((q >> 2) & 1)));
     }
     sorted_unique(corners);
+    s.face_cache.clear();  // faces of relabelled voxels changed
     CornerMembers members;
     for (uint64_t id : corners) {
       int32_t I, J, K;
@@ -823,16 +1015,9 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
     for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     double grab_lambda[3] = {0, 0, 0};
     for (int it = 0; it < params.iterations; ++it) {
-      // Stretching, colour by colour; the overflow colour serially.
-      for (uint8_t c = 0; c < kOverflowColour && stretch_on; ++c) {
-        parallel(tasks, uint32_t(s.stretch_groups[c].size()), 2048, [&](uint32_t i) { stretch(c, i); });
-      }
-      for (uint32_t i = 0; i < s.stretch_groups[kOverflowColour].size() && stretch_on; ++i) stretch(kOverflowColour, i);
-      // Shape matching, the same way.
-      for (uint8_t c = 0; c < kOverflowColour; ++c) {
-        parallel(tasks, uint32_t(s.piece_groups[c].size()), 256, [&](uint32_t i) { shape(c, i); });
-      }
-      for (uint32_t i = 0; i < s.piece_groups[kOverflowColour].size(); ++i) shape(kOverflowColour, i);
+      // Stretching, colour by colour (the overflow colour serially), then shape matching the same way.
+      solve_colour_groups(tasks, 2048, [&](uint8_t c) { return uint32_t(s.stretch_groups[c].size()); }, stretch);
+      solve_colour_groups(tasks, 256, [&](uint8_t c) { return uint32_t(s.piece_groups[c].size()); }, shape);
       // Grab: a compliant attachment of one particle to its target (XPBD, per axis).
       if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) {
         const double alpha = s.grab_compliance / (h * h);
@@ -856,6 +1041,10 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
 }
 
 uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }
+
+uint32_t vertex_sim_piece(const PbdState& s, uint32_t slot) {
+  return slot < s.embedding.size() ? embedded_piece(s, s.embedding[slot]) : kDeadIndex;
+}
 
 uint32_t piece_at_rest(const VoxelModel& model, const PbdState& s, const Vec3d& rest) {
   const Vec3d g = (rest - s.origin) / s.sim_size;
@@ -1017,10 +1206,11 @@ bool check_pieces(const VoxelModel& model, const CutState& cut, const PbdState& 
 // Particle sharing = material adjacency at every coarse corner.
 bool check_corners(const VoxelModel& model, const PbdState& s, std::string& error) {
   CornerMembers m;
+  FaceCache cache;
   for (int32_t K = 0; K <= s.sz; ++K) {
     for (int32_t J = 0; J <= s.sy; ++J) {
       for (int32_t I = 0; I <= s.sx; ++I) {
-        corner_groups(model, s, I, J, K, m);
+        corner_groups(model, s, I, J, K, m, cache);
         for (int a = 0; a < m.count; ++a) {
           const uint32_t pa = s.pieces[m.slot[a]].particles[m.corner[a]];
           for (int b = a + 1; b < m.count; ++b) {

@@ -40,6 +40,7 @@
 // of workers.
 #pragma once
 
+#include "sim/colouring.h"
 #include "sim/cut.h"
 #include "sim/flat_map.h"
 #include "sim/pbd_kernels.h"
@@ -52,14 +53,6 @@
 #include <vector>
 
 namespace dvx {
-
-// The task interface: run fn(begin, end, user) over chunks of [0, count), possibly concurrently,
-// and return when all are done. A null parallel_for runs serially.
-struct TaskRunner {
-  void* context = nullptr;
-  void (*parallel_for)(void* context, uint32_t count, uint32_t grain,
-                       void (*fn)(uint32_t begin, uint32_t end, void* user), void* user) = nullptr;
-};
 
 struct PbdParams {
   int resolution = 128;              // fine voxels along the longest axis (the scene's resolution)
@@ -74,10 +67,6 @@ struct PbdParams {
   double damping = 0.01;             // fraction of velocity removed per substep
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
 };
-
-// Colours 0..62 are parallel groups; kOverflowColour is solved serially.
-constexpr uint8_t kOverflowColour = 63;
-constexpr int kColourGroups = 64;
 
 // A shape-matching cluster: one piece of one simulation voxel. Slot kDeadIndex sim_voxel: free.
 struct SimPiece {
@@ -117,6 +106,24 @@ struct VertexEmbedding {
   uint32_t sim_voxel;  // kDeadIndex: not embedded (free slot)
   uint32_t node;       // block index of a node of the vertex's fine piece
   Vec3f local;         // rest position in the sim voxel's frame ([0,1]^3 inside it)
+};
+
+// Label pairs that touch across a face between two simulation voxels, per face (scratch of a cut step).
+struct FaceCache {
+  FlatMap offset;               // face (lower sim voxel * 3 + axis) -> offset in data
+  std::vector<uint16_t> data;   // count, then pairs (lower label << 8 | upper label)
+  void clear() {
+    offset.clear();
+    data.clear();
+  }
+};
+
+// Scratch of the local relabelling (sim/pbd.cpp relabel_local).
+struct LocalSearch {
+  std::vector<uint32_t> owner;    // (block nodes) search group of a visited node, kDeadIndex otherwise
+  std::vector<uint32_t> queue, visited, parent, pending;
+  std::vector<uint8_t> dropped, new_label;
+  int32_t active[256] = {};       // per label: groups still running
 };
 
 // The topology: what cuts edit.
@@ -160,9 +167,12 @@ struct PbdModel {
   PbdParams params;
 
   // Scratch reused between cut steps (no allocation in steady state).
-  std::vector<uint32_t> scratch_parent, scratch_sim, scratch_near, scratch_old_slots;
+  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots;
   std::vector<uint8_t> scratch_labels, scratch_mark;
   std::vector<uint64_t> scratch_corners;
+  FaceCache face_cache;
+  LocalSearch search;
+  std::vector<uint64_t> scratch_changed;
 };
 
 // The dynamic state: what a step writes.
@@ -206,6 +216,8 @@ void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {
 // The piece slot holding rest point `rest` (the label of the fine node nearest to it, in the
 // simulation voxel containing it), kDeadIndex when that node holds no material.
 uint32_t piece_at_rest(const VoxelModel& model, const PbdState& state, const Vec3d& rest);
+// The piece slot a surface vertex slot is embedded in, kDeadIndex when none.
+uint32_t vertex_sim_piece(const PbdState& state, uint32_t slot);
 // The piece slot of label `label` in simulation voxel sv, kDeadIndex when none.
 uint32_t piece_slot(const PbdState& state, uint32_t sv, uint8_t label);
 // True when the fine node nearest to local point u ([0,1]^3 in the piece's simulation voxel, clamped
