@@ -65,12 +65,40 @@ struct Reader {
 
 bool is_power_of_two(int x) { return x > 0 && (x & (x - 1)) == 0; }
 
+// "planes": [{"point": [x,y,z], "normal": [nx,ny,nz], "friction": mu, "static_friction": mu_s}]; the
+// normal is normalised (a zero normal is an error); friction >= 0, static_friction defaults to it.
+std::vector<ScenePlane> parse_planes(const Reader& r, const json& planes) {
+  if (!planes.is_array()) r.fail("planes", "must be an array of {\"point\": [x,y,z], \"normal\": [nx,ny,nz], \"friction\": f}");
+  if (planes.size() > kMaxPlanes) r.fail("planes", "at most " + std::to_string(kMaxPlanes) + " planes");
+  std::vector<ScenePlane> out;
+  for (size_t i = 0; i < planes.size(); ++i) {
+    const std::string key = "planes[" + std::to_string(i) + "]";
+    const json& p = planes[i];
+    r.check_keys(p, key, {"point", "normal", "friction", "static_friction"});
+    ScenePlane plane;
+    if (!p.contains("point")) r.fail(key + ".point", "missing (a point on the plane)");
+    if (!p.contains("normal")) r.fail(key + ".normal", "missing (the side material stays on)");
+    plane.point = r.vec3(p["point"], key + ".point", 1e30);
+    const Vec3d normal = r.vec3(p["normal"], key + ".normal", 1e30);
+    const double length = normal.norm();
+    if (!(length > 1e-12) || !std::isfinite(length)) r.fail(key + ".normal", "must be a non-zero vector");
+    plane.normal = normal / length;
+    if (p.contains("friction")) plane.friction = r.number(p["friction"], key + ".friction", 0.0, 1e3);
+    plane.static_friction = plane.friction;
+    if (p.contains("static_friction")) {
+      plane.static_friction = r.number(p["static_friction"], key + ".static_friction", 0.0, 1e3);
+    }
+    out.push_back(plane);
+  }
+  return out;
+}
+
 }  // namespace
 
 Scene parse_scene(const json& root, const std::string& file) {
   const Reader r{file};
   r.check_keys(root, "",
-               {"mesh", "resolution", "sim_resolution", "material", "solver", "gravity", "fixed", "scalpel"});
+               {"mesh", "resolution", "sim_resolution", "material", "solver", "gravity", "fixed", "scalpel", "planes", "contact"});
   Scene scene;
   scene.file = file;
 
@@ -133,6 +161,16 @@ Scene parse_scene(const json& root, const std::string& file) {
     r.check_keys(s, "scalpel", {"length"});
     if (s.contains("length")) scene.scalpel.length = r.number(s["length"], "scalpel.length", 1e-9, 1e9);
   }
+  if (root.contains("planes")) scene.planes = parse_planes(r, root["planes"]);
+  if (root.contains("contact")) {
+    const json& c = root["contact"];
+    r.check_keys(c, "contact", {"pieces", "friction"});
+    if (c.contains("pieces")) {
+      if (!c["pieces"].is_boolean()) r.fail("contact.pieces", "must be true or false");
+      scene.contact.pieces = c["pieces"].get<bool>();
+    }
+    if (c.contains("friction")) scene.contact.friction = r.number(c["friction"], "contact.friction", 0.0, 1e3);
+  }
   return scene;
 }
 
@@ -155,18 +193,31 @@ json scene_to_json(const Scene& scene) {
   for (const FixedBox& b : scene.fixed) {
     fixed.push_back({{"box", {{b.min.x(), b.min.y(), b.min.z()}, {b.max.x(), b.max.y(), b.max.z()}}}});
   }
-  return {{"mesh", scene.mesh},
-          {"resolution", scene.resolution},
-          {"sim_resolution", scene.sim_resolution},
-          {"material",
-           {{"density", scene.material.density},
-            {"stretch_compliance", scene.material.stretch_compliance},
-            {"shape_stiffness", scene.material.shape_stiffness}}},
-          {"solver", {{"dt", scene.solver.dt}, {"substeps", scene.solver.substeps}, {"iterations", scene.solver.iterations},
-                      {"damping", scene.solver.damping}}},
-          {"gravity", {scene.gravity.x(), scene.gravity.y(), scene.gravity.z()}},
-          {"fixed", fixed},
-          {"scalpel", {{"length", scene.scalpel.length}}}};
+  json planes = json::array();
+  for (const ScenePlane& p : scene.planes) {
+    planes.push_back({{"point", {p.point.x(), p.point.y(), p.point.z()}},
+                      {"normal", {p.normal.x(), p.normal.y(), p.normal.z()}},
+                      {"friction", p.friction},
+                      {"static_friction", p.static_friction}});
+  }
+  json out = {{"mesh", scene.mesh},
+             {"resolution", scene.resolution},
+             {"sim_resolution", scene.sim_resolution},
+             {"material",
+              {{"density", scene.material.density},
+               {"stretch_compliance", scene.material.stretch_compliance},
+               {"shape_stiffness", scene.material.shape_stiffness}}},
+             {"solver", {{"dt", scene.solver.dt}, {"substeps", scene.solver.substeps}, {"iterations", scene.solver.iterations},
+                         {"damping", scene.solver.damping}}},
+             {"gravity", {scene.gravity.x(), scene.gravity.y(), scene.gravity.z()}},
+             {"fixed", fixed},
+             {"scalpel", {{"length", scene.scalpel.length}}}};
+  // Absent when empty / default: older recordings keep their header.
+  if (!scene.planes.empty()) out["planes"] = planes;
+  if (!scene.contact.pieces || scene.contact.friction != Scene::Contact{}.friction) {
+    out["contact"] = {{"pieces", scene.contact.pieces}, {"friction", scene.contact.friction}};
+  }
+  return out;
 }
 
 }  // namespace dvx

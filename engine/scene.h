@@ -1,5 +1,5 @@
 // Scene files (JSON, DESIGN §1): which mesh, at which resolution, with which material,
-// solver, gravity, anchors and scalpel. Only `mesh` is required; unknown keys are errors.
+// solver, gravity, anchors, scalpel and contact planes. Only `mesh` is required; unknown keys are errors.
 #pragma once
 
 #include "sim/mesh.h"
@@ -13,6 +13,14 @@ namespace dvx {
 
 struct FixedBox {
   Vec3d min, max;  // particles inside this box are anchored
+};
+
+// A static contact plane (a tray, a table): material stays on the side the normal points to.
+struct ScenePlane {
+  Vec3d point = Vec3d::Zero();
+  Vec3d normal = Vec3d(0.0, 1.0, 0.0);  // normalised when read
+  double friction = 0.5;                // Coulomb coefficient while sliding (kinetic)
+  double static_friction = 0.5;         // while sticking; defaults to `friction`
 };
 
 struct Scene {
@@ -37,10 +45,16 @@ struct Scene {
   struct Scalpel {
     double length = 0.5;
   } scalpel;
+  std::vector<ScenePlane> planes;
+  struct Contact {
+    bool pieces = true;     // pieces not joined by material do not pass through each other
+    double friction = 0.5;  // Coulomb coefficient between pieces
+  } contact;
 };
 
 // Bounds on values a scene may hold (also used by the CLI for --resolution).
 constexpr int kMaxResolution = 4096;
+constexpr size_t kMaxPlanes = 32;  // contact planes per scene
 
 // Reads and validates a scene file. Throws InputError ("FILE: key: problem") for malformed
 // JSON (with line), unknown keys, wrong types and out-of-range values.

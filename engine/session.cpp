@@ -33,6 +33,11 @@ PbdParams pbd_params(const Scene& scene, double dt) {
     box.grow(b.max);
     p.fixed.push_back(box);
   }
+  for (const ScenePlane& plane : scene.planes) {  // contact (sim/contact.h)
+    p.planes.push_back({plane.point, plane.normal, plane.static_friction, plane.friction});
+  }
+  p.piece_contact = scene.contact.pieces;
+  p.piece_friction = scene.contact.friction;
   return p;
 }
 

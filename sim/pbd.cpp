@@ -786,6 +786,208 @@ void sorted_unique(std::vector<T>& v) {
   v.erase(std::unique(v.begin(), v.end()), v.end());
 }
 
+// ---- Contact hook (sim/contact.h) ----------------------------------------------------------
+
+// The deformed position of a live embedded vertex slot, its piece, and its trilinear weights.
+uint32_t embedded_point(const PbdState& s, uint32_t slot, Vec3d& point, double weights[8]) {
+  const VertexEmbedding& e = s.embedding[slot];
+  const uint32_t piece = embedded_piece(s, e);
+  if (piece == kDeadIndex) return kDeadIndex;
+  const double u = e.local.x(), v = e.local.y(), w = e.local.z();
+  point.setZero();
+  for (int c = 0; c < 8; ++c) {
+    weights[c] = ((c & 1) ? u : 1.0 - u) * (((c >> 1) & 1) ? v : 1.0 - v) * (((c >> 2) & 1) ? w : 1.0 - w);
+    point += weights[c] * s.position[s.pieces[piece].particles[c]];
+  }
+  return piece;
+}
+
+// Gathers this step's contact points: the surface vertices that may reach a plane within the step,
+// grouped by piece. A piece is skipped when even its lowest corner particle (every embedded point is a
+// convex combination of the corners) stays out of reach.
+void gather_plane_contacts(const CutState& cut, PbdState& s) {
+  ContactSet& set = s.contacts;
+  contacts_clear(set);
+  const std::vector<ContactPlane>& planes = s.params.planes;
+  if (planes.empty()) return;
+  double speed = 0.0;
+  for (size_t p = 0; p < s.position.size(); ++p) {
+    if (s.inv_mass[p] > 0.0) speed = std::max(speed, s.velocity[p].norm());
+  }
+  const double dt = s.params.dt;
+  const double reach = 2.0 * (speed * dt + s.params.gravity.norm() * dt * dt) + 2.0 * s.sim_size / s.ratio;
+  const uint32_t plane_count = uint32_t(std::min<size_t>(planes.size(), 32));
+  std::vector<uint32_t>& near = set.group_mask;  // per piece: bit k = may reach plane k
+  near.assign(s.pieces.size(), 0);
+  for (size_t i = 0; i < s.pieces.size(); ++i) {
+    if (s.pieces[i].sim_voxel == kDeadIndex) continue;  // free slot
+    bool moves = false;  // a piece pinned at every corner cannot be pushed
+    for (uint32_t p : s.pieces[i].particles) moves = moves || s.inv_mass[p] > 0.0;
+    for (uint32_t k = 0; moves && k < plane_count; ++k) {
+      double lowest = 1e300;
+      for (uint32_t p : s.pieces[i].particles) lowest = std::min(lowest, plane_distance(planes[k], s.position[p]));
+      if (lowest < reach) near[i] |= 1u << k;
+    }
+  }
+  const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
+  for (uint32_t slot = 0; slot < count; ++slot) {
+    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
+    if (piece == kDeadIndex || near[piece] == 0) continue;
+    const uint32_t* particles = s.pieces[piece].particles;
+    double weights[8], mobility = 0.0;
+    Vec3d point;
+    embedded_point(s, slot, point, weights);
+    for (int c = 0; c < 8; ++c) mobility += weights[c] * weights[c] * s.inv_mass[particles[c]];
+    if (mobility == 0.0) continue;  // interpolates anchored particles only
+    for (uint32_t k = 0; k < plane_count; ++k) {
+      if (((near[piece] >> k) & 1u) && plane_distance(planes[k], point) < reach) {
+        contacts_add(set, s.pieces[piece].colour, piece, plane_contact(planes[k], particles, weights));
+      }
+    }
+  }
+  contacts_finish(set);
+}
+
+// One pass over a contact set: batch by batch (the groups of a batch share no particle), the overflow
+// batch serially; everything serially when there are few points.
+void solve_contacts(PbdState& s, ContactSet& set, const TaskRunner& tasks) {
+  static_assert(kContactOverflow == kOverflowColour, "one overflow batch for both contact sets");
+  if (set.points.empty()) return;
+  double* x = s.position[0].data();
+  const double* previous = s.previous[0].data();
+  const double* w = s.inv_mass.data();
+  const TaskRunner serial{};
+  for (uint32_t b = 0; b < contact_batches(set); ++b) {
+    const uint32_t begin = set.batch_begin[b], end = set.batch_begin[b + 1];
+    const bool run_serially = b == kOverflowColour || set.points.size() < 256;
+    parallel(run_serially ? serial : tasks, end - begin, 16,
+             [&](uint32_t g) { solve_contact_group(x, previous, w, set, begin + g); });
+  }
+}
+
+// Marks the vertex slots a cut made or moved since the last step as fresh (allowance = infinity).
+void refresh_allowances(const CutState& cut, PieceContacts& pc) {
+  const size_t slots = cut.surface.positions.size();
+  if (pc.seen.empty()) {  // the first step: the surface as built is not fresh
+    pc.seen = cut.surface.positions;
+    pc.allowance.assign(slots, 0.0f);
+  }
+  pc.allowance.resize(slots, 0.0f);
+  pc.seen.resize(slots, Vec3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+  for (size_t v = 0; v < slots; ++v) {
+    if (pc.seen[v] == cut.surface.positions[v]) continue;  // NaN never compares equal: new slots too
+    pc.seen[v] = cut.surface.positions[v];
+    pc.allowance[v] = std::numeric_limits<float>::infinity();
+  }
+}
+
+// Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
+// vertices with deformed normals, the nearest facing vertex of another body.
+void collect_piece_contacts(const CutState& cut, PbdState& s) {
+  PieceContacts& pc = s.piece_contacts;
+  contacts_clear(pc.set);
+  pc.exposed_pieces = 0;
+  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
+  if (!s.params.piece_contact || pieces == 0) return;
+  refresh_allowances(cut, pc);  // every step, so a cut is fresh when its sides first touch
+  pc.corners.resize(size_t(pieces) * 8);
+  pc.live.assign(pieces, 0);
+  pc.lo.resize(pieces);
+  pc.hi.resize(pieces);
+  uint32_t first = kDeadIndex;
+  for (uint32_t i = 0; i < pieces; ++i) {
+    if (s.pieces[i].sim_voxel == kDeadIndex) continue;  // free slot
+    pc.live[i] = 1;
+    first = std::min(first, i);
+    std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, pc.corners.begin() + 8 * size_t(i));
+    pc.lo[i] = pc.hi[i] = s.position[s.pieces[i].particles[0]];
+    for (uint32_t p : s.pieces[i].particles) {
+      pc.lo[i] = pc.lo[i].cwiseMin(s.position[p]);
+      pc.hi[i] = pc.hi[i].cwiseMax(s.position[p]);
+    }
+  }
+  find_bodies(pc.corners.data(), pc.live.data(), pieces, particles, pc.body, pc.scratch);
+  if (first == kDeadIndex) return;
+  bool several = false;
+  for (uint32_t i = first + 1; i < pieces && !several; ++i) several = pc.live[i] && pc.body[i] != pc.body[first];
+  if (!several) return;  // one body: nothing to collide with
+  // Reach: two fine voxels (the two faces of a cut can sit a voxel apart at its rim), plus twice what
+  // any particle moves in a step (capped at a simulation voxel).
+  double speed = 0.0;
+  for (uint32_t p = 0; p < particles; ++p) {
+    if (s.inv_mass[p] > 0.0) speed = std::max(speed, s.velocity[p].norm());
+  }
+  const double fine = s.sim_size / s.ratio;
+  const double reach = std::min(s.sim_size, 2.0 * fine + 2.0 * (speed + s.params.gravity.norm() * s.params.dt) * s.params.dt);
+  pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.live.data(), pc.body.data(), pieces, reach,
+                                          pc.exposed, pc.scratch);
+  if (pc.exposed_pieces == 0) return;
+  // Surface vertices of exposed pieces, with their allowances (sim/contact.h): a vertex whose rest
+  // position changed since the last step was made by a cut and is fresh.
+  const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
+  pc.points.clear();
+  pc.point_of_slot.assign(slots, ~0u);
+  for (uint32_t slot = 0; slot < slots; ++slot) {
+    SurfacePoint sp;
+    sp.allowance = pc.allowance[slot];
+    sp.slot = slot;
+    const uint32_t piece = embedded_point(s, slot, sp.position, sp.weights);
+    if (piece == kDeadIndex || !pc.exposed[piece]) continue;
+    std::copy(s.pieces[piece].particles, s.pieces[piece].particles + 8, sp.particles);
+    sp.body = pc.body[piece];
+    sp.normal.setZero();
+    pc.point_of_slot[slot] = uint32_t(pc.points.size());
+    pc.points.push_back(sp);
+  }
+  // Their deformed normals: area-weighted sums over the live triangles using them.
+  const CutSurface& surface = cut.surface;
+  for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
+    if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
+    const Tri& tri = surface.triangles[t];
+    if (tri[0] >= slots || tri[1] >= slots || tri[2] >= slots) continue;
+    if (pc.point_of_slot[tri[0]] == ~0u && pc.point_of_slot[tri[1]] == ~0u && pc.point_of_slot[tri[2]] == ~0u) continue;
+    Vec3d corner[3];
+    double unused[8];
+    bool ok = true;
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t i = pc.point_of_slot[tri[k]];
+      if (i != ~0u) {
+        corner[k] = pc.points[i].position;
+      } else {
+        ok = ok && embedded_point(s, tri[k], corner[k], unused) != kDeadIndex;
+      }
+    }
+    if (!ok) continue;
+    const Vec3d n = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
+    for (int k = 0; k < 3; ++k) {
+      if (pc.point_of_slot[tri[k]] != ~0u) pc.points[pc.point_of_slot[tri[k]]].normal += n;
+    }
+  }
+  uint32_t kept = 0;
+  for (const SurfacePoint& sp : pc.points) {
+    const double length = sp.normal.norm();
+    if (!(length > 0.0)) continue;
+    pc.points[kept] = sp;
+    pc.points[kept++].normal /= length;
+  }
+  pc.points.resize(kept);
+  gather_piece_contacts(pc.points.data(), kept, s.position[0].data(), particles, reach, s.params.piece_friction,
+                        pc.set, pc.scratch);
+  contacts_finish(pc.set);
+  for (uint32_t slot = 0; slot < slots; ++slot) {
+    if (pc.point_of_slot[slot] != ~0u) pc.allowance[slot] = 0.0f;  // dropped below (no normal): none
+  }
+  for (const SurfacePoint& sp : pc.points) pc.allowance[sp.slot] = sp.allowance;
+}
+
+// The particles' frictionless backstop one simulation voxel below the planes.
+void plane_backstop(PbdState& s, uint32_t p) {
+  if (!s.params.planes.empty()) {
+    project_particles_to_planes(s.position[0].data(), s.inv_mass.data(), p, p + 1, s.params.planes.data(),
+                                uint32_t(s.params.planes.size()), s.sim_size);
+  }
+}
+
 }  // namespace
 
 // ---- Public API ----------------------------------------------------------------------------
@@ -1001,6 +1203,8 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
     const uint32_t slot = s.piece_groups[c][i];
     solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot]);
   };
+  gather_plane_contacts(cut, s);  // contact (sim/contact.h)
+  collect_piece_contacts(cut, s);
   for (int sub = 0; sub < substeps; ++sub) {
     // Predict.
     parallel(tasks, n, 4096, [&](uint32_t p) {
@@ -1013,6 +1217,8 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       s.position[p] += h * s.velocity[p];
     });
     for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    contacts_begin_substep(s.contacts);
+    contacts_begin_substep(s.piece_contacts.set);
     double grab_lambda[3] = {0, 0, 0};
     for (int it = 0; it < params.iterations; ++it) {
       // Stretching, colour by colour (the overflow colour serially), then shape matching the same way.
@@ -1028,11 +1234,16 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
           s.position[s.grab_particle][a] += s.inv_mass[s.grab_particle] * dl;
         }
       }
+      // Contact between pieces, then with the static planes, last so each iteration ends with the
+      // surface above them.
+      solve_contacts(s, s.piece_contacts.set, tasks);
+      solve_contacts(s, s.contacts, tasks);
     }
     // Velocities from the positional change, with damping.
     const double keep = 1.0 - params.damping;
     parallel(tasks, n, 4096, [&](uint32_t p) {
       if (s.inv_mass[p] == 0.0) return;
+      plane_backstop(s, p);
       s.velocity[p] = (s.position[p] - s.previous[p]) * (keep / h);
     });
   }

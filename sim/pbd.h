@@ -41,6 +41,7 @@
 #pragma once
 
 #include "sim/colouring.h"
+#include "sim/contact.h"
 #include "sim/cut.h"
 #include "sim/flat_map.h"
 #include "sim/pbd_kernels.h"
@@ -66,6 +67,9 @@ struct PbdParams {
   Vec3d gravity = Vec3d(0.0, -9.81, 0.0);
   double damping = 0.01;             // fraction of velocity removed per substep
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
+  std::vector<ContactPlane> planes;  // static contact planes (sim/contact.h)
+  bool piece_contact = true;         // pieces of different bodies do not interpenetrate (sim/contact.h)
+  double piece_friction = 0.5;       // Coulomb coefficient between pieces
 };
 
 // A shape-matching cluster: one piece of one simulation voxel. Slot kDeadIndex sim_voxel: free.
@@ -185,6 +189,10 @@ struct PbdData {
   Vec3d grab_target = Vec3d::Zero();
   double grab_compliance = 1e-4;
   std::vector<Vec3f> deformed;  // (surface vertex slots)
+  // Contact points of this step against params.planes (grouped by piece, batched by its colour) and
+  // between pieces of different bodies (sim/contact.h).
+  ContactSet contacts;
+  PieceContacts piece_contacts;
   uint64_t steps = 0;
   // Per-step scratch of pbd_step (masses and rest positions change only between steps): the
   // shape-matching rest frame of each piece slot, and each piece's corners in float for the embedding.

@@ -4,8 +4,10 @@
 Two cuts of the default bunny (y up, about 10 units across):
   1. a vertical blade along z comes down from above at x = 0.7 and stops at y = 4.0, inside the body:
      a partial cut (a slit that ends inside the bunny);
-  2. a horizontal blade along z sweeps along x at y = 6.8 through the whole head: it separates the
-     top of the head and the ears from the body, which then fall (there is no collision).
+  2. a blade along z sweeps along x through the whole head on a plane sloping down to the front
+     (y = 6.8 + 0.55 (x + 2), 29 degrees: steeper than the pieces' friction 0.5 holds): it separates the top
+     of the head and the ears from the body; they slide off the stump and land on the tray in front of
+     the bunny (contact: sim/contact.h).
 The poses are written without state hashes; `divvox replay POSES --no-physics --record OUT` replays
 them and writes the final recording with a hash every 60 steps (tools/make_default_recording.sh).
 """
@@ -32,13 +34,16 @@ for i in range(91):
 # Lift the blade and move it beside the head.
 for i in range(20):
     pose([-7.0, y, -z], [-7.0, y, z], False)
-# Cut 2: horizontal sweep through the head at y = 6.8: the top of the head comes off and falls.
+# Cut 2: the sloped sweep through the head: the top of the head comes off, slides and falls.
+def cut_height(x):
+    return y + 0.55 * (x + 2.0)
+pose([-7.0, cut_height(-7.0), -z], [-7.0, cut_height(-7.0), z], False)
 for i in range(1, 121):
     x = -7.0 + 14.0 * i / 120
-    pose([x, y, -z], [x, y, z], True)
-# Rest: watch the piece fall.
-for i in range(30):
-    pose([7.0, y, -z], [7.0, y, z], False)
+    pose([x, cut_height(x), -z], [x, cut_height(x), z], True)
+# Rest: watch the piece slide off and land on the tray.
+for i in range(150):
+    pose([7.0, cut_height(7.0), -z], [7.0, cut_height(7.0), z], False)
 
 # With --grab: then the grab tool pulls the back beside the slit open (a "grab" command per step).
 if "--grab" in sys.argv:
@@ -47,7 +52,7 @@ if "--grab" in sys.argv:
         lines.append({"step": step, "grab": {"target": [1.0 + 2.5 * t, 6.0 + 1.0 * t, 0.0], "compliance": 1e-6}})
         step += 1
     lines.append({"step": step, "grab": "release"})
-    pose([7.0, y, -z], [7.0, y, z], False)
+    pose([7.0, cut_height(7.0), -z], [7.0, cut_height(7.0), z], False)
 
 paths = [a for a in sys.argv[1:] if not a.startswith("--")]
 out = open(paths[0], "w") if paths else sys.stdout

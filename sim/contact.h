@@ -1,0 +1,182 @@
+// Contact with static planes (a tray, a table): XPBD inequality constraints with Coulomb friction on
+// plain particle arrays (positions, positions at the start of the substep, inverse masses; double[3]
+// per particle). No dependence on the PBD model's layout: the model gathers contact points, these
+// kernels solve them.
+//
+// What touches the plane. The visible surface interpolates the simulation particles (trilinear weights
+// in its simulation piece), and a piece's corner particles lie up to one simulation voxel outside its
+// material. Keeping the *particles* on the positive side would hold the surface up to a simulation
+// voxel above the tray; so the constraint acts on *contact points of the embedded surface*: surface
+// vertices near a plane, each the weighted sum of its piece's 8 particles (C = n . (sum_i w_i x_i - p)
+// >= 0, gradient w_i n on particle i, generalised inverse mass W = sum_i w_i^2 / m_i). The surface
+// then rests on the plane, and particles may sit below it. Particles get only a frictionless backstop
+// one simulation voxel below the plane, so a piece whose surface was not gathered cannot fall through.
+//
+// Friction (position level: Macklin et al. 2014 "Unified particle physics", 2019 "Small steps";
+// Müller et al. 2020 "Detailed rigid body simulation with XPBD"). Each contact point accumulates,
+// within a substep, its normal correction dn >= 0 and its friction correction f (a tangent vector).
+// After the normal projection, the point's tangential motion since the start of the substep u_t is
+// measured; the friction that would stop it is t = f - u_t. Static: while |t| <= mu_s dn the point
+// sticks (t applied in full). Kinetic: otherwise |t| is clamped to mu_k dn (it slides, slowed). The
+// accumulated form makes repeated iterations idempotent: iterating never applies friction twice.
+#pragma once
+
+#include "sim/mesh.h"
+
+#include <cstdint>
+#include <vector>
+
+namespace dvx {
+
+// A static plane: material stays on the side the normal points to.
+struct ContactPlane {
+  Vec3d point = Vec3d::Zero();
+  Vec3d normal = Vec3d(0.0, 1.0, 0.0);  // unit length
+  double static_friction = 0.5;         // sticks while friction <= static_friction x normal correction
+  double kinetic_friction = 0.5;        // while sliding, friction = kinetic_friction x normal correction
+};
+
+// Signed distance of a point from a plane (positive on the material side).
+inline double plane_distance(const ContactPlane& plane, const Vec3d& x) { return plane.normal.dot(x - plane.point); }
+
+// One contact: C = normal . r - target >= 0 on the *relative point* r = sum_k weights[k] x[particles[k]]
+// (up to 16 particles). Against a plane, r is a surface point (its piece's 8 trilinear weights) and
+// target = normal . plane.point; between two pieces, r = (point of one) - (point of the other) (the
+// other's weights negated). Gradient on particle k: weights[k] normal; generalised inverse mass
+// W = sum_k weights[k]^2 / m_k. Unused slots have weight 0 (and any valid index).
+struct ContactPoint {
+  static constexpr int kMaxParticles = 16;
+  uint32_t particles[kMaxParticles] = {};
+  double weights[kMaxParticles] = {};
+  Vec3d normal = Vec3d(0.0, 1.0, 0.0);
+  double target = 0.0;
+  double static_friction = 0.0, kinetic_friction = 0.0;
+  double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
+  Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
+};
+
+// A contact of a surface point (8 particles, trilinear weights) with a plane.
+ContactPoint plane_contact(const ContactPlane& plane, const uint32_t particles[8], const double weights[8]);
+
+// Contact points in groups, groups in batches. The points of a group are solved in order by one
+// worker (the PBD model: one group per simulation piece); the groups of one batch share no particle
+// and may run concurrently (one batch per piece colour), so the result does not depend on the worker
+// count. Only non-empty groups are kept. Vectors keep their capacity: no allocation per step in steady
+// state.
+struct ContactSet {
+  std::vector<ContactPoint> points;   // by batch, then group, then in the order added
+  std::vector<uint32_t> group_begin;  // (groups + 1) offsets into points
+  std::vector<uint32_t> batch_begin;  // (batches + 1) offsets into the groups
+  // Scratch.
+  std::vector<ContactPoint> staged;
+  std::vector<uint64_t> staged_key;  // batch << 32 | group
+  std::vector<uint32_t> order;
+  std::vector<uint32_t> group_mask;  // for the gatherer (e.g. the planes a piece may reach)
+};
+
+// Gathering: clear, add points with their batch and group, then finish (sorts them, stable).
+void contacts_clear(ContactSet& set);
+void contacts_add(ContactSet& set, uint32_t batch, uint32_t group, const ContactPoint& point);
+void contacts_finish(ContactSet& set);
+inline uint32_t contact_batches(const ContactSet& set) {
+  return set.batch_begin.empty() ? 0 : uint32_t(set.batch_begin.size() - 1);
+}
+
+// Zeroes the accumulated corrections (at the start of each substep, when `previous` is reset).
+void contacts_begin_substep(ContactSet& set);
+
+// One contact: normal projection (rigid, compliance 0), then static/kinetic friction against the
+// relative motion since `previous`. Particles with inverse mass 0 do not move; W = 0 is skipped.
+void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& point);
+
+// The points of group `group` (an index into group_begin), in order.
+void solve_contact_group(double* x, const double* previous, const double* inv_mass, ContactSet& set, uint32_t group);
+
+// Frictionless backstop for particles [begin, end): each stays at most `depth` below every plane.
+void project_particles_to_planes(double* x, const double* inv_mass, uint32_t begin, uint32_t end,
+                                 const ContactPlane* planes, uint32_t plane_count, double depth);
+
+// ---- Piece against piece ---------------------------------------------------------------------
+//
+// Pieces not joined by material must not pass through each other, at the scale of the surface. The
+// bodies are the connected components of the particle-sharing graph (pieces sharing a particle are
+// joined by material); only surface points of different bodies touch. A body does not collide with
+// itself (a flap folded onto its own body is a known limit).
+//
+// Broad phase: the pieces' deformed bounds, grown by the contact reach, in a uniform grid; a piece is
+// *exposed* when its bounds overlap a piece of another body. Narrow phase: the surface vertices of
+// exposed pieces in a hash grid of cell = reach; each vertex v pairs with its nearest vertex q of
+// another body within reach whose normal faces it (n_v . n_q < -0.9: more than ~155 degrees apart, so
+// the rims where a cut face meets the old surface do not pair). The contact keeps v on the outer side
+// of q's tangent plane: C = n_q . (x_v - x_q) >= -allowance, x_v and x_q the trilinear points of their
+// pieces (16 particles, q's weights negated).
+//
+// Fresh cuts. The two faces of a fresh cut coincide (their vertices sit on the blade's plane to within
+// the contouring's precision), so some start a hair inside the other side. Pushing them out would be a
+// separating impulse; letting each step's overlap become the next step's limit would let them sink.
+// So each vertex carries an *allowance*: a vertex created or moved by a cut is fresh, and at its
+// first contact its allowance is its overlap then; from then on the allowance only shrinks (to the
+// overlap of each later step, to 0 when it is out of contact). Vertices that were never fresh have
+// none: they never enter another body. The cut faces start in contact at zero depth and resist any
+// deeper interpenetration. Surfaces farther apart than the reach (a few fine voxels) are untouched.
+//
+// Colouring: each contact is its own group; contacts are coloured greedily over their particles
+// (63 colours, a 64-bit mask per particle); a contact that finds every colour taken goes to the
+// overflow batch (kContactOverflow), which the caller solves serially.
+
+constexpr uint32_t kContactOverflow = 63;
+
+// A surface vertex offered to the narrow phase.
+struct SurfacePoint {
+  Vec3d position;  // deformed
+  Vec3d normal;    // deformed, unit, outward
+  uint32_t body;   // connected component of its piece
+  uint32_t particles[8];
+  double weights[8];
+  float allowance;  // in: overlap it may keep (infinity: fresh); out: the updated allowance
+  uint32_t slot;    // the caller's id (the PBD model: its surface vertex slot)
+};
+
+// Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
+struct PieceContactScratch {
+  std::vector<uint32_t> parent;                   // (particles) union-find
+  std::vector<uint64_t> keys;                     // cell << 32 | item
+  std::vector<uint32_t> cell_begin, cell_items;   // sorted cells
+  std::vector<uint64_t> cells;                    // distinct cell keys, sorted
+  std::vector<uint64_t> busy;                     // (particles) colour bits taken
+  std::vector<uint32_t> touched;                  // particles whose busy bits are set
+  std::vector<float> allowance;                   // (points) updated allowances
+};
+
+// Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).
+struct PieceContacts {
+  ContactSet set;               // batch = colour (kContactOverflow: serial)
+  PieceContactScratch scratch;
+  std::vector<uint32_t> corners, body;  // (pieces x 8), (pieces)
+  std::vector<uint8_t> live, exposed;   // (pieces)
+  std::vector<Vec3d> lo, hi;            // (pieces) deformed bounds
+  std::vector<SurfacePoint> points;
+  std::vector<uint32_t> point_of_slot;  // (surface vertex slots) index in points, ~0u: none
+  std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
+  std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
+  uint32_t exposed_pieces = 0;          // of the last gather (diagnostics)
+};
+
+// Bodies: the connected components of the pieces under particle sharing. `corners` holds 8 particles
+// per piece (live[piece] == 0: dead slot); body[piece] = the smallest particle of its component.
+void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_count, uint32_t particle_count,
+                 std::vector<uint32_t>& body, PieceContactScratch& scratch);
+
+// Marks the pieces whose bounds (lo, hi per piece; live as above), grown by `reach`, overlap a piece of
+// another body. Returns how many.
+uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
+                             uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
+                             PieceContactScratch& scratch);
+
+// Adds the contacts of `points` (see above) to `set` (batch = colour, group = running contact
+// number), coloured over `particle_count` particles, and updates the points' allowances. `x` are the
+// current particle positions (double[3]). Returns how many it added.
+uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
+                               double reach, double friction, ContactSet& set, PieceContactScratch& scratch);
+
+}  // namespace dvx
