@@ -766,7 +766,16 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
 
   // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
-  // lowest voxel of the list around it (the list is sorted).
+  // lowest voxel of the list around it (the list is sorted; a long one, as when the surface is
+  // built, is looked up in a bitset).
+  std::vector<uint64_t> listed;
+  if (voxels.size() > 4096) {
+    listed.assign((l.voxel_count() + 63) / 64, 0);
+    for (uint32_t v : voxels) listed[v >> 6] |= uint64_t(1) << (v & 63);
+  }
+  const auto in_list = [&](uint32_t v) {
+    return listed.empty() ? std::binary_search(voxels.begin(), voxels.end(), v) : bool((listed[v >> 6] >> (v & 63)) & 1u);
+  };
   for (uint32_t voxel : voxels) {
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
@@ -779,10 +788,15 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       voxels_around_voxel_edge(l, vc, e, around, corners);
       bool owner = true;
       for (int q = 0; q < 4 && owner; ++q) {
-        owner = !(around[q] < voxel && std::binary_search(voxels.begin(), voxels.end(), around[q]));
+        owner = !(around[q] < voxel && in_list(around[q]));
       }
       if (!owner) continue;
       const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
+      // Only surface edges and cut edges ever hold a quad (cuts are never undone).
+      const VoxelEdge& ve = kVoxelEdges[e];
+      if (cut == nullptr && model.is_inside(corner_node(l, vc, ve.c0)) == model.is_inside(corner_node(l, vc, ve.c1))) {
+        continue;
+      }
       EdgeQuads quads;
       plan_edge_quads(model, state, edge, cut, around, corners, quads);
       for (int side = 0; side < 2; ++side) {
@@ -798,6 +812,28 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
 }
 
 // ---- Cuts on edges -------------------------------------------------------------------------
+
+// True when a surface edge bounds an ambiguous face (two diagonal inside corners): only there does a
+// blade crossing outside the material change what is joined (voxel_material_joins).
+bool on_ambiguous_face(const VoxelModel& model, uint32_t edge) {
+  const Lattice& l = model.lattice;
+  const int axis = int(edge % 3);
+  const uint32_t n0 = edge / 3, n1 = n0 + node_stride(l, axis);
+  const bool in0 = model.is_inside(n0);
+  int32_t c[3];
+  l.node_coords(n0, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  for (int k = 1; k <= 2; ++k) {
+    const int b = (axis + k) % 3;
+    for (int s = -1; s <= 1; s += 2) {
+      if (c[b] + s < 0 || c[b] + s > dims[b]) continue;
+      const uint32_t step = node_stride(l, b);
+      const uint32_t m0 = s > 0 ? n0 + step : n0 - step, m1 = s > 0 ? n1 + step : n1 - step;
+      if (model.is_inside(m0) != in0 && model.is_inside(m1) == in0) return true;
+    }
+  }
+  return false;
+}
 
 // What one blade crossing did to its edge.
 enum class EdgeChange { kNone, kCut, kAir };
@@ -816,7 +852,7 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
     const EdgeCrossing* c = model.find_crossing(hit.edge);
     const float ts = c ? c->t : 0.5f;
     if (in0 ? hit.t >= ts : hit.t <= ts) {
-      if (state.air_edges.contains(hit.edge)) return EdgeChange::kNone;
+      if (!on_ambiguous_face(model, hit.edge) || state.air_edges.contains(hit.edge)) return EdgeChange::kNone;
       state.air_edges.set(hit.edge, 0);
       return EdgeChange::kAir;
     }
@@ -1302,6 +1338,23 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
                 " misoriented edges");
   }
   return true;
+}
+
+double cut_dropped_length(const VoxelModel& model, const CutState& state) {
+  const Lattice& l = model.lattice;
+  double sum = 0.0;
+  for (const EdgeCut& c : state.edge_cuts) {
+    const uint32_t n0 = c.edge / 3;
+    const bool in0 = model.is_inside(n0), in1 = model.is_inside(n0 + node_stride(l, int(c.edge % 3)));
+    if (in0 && in1) {
+      sum += double(c.t_hi) - double(c.t_lo);
+    } else if (in0 != in1) {
+      const EdgeCrossing* x = model.find_crossing(c.edge);
+      const double ts = x != nullptr ? double(x->t) : 0.5;
+      sum += in0 ? ts - double(c.t_lo) : double(c.t_hi) - ts;
+    }
+  }
+  return sum;
 }
 
 uint64_t cut_memory_bytes(const CutState& state) {

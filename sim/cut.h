@@ -199,6 +199,15 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
 // edge). Returns false with the first problem in `error`.
 bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error);
 
+// Material the surface cannot represent (measured, never silent). Material is held by lattice nodes:
+// each inside end of a cut edge keeps the material up to its nearest crossing, and the material
+// between the two outermost blade crossings of an edge with both ends inside (or between the cut and
+// the surface crossing of a surface edge) holds no node and is dropped — a sliver thinner than a
+// voxel along that edge (a V-notch's wedge, a hairpin's tongue). Returns the summed length of those
+// intervals in voxels; the volume dropped is about this times voxel_size^3 (a sliver is sampled by
+// the one family of lattice lines that crosses it; see test_manifold, "slivers").
+double cut_dropped_length(const VoxelModel& model, const CutState& state);
+
 // Bytes held by the explicit cut elements (edge cuts, divided voxels, their maps).
 uint64_t cut_memory_bytes(const CutState& state);
 
