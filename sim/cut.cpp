@@ -127,6 +127,16 @@ const EdgeCut* find_cut(const CutState& state, uint32_t edge) {
   return i == kDeadIndex ? nullptr : &state.edge_cuts[i];
 }
 
+// Union-find over a few small integers (corners, half-edge slots), smaller root kept.
+int uf_find(uint8_t* parent, int x) {
+  while (parent[x] != x) x = parent[x] = parent[parent[x]];
+  return x;
+}
+void uf_unite(uint8_t* parent, int x, int y) {
+  const int a = uf_find(parent, x), b = uf_find(parent, y);
+  if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
+}
+
 // Inside bits of a voxel's corners (bit c: corner c inside).
 uint8_t corner_inside_bits(const VoxelModel& model, const int32_t vc[3]) {
   uint8_t bits = 0;
@@ -141,14 +151,8 @@ void material_components(const VoxelModel& model, uint16_t cut_edges, uint16_t a
   uint8_t parent[8];
   const uint8_t in_bits = corner_inside_bits(model, vc);
   for (int c = 0; c < 8; ++c) parent[c] = uint8_t(c);
-  const auto find = [&](int c) {
-    while (parent[c] != c) c = parent[c] = parent[parent[c]];
-    return c;
-  };
-  const auto join = [&](int c0, int c1) {
-    const int a = find(c0), b = find(c1);
-    if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
-  };
+  const auto find = [&](int c) { return uf_find(parent, c); };
+  const auto join = [&](int c0, int c1) { uf_unite(parent, c0, c1); };
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
     if ((in_bits >> ve.c0 & 1u) && (in_bits >> ve.c1 & 1u) && !((cut_edges >> e) & 1u)) join(ve.c0, ve.c1);
@@ -408,14 +412,7 @@ struct FaceMerges {
 // j and the end of arc j with the start of arc m instead: the two arcs meet across the face, the
 // arcs between them keep their curves (nested, never crossing). The cycles of pairs are the patches.
 void pair_faces(uint8_t in_bits, uint16_t cut_edges, uint32_t present, const FaceMerges& merges, uint8_t parent[24]) {
-  const auto find = [&](int x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
-  const auto unite = [&](int x, int y) {
-    const int a = find(x), b = find(y);
-    if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
-  };
+  const auto unite = [&](int x, int y) { uf_unite(parent, x, y); };
   const uint8_t joins = voxel_material_joins(in_bits, cut_edges);
   for (int f = 0; f < 6; ++f) {
     int pts[8];
@@ -514,6 +511,27 @@ void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel
                  out);
 }
 
+// The half-edges a voxel has, from its signs and cut edges alone (as half_edge_param decides them):
+// an inside end of an edge that has a boundary (a sign change or a cut).
+uint32_t half_edge_presence(uint8_t in_bits, uint16_t cut_edges) {
+  uint32_t present = 0;
+  for (int e = 0; e < 12; ++e) {
+    const bool in0 = (in_bits >> kVoxelEdges[e].c0) & 1u, in1 = (in_bits >> kVoxelEdges[e].c1) & 1u;
+    if (in0 == in1 && !((cut_edges >> e) & 1u)) continue;
+    present |= (in0 ? 1u : 0u) << (2 * e);
+    present |= (in1 ? 1u : 0u) << (2 * e + 1);
+  }
+  return present;
+}
+
+// Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
+void topology_patches(const CutState& state, uint32_t voxel, const VoxelModel& model, VoxelData& data, VoxelPatches& out) {
+  voxel_data(model, state, voxel, data);
+  out.present = half_edge_presence(data.in_bits, data.cut_edges);
+  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
+                 out);
+}
+
 // A pair of curves of one face that belong to one patch: a candidate for a merge.
 struct CurvePair {
   uint8_t face, m, j;  // curves m < j
@@ -575,7 +593,7 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
     nc[c.face / 2] += c.face % 2 ? 1 : -1;
     if (nc[c.face / 2] < 0 || nc[c.face / 2] >= dims[c.face / 2]) continue;
     if (other_face != c.face) {
-      base_patches(model, state, model.lattice.voxel(nc[0], nc[1], nc[2]), nc, other_data, other);
+      topology_patches(state, model.lattice.voxel(nc[0], nc[1], nc[2]), model, other_data, other);
       other_face = c.face;
     }
     const int a = slot_across(c.point_m, c.face), b = slot_across(c.point_j, c.face);

@@ -75,15 +75,10 @@ SurfaceStats checked(const VoxelModel& model, const CutState& state) {
 // every piece stays genus 0.
 void sweep(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to, int steps,
            bool genus0 = true) {
-  BladePose previous = from;
-  for (int s = 1; s <= steps; ++s) {
-    const double f = double(s) / steps;
-    const BladePose next{from.a + f * (to.a - from.a), from.b + f * (to.b - from.b)};
-    cut_step(model, state, previous, next);
-    previous = next;
+  dvx_test::sweep_steps(model, state, from, to, steps, [&](int) {
     const SurfaceStats stats = checked(model, state);
     if (genus0) CHECK(stats.euler == int64_t(2 * stats.components));
-  }
+  });
 }
 
 BladePose z_blade(double x, double y, double half = 3.0) { return {Vec3d(x, y, -half), Vec3d(x, y, half)}; }
