@@ -1,5 +1,7 @@
 #include "sim/contour.h"
 
+#include "sim/cut.h"
+
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <bit>
@@ -268,130 +270,10 @@ Vec3d place_voxel_vertex(const Vec3d* points_local, const Vec3d* normals, int co
 }
 
 SurfaceMesh dual_contour(const VoxelModel& model, const ContourParams& params) {
-  SurfaceMesh out;
-  const Lattice& lat = model.lattice;
-  if (lat.nx <= 0 || lat.ny <= 0 || lat.nz <= 0 || model.crossings.empty()) return out;
-
-  const int32_t dims[3] = {lat.nx, lat.ny, lat.nz};
-  const uint64_t node_count = lat.node_count();
-  const uint64_t voxel_count = lat.voxel_count();
-  const uint32_t vstride[3] = {1u, uint32_t(lat.nx), uint32_t(lat.nx) * uint32_t(lat.ny)};
-  const size_t ncross = model.crossings.size();
-  constexpr uint32_t kInvalid = 0xffffffffu;
-
-  // Pass 1: for every crossing, the voxel at the (-b, -d) corner of its four voxels
-  // (b, d = the two other axes, cyclic after a), or kInvalid for edges outside the lattice or
-  // on its border (no four voxels around them; impossible with padding >= 1).
-  auto inside = [&](uint32_t node) {  // bounds-checked is_inside: a short bitset reads as outside
-    return (node >> 6) < model.inside.size() && model.is_inside(node);
-  };
-  std::vector<uint32_t> base(ncross, kInvalid);
-  std::vector<uint64_t> used((voxel_count + 63) / 64, 0);
-  auto mark = [&](uint32_t v) { used[v >> 6] |= uint64_t(1) << (v & 63); };
-  for (size_t ci = 0; ci < ncross; ++ci) {
-    const uint32_t e = model.crossings[ci].edge;
-    const uint32_t node = e / 3u;
-    const int a = int(e - 3u * node);
-    if (node >= node_count) continue;
-    int32_t c[3];
-    lat.node_coords(node, c);
-    const int b = (a + 1) % 3, d = (a + 2) % 3;
-    if (c[a] >= dims[a] || c[b] < 1 || c[b] >= dims[b] || c[d] < 1 || c[d] >= dims[d]) continue;
-    c[b] -= 1;
-    c[d] -= 1;
-    const uint32_t v00 = lat.voxel(c[0], c[1], c[2]);
-    base[ci] = v00;
-    mark(v00);
-    mark(v00 + vstride[b]);
-    mark(v00 + vstride[b] + vstride[d]);
-    mark(v00 + vstride[d]);
-  }
-
-  // Pass 2: vertex ids in ascending voxel order; rank(v) = vertex id of voxel v.
-  std::vector<uint32_t> prefix(used.size());
-  uint32_t nverts = 0;
-  for (size_t w = 0; w < used.size(); ++w) {
-    prefix[w] = nverts;
-    nverts += uint32_t(std::popcount(used[w]));
-  }
-  if (nverts == 0) return out;
-  auto rank = [&](uint32_t v) -> uint32_t {
-    const uint64_t below = used[v >> 6] & ((uint64_t(1) << (v & 63)) - 1);
-    return prefix[v >> 6] + uint32_t(std::popcount(below));
-  };
-  out.vertex_voxel.reserve(nverts);
-  for (size_t w = 0; w < used.size(); ++w) {
-    uint64_t bits = used[w];
-    while (bits) {
-      const int bit = std::countr_zero(bits);
-      out.vertex_voxel.push_back(uint32_t(w * 64 + uint64_t(bit)));
-      bits &= bits - 1;
-    }
-  }
-
-  // Pass 3: accumulate each crossing's plane into the QEFs of its four voxels, each in the
-  // voxel's local frame. Voxel corners relative to the edge's first node: (-b,-d), (0,-d),
-  // (0,0), (-b,0) for the four voxels in cyclic order.
-  std::vector<QefSum> acc(nverts, QefSum{});
-  for (size_t ci = 0; ci < ncross; ++ci) {
-    const uint32_t v00 = base[ci];
-    if (v00 == kInvalid) continue;
-    const EdgeCrossing& x = model.crossings[ci];
-    const uint32_t node = x.edge / 3u;
-    const int a = int(x.edge - 3u * node);
-    const int b = (a + 1) % 3, d = (a + 2) % 3;
-    Vec3d p = Vec3d::Zero();                                 // relative to the edge's first node
-    p[a] = x.t >= 0.0f ? double(std::min(x.t, 1.0f)) : 0.0;  // clamps t to [0, 1], NaN -> 0
-    const Vec3d n = unpack_normal(x.normal);
-    Vec3d eb = Vec3d::Zero(), ed = Vec3d::Zero();
-    eb[b] = 1.0;
-    ed[d] = 1.0;
-    acc[rank(v00)].add(n, p + eb + ed);
-    acc[rank(v00 + vstride[b])].add(n, p + ed);
-    acc[rank(v00 + vstride[b] + vstride[d])].add(n, p);
-    acc[rank(v00 + vstride[d])].add(n, p + eb);
-  }
-
-  // Pass 4: place each vertex. The free QEF minimiser when it lies in the voxel, or within
-  // feature_margin of it for a clear, consistent feature (a sharp edge or corner passing just
-  // outside the voxel); otherwise the QEF minimum over the voxel.
-  std::vector<Vec3d> pos(nverts);  // lattice units, for the diagonal choice
-  out.positions.resize(nverts);
-  for (uint32_t i = 0; i < nverts; ++i) {
-    int32_t c[3];
-    lat.voxel_coords(out.vertex_voxel[i], c);
-    const Vec3d corner(c[0], c[1], c[2]);
-    const Vec3d x = place_from_sum(acc[i], params);
-    pos[i] = corner + x;
-    out.positions[i] = (lat.origin + lat.voxel_size * pos[i]).cast<float>();
-  }
-  std::vector<QefSum>().swap(acc);
-
-  // Pass 5: one quad per crossing, oriented from the inside node to the outside node,
-  // split along its shorter diagonal.
-  out.triangles.reserve(2 * ncross);
-  for (size_t ci = 0; ci < ncross; ++ci) {
-    const uint32_t v00 = base[ci];
-    if (v00 == kInvalid) continue;
-    const EdgeCrossing& x = model.crossings[ci];
-    const uint32_t node = x.edge / 3u;
-    const int a = int(x.edge - 3u * node);
-    const int b = (a + 1) % 3, d = (a + 2) % 3;
-    // Cyclic order (-b,-d) -> (+b,-d) -> (+b,+d) -> (-b,+d): counter-clockwise seen from +a,
-    // since b x d = a for the cyclic axis order.
-    uint32_t q[4] = {rank(v00), rank(v00 + vstride[b]), rank(v00 + vstride[b] + vstride[d]), rank(v00 + vstride[d])};
-    if (!inside(node)) std::swap(q[1], q[3]);  // outside is at -a: flip
-    const double d02 = (pos[q[0]] - pos[q[2]]).squaredNorm();
-    const double d13 = (pos[q[1]] - pos[q[3]]).squaredNorm();
-    if (d02 <= d13) {
-      out.triangles.push_back(Tri{q[0], q[1], q[2]});
-      out.triangles.push_back(Tri{q[0], q[2], q[3]});
-    } else {
-      out.triangles.push_back(Tri{q[0], q[1], q[3]});
-      out.triangles.push_back(Tri{q[1], q[2], q[3]});
-    }
-  }
-  return out;
+  // One construction: the surface of a cut state without cuts (manifold dual contouring, cut.h).
+  CutState state;
+  init_cut_state(model, state, params);
+  return compact_surface(state.surface);
 }
 
 }  // namespace dvx

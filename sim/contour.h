@@ -1,5 +1,5 @@
-// Dual contouring of the (uncut) voxel model: one vertex per boundary voxel, one quad
-// per sign-change lattice edge.
+// Dual contouring of the (uncut) voxel model: manifold dual contouring, one vertex per surface
+// patch of a voxel, one quad per sign-change lattice edge (built by init_cut_state, cut.h).
 #pragma once
 
 #include "sim/surface_mesh.h"
@@ -37,11 +37,12 @@ Vec3d solve_qef(const Vec3d* points, const Vec3d* normals, int count, const Vec3
 Vec3d place_voxel_vertex(const Vec3d* points_local, const Vec3d* normals, int count,
                          const ContourParams& params = {});
 
-// Builds the closed surface: one vertex per voxel around a crossing edge (in ascending voxel
-// id; placed by the QEF of the Hermite data on the voxel's 12 edges, see ContourParams), and
-// for each crossing edge, a quad joining the vertices of the four voxels around it, split into
-// two triangles (along the shorter diagonal), oriented so the normal points from the inside
-// node to the outside node. Crossings on the lattice border (no four voxels) are skipped.
+// Builds the closed surface of the uncut model: the surface init_cut_state builds (one vertex per
+// surface patch of each voxel around a crossing edge, in ascending voxel then patch order, placed by
+// the QEF of the patch's Hermite data, see ContourParams; for each crossing edge a quad joining the
+// patches holding it in the four voxels around it, split into two triangles along the shorter
+// diagonal, oriented so the normal points from the inside node to the outside node). Crossings on
+// the lattice border (no four voxels) have no quad.
 SurfaceMesh dual_contour(const VoxelModel& model, const ContourParams& params = {});
 
 }  // namespace dvx

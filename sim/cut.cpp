@@ -1,8 +1,10 @@
 #include "sim/cut.h"
 
 #include "sim/contour.h"
+#include "sim/surface_metrics.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <limits>
 
@@ -31,6 +33,38 @@ int voxel_edge_index(int axis, int c0) {
   }
   return -1;
 }
+
+// Index in kVoxelEdges of the edge joining corners a and b (-1 when they share no edge).
+constexpr int edge_between(int a, int b) {
+  for (int e = 0; e < 12; ++e) {
+    if ((kVoxelEdges[e].c0 == a && kVoxelEdges[e].c1 == b) || (kVoxelEdges[e].c0 == b && kVoxelEdges[e].c1 == a)) {
+      return e;
+    }
+  }
+  return -1;
+}
+
+// The edge from corner i to corner i+1 (cyclic) of each face, and the face's edge mask.
+struct FaceEdges {
+  uint8_t edge[6][4];
+  uint16_t mask[6];
+};
+constexpr FaceEdges make_face_edges() {
+  FaceEdges f{};
+  constexpr uint8_t corners[6][4] = {{0, 2, 6, 4}, {1, 3, 7, 5}, {0, 4, 5, 1}, {2, 6, 7, 3}, {0, 1, 3, 2}, {4, 5, 7, 6}};
+  for (int face = 0; face < 6; ++face) {
+    for (int i = 0; i < 4; ++i) {
+      f.edge[face][i] = uint8_t(edge_between(corners[face][i], corners[face][(i + 1) % 4]));
+      f.mask[face] = uint16_t(f.mask[face] | (1u << f.edge[face][i]));
+    }
+  }
+  return f;
+}
+constexpr FaceEdges kFaceEdges = make_face_edges();
+
+// Patches of a voxel are numbered 0..n-1; a voxel holds at most 12 (24 half-edges, two per loop).
+constexpr int kMaxPatches = 12;
+uint64_t patch_key(uint32_t voxel, uint32_t patch) { return uint64_t(voxel) * 16 + patch; }
 
 uint64_t piece_key(uint32_t voxel, uint32_t piece) { return uint64_t(voxel) * 8 + piece; }
 uint64_t half_edge_key(uint32_t edge, int side) { return uint64_t(edge) * 2 + uint64_t(side); }
@@ -93,27 +127,44 @@ const EdgeCut* find_cut(const CutState& state, uint32_t edge) {
   return i == kDeadIndex ? nullptr : &state.edge_cuts[i];
 }
 
-// Components of the voxel's material graph (inside corners joined by uncut edges).
-void material_components(const VoxelModel& model, uint16_t cut_edges, const int32_t vc[3], uint8_t corner_piece[8],
-                         uint8_t& piece_count, uint8_t& partial_mask) {
-  const Lattice& l = model.lattice;
+// Union-find over a few small integers (corners, half-edge slots), smaller root kept.
+int uf_find(uint8_t* parent, int x) {
+  while (parent[x] != x) x = parent[x] = parent[parent[x]];
+  return x;
+}
+void uf_unite(uint8_t* parent, int x, int y) {
+  const int a = uf_find(parent, x), b = uf_find(parent, y);
+  if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
+}
+
+// Inside bits of a voxel's corners (bit c: corner c inside).
+uint8_t corner_inside_bits(const VoxelModel& model, const int32_t vc[3]) {
+  uint8_t bits = 0;
+  for (int c = 0; c < 8; ++c) bits = uint8_t(bits | (model.is_inside(corner_node(model.lattice, vc, c)) ? 1u << c : 0u));
+  return bits;
+}
+
+// Components of the voxel's material graph (voxel_material_joins: uncut edges, uncut ambiguous faces).
+// `air_edges`: surface edges the blade crossed outside the material (they cut the faces they bound).
+void material_components(const VoxelModel& model, uint16_t cut_edges, uint16_t air_edges, const int32_t vc[3],
+                         uint8_t corner_piece[8], uint8_t& piece_count, uint8_t& partial_mask) {
   uint8_t parent[8];
-  bool inside[8];
-  for (int c = 0; c < 8; ++c) {
-    parent[c] = uint8_t(c);
-    inside[c] = model.is_inside(corner_node(l, vc, c));
-  }
-  const auto find = [&](int c) {
-    while (parent[c] != c) c = parent[c] = parent[parent[c]];
-    return c;
-  };
-  bool cut[12];
+  const uint8_t in_bits = corner_inside_bits(model, vc);
+  for (int c = 0; c < 8; ++c) parent[c] = uint8_t(c);
+  const auto find = [&](int c) { return uf_find(parent, c); };
+  const auto join = [&](int c0, int c1) { uf_unite(parent, c0, c1); };
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
-    cut[e] = (cut_edges >> e) & 1u;
-    if (inside[ve.c0] && inside[ve.c1] && !cut[e]) {
-      const int a = find(ve.c0), b = find(ve.c1);
-      if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
+    if ((in_bits >> ve.c0 & 1u) && (in_bits >> ve.c1 & 1u) && !((cut_edges >> e) & 1u)) join(ve.c0, ve.c1);
+  }
+  const uint8_t faces = voxel_material_joins(in_bits, uint16_t(cut_edges | air_edges));
+  for (int f = 0; f < 6; ++f) {
+    if (!(faces >> f & 1u)) continue;
+    const uint8_t* k = kVoxelFaceCorners[f];
+    if (in_bits >> k[0] & 1u) {
+      join(k[0], k[2]);
+    } else {
+      join(k[1], k[3]);
     }
   }
   // Number pieces in corner order.
@@ -121,7 +172,7 @@ void material_components(const VoxelModel& model, uint16_t cut_edges, const int3
   std::fill(id_of_root, id_of_root + 8, kNoPiece);
   piece_count = 0;
   for (int c = 0; c < 8; ++c) {
-    if (!inside[c]) {
+    if (!(in_bits >> c & 1u)) {
       corner_piece[c] = kNoPiece;
       continue;
     }
@@ -133,7 +184,8 @@ void material_components(const VoxelModel& model, uint16_t cut_edges, const int3
   partial_mask = 0;
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
-    if (cut[e] && inside[ve.c0] && inside[ve.c1] && corner_piece[ve.c0] == corner_piece[ve.c1]) {
+    if (((cut_edges >> e) & 1u) && (in_bits >> ve.c0 & 1u) && (in_bits >> ve.c1 & 1u) &&
+        corner_piece[ve.c0] == corner_piece[ve.c1]) {
       partial_mask |= uint8_t(1u << corner_piece[ve.c0]);
     }
   }
@@ -181,9 +233,9 @@ void mark_quad_dirty(CutSurface& s, uint32_t quad) {
   grow_range(s.dirty_triangle_begin, s.dirty_triangle_end, 2 * quad, 2 * quad + 2);
 }
 
-// Slot of a piece's vertex, allocated when absent.
+// Slot of a patch's vertex, allocated when absent.
 uint32_t ensure_vertex(CutSurface& s, uint64_t key, bool& created) {
-  uint32_t slot = s.vertex_of_piece.get(key);
+  uint32_t slot = s.vertex_of_patch.get(key);
   created = slot == kDeadIndex;
   if (!created) return slot;
   if (!s.free_vertices.empty()) {
@@ -193,21 +245,34 @@ uint32_t ensure_vertex(CutSurface& s, uint64_t key, bool& created) {
     slot = uint32_t(s.positions.size());
     s.positions.emplace_back(Vec3f::Zero());
     s.vertex_piece.push_back(CutSurface::kFreeKey);
+    s.vertex_patch.push_back(CutSurface::kFreeKey);
+    s.vertex_half_edges.push_back(0);
   }
-  s.vertex_piece[slot] = key;
-  s.vertex_of_piece.set(key, slot);
+  s.vertex_patch[slot] = key;
+  s.vertex_of_patch.set(key, slot);
   return slot;
 }
 
 bool free_vertex(CutSurface& s, uint64_t key) {
-  const uint32_t slot = s.vertex_of_piece.get(key);
+  const uint32_t slot = s.vertex_of_patch.get(key);
   if (slot == kDeadIndex) return false;
-  s.vertex_of_piece.erase(key);
-  s.vertex_piece[slot] = CutSurface::kFreeKey;
+  s.vertex_of_patch.erase(key);
+  s.vertex_piece[slot] = s.vertex_patch[slot] = CutSurface::kFreeKey;
+  s.vertex_half_edges[slot] = 0;
   s.positions[slot] = Vec3f::Constant(std::numeric_limits<float>::quiet_NaN());
   s.free_vertices.push_back(slot);
   mark_vertex_dirty(s, slot);
   return true;
+}
+
+// The vertex of the patch of `voxel` that holds half-edge h (2 * voxel edge + side), or kDeadIndex.
+uint32_t vertex_holding(const CutSurface& s, uint32_t voxel, int h) {
+  for (uint32_t p = 0; p < uint32_t(kMaxPatches); ++p) {
+    const uint32_t slot = s.vertex_of_patch.get(patch_key(voxel, p));
+    if (slot == kDeadIndex) return kDeadIndex;
+    if ((s.vertex_half_edges[slot] >> h) & 1u) return slot;
+  }
+  return kDeadIndex;
 }
 
 bool free_quad(CutSurface& s, uint64_t key) {
@@ -223,8 +288,9 @@ bool free_quad(CutSurface& s, uint64_t key) {
 }
 
 // Writes the quad (v0 v1 v2 v3, counter-clockwise seen from outside) of a half-edge, split along
-// the shorter diagonal. Returns true when a slot changed.
-bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut) {
+// the shorter diagonal unless `diagonal` forces one (0: v0-v2, 1: v1-v3; -1: free). Returns true
+// when a slot changed.
+bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, int diagonal) {
   uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) {
     if (!s.free_quads.empty()) {
@@ -242,7 +308,7 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut) {
   const float d02 = (s.positions[v[0]] - s.positions[v[2]]).squaredNorm();
   const float d13 = (s.positions[v[1]] - s.positions[v[3]]).squaredNorm();
   Tri t0, t1;
-  if (d02 <= d13) {
+  if (diagonal == 0 || (diagonal < 0 && d02 <= d13)) {
     t0 = {v[0], v[1], v[2]};
     t1 = {v[0], v[2], v[3]};
   } else {
@@ -303,118 +369,431 @@ bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge,
   return true;
 }
 
-// The half-edges of a voxel's 12 edges (up to 24), each with the corner it starts from.
-struct VoxelHalfEdges {
-  int count = 0;
-  uint8_t corner[24];
-  Vec3d point[24], normal[24];
+// The surface of one voxel: its half-edges (slot h = 2 * voxel edge + side) and their patches.
+struct VoxelPatches {
+  uint32_t present = 0;  // bit h: the half-edge exists
+  Vec3d point[24], normal[24];  // scene coordinates; outward normal
+  uint8_t patch_of[24];  // patch of each present half-edge
+  uint8_t patch_count = 0;
+  uint32_t patch_half_edges[kMaxPatches];  // bit h: the patch holds half-edge h
+  uint8_t patch_piece[kMaxPatches];
+  uint16_t partial = 0;  // bit p: patch p holds both half-edges of a cut edge (the slit's tip is here)
 };
 
-void voxel_half_edges(const VoxelModel& model, const CutState& state, const int32_t vc[3], uint16_t cut_edges,
-                      VoxelHalfEdges& out) {
-  out.count = 0;
-  const Lattice& l = model.lattice;
-  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
-  for (int e = 0; e < 12; ++e) {
-    const VoxelEdge& ve = kVoxelEdges[e];
-    const uint32_t edge = voxel_edge_id(l, vc, e);
-    const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
-    for (int side = 0; side < 2; ++side) {
-      double t = 0.0;
-      if (!half_edge_param(model, cut, edge, side, t, out.normal[out.count])) continue;
-      // The edge starts at corner c0 of this voxel.
-      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
-      p[ve.axis] += t * l.voxel_size;
-      out.point[out.count] = p;
-      out.corner[out.count++] = side ? ve.c1 : ve.c0;
+// The half-edge points of face f's perimeter in cyclic order (corner k0 -> k1 -> k2 -> k3): slots h.
+// Returns their count (even: each point is a switch between inside and outside).
+int face_perimeter(uint32_t present, int f, int pts[8]) {
+  int k = 0;
+  for (int i = 0; i < 4; ++i) {
+    const int e = kFaceEdges.edge[f][i];
+    const bool forward = kVoxelEdges[e].c0 == kVoxelFaceCorners[f][i];
+    const int first = forward ? 2 * e : 2 * e + 1, second = forward ? 2 * e + 1 : 2 * e;
+    if ((present >> first) & 1u) pts[k++] = first;
+    if ((present >> second) & 1u) pts[k++] = second;
+  }
+  return k;
+}
+
+// Curve merges of the faces of a voxel: partner[f][m] is the curve that curve m of face f is merged
+// with (kNoPartner: none).
+struct FaceMerges {
+  static constexpr int8_t kNoPartner = -1;
+  int8_t partner[6][4];
+  FaceMerges() {
+    for (auto& face : partner) std::fill(face, face + 4, kNoPartner);
+  }
+};
+
+// Pairs the half-edge points of each face (the curves the surface draws on it; the rule depends only
+// on the face's own data, so both voxels sharing it agree): the arcs of the perimeter alternate
+// between inside and outside; an ambiguous face whose diagonal joins (voxel_material_joins) pairs the
+// ends of each outside arc (the inside corners meet across it), every other face the ends of each
+// inside arc. Curves m and j merged (see voxel_patches) pair the end of arc m with the start of arc
+// j and the end of arc j with the start of arc m instead: the two arcs meet across the face, the
+// arcs between them keep their curves (nested, never crossing). The cycles of pairs are the patches.
+void pair_faces(uint8_t in_bits, uint16_t cut_edges, uint32_t present, const FaceMerges& merges, uint8_t parent[24]) {
+  const auto unite = [&](int x, int y) { uf_unite(parent, x, y); };
+  const uint8_t joins = voxel_material_joins(in_bits, cut_edges);
+  for (int f = 0; f < 6; ++f) {
+    int pts[8];
+    const int k = face_perimeter(present, f, pts);
+    if (k < 2) continue;
+    const bool start_inside = (in_bits >> kVoxelFaceCorners[f][0]) & 1u;
+    const bool joined = (joins >> f) & 1u;
+    // The arc from point j to point j+1 is inside when start_inside != (j even); it is paired
+    // when that differs from `joined`: the first paired arc starts at j0.
+    const int j0 = ((!start_inside) != joined) ? 0 : 1;
+    const auto start = [&](int m) { return pts[(j0 + 2 * m) % k]; };
+    const auto end = [&](int m) { return pts[(j0 + 2 * m + 1) % k]; };
+    for (int m = 0; m < k / 2; ++m) {
+      const int j = merges.partner[f][m];
+      if (j == FaceMerges::kNoPartner) {
+        unite(start(m), end(m));
+      } else if (m < j) {
+        unite(end(m), start(j));
+        unite(end(j), start(m));
+      }
     }
   }
 }
 
-// Position of piece p's vertex; false when the piece has no half-edge (no surface in it).
-bool piece_vertex_position(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
-                           const VoxelHalfEdges& half_edges, const uint8_t corner_piece[8], uint8_t partial_mask,
-                           uint8_t p, Vec3f& out) {
-  const Lattice& l = model.lattice;
-  Vec3d points[24], normals[24];
-  int count = 0;
-  for (int i = 0; i < half_edges.count; ++i) {
-    if (corner_piece[half_edges.corner[i]] != p) continue;
-    points[count] = half_edges.point[i];
-    normals[count++] = half_edges.normal[i];
+// Numbers the patches (cycles of face pairs) in order of their lowest half-edge.
+void number_patches(uint8_t in_bits, uint16_t face_cut_edges, uint16_t cut_edges, const FaceMerges& merges,
+                    const uint8_t corner_piece[8], VoxelPatches& out) {
+  out.partial = 0;
+  out.patch_count = 0;
+  if (out.present == 0) return;
+  uint8_t parent[24];
+  for (int h = 0; h < 24; ++h) parent[h] = uint8_t(h);
+  pair_faces(in_bits, face_cut_edges, out.present, merges, parent);
+  uint8_t id_of_root[24];
+  std::fill(id_of_root, id_of_root + 24, uint8_t(0xFF));
+  for (int h = 0; h < 24; ++h) {
+    if (!((out.present >> h) & 1u)) continue;
+    int r = h;
+    while (parent[r] != r) r = parent[r];
+    if (id_of_root[r] == 0xFF) {
+      const uint8_t p = out.patch_count < kMaxPatches ? out.patch_count++ : uint8_t(kMaxPatches - 1);
+      id_of_root[r] = p;
+      out.patch_half_edges[p] = 0;
+      const VoxelEdge& ve = kVoxelEdges[h / 2];
+      out.patch_piece[p] = corner_piece[h % 2 ? ve.c1 : ve.c0];
+    }
+    out.patch_of[h] = id_of_root[r];
+    out.patch_half_edges[id_of_root[r]] |= 1u << h;
   }
+  for (int e = 0; e < 12; ++e) {
+    if (((cut_edges >> e) & 1u) && ((out.present >> (2 * e)) & 3u) == 3u && out.patch_of[2 * e] == out.patch_of[2 * e + 1]) {
+      out.partial = uint16_t(out.partial | (1u << out.patch_of[2 * e]));
+    }
+  }
+}
+
+// The voxel's own data for its patches: inside corners, pieces, cut and air edges, half-edge points.
+struct VoxelData {
+  uint8_t in_bits = 0;
+  uint8_t corner_piece[8];
+  uint16_t cut_edges = 0, air_edges = 0;
+};
+
+void voxel_data(const VoxelModel& model, const CutState& state, uint32_t voxel, VoxelData& out) {
+  uint8_t piece_count = 0, partial_mask = 0;
+  pieces_of(model, state, voxel, out.corner_piece, piece_count, partial_mask);
+  out.in_bits = 0;
+  for (int c = 0; c < 8; ++c) out.in_bits = uint8_t(out.in_bits | (out.corner_piece[c] != kNoPiece ? 1u << c : 0u));
+  const uint32_t d = state.divided_of.get(voxel);
+  out.cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
+  out.air_edges = d != kDeadIndex ? state.divided[d].air_edges : 0;
+}
+
+// Patches by the face rule alone (no toggles): half-edge points and their cycles.
+void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+                  VoxelPatches& out) {
+  const Lattice& l = model.lattice;
+  voxel_data(model, state, voxel, data);
+  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
+  out.present = 0;
+  for (int e = 0; e < 12; ++e) {
+    const VoxelEdge& ve = kVoxelEdges[e];
+    const uint32_t edge = voxel_edge_id(l, vc, e);
+    const EdgeCut* cut = (data.cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
+    for (int side = 0; side < 2; ++side) {
+      double t = 0.0;
+      const int h = 2 * e + side;
+      if (!half_edge_param(model, cut, edge, side, t, out.normal[h])) continue;
+      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
+      p[ve.axis] += t * l.voxel_size;
+      out.point[h] = p;
+      out.present |= 1u << h;
+    }
+  }
+  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
+                 out);
+}
+
+// The half-edges a voxel has, from its signs and cut edges alone (as half_edge_param decides them):
+// an inside end of an edge that has a boundary (a sign change or a cut).
+uint32_t half_edge_presence(uint8_t in_bits, uint16_t cut_edges) {
+  uint32_t present = 0;
+  for (int e = 0; e < 12; ++e) {
+    const bool in0 = (in_bits >> kVoxelEdges[e].c0) & 1u, in1 = (in_bits >> kVoxelEdges[e].c1) & 1u;
+    if (in0 == in1 && !((cut_edges >> e) & 1u)) continue;
+    present |= (in0 ? 1u : 0u) << (2 * e);
+    present |= (in1 ? 1u : 0u) << (2 * e + 1);
+  }
+  return present;
+}
+
+// Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
+void topology_patches(const CutState& state, uint32_t voxel, const VoxelModel& model, VoxelData& data, VoxelPatches& out) {
+  voxel_data(model, state, voxel, data);
+  out.present = half_edge_presence(data.in_bits, data.cut_edges);
+  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
+                 out);
+}
+
+// A pair of curves of one face that belong to one patch: a candidate for a merge.
+struct CurvePair {
+  uint8_t face, m, j;  // curves m < j
+  uint8_t point_m, point_j;  // a half-edge slot on each
+};
+
+// The candidate pairs of the voxel's faces (at most 6 per face: four curves).
+int doubled_curves(const VoxelData& data, const VoxelPatches& patches, CurvePair out[36]) {
+  int count = 0;
+  const uint8_t joins = voxel_material_joins(data.in_bits, uint16_t(data.cut_edges | data.air_edges));
+  for (int f = 0; f < 6; ++f) {
+    int pts[8];
+    const int k = face_perimeter(patches.present, f, pts);
+    if (k < 4) continue;
+    const bool start_inside = (data.in_bits >> kVoxelFaceCorners[f][0]) & 1u;
+    const int j0 = ((!start_inside) != bool((joins >> f) & 1u)) ? 0 : 1;
+    for (int m = 0; m < k / 2; ++m) {
+      for (int j = m + 1; j < k / 2; ++j) {
+        const int a = pts[(j0 + 2 * m) % k], b = pts[(j0 + 2 * j) % k];
+        if (patches.patch_of[a] == patches.patch_of[b]) {
+          out[count++] = CurvePair{uint8_t(f), uint8_t(m), uint8_t(j), uint8_t(a), uint8_t(b)};
+        }
+      }
+    }
+  }
+  return count;
+}
+
+// The same half-edge slot seen from the voxel across face f (2 * axis + s).
+int slot_across(int h, int f) {
+  const int flip = 1 << (f / 2);
+  const VoxelEdge& ve = kVoxelEdges[h / 2];
+  return 2 * edge_between(ve.c0 ^ flip, ve.c1 ^ flip) + h % 2;
+}
+
+// Half-edges, pieces and patches of a voxel. Where two consecutive curves on a face belong to one
+// patch on both sides of it, the dual edge between the two patches would be used by four quads
+// (not a manifold: a tunnel through the face, or a slit whose two sides meet again in both voxels);
+// those two curves are merged (their arcs meet across the face: for a face of four points, its
+// other pairing), which cannot double on either side (the arcs inside and outside cannot both be
+// connected through a voxel). Both voxels decide from the same base patches, so they agree.
+// Returns true when a face was changed.
+bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                   VoxelPatches& out) {
+  VoxelData data;
+  base_patches(model, state, voxel, vc, data, out);
+  CurvePair pairs[36];
+  const int count = doubled_curves(data, out, pairs);
   if (count == 0) return false;
+  FaceMerges merges;
+  bool any = false;
+  const int32_t dims[3] = {model.lattice.nx, model.lattice.ny, model.lattice.nz};
+  int other_face = -1;  // the face whose neighbour `other` holds
+  VoxelData other_data;
+  VoxelPatches other;
+  for (int i = 0; i < count; ++i) {
+    const CurvePair& c = pairs[i];
+    int32_t nc[3] = {vc[0], vc[1], vc[2]};
+    nc[c.face / 2] += c.face % 2 ? 1 : -1;
+    if (nc[c.face / 2] < 0 || nc[c.face / 2] >= dims[c.face / 2]) continue;
+    if (other_face != c.face) {
+      topology_patches(state, model.lattice.voxel(nc[0], nc[1], nc[2]), model, other_data, other);
+      other_face = c.face;
+    }
+    const int a = slot_across(c.point_m, c.face), b = slot_across(c.point_j, c.face);
+    if (!((other.present >> a) & 1u) || !((other.present >> b) & 1u) || other.patch_of[a] != other.patch_of[b]) continue;
+    // Doubled on both sides: merge, unless it overlaps or crosses a merge already made.
+    int8_t* partner = merges.partner[c.face];
+    bool free = partner[c.m] == FaceMerges::kNoPartner && partner[c.j] == FaceMerges::kNoPartner;
+    for (int m = 0; m < 4 && free; ++m) {
+      const int j = partner[m];
+      if (j > m) free = !((m < c.m && c.m < j && j < c.j) || (c.m < m && m < c.j && c.j < j));
+    }
+    if (!free) continue;
+    partner[c.m] = int8_t(c.j);
+    partner[c.j] = int8_t(c.m);
+    any = true;
+  }
+  if (any) number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, merges, data.corner_piece, out);
+  return any;
+}
+
+// Faces of a voxel with two or more curves: a change of this voxel can change their pairing for
+// the voxel across.
+uint8_t four_point_faces(uint32_t present) {
+  uint8_t faces = 0;
+  for (int f = 0; f < 6; ++f) {
+    int pts[8];
+    if (face_perimeter(present, f, pts) >= 4) faces = uint8_t(faces | (1u << f));
+  }
+  return faces;
+}
+
+// Position of patch p's vertex.
+Vec3f patch_vertex_position(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                            const VoxelPatches& patches, uint8_t p) {
+  const Lattice& l = model.lattice;
   const Vec3d lo = l.node_position(vc[0], vc[1], vc[2]);
   const Vec3d hi = lo + Vec3d::Constant(l.voxel_size);
-  // A partly cut piece sits on the cut front (the average of its face points).
-  if ((partial_mask >> p) & 1u) {
+  // A partly cut patch sits on the cut front (the average of its face points).
+  if ((patches.partial >> p) & 1u) {
     const uint32_t f = state.front_of.get(voxel);
     if (f != kDeadIndex) {
       const VoxelFront& front = state.fronts[f];
       const uint32_t n = front.trail_count + front.blade_count;
       if (n > 0) {
         const Vec3d mean = ((front.trail_sum + front.blade_sum) / float(n)).cast<double>();
-        out = mean.cwiseMax(lo).cwiseMin(hi).cast<float>();
-        return true;
+        return mean.cwiseMax(lo).cwiseMin(hi).cast<float>();
       }
     }
   }
-  // Fully cut (or uncut) piece: the dual contouring vertex rule, in the voxel's local frame.
-  for (int i = 0; i < count; ++i) points[i] = (points[i] - lo) / l.voxel_size;
-  const Vec3d local = place_voxel_vertex(points, normals, count);
-  out = (lo + l.voxel_size * local).cast<float>();
-  return true;
+  // Fully cut (or uncut) patch: the dual contouring vertex rule, in the voxel's local frame.
+  Vec3d points[24], normals[24];
+  int count = 0;
+  for (uint32_t bits = patches.patch_half_edges[p]; bits; bits &= bits - 1) {
+    const int h = std::countr_zero(bits);
+    points[count] = (patches.point[h] - lo) / l.voxel_size;
+    normals[count++] = patches.normal[h];
+  }
+  const Vec3d local = place_voxel_vertex(points, normals, count, state.contour);
+  return (lo + l.voxel_size * local).cast<float>();
 }
 
-// Recomputes pieces, vertices and quads of the given voxels (sorted, unique) and of the edges
-// they hold. Returns counts of changed slots through stats.
-void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<uint32_t>& voxels,
-                    CutStepStats& stats) {
+// The quads of one lattice edge's two half-edges, as refresh_voxels writes them and
+// check_cut_state expects them.
+struct EdgeQuads {
+  bool exists[2] = {false, false};  // the half-edge exists and all its patches have vertices
+  bool missing[2] = {false, false};  // the half-edge exists but a sharing patch has no vertex
+  uint32_t v[2][4];                 // vertices, counter-clockwise seen from outside
+  int diagonal[2] = {-1, -1};       // forced split (see write_quad)
+  bool on_cut[2] = {false, false};
+};
+
+// Two quads of a slit edge that join the same four patches are the two faces of a slit of zero
+// width: they cancel. Two that share one diagonal are split along the other (a diagonal is used
+// by the two triangles of each quad; shared, it would be a non-manifold edge).
+void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t edge, const EdgeCut* cut,
+                     const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out) {
+  const CutSurface& s = state.surface;
+  const int axis = int(edge % 3);
+  uint32_t ring[2][4];  // vertices in the ring order about the axis
+  for (int side = 0; side < 2; ++side) {
+    double t;
+    Vec3d normal;
+    uint8_t pieces[4];
+    if (!half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side]) ||
+        !sharing_pieces(model, state, edge, side, around, corners, pieces)) {
+      continue;
+    }
+    bool ok = true;
+    for (int q = 0; q < 4; ++q) {
+      const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
+      ring[side][q] = vertex_holding(s, around[q], h);
+      ok = ok && ring[side][q] != kDeadIndex;
+    }
+    out.exists[side] = ok;
+    out.missing[side] = !ok;
+  }
+  if (out.exists[0] && out.exists[1]) {
+    const bool d02 = ring[0][0] == ring[1][0] && ring[0][2] == ring[1][2];
+    const bool d13 = ring[0][1] == ring[1][1] && ring[0][3] == ring[1][3];
+    if (d02 && d13) {
+      out.exists[0] = out.exists[1] = false;
+    } else if (d02) {
+      out.diagonal[0] = out.diagonal[1] = 1;
+    } else if (d13) {
+      out.diagonal[0] = out.diagonal[1] = 0;
+    }
+  }
+  for (int side = 0; side < 2; ++side) {
+    if (!out.exists[side]) continue;
+    std::copy(ring[side], ring[side] + 4, out.v[side]);
+    if (side == 1) std::swap(out.v[1][1], out.v[1][3]);  // outward normal along -axis: reverse the winding
+  }
+}
+
+// Patches and vertices of one voxel (its pieces already up to date). Returns its half-edge mask.
+uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, CutStepStats& stats) {
+  CutSurface& s = state.surface;
+  int32_t vc[3];
+  model.lattice.voxel_coords(voxel, vc);
+  VoxelPatches patches;
+  voxel_patches(model, state, voxel, vc, patches);
+  uint32_t p = 0;
+  for (; p < patches.patch_count; ++p) {
+    const uint64_t key = patch_key(voxel, p);
+    const Vec3f position = patch_vertex_position(model, state, voxel, vc, patches, uint8_t(p));
+    const uint64_t piece = piece_key(voxel, patches.patch_piece[p]);
+    bool created = false;
+    const uint32_t slot = ensure_vertex(s, key, created);
+    if (created || s.positions[slot] != position || s.vertex_piece[slot] != piece ||
+        s.vertex_half_edges[slot] != patches.patch_half_edges[p]) {
+      s.positions[slot] = position;
+      s.vertex_piece[slot] = piece;
+      s.vertex_half_edges[slot] = patches.patch_half_edges[p];
+      mark_vertex_dirty(s, slot);
+      state.changed_vertices.push_back(slot);
+      ++stats.vertices_changed;
+    }
+  }
+  // Patches that no longer exist.
+  for (; p < uint32_t(kMaxPatches); ++p) {
+    const uint64_t key = patch_key(voxel, p);
+    const uint32_t slot = s.vertex_of_patch.get(key);
+    if (slot == kDeadIndex) break;
+    free_vertex(s, key);
+    state.changed_vertices.push_back(slot);
+    ++stats.vertices_changed;
+  }
+  return patches.present;
+}
+
+// Recomputes pieces, patches, vertices and quads of the given voxels (sorted, unique) and of the
+// edges they hold; adds the voxels across their four-point faces (whose pairing may toggle with
+// them, see voxel_patches). Returns counts of changed slots through stats.
+void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats) {
   const Lattice& l = model.lattice;
   CutSurface& s = state.surface;
-
-  // Pieces and vertices.
+  std::vector<uint32_t>& across = state.scratch_across;
+  across.clear();
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  // Pieces first: a voxel's patches look at the pieces of the voxels across its faces.
   for (uint32_t voxel : voxels) {
+    const uint32_t d = state.divided_of.get(voxel);
+    if (d == kDeadIndex) continue;
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
-    uint8_t corner_piece[8], piece_count = 0, partial_mask = 0;
-    // Pieces before and after: slots of pieces that no longer exist are freed.
-    uint8_t old_count = 8;
-    const uint32_t d = state.divided_of.get(voxel);
-    if (d != kDeadIndex) {
-      DividedVoxel& dv = state.divided[d];
-      old_count = dv.piece_count;
-      material_components(model, dv.cut_edges, vc, dv.corner_piece, dv.piece_count, dv.partial_mask);
+    DividedVoxel& dv = state.divided[d];
+    material_components(model, dv.cut_edges, dv.air_edges, vc, dv.corner_piece, dv.piece_count, dv.partial_mask);
+  }
+  for (uint32_t voxel : voxels) {
+    const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
+    if (faces == 0) continue;
+    int32_t vc[3];
+    l.voxel_coords(voxel, vc);
+    for (int f = 0; f < 6; ++f) {
+      int32_t nc[3] = {vc[0], vc[1], vc[2]};
+      nc[f / 2] += f % 2 ? 1 : -1;
+      if (!((faces >> f) & 1u) || nc[f / 2] < 0 || nc[f / 2] >= dims[f / 2]) continue;
+      const uint32_t other = l.voxel(nc[0], nc[1], nc[2]);
+      if (!std::binary_search(voxels.begin(), voxels.end(), other)) across.push_back(other);
     }
-    pieces_of(model, state, voxel, corner_piece, piece_count, partial_mask);
-    VoxelHalfEdges half_edges;
-    voxel_half_edges(model, state, vc, d != kDeadIndex ? state.divided[d].cut_edges : 0, half_edges);
-    const uint8_t visit = std::max(old_count, piece_count);
-    for (uint8_t p = 0; p < visit; ++p) {
-      const uint64_t key = piece_key(voxel, p);
-      Vec3f position;
-      if (p < piece_count &&
-          piece_vertex_position(model, state, voxel, vc, half_edges, corner_piece, partial_mask, p, position)) {
-        bool created = false;
-        const uint32_t slot = ensure_vertex(s, key, created);
-        if (created || s.positions[slot] != position) {
-          s.positions[slot] = position;
-          mark_vertex_dirty(s, slot);
-          state.changed_vertices.push_back(slot);
-          ++stats.vertices_changed;
-        }
-      } else {
-        const uint32_t slot = s.vertex_of_piece.get(key);
-        if (free_vertex(s, key)) {
-          state.changed_vertices.push_back(slot);
-          ++stats.vertices_changed;
-        }
-      }
-    }
+  }
+  if (!across.empty()) {
+    sorted_unique(across);
+    for (uint32_t voxel : across) refresh_voxel_vertices(model, state, voxel, stats);
+    const size_t n = voxels.size();
+    voxels.insert(voxels.end(), across.begin(), across.end());
+    std::inplace_merge(voxels.begin(), voxels.begin() + std::ptrdiff_t(n), voxels.end());
   }
 
   // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
-  // lowest voxel of the list around it (the list is sorted).
+  // lowest voxel of the list around it (the list is sorted; a long one, as when the surface is
+  // built, is looked up in a bitset).
+  std::vector<uint64_t> listed;
+  if (voxels.size() > 4096) {
+    listed.assign((l.voxel_count() + 63) / 64, 0);
+    for (uint32_t v : voxels) listed[v >> 6] |= uint64_t(1) << (v & 63);
+  }
+  const auto in_list = [&](uint32_t v) {
+    return listed.empty() ? std::binary_search(voxels.begin(), voxels.end(), v) : bool((listed[v >> 6] >> (v & 63)) & 1u);
+  };
   for (uint32_t voxel : voxels) {
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
@@ -427,27 +806,21 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
       voxels_around_voxel_edge(l, vc, e, around, corners);
       bool owner = true;
       for (int q = 0; q < 4 && owner; ++q) {
-        owner = !(around[q] < voxel && std::binary_search(voxels.begin(), voxels.end(), around[q]));
+        owner = !(around[q] < voxel && in_list(around[q]));
       }
       if (!owner) continue;
       const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
+      // Only surface edges and cut edges ever hold a quad (cuts are never undone).
+      const VoxelEdge& ve = kVoxelEdges[e];
+      if (cut == nullptr && model.is_inside(corner_node(l, vc, ve.c0)) == model.is_inside(corner_node(l, vc, ve.c1))) {
+        continue;
+      }
+      EdgeQuads quads;
+      plan_edge_quads(model, state, edge, cut, around, corners, quads);
       for (int side = 0; side < 2; ++side) {
         const uint64_t key = half_edge_key(edge, side);
-        double t;
-        Vec3d normal;
-        uint8_t pieces[4];
-        bool on_cut = false;
-        if (half_edge_param(model, cut, edge, side, t, normal, &on_cut) &&
-            sharing_pieces(model, state, edge, side, around, corners, pieces)) {
-          uint32_t v[4];
-          bool ok = true;
-          for (int q = 0; q < 4; ++q) {
-            v[q] = s.vertex_of_piece.get(piece_key(around[q], pieces[q]));
-            ok = ok && v[q] != kDeadIndex;
-          }
-          if (!ok) continue;  // cannot happen for a consistent state; check_cut_state reports it
-          if (side == 1) std::swap(v[1], v[3]);  // outward normal along -axis: reverse the winding
-          if (write_quad(s, key, v, on_cut)) stats.triangles_changed += 2;
+        if (quads.exists[side]) {
+          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side])) stats.triangles_changed += 2;
         } else if (free_quad(s, key)) {
           stats.triangles_changed += 2;
         }
@@ -458,24 +831,55 @@ void refresh_voxels(const VoxelModel& model, CutState& state, const std::vector<
 
 // ---- Cuts on edges -------------------------------------------------------------------------
 
-// Applies one blade crossing to an edge. Returns true when the cut state of the edge changed.
-bool record_cut(const VoxelModel& model, CutState& state, const EdgeHit& hit) {
+// True when a surface edge bounds an ambiguous face (two diagonal inside corners): only there does a
+// blade crossing outside the material change what is joined (voxel_material_joins).
+bool on_ambiguous_face(const VoxelModel& model, uint32_t edge) {
+  const Lattice& l = model.lattice;
+  const int axis = int(edge % 3);
+  const uint32_t n0 = edge / 3, n1 = n0 + node_stride(l, axis);
+  const bool in0 = model.is_inside(n0);
+  int32_t c[3];
+  l.node_coords(n0, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  for (int k = 1; k <= 2; ++k) {
+    const int b = (axis + k) % 3;
+    for (int s = -1; s <= 1; s += 2) {
+      if (c[b] + s < 0 || c[b] + s > dims[b]) continue;
+      const uint32_t step = node_stride(l, b);
+      const uint32_t m0 = s > 0 ? n0 + step : n0 - step, m1 = s > 0 ? n1 + step : n1 - step;
+      if (model.is_inside(m0) != in0 && model.is_inside(m1) == in0) return true;
+    }
+  }
+  return false;
+}
+
+// What one blade crossing did to its edge.
+enum class EdgeChange { kNone, kCut, kAir };
+
+// Applies one blade crossing to an edge: kCut when the cut state of the edge changed, kAir when a
+// surface edge is crossed for the first time outside the material (no material is cut, but the
+// face is: it no longer joins its ambiguous diagonal, voxel_material_joins).
+EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& hit) {
   const Lattice& l = model.lattice;
   const uint32_t n0 = hit.edge / 3;
   const uint32_t n1 = n0 + node_stride(l, int(hit.edge % 3));
   const bool in0 = model.is_inside(n0), in1 = model.is_inside(n1);
-  if (!in0 && !in1) return false;  // the blade is in the air
+  if (!in0 && !in1) return EdgeChange::kNone;  // the blade is in the air
   if (in0 != in1) {
     // On a surface edge only a cut between the inside node and the surface matters.
     const EdgeCrossing* c = model.find_crossing(hit.edge);
     const float ts = c ? c->t : 0.5f;
-    if (in0 ? hit.t >= ts : hit.t <= ts) return false;
+    if (in0 ? hit.t >= ts : hit.t <= ts) {
+      if (!on_ambiguous_face(model, hit.edge) || state.air_edges.contains(hit.edge)) return EdgeChange::kNone;
+      state.air_edges.set(hit.edge, 0);
+      return EdgeChange::kAir;
+    }
   }
   const uint32_t i = state.edge_cut_of.get(hit.edge);
   if (i == kDeadIndex) {
     state.edge_cut_of.set(hit.edge, uint32_t(state.edge_cuts.size()));
     state.edge_cuts.push_back(EdgeCut{hit.edge, hit.t, hit.t, hit.normal, hit.normal});
-    return true;
+    return EdgeChange::kCut;
   }
   EdgeCut& cut = state.edge_cuts[i];
   bool changed = false;
@@ -489,7 +893,7 @@ bool record_cut(const VoxelModel& model, CutState& state, const EdgeHit& hit) {
     cut.normal_hi = hit.normal;
     changed = true;
   }
-  return changed;
+  return changed ? EdgeChange::kCut : EdgeChange::kNone;
 }
 
 // ---- The cut front --------------------------------------------------------------------------
@@ -570,18 +974,13 @@ void walk_segment(const Lattice& l, const Vec3d& p_scene, const Vec3d& q_scene, 
 }
 
 // Records the front of a sweep from `from` to `to`: trail face points (kept) and the blade edge's
-// points (replacing the previous blade's). Appends voxels whose front changed to `changed`.
+// points. The previous blade edge's points stay (a slit tip holds still) until the blade comes back
+// to their voxel: every voxel when this sweep continues from where the last one ended, otherwise
+// the voxels this sweep cuts or its front passes. Appends voxels whose front changed to `changed`.
 void update_front(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to,
                   std::vector<uint32_t>& changed) {
   const Lattice& l = model.lattice;
-  // The previous blade edge is no longer the front.
-  for (uint32_t voxel : state.blade_voxels) {
-    VoxelFront& f = front_for(state, voxel);
-    f.blade_count = 0;
-    f.blade_sum = Vec3f::Zero();
-    changed.push_back(voxel);
-  }
-  state.blade_voxels.clear();
+  const size_t first_new = changed.size();
   // Trails of the blade's ends.
   const auto add_trail = [&](uint32_t voxel, const Vec3d& point) {
     if (!has_material(model, voxel)) return;
@@ -592,7 +991,44 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
   };
   walk_segment(l, from.a, to.a, false, state.scratch_params, add_trail);
   walk_segment(l, from.b, to.b, false, state.scratch_params, add_trail);
-  // The blade edge now.
+  // The blade edge now (its voxels first, to know where the blade is).
+  std::vector<uint32_t>& now = state.scratch_edges;
+  now.clear();
+  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d&) {
+    if (has_material(model, voxel)) now.push_back(voxel);
+  });
+  sorted_unique(now);
+  // The previous blade edge's points: replaced when this sweep continues from it; otherwise they
+  // are parked (a slit tip) until the blade comes back to their voxel.
+  const auto clear_blade = [&](uint32_t voxel) {
+    VoxelFront& f = front_for(state, voxel);
+    f.blade_count = 0;
+    f.blade_sum = Vec3f::Zero();
+    changed.push_back(voxel);
+  };
+  const bool continues = state.steps > 0 && state.last_blade.a == from.a && state.last_blade.b == from.b;
+  for (uint32_t voxel : state.blade_voxels) {
+    if (continues) {
+      clear_blade(voxel);
+    } else {
+      state.parked_voxels.push_back(voxel);
+    }
+  }
+  state.blade_voxels.clear();
+  sorted_unique(state.parked_voxels);
+  std::vector<uint32_t>& touched = state.scratch_touched;
+  touched.assign(changed.begin() + std::ptrdiff_t(first_new), changed.end());
+  sorted_unique(touched);
+  size_t kept = 0;
+  for (uint32_t voxel : state.parked_voxels) {
+    if (std::binary_search(now.begin(), now.end(), voxel) || std::binary_search(touched.begin(), touched.end(), voxel) ||
+        std::binary_search(state.pending_voxels.begin(), state.pending_voxels.end(), voxel)) {
+      clear_blade(voxel);
+    } else {
+      state.parked_voxels[kept++] = voxel;
+    }
+  }
+  state.parked_voxels.resize(kept);
   walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d& point) {
     if (!has_material(model, voxel)) return;
     VoxelFront& f = front_for(state, voxel);
@@ -602,6 +1038,7 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
     changed.push_back(voxel);
   });
   sorted_unique(state.blade_voxels);
+  state.last_blade = to;
 }
 
 }  // namespace
@@ -649,8 +1086,24 @@ void voxel_pieces(const VoxelModel& model, const CutState& state, uint32_t voxel
   pieces_of(model, state, voxel, corner_piece, piece_count, partial);
 }
 
-void init_cut_state(const VoxelModel& model, CutState& state) {
+const uint8_t kVoxelFaceCorners[6][4] = {{0, 2, 6, 4}, {1, 3, 7, 5}, {0, 4, 5, 1},
+                                         {2, 6, 7, 3}, {0, 1, 3, 2}, {4, 5, 7, 6}};
+
+uint8_t voxel_material_joins(uint8_t corner_inside, uint16_t cut_edges) {
+  uint8_t faces = 0;
+  for (int f = 0; f < 6; ++f) {
+    const uint8_t* k = kVoxelFaceCorners[f];
+    const bool i0 = (corner_inside >> k[0]) & 1u, i1 = (corner_inside >> k[1]) & 1u;
+    const bool i2 = (corner_inside >> k[2]) & 1u, i3 = (corner_inside >> k[3]) & 1u;
+    const bool ambiguous = i0 == i2 && i1 == i3 && i0 != i1;
+    if (ambiguous && (cut_edges & kFaceEdges.mask[f]) == 0) faces = uint8_t(faces | (1u << f));
+  }
+  return faces;
+}
+
+void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params) {
   state = CutState{};
+  state.contour = params;
   // Every voxel around a sign-change edge holds a surface vertex.
   std::vector<uint32_t> voxels;
   voxels.reserve(model.crossings.size() * 4);
@@ -665,10 +1118,12 @@ void init_cut_state(const VoxelModel& model, CutState& state) {
   sorted_unique(voxels);
   // Headroom for cuts, so a step rarely pays for growing a table (a p99 spike otherwise).
   const uint32_t vertices = uint32_t(voxels.size()), quads = uint32_t(model.crossings.size());
-  state.surface.vertex_of_piece.reserve(vertices + vertices / 2 + 1024);
+  state.surface.vertex_of_patch.reserve(vertices + vertices / 2 + 1024);
   state.surface.quad_of_half_edge.reserve(quads + quads / 2 + 1024);
   state.surface.positions.reserve(vertices + vertices / 2 + 1024);
   state.surface.vertex_piece.reserve(vertices + vertices / 2 + 1024);
+  state.surface.vertex_patch.reserve(vertices + vertices / 2 + 1024);
+  state.surface.vertex_half_edges.reserve(vertices + vertices / 2 + 1024);
   state.surface.quad_half_edge.reserve(quads + quads / 2 + 1024);
   state.surface.triangles.reserve(2 * (quads + quads / 2 + 1024));
 
@@ -690,8 +1145,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   // Divide: record the cuts; the voxels around each changed edge are (re)divided.
   std::vector<uint32_t>& voxels = state.pending_voxels;
   for (const EdgeHit& hit : hits) {
-    if (!record_cut(model, state, hit)) continue;
-    ++stats.edges_cut;
+    const EdgeChange change = record_cut(model, state, hit);
+    if (change == EdgeChange::kNone) continue;
+    stats.edges_cut += change == EdgeChange::kCut;
     uint32_t around[4];
     uint8_t corners[4];
     voxels_around_edge(l, hit.edge, around, corners);
@@ -709,7 +1165,12 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
         dv.piece_count = 8;  // unknown until refreshed: visit every piece slot once
         state.divided.push_back(dv);
       }
-      state.divided[d].cut_edges |= uint16_t(1u << voxel_edge_index(axis, corners[q]));
+      const uint16_t bit = uint16_t(1u << voxel_edge_index(axis, corners[q]));
+      if (change == EdgeChange::kCut) {
+        state.divided[d].cut_edges |= bit;
+      } else {
+        state.divided[d].air_edges |= bit;
+      }
     }
   }
   sorted_unique(voxels);
@@ -781,72 +1242,92 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
     if (state.divided_of.get(dv.voxel) != i) return fail("divided voxel not indexed");
     int32_t vc[3];
     l.voxel_coords(dv.voxel, vc);
-    bool has_cut = false;
-    for (int e = 0; e < 12; ++e) has_cut = has_cut || find_cut(state, voxel_edge_id(l, vc, e)) != nullptr;
-    if (!has_cut) return fail("divided voxel " + std::to_string(dv.voxel) + " has no cut edge");
     uint8_t pieces[8], count = 0, partial = 0;
-    uint16_t mask = 0;
-    for (int e = 0; e < 12; ++e) mask |= uint16_t(find_cut(state, voxel_edge_id(l, vc, e)) ? 1u << e : 0u);
-    if (mask != dv.cut_edges) return fail("divided voxel " + std::to_string(dv.voxel) + " has a stale cut-edge mask");
-    material_components(model, mask, vc, pieces, count, partial);
+    uint16_t mask = 0, air = 0;
+    for (int e = 0; e < 12; ++e) {
+      mask |= uint16_t(find_cut(state, voxel_edge_id(l, vc, e)) ? 1u << e : 0u);
+      air |= uint16_t(state.air_edges.contains(voxel_edge_id(l, vc, e)) ? 1u << e : 0u);
+    }
+    if (mask == 0 && air == 0) return fail("divided voxel " + std::to_string(dv.voxel) + " has no cut edge");
+    if (mask != dv.cut_edges || air != dv.air_edges) {
+      return fail("divided voxel " + std::to_string(dv.voxel) + " has a stale cut-edge mask");
+    }
+    material_components(model, mask, air, vc, pieces, count, partial);
     if (count != dv.piece_count || partial != dv.partial_mask || !std::equal(pieces, pieces + 8, dv.corner_piece)) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " pieces differ from its material graph");
     }
   }
 
-  // Every live vertex belongs to a live piece that has a half-edge; positions finite.
+  // Every live vertex is a patch of its voxel (piece, half-edges, position), and every patch of a
+  // voxel holding a vertex has one; positions finite.
   uint32_t live_vertices = 0;
   for (uint32_t slot = 0; slot < s.positions.size(); ++slot) {
-    const uint64_t key = s.vertex_piece[slot];
+    const uint64_t key = s.vertex_patch[slot];
     if (key == CutSurface::kFreeKey) continue;
     ++live_vertices;
-    if (s.vertex_of_piece.get(key) != slot) return fail("vertex slot not indexed by its piece");
+    if (s.vertex_of_patch.get(key) != slot) return fail("vertex slot not indexed by its patch");
     if (!s.positions[slot].allFinite()) return fail("non-finite vertex position");
-    const uint32_t voxel = uint32_t(key / 8);
+    const uint32_t voxel = uint32_t(key / 16);
+    const std::string where = " in voxel " + std::to_string(voxel);
     uint8_t pieces[8], count = 0, partial = 0;
     pieces_of(model, state, voxel, pieces, count, partial);
-    if (key % 8 >= count) return fail("vertex of a piece that does not exist in voxel " + std::to_string(voxel));
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
-    Vec3f position;
-    VoxelHalfEdges half_edges;
-    const uint32_t d = state.divided_of.get(voxel);
-    voxel_half_edges(model, state, vc, d != kDeadIndex ? state.divided[d].cut_edges : 0, half_edges);
-    if (!piece_vertex_position(model, state, voxel, vc, half_edges, pieces, partial, uint8_t(key % 8), position)) {
-      return fail("vertex of a piece without surface in voxel " + std::to_string(voxel));
+    VoxelPatches patches;
+    voxel_patches(model, state, voxel, vc, patches);
+    const uint32_t p = uint32_t(key % 16);
+    if (p >= patches.patch_count) return fail("vertex of a patch that does not exist" + where);
+    if (key % 16 == 0) {
+      for (uint32_t q = 0; q < patches.patch_count; ++q) {
+        if (s.vertex_of_patch.get(patch_key(voxel, q)) == kDeadIndex) return fail("patch without a vertex" + where);
+      }
     }
-    if ((position - s.positions[slot]).norm() > 1e-5f * float(l.voxel_size)) {
-      return fail("stale vertex position in voxel " + std::to_string(voxel));
+    if (patches.patch_piece[p] == kNoPiece || s.vertex_piece[slot] != piece_key(voxel, patches.patch_piece[p])) {
+      return fail("vertex with a wrong piece" + where);
     }
+    for (uint32_t bits = patches.patch_half_edges[p]; bits; bits &= bits - 1) {
+      const int h = std::countr_zero(bits);
+      if (patches.patch_piece[patches.patch_of[h]] != pieces[h % 2 ? kVoxelEdges[h / 2].c1 : kVoxelEdges[h / 2].c0]) {
+        return fail("patch spanning two pieces" + where);
+      }
+    }
+    if (s.vertex_half_edges[slot] != patches.patch_half_edges[p]) return fail("vertex with stale half-edges" + where);
+    const Vec3f position = patch_vertex_position(model, state, voxel, vc, patches, uint8_t(p));
+    if ((position - s.positions[slot]).norm() > 1e-5f * float(l.voxel_size)) return fail("stale vertex position" + where);
   }
-  if (live_vertices != s.vertex_of_piece.size()) return fail("vertex map holds freed slots");
+  if (live_vertices != s.vertex_of_patch.size()) return fail("vertex map holds freed slots");
   for (uint32_t slot : s.free_vertices) {
-    if (s.vertex_piece[slot] != CutSurface::kFreeKey) return fail("free list holds a live vertex");
+    if (s.vertex_patch[slot] != CutSurface::kFreeKey) return fail("free list holds a live vertex");
   }
 
-  // Every existing half-edge has its quad joining the sharing pieces' vertices.
-  uint32_t half_edges = 0;
-  const auto check_half_edge = [&](uint32_t edge, int side) -> bool {
-    Vec3d point, normal;
-    if (!half_edge(model, state, edge, side, point, normal)) return true;
-    ++half_edges;
+  // Every existing half-edge has its quad joining the patches that hold it (slit quads that would
+  // coincide cancel).
+  uint32_t quads = 0;
+  const auto check_edge = [&](uint32_t edge) -> bool {
     uint32_t around[4];
-    uint8_t pieces[4];
-    if (!half_edge_sharing(model, state, edge, side, around, pieces)) {
-      return fail("half-edge of edge " + std::to_string(edge) + " has no four sharing pieces");
-    }
-    const uint32_t quad = s.quad_of_half_edge.get(half_edge_key(edge, side));
-    if (quad == kDeadIndex) return fail("half-edge of edge " + std::to_string(edge) + " has no quad");
-    if (s.quad_half_edge[quad] != half_edge_key(edge, side)) return fail("quad slot not owned by its half-edge");
-    uint32_t want[4];
-    for (int q = 0; q < 4; ++q) want[q] = s.vertex_of_piece.get(piece_key(around[q], pieces[q]));
-    std::sort(want, want + 4);
-    uint32_t have[6] = {s.triangles[2 * quad][0],     s.triangles[2 * quad][1],     s.triangles[2 * quad][2],
-                        s.triangles[2 * quad + 1][0], s.triangles[2 * quad + 1][1], s.triangles[2 * quad + 1][2]};
-    std::sort(have, have + 6);
-    uint32_t* end = std::unique(have, have + 6);
-    if (end - have != 4 || !std::equal(want, want + 4, have)) {
-      return fail("quad of edge " + std::to_string(edge) + " does not join its sharing pieces");
+    uint8_t corners[4];
+    voxels_around_edge(l, edge, around, corners);
+    EdgeQuads plan;
+    plan_edge_quads(model, state, edge, find_cut(state, edge), around, corners, plan);
+    for (int side = 0; side < 2; ++side) {
+      const std::string what = "half-edge " + std::to_string(side) + " of edge " + std::to_string(edge);
+      if (plan.missing[side]) return fail(what + " has a sharing patch without a vertex");
+      const uint32_t quad = s.quad_of_half_edge.get(half_edge_key(edge, side));
+      if (!plan.exists[side]) {
+        if (quad != kDeadIndex) return fail(what + ": a quad outlives its half-edge");
+        continue;
+      }
+      ++quads;
+      if (quad == kDeadIndex) return fail(what + " has no quad");
+      if (s.quad_half_edge[quad] != half_edge_key(edge, side)) return fail("quad slot not owned by its half-edge");
+      uint32_t want[4];
+      std::copy(plan.v[side], plan.v[side] + 4, want);
+      std::sort(want, want + 4);
+      uint32_t have[6] = {s.triangles[2 * quad][0],     s.triangles[2 * quad][1],     s.triangles[2 * quad][2],
+                          s.triangles[2 * quad + 1][0], s.triangles[2 * quad + 1][1], s.triangles[2 * quad + 1][2]};
+      std::sort(have, have + 6);
+      uint32_t* end = std::unique(have, have + 6);
+      if (end - have != 4 || !std::equal(want, want + 4, have)) return fail("quad of " + what + " does not join its patches");
     }
     return true;
   };
@@ -857,24 +1338,47 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
   for (const EdgeCut& c : state.edge_cuts) edges.push_back(c.edge);
   sorted_unique(edges);
   for (uint32_t edge : edges) {
-    for (int side = 0; side < 2; ++side) {
-      if (!check_half_edge(edge, side)) return false;
-    }
+    if (!check_edge(edge)) return false;
   }
-  if (half_edges != s.quad_of_half_edge.size()) {
+  if (quads != s.quad_of_half_edge.size()) {
     return fail("quads outlive their half-edges (" + std::to_string(s.quad_of_half_edge.size()) + " quads, " +
-                std::to_string(half_edges) + " half-edges)");
+                std::to_string(quads) + " expected)");
   }
   for (uint32_t quad : s.free_quads) {
     if (s.quad_half_edge[quad] != CutSurface::kFreeKey) return fail("free list holds a live quad");
   }
+
+  // The surface is a closed, consistently oriented 2-manifold.
+  const SurfaceStats stats = surface_stats(compact_surface(s));
+  if (stats.boundary_edges != 0 || stats.nonmanifold_edges != 0 || stats.misoriented_edges != 0) {
+    return fail("surface not a closed oriented 2-manifold: " + std::to_string(stats.boundary_edges) + " boundary, " +
+                std::to_string(stats.nonmanifold_edges) + " non-manifold, " + std::to_string(stats.misoriented_edges) +
+                " misoriented edges");
+  }
   return true;
+}
+
+double cut_dropped_length(const VoxelModel& model, const CutState& state) {
+  const Lattice& l = model.lattice;
+  double sum = 0.0;
+  for (const EdgeCut& c : state.edge_cuts) {
+    const uint32_t n0 = c.edge / 3;
+    const bool in0 = model.is_inside(n0), in1 = model.is_inside(n0 + node_stride(l, int(c.edge % 3)));
+    if (in0 && in1) {
+      sum += double(c.t_hi) - double(c.t_lo);
+    } else if (in0 != in1) {
+      const EdgeCrossing* x = model.find_crossing(c.edge);
+      const double ts = x != nullptr ? double(x->t) : 0.5;
+      sum += in0 ? ts - double(c.t_lo) : double(c.t_hi) - ts;
+    }
+  }
+  return sum;
 }
 
 uint64_t cut_memory_bytes(const CutState& state) {
   return state.edge_cuts.capacity() * sizeof(EdgeCut) + state.edge_cut_of.memory_bytes() +
          state.divided.capacity() * sizeof(DividedVoxel) + state.divided_of.memory_bytes() +
-         state.fronts.capacity() * sizeof(VoxelFront) + state.front_of.memory_bytes();
+         state.fronts.capacity() * sizeof(VoxelFront) + state.front_of.memory_bytes() + state.air_edges.memory_bytes();
 }
 
 }  // namespace dvx

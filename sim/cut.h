@@ -11,25 +11,32 @@
 //   dropped (thinner than a voxel, never corrupting).
 //
 // - DividedVoxel: a voxel with at least one cut edge. Its inside corner nodes are grouped into
-//   *pieces*: the connected components of the voxel's material graph (inside corners joined by
-//   uncut edges). Each piece is one of the paper's divided voxels; a voxel completely cut has two or
+//   *pieces*: the connected components of the voxel's material graph (see voxel_material_joins for
+//   the one rule). Each piece is one of the paper's divided voxels; a voxel completely cut has two or
 //   more pieces, a partially cut voxel has a piece holding both ends of a cut edge. Sides are kept
 //   per piece, not per node, so crossing cuts, helices and blades that turn back need no special
-//   case. An uncut voxel is one implicit piece with all its inside corners (as plain dual contouring).
+//   case. An uncut voxel is one implicit piece with all its inside corners.
 //
 // - Edge-sharing is derived, never stored stale: the half-edge (edge e, inside end n) is shared by
 //   the piece holding n in each of the four voxels around e. An uncut material edge is shared by 4
 //   pieces; a cut edge by up to 8 (4 per side) — the non-manifold connectivity of the paper.
 //
-// Surface. One vertex per piece that has a half-edge; one quad (two triangles) per half-edge,
-// joining the four sharing pieces, oriented from the inside end outward. A fully cut piece's vertex
-// minimises the QEF of its half-edges; a partially cut piece's vertex is the average of the cut
-// front's face points in that voxel (paper Fig. 5) — all partial pieces of a voxel share it, which
-// keeps the singular vertices synchronised and closes the slit at the front. Vertex and triangle
+// Surface (manifold dual contouring, Schaefer-Ju-Warren 2007 / Nielson 2004). One vertex per
+// *patch* of a voxel, not per voxel or piece: the surface inside a voxel meets the voxel's faces
+// in curves joining the half-edge points on the face's perimeter; on each face the points are
+// paired by the face's own data (voxel_face_pairs), so both voxels sharing a face agree, and a
+// patch is a cycle of such pairs (a loop on the voxel's boundary). A patch bounds one piece. One
+// quad (two triangles) per half-edge joins the patches holding it in the four voxels around its
+// edge, oriented from the inside end outward. A fully cut (or uncut) patch's vertex minimises the
+// QEF of its half-edges; a partly cut patch (holding both half-edges of a cut edge: the slit's tip
+// runs through the voxel) sits at the average of the cut front's face points in that voxel (paper
+// Fig. 5), which keeps the singular vertices synchronised and closes the slit at the front. The
+// static dual_contour is this same construction on a state without cuts. Vertex and triangle
 // slots are stable (free lists), and each step reports dirty slot ranges for the renderer.
 #pragma once
 
 #include "sim/blade_sweep.h"
+#include "sim/contour.h"
 #include "sim/flat_map.h"
 #include "sim/surface_mesh.h"
 #include "sim/voxel_model.h"
@@ -58,12 +65,14 @@ struct DividedVoxel {
   uint8_t piece_count;
   uint8_t partial_mask;     // bit p: piece p holds both ends of a cut edge (the voxel is partly cut)
   uint16_t cut_edges;       // bit e: voxel edge e (see kVoxelEdges in cut.cpp) is cut
+  uint16_t air_edges;       // bit e: surface edge e crossed by the blade outside the material only
 };
 
 // Points where the cut front crosses the faces of one voxel (paper Fig. 5: the "face vertices").
 // The front is the blade's current edge plus the trails its two ends leave; trail crossings are
 // kept for good (they do not depend on how the motion was split into steps), crossings of the
-// blade's edge are replaced whenever the blade moves on.
+// blade's edge are replaced when the blade moves on from them and kept while another stroke cuts
+// elsewhere (see parked_voxels).
 struct VoxelFront {
   uint32_t voxel;
   uint32_t trail_count;
@@ -75,13 +84,15 @@ struct VoxelFront {
 // The incrementally maintained dual-contoured surface with stable slots.
 struct CutSurface {
   std::vector<Vec3f> positions;        // (vertex slots)
-  std::vector<uint64_t> vertex_piece;  // (vertex slots) piece key voxel*8+piece, kFreeKey when free
+  std::vector<uint64_t> vertex_piece;  // (vertex slots) piece key voxel*8+piece of its patch, kFreeKey when free
+  std::vector<uint64_t> vertex_patch;  // (vertex slots) patch key voxel*16+patch, kFreeKey when free
+  std::vector<uint32_t> vertex_half_edges;  // (vertex slots) bit 2*e+side: the patch holds that half-edge
   std::vector<Tri> triangles;          // (triangle slots) two per quad slot: 2q, 2q+1
   std::vector<uint64_t> quad_half_edge;  // (quad slots) half-edge key edge*2+side, kFreeKey when free
   std::vector<uint8_t> triangle_cut;     // (triangle slots) 1: on a cut face (its boundary is a blade crossing)
   std::vector<uint32_t> free_vertices;
   std::vector<uint32_t> free_quads;
-  FlatMap vertex_of_piece;   // piece key -> vertex slot
+  FlatMap vertex_of_patch;   // patch key voxel*16+patch -> vertex slot (patches of a voxel: 0..n-1)
   FlatMap quad_of_half_edge;  // half-edge key -> quad slot
   // Slots written since the last clear_dirty(): [begin, end) (empty when begin >= end).
   uint32_t dirty_vertex_begin = 0, dirty_vertex_end = 0;
@@ -96,19 +107,25 @@ struct CutSurface {
 struct CutState {
   std::vector<EdgeCut> edge_cuts;        // (cut edges)
   FlatMap edge_cut_of;                   // lattice edge -> index in edge_cuts
+  FlatMap air_edges;                     // surface edges crossed outside the material only (value 0):
+                                         // they cut no material but the faces they bound
   std::vector<DividedVoxel> divided;     // (divided voxels)
   FlatMap divided_of;                    // lattice voxel -> index in divided
   std::vector<VoxelFront> fronts;        // (voxels the cut front has passed)
   FlatMap front_of;                      // lattice voxel -> index in fronts
   std::vector<uint32_t> blade_voxels;    // voxels holding points of the current blade edge
+  std::vector<uint32_t> parked_voxels;   // voxels holding an earlier stroke's last blade edge (a slit tip
+                                         // holds still until the blade comes back to its voxel)
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
   std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
   std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
   CutSurface surface;
+  ContourParams contour;                 // vertex placement rule (as dual_contour)
+  BladePose last_blade;                  // where the last step left the blade (valid when steps > 0)
   uint64_t steps = 0;                    // cut steps applied
   // Scratch reused between steps (no allocation in steady state).
   std::vector<EdgeHit> scratch_hits;
-  std::vector<uint32_t> scratch_voxels, scratch_edges;
+  std::vector<uint32_t> scratch_voxels, scratch_edges, scratch_touched, scratch_across;
   std::vector<double> scratch_params;
 };
 
@@ -122,8 +139,9 @@ struct CutStepStats {
   uint32_t triangles_changed = 0;   // triangle slots written or freed
 };
 
-// Builds the initial state: no cuts, the closed dual-contoured surface of the uncut model.
-void init_cut_state(const VoxelModel& model, CutState& state);
+// Builds the initial state: no cuts, the closed dual-contoured surface of the uncut model (the
+// same surface dual_contour returns: it is built by this function).
+void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params = {});
 
 // Cuts with the quad swept by the blade from `from` to `to` and updates pieces and surface:
 // cut_divide then cut_update_surface (split so callers can time the two phases).
@@ -139,7 +157,25 @@ void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& 
 // The surface as a compact mesh (live slots only; vertex_voxel filled).
 SurfaceMesh compact_surface(const CutSurface& surface);
 
-// Pieces of a voxel: for uncut voxels the single implicit piece (0) of all inside corners.
+// Faces of a voxel: the 4 corners of face f (x=0, x=1, y=0, y=1, z=0, z=1) in cyclic order.
+extern const uint8_t kVoxelFaceCorners[6][4];
+
+// The one rule for which inside corners of a voxel are joined (its material graph), shared by the
+// surface (patches) and the PBD model (through voxel_pieces). Two inside corners are joined
+//  - along a voxel edge the blade has not cut (cut_edges bit e, edges as in kVoxelEdges of cut.cpp:
+//    x edges 0-3, y edges 4-7, z edges 8-11), and
+//  - across an *ambiguous* face (its two inside corners diagonal, the other two outside) when the
+//    blade has cut none of that face's edges: a thin ridge crossing the face diagonally is one
+//    material, and this choice reproduces the input's topology on the shared meshes at 128 where
+//    keeping them apart gives handles (the armadillo: Euler characteristic 0). A face the blade
+//    cuts always separates its two sides.
+//  - never across the voxel's body diagonal.
+// Returns the bit mask of faces f whose diagonal joins (bit f set), for corner_inside (bit c: corner
+// c inside).
+uint8_t voxel_material_joins(uint8_t corner_inside, uint16_t cut_edges);
+
+// Pieces of a voxel: for uncut voxels the single implicit piece (0) of all inside corners; for
+// divided voxels the components of the material graph (voxel_material_joins).
 void voxel_pieces(const VoxelModel& model, const CutState& state, uint32_t voxel, uint8_t corner_piece[8],
                   uint8_t& piece_count);
 
@@ -155,11 +191,22 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
                        uint32_t voxels[4], uint8_t pieces[4]);
 
 // Full consistency check of the state (tests call it after every step): divided voxels hold a cut
-// edge and their pieces equal the material graph's components; every half-edge has exactly one live
-// quad whose vertices are the sharing pieces' vertices, and no quad outlives its half-edge; vertex
-// slots map one-to-one to live pieces with a half-edge; free lists hold only free slots; all
-// positions are finite. Returns false with the first problem in `error`.
+// edge and their pieces equal the material graph's components; vertex slots map one-to-one to the
+// voxels' patches (piece, half-edges, position); every half-edge has its live quad joining the
+// patches that hold it (except the two quads of a slit edge that would coincide, which cancel), and
+// no quad outlives its half-edge; free lists hold only free slots; all positions are finite; and the
+// surface is a closed, consistently oriented 2-manifold (no boundary, non-manifold or misoriented
+// edge). Returns false with the first problem in `error`.
 bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error);
+
+// Material the surface cannot represent (measured, never silent). Material is held by lattice nodes:
+// each inside end of a cut edge keeps the material up to its nearest crossing, and the material
+// between the two outermost blade crossings of an edge with both ends inside (or between the cut and
+// the surface crossing of a surface edge) holds no node and is dropped — a sliver thinner than a
+// voxel along that edge (a V-notch's wedge, a hairpin's tongue). Returns the summed length of those
+// intervals in voxels; the volume dropped is about this times voxel_size^3 (a sliver is sampled by
+// the one family of lattice lines that crosses it; see test_manifold, "slivers").
+double cut_dropped_length(const VoxelModel& model, const CutState& state);
 
 // Bytes held by the explicit cut elements (edge cuts, divided voxels, their maps).
 uint64_t cut_memory_bytes(const CutState& state);

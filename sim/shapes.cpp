@@ -219,4 +219,82 @@ TriMesh make_u_shape(const Vec3d& centre, double width, double height, double de
   return m;
 }
 
+TriMesh make_cell_union(const std::vector<std::array<int, 3>>& cells, double cell, const Eigen::Matrix3d& rotation,
+                        const Vec3d& centre) {
+  TriMesh m;
+  std::vector<std::array<int, 3>> sorted = cells;
+  std::sort(sorted.begin(), sorted.end());
+  sorted.erase(std::unique(sorted.begin(), sorted.end()), sorted.end());
+  const auto filled = [&](int i, int j, int k) {
+    return std::binary_search(sorted.begin(), sorted.end(), std::array<int, 3>{i, j, k});
+  };
+  // Grid vertices, shared between faces (welded by their integer coordinates).
+  std::unordered_map<uint64_t, uint32_t> vertex_of;
+  const auto vertex = [&](int i, int j, int k) {
+    const uint64_t key = (uint64_t(uint32_t(i + 0x8000)) << 32) | (uint64_t(uint32_t(j + 0x8000)) << 16) | uint64_t(uint32_t(k + 0x8000));
+    const auto it = vertex_of.find(key);
+    if (it != vertex_of.end()) return it->second;
+    const uint32_t id = uint32_t(m.positions.size());
+    m.positions.push_back(centre + rotation * (cell * Vec3d(i, j, k)));
+    vertex_of.emplace(key, id);
+    return id;
+  };
+  // A face toward every empty neighbour, counter-clockwise seen from outside.
+  for (const auto& c : sorted) {
+    for (int a = 0; a < 3; ++a) {
+      for (int s = 0; s < 2; ++s) {
+        int n[3] = {c[0], c[1], c[2]};
+        n[a] += s ? 1 : -1;
+        if (filled(n[0], n[1], n[2])) continue;
+        const int b = (a + 1) % 3, d = (a + 2) % 3;
+        int p[4][3];
+        static constexpr int kUv[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+        for (int q = 0; q < 4; ++q) {
+          p[q][a] = c[a] + s;
+          p[q][b] = c[b] + kUv[q][0];
+          p[q][d] = c[d] + kUv[q][1];
+        }
+        uint32_t v[4];
+        for (int q = 0; q < 4; ++q) v[q] = vertex(p[q][0], p[q][1], p[q][2]);
+        // b x d = a: the order above is counter-clockwise seen from +a.
+        if (s) {
+          add_quad(m.triangles, v[0], v[1], v[2], v[3]);
+        } else {
+          add_quad(m.triangles, v[0], v[3], v[2], v[1]);
+        }
+      }
+    }
+  }
+  return m;
+}
+
+TriMesh make_holed_plate(int holes, double cell, int thickness, const Eigen::Matrix3d& rotation, const Vec3d& centre) {
+  std::vector<std::array<int, 3>> cells;
+  const int nx = 2 * std::max(holes, 0) + 1, ny = 3;
+  for (int k = 0; k < std::max(thickness, 1); ++k) {
+    for (int j = 0; j < ny; ++j) {
+      for (int i = 0; i < nx; ++i) {
+        if (j == 1 && i % 2 == 1) continue;  // a hole
+        cells.push_back({i - nx / 2, j - 1, k});
+      }
+    }
+  }
+  return make_cell_union(cells, cell, rotation, centre);
+}
+
+TriMesh make_lollipop(int stem, double cell, const Eigen::Matrix3d& rotation, const Vec3d& centre) {
+  std::vector<std::array<int, 3>> cells;
+  for (int k = 0; k < 4; ++k) {
+    for (int j = 0; j < 4; ++j) {
+      for (int i = 0; i < 4; ++i) cells.push_back({i - 2, j - 2, k});
+    }
+  }
+  for (int k = 1; k <= std::max(stem, 1); ++k) cells.push_back({0, 0, -k});
+  return make_cell_union(cells, cell, rotation, centre);
+}
+
+TriMesh make_two_shells(const Vec3d& centre, double r_out, double r_in, int subdivisions) {
+  return merge_meshes(make_icosphere(centre, r_out, subdivisions), flip_winding(make_icosphere(centre, r_in, subdivisions)));
+}
+
 }  // namespace dvx

@@ -101,7 +101,7 @@ TEST_CASE("bench scaling: rows per resolution, an impossible resolution is a ref
   TempDir dir;
   BenchScalingOptions o;
   o.meshes = {source_path("assets/meshes/bunny_npm.obj")};
-  o.resolutions = {16, 1024};
+  o.resolutions = {32, 1024};  // at 16-20 the lattice cannot hold the bunny's ear tips: they come apart
   o.sim_resolution = 8;
   o.steps = 10;
   o.workers = 1;

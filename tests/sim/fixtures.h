@@ -1,6 +1,7 @@
 // Small fixtures shared by the sim tests.
 #pragma once
 
+#include "sim/cut.h"
 #include "sim/voxelize.h"
 
 #include <doctest/doctest.h>
@@ -17,6 +18,20 @@ inline dvx::VoxelModel voxelized(const dvx::TriMesh& mesh, int resolution) {
   params.resolution = resolution;
   REQUIRE_MESSAGE(dvx::voxelize(mesh, params, model, error), error);
   return model;
+}
+
+// Moves the blade from `from` to `to` in `steps` equal cut steps, calling after(step) after each.
+template <typename After>
+void sweep_steps(const dvx::VoxelModel& model, dvx::CutState& state, const dvx::BladePose& from, const dvx::BladePose& to,
+                 int steps, After&& after) {
+  dvx::BladePose previous = from;
+  for (int s = 1; s <= steps; ++s) {
+    const double f = double(s) / steps;
+    const dvx::BladePose next{from.a + f * (to.a - from.a), from.b + f * (to.b - from.b)};
+    dvx::cut_step(model, state, previous, next);
+    previous = next;
+    after(s);
+  }
 }
 
 }  // namespace dvx_test

@@ -1,6 +1,7 @@
 // Dual contouring on analytic voxel models: the Hermite data (signs, exact crossings, exact
 // normals) is built here from implicit functions, so these tests do not depend on voxelization.
 #include "sim/contour.h"
+#include "sim/cut.h"
 #include "sim/surface_metrics.h"
 
 #include <doctest/doctest.h>
@@ -12,6 +13,7 @@
 #include <cmath>
 #include <functional>
 #include <limits>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -121,8 +123,22 @@ struct RotatedBox {
   }
 };
 
-// Hermite data (world crossing points, decoded normals) of the 12 edges of a voxel.
-void voxel_hermite(const VoxelModel& m, uint32_t voxel, std::vector<Vec3d>& pts, std::vector<Vec3d>& nrm) {
+// Index of a voxel edge (cut.h's order: x edges 0-3, y 4-7, z 8-11, each by its lower corner)
+// along axis a whose lower corner has offsets ob (axis b = a+1) and od (axis d = a+2).
+int voxel_edge_of(int a, int ob, int od) {
+  const int b = (a + 1) % 3, d = (a + 2) % 3;
+  const int c0 = (ob << b) | (od << d);
+  static constexpr int kLowerCorners[3][4] = {{0, 2, 4, 6}, {0, 1, 4, 5}, {0, 1, 2, 3}};
+  for (int i = 0; i < 4; ++i) {
+    if (kLowerCorners[a][i] == c0) return 4 * a + i;
+  }
+  return -1;
+}
+
+// Hermite data (world crossing points, decoded normals) of the 12 edges of a voxel, or of the
+// edges whose half-edges (bit 2 * edge + side) are in `half_edges`.
+void voxel_hermite(const VoxelModel& m, uint32_t voxel, std::vector<Vec3d>& pts, std::vector<Vec3d>& nrm,
+                   uint32_t half_edges = ~0u) {
   pts.clear();
   nrm.clear();
   const Lattice& l = m.lattice;
@@ -134,6 +150,7 @@ void voxel_hermite(const VoxelModel& m, uint32_t voxel, std::vector<Vec3d>& pts,
       int32_t n[3] = {c[0], c[1], c[2]};
       n[b] += s & 1;
       n[d] += s >> 1;
+      if (((half_edges >> (2 * voxel_edge_of(a, s & 1, s >> 1))) & 3u) == 0) continue;
       const uint32_t e = Lattice::edge(l.node(n[0], n[1], n[2]), a);
       auto it = std::lower_bound(m.crossings.begin(), m.crossings.end(), e,
                                  [](const EdgeCrossing& x, uint32_t id) { return x.edge < id; });
@@ -181,26 +198,40 @@ struct Checked {
   SurfaceStats stats;
 };
 
-// Contours and checks what holds for every model: vertex order and voxel, closed and
-// consistently oriented, and the placement rule. A vertex inside its voxel is solve_qef over
-// its voxel's Hermite data and box; a vertex outside (only with feature_margin > 0) is within
-// the margin and fits every plane of its voxel to within feature_residual (rms).
+// Contours and checks what holds for every model: vertex order and voxel, a closed, consistently
+// oriented 2-manifold, the same surface as the cut state's (one construction), and the placement
+// rule. A vertex inside its voxel is solve_qef over its patch's Hermite data and the voxel's box;
+// a vertex outside (only with feature_margin > 0) is within the margin and fits every plane of
+// its patch to within feature_residual (rms).
 Checked contour_and_check(const VoxelModel& m, const ContourParams& params = {}) {
   Checked out{dual_contour(m, params), {}};
   out.stats = surface_stats(out.mesh);
   CHECK(unbalanced_edges(out.mesh.triangles) == 0);
+  CHECK(out.stats.nonmanifold_edges == 0);
+  CHECK(out.stats.boundary_edges == 0);
   CHECK(out.mesh.positions.size() == out.mesh.vertex_voxel.size());
   CHECK(out.mesh.triangles.size() == 2 * m.crossings.size());
   CHECK(std::is_sorted(out.mesh.vertex_voxel.begin(), out.mesh.vertex_voxel.end()));
-  CHECK(std::adjacent_find(out.mesh.vertex_voxel.begin(), out.mesh.vertex_voxel.end()) ==
-        out.mesh.vertex_voxel.end());
+  // The static surface is the cut state's surface before any cut, slot for slot.
+  CutState state;
+  init_cut_state(m, state, params);
+  const SurfaceMesh incremental = compact_surface(state.surface);
+  CHECK(incremental.positions == out.mesh.positions);
+  CHECK(incremental.triangles == out.mesh.triangles);
+  std::string error;
+  CHECK_MESSAGE(check_cut_state(m, state, error), error);
+  std::vector<uint32_t> half_edges;  // per output vertex: its patch's half-edges
+  for (uint32_t slot = 0; slot < state.surface.positions.size(); ++slot) {
+    if (state.surface.vertex_patch[slot] != CutSurface::kFreeKey) half_edges.push_back(state.surface.vertex_half_edges[slot]);
+  }
+  REQUIRE(half_edges.size() == out.mesh.positions.size());
   const Lattice& l = m.lattice;
   const double tol = 1e-4 * l.voxel_size;  // float positions
   std::vector<Vec3d> pts, nrm;
   int mismatched = 0, beyond_margin = 0, poor_fit = 0;
   for (size_t i = 0; i < out.mesh.positions.size(); ++i) {
     const Vec3d x = out.mesh.positions[i].cast<double>();
-    voxel_hermite(m, out.mesh.vertex_voxel[i], pts, nrm);
+    voxel_hermite(m, out.mesh.vertex_voxel[i], pts, nrm, half_edges[i]);
     Vec3d lo, hi;
     voxel_box(l, out.mesh.vertex_voxel[i], lo, hi);
     const Vec3d ref = solve_qef(pts.data(), nrm.data(), int(pts.size()), lo, hi);
@@ -427,7 +458,7 @@ TEST_SUITE("contour") {
     }
     const SurfaceMesh e = dual_contour(b);
     CHECK(e.triangles.empty());
-    CHECK(e.positions.empty());
+    for (const Vec3f& p : e.positions) CHECK(p.allFinite());  // the corner voxel's patch, with no quad
     CHECK(dual_contour(VoxelModel{}).triangles.empty());
   }
 

@@ -38,14 +38,9 @@ SurfaceStats check_invariants(const VoxelModel& model, const CutState& state) {
 // `check_every` steps (and at the end).
 void sweep(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to, int steps,
            int check_every = 1) {
-  BladePose previous = from;
-  for (int s = 1; s <= steps; ++s) {
-    const double f = double(s) / steps;
-    const BladePose next{from.a + f * (to.a - from.a), from.b + f * (to.b - from.b)};
-    cut_step(model, state, previous, next);
-    previous = next;
+  dvx_test::sweep_steps(model, state, from, to, steps, [&](int s) {
     if (s % check_every == 0 || s == steps) check_invariants(model, state);
-  }
+  });
 }
 
 // A blade along z at x = x0, swept along y from y0 to y1.
