@@ -41,7 +41,10 @@ pose([-7.0, cut_height(-7.0), -z], [-7.0, cut_height(-7.0), z], False)
 for i in range(1, 121):
     x = -7.0 + 14.0 * i / 120
     pose([x, cut_height(x), -z], [x, cut_height(x), z], True)
-# Rest: watch the piece slide off and land on the tray.
+# Rest: watch the piece slide off and land on the tray. The frames' camera draws back to show the
+# tray in front of the bunny, where the head top lands (x about -11 to -7), beside the body.
+lines.append({"step": step, "camera": {"target": [-3.0, 2.5, -1.5], "distance": 24.0,
+                                       "yaw": 0.4363, "pitch": 0.3491}})
 for i in range(150):
     pose([7.0, cut_height(7.0), -z], [7.0, cut_height(7.0), z], False)
 
