@@ -28,7 +28,7 @@ void unite(std::vector<uint32_t>& parent, uint32_t a, uint32_t b) {
 }  // namespace
 
 TEST_SUITE("pbd_recording") {
-  TEST_CASE("the default recording's severed head top shares no particle with the body and falls clear of it") {
+  TEST_CASE("the default recording's severed head top shares no particle with the body and lands on the tray beside it") {
     const Recording recording = read_recording(dvx_test::source_path("assets/recordings/bunny_cut.jsonl"));
     Session s;
     open_session(recording.scene, recording.dt, true, 1, s);
@@ -81,7 +81,7 @@ TEST_SUITE("pbd_recording") {
     const uint32_t head = sizes[0] < sizes[1] ? roots[0] : roots[1];
     // No particle of the head is a particle of the body; the head fell below the body.
     std::vector<uint32_t> head_bodies, rest_bodies;
-    double head_max_y = -1e30, rest_min_y = 1e30, head_drop = 0.0;
+    double head_min_y = 1e30, head_max_x = -1e30, rest_min_x = 1e30, head_drop = 0.0;
     size_t head_vertices = 0, unembedded = 0;
     for (uint32_t v = 0; v < surface.positions.size(); ++v) {
       if (surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
@@ -93,11 +93,12 @@ TEST_SUITE("pbd_recording") {
       const bool is_head = find(component, v) == head;
       for (uint32_t p : pbd.pieces[piece].particles) (is_head ? head_bodies : rest_bodies).push_back(find(body, p));
       if (is_head) {
-        head_max_y = std::max(head_max_y, double(pbd.deformed[v].y()));
+        head_min_y = std::min(head_min_y, double(pbd.deformed[v].y()));
+        head_max_x = std::max(head_max_x, double(pbd.deformed[v].x()));
         head_drop += double(surface.positions[v].y() - pbd.deformed[v].y());
         ++head_vertices;
       } else {
-        rest_min_y = std::min(rest_min_y, double(pbd.deformed[v].y()));
+        rest_min_x = std::min(rest_min_x, double(pbd.deformed[v].x()));
       }
     }
     std::sort(head_bodies.begin(), head_bodies.end());
@@ -107,9 +108,17 @@ TEST_SUITE("pbd_recording") {
                           std::back_inserter(shared));
     CHECK(unembedded == 0);
     CHECK(shared.empty());
-    MESSAGE("head top: mean drop " << head_drop / double(head_vertices) << ", highest point " << head_max_y
-                                   << "; body's lowest point " << rest_min_y);
+    // It fell, and lies on the scene's tray (lowest point within half a fine voxel of the plane) in
+    // front of the body (the cut slopes down to -x), not on the stump or inside the body.
+    REQUIRE(recording.scene.planes.size() == 1);
+    const double tray_y = recording.scene.planes[0].point.y();
+    const double half_voxel = 0.5 * s.model.lattice.voxel_size;
+    MESSAGE("head top: mean drop " << head_drop / double(head_vertices) << ", lowest point " << head_min_y
+                                   << " (tray at " << tray_y << "), right end x " << head_max_x
+                                   << "; body's left end x " << rest_min_x);
     CHECK(head_drop / double(head_vertices) > 2.0);
-    CHECK(head_max_y < rest_min_y);  // fell clear of the body (there is no contact yet)
+    CHECK(head_min_y > tray_y - half_voxel);
+    CHECK(head_min_y < tray_y + half_voxel);
+    CHECK(head_max_x < rest_min_x);
   }
 }
