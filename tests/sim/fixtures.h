@@ -2,6 +2,7 @@
 #pragma once
 
 #include "sim/cut.h"
+#include "sim/pbd.h"
 #include "sim/voxelize.h"
 
 #include <doctest/doctest.h>
@@ -18,6 +19,24 @@ inline dvx::VoxelModel voxelized(const dvx::TriMesh& mesh, int resolution) {
   params.resolution = resolution;
   REQUIRE_MESSAGE(dvx::voxelize(mesh, params, model, error), error);
   return model;
+}
+
+// A voxelized mesh with its uncut state and PBD model (the sim tests' physics fixture).
+struct PbdScene {
+  dvx::VoxelModel model;
+  dvx::CutState cut;
+  dvx::PbdState pbd;
+};
+
+// Voxelizes `mesh` at `resolution`, builds the uncut state and the PBD model at `sim_resolution`.
+inline void make_pbd_scene(PbdScene& scene, const dvx::TriMesh& mesh, int resolution, int sim_resolution,
+                           dvx::PbdParams params) {
+  scene.model = voxelized(mesh, resolution);
+  dvx::init_cut_state(scene.model, scene.cut);
+  params.resolution = resolution;
+  params.sim_resolution = sim_resolution;
+  std::string error;
+  REQUIRE_MESSAGE(dvx::init_pbd(scene.model, scene.cut, params, scene.pbd, error), error);
 }
 
 // Moves the blade from `from` to `to` in `steps` equal cut steps, calling after(step) after each.

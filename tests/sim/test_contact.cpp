@@ -8,6 +8,8 @@
 #include "sim/state_hash.h"
 #include "sim/voxelize.h"
 
+#include "fixtures.h"
+
 #include <doctest/doctest.h>
 
 #include <cmath>
@@ -17,23 +19,10 @@ using namespace dvx;
 
 namespace {
 
-struct Scene {
-  VoxelModel model;
-  CutState cut;
-  PbdState pbd;
-};
+using Scene = dvx_test::PbdScene;
 
 // A mesh voxelized at resolution 32 (over its longest axis), sim resolution 8.
-void make_scene(Scene& s, const TriMesh& mesh, PbdParams params) {
-  VoxelizeParams vp;
-  vp.resolution = 32;
-  std::string error;
-  REQUIRE(voxelize(mesh, vp, s.model, error));
-  init_cut_state(s.model, s.cut);
-  params.resolution = 32;
-  params.sim_resolution = 8;
-  REQUIRE_MESSAGE(init_pbd(s.model, s.cut, params, s.pbd, error), error);
-}
+void make_scene(Scene& s, const TriMesh& mesh, PbdParams params) { dvx_test::make_pbd_scene(s, mesh, 32, 8, params); }
 
 // A box (half extents `half`, rotated by `rotation` about `centre`).
 void make_scene(Scene& s, const Vec3d& centre, const Vec3d& half, const Eigen::Matrix3d& rotation, PbdParams params) {

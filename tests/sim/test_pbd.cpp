@@ -8,6 +8,8 @@
 #include "sim/voxelize.h"
 #include "sim/world_to_rest.h"
 
+#include "fixtures.h"
+
 #include <doctest/doctest.h>
 
 #include <cmath>
@@ -18,22 +20,11 @@ using namespace dvx;
 namespace {
 
 // A block 1 x 2 x 1 (y up), centred at the origin.
-struct Scene {
-  VoxelModel model;
-  CutState cut;
-  PbdState pbd;
-};
+using Scene = dvx_test::PbdScene;
 
 void make_scene(Scene& scene, int resolution, int sim_resolution, PbdParams params, double half_y = 1.0) {
   const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, half_y, 0.5), Eigen::Matrix3d::Identity(), 1);
-  VoxelizeParams vp;
-  vp.resolution = resolution;
-  std::string error;
-  REQUIRE(voxelize(box, vp, scene.model, error));
-  init_cut_state(scene.model, scene.cut);
-  params.resolution = resolution;
-  params.sim_resolution = sim_resolution;
-  REQUIRE_MESSAGE(init_pbd(scene.model, scene.cut, params, scene.pbd, error), error);
+  dvx_test::make_pbd_scene(scene, box, resolution, sim_resolution, params);
 }
 
 // Anchors the particles at the top of the block (rest y above `y`).

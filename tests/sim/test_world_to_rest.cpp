@@ -7,6 +7,8 @@
 #include "sim/voxelize.h"
 #include "sim/world_to_rest.h"
 
+#include "fixtures.h"
+
 #include <doctest/doctest.h>
 
 #include <algorithm>
@@ -16,22 +18,12 @@ using namespace dvx;
 
 namespace {
 
-struct Body {
-  VoxelModel model;
-  CutState cut;
-  PbdState pbd;
+struct Body : dvx_test::PbdScene {
   SweepMapper sweep;
 };
 
 void make_body(Body& b, const TriMesh& mesh, int resolution, int sim_resolution, PbdParams params) {
-  VoxelizeParams vp;
-  vp.resolution = resolution;
-  std::string error;
-  REQUIRE(voxelize(mesh, vp, b.model, error));
-  init_cut_state(b.model, b.cut);
-  params.resolution = resolution;
-  params.sim_resolution = sim_resolution;
-  REQUIRE_MESSAGE(init_pbd(b.model, b.cut, params, b.pbd, error), error);
+  dvx_test::make_pbd_scene(b, mesh, resolution, sim_resolution, params);
 }
 
 Aabb box_of(const Vec3d& lo, const Vec3d& hi) {
