@@ -57,6 +57,11 @@ TEST_SUITE("stress") {
     params.sim_resolution = 8;
     params.stretch_compliance = 1e-5;
     params.iterations = 5;
+    // Contact between pieces is off here: with no tray, the hundreds of random pieces fall together
+    // and pair thousands of surface vertices every iteration, which makes 20 000 steps take minutes.
+    // This test is about the stability of cutting and the PBD model; contact has its own tests
+    // (tests/sim/test_contact.cpp) and its cost is measured from replays.
+    params.piece_contact = false;
     Aabb anchor = box;  // anchored along its -x end
     anchor.min -= Vec3d::Constant(1.0);
     anchor.max.x() = box.min.x() + 0.15 * box.extent().x();
