@@ -74,12 +74,6 @@ std::string image_line(const std::string& title, const std::string& link_dir, co
   return "![" + title + "](" + link_dir + "/" + name + ")\n";
 }
 
-// Writes a plot beside the CSVs and returns the Markdown image line.
-std::string plot_file(const fs::path& results, const std::string& link_dir, const std::string& name, const Plot& plot) {
-  std::string error;
-  return image_line(plot.title, link_dir, draw_into(results, name, plot, error), error);
-}
-
 PlotSeries series(const std::string& name, bool markers, bool lines) {
   PlotSeries s;
   s.name = name;
@@ -198,6 +192,358 @@ Plot deform_plot(const json& r) {
   return plot;
 }
 
+
+// The results a report reads: each file read once, on first use (null when it does not exist).
+struct Results {
+  fs::path dir;      // the results folder (plots are drawn into it)
+  std::string link;  // the results folder relative to the report (for links and images)
+  std::map<std::string, json> files;
+
+  const json& read(const std::string& name) {
+    auto it = files.find(name);
+    if (it == files.end()) it = files.emplace(name, read_results(dir, name)).first;
+    return it->second;
+  }
+  // Draws `plot` into the results folder and returns its Markdown image line (`title`: the image's
+  // name in the text, default the plot's title).
+  std::string plot(const std::string& name, const Plot& plot, const std::string& title = "") const {
+    std::string error;
+    return image_line(title.empty() ? plot.title : title, link, draw_into(dir, name, plot, error), error);
+  }
+};
+
+// Experiment 1 (paper Table 1, Fig. 8): time per cutting step with the physics, memory, plot.
+void scaling_section(Results& in, std::ostream& md, std::ostream& head) {
+  const json& scaling = in.read("bench_scaling.json");
+  if (scaling.is_null()) return;
+  md << "## 1. Scaling with resolution (paper Table 1, Fig. 8)\n\n"
+     << "The same horizontal cut (scene units) through each mesh, " << scaling["steps"].get<int>()
+     << " blade poses, physics on (PBD at the simulation resolution shown, anchored on the lowest 20 %, gravity). "
+        "Times are per step whose sweep cut voxels: p50 / p99 in ms. Memory: peak RSS of the process for that "
+        "configuration; bytes per occupied voxel counts the voxel model and the explicit cut data.\n\n"
+     << "| mesh | res | lattice | occupied voxels | cut | surface | deform | total | peak RSS | B/occ. voxel | "
+        "triangles | status |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  std::map<std::string, PlotSeries> total_series;
+  for (const json& r : scaling["rows"]) {
+    const std::string mesh = r["mesh"];
+    if (r["status"] != "ok") {
+      md << "| " << mesh << " | " << r["resolution"] << " | | | | | | | | | | " << r["status"].get<std::string>()
+         << " |\n";
+      continue;
+    }
+    const json& t = r["step_ms"];
+    auto cell = [&](const char* k) { return num(get(t[k], "p50")) + " / " + num(get(t[k], "p99")); };
+    md << "| " << mesh << " | " << r["resolution"] << " | " << r["lattice"][0] << "×" << r["lattice"][1] << "×"
+       << r["lattice"][2] << " | " << r["occupied_voxels"] << " | " << cell("cut") << " | " << cell("surface")
+       << " | " << cell("deform") << " | " << cell("total") << " | " << mib(get(r, "peak_rss_bytes")) << " | "
+       << num(get(r, "bytes_per_occupied_voxel")) << " | " << r["surface_triangles"] << " | ok |\n";
+    PlotSeries& s = total_series[mesh];
+    s.name = mesh;
+    s.x.push_back(get(r, "occupied_voxels"));
+    s.y.push_back(get(t["total"], "p50"));
+    s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
+    if (mesh.rfind("armadillo", 0) == 0 && r["resolution"] == 256) {
+      head << "- **Cutting with physics**, armadillo at 256 (" << r["occupied_voxels"]
+           << " occupied voxels): " << cell("total") << " ms per cutting step with the physics (p50 / p99; cutting, including the simulation model's update, + surface "
+           << num(get(t["cut"], "p99") + get(t["surface"], "p99")) << " ms p99), "
+           << num(get(r, "bytes_per_occupied_voxel")) << " B per occupied voxel.\n";
+    }
+  }
+  Plot plot;
+  plot.title = "Experiment 1: time per cutting step (cut + surface + deform, p50) against model size";
+  plot.subtitle = measured_on(scaling, "points labelled with the resolution, physics on");
+  plot.x_label = "occupied voxels";
+  plot.y_label = "ms per cutting step (p50)";
+  plot.log_x = plot.log_y = true;
+  for (auto& [name, s] : total_series) plot.series.push_back(s);
+  plot.lines.push_back({33.0, "frame budget 33 ms", "#b03030", 1, true, false});
+  md << "\n" << in.plot("report_scaling.svg", plot) << "\n";
+}
+
+// Experiment 2 (paper Fig. 9-10): time against cut voxels, the least-squares fits and their plot.
+void cut_length_section(Results& in, std::ostream& md, std::ostream& head) {
+  const json& length = in.read("bench_cut_length.json");
+  if (length.is_null()) return;
+  const json& one = length["single_step"]["fit"];
+  const json& prog = length["progressive"]["fit"];
+  md << "## 2. Time against cut voxels (paper Fig. 9–10)\n\n"
+     << length["mesh"].get<std::string>() << " at " << length["resolution"]
+     << ", no physics. *One step per length*: cuts of 1/10 … 10/10 of the path, each made in one step on a "
+        "fresh model; *progressive*: each step of a " << length["progressive"]["steps"]
+     << "-step cut. Least-squares lines (time = intercept + slope × voxels):\n\n"
+     << "| samples | slope (µs per cut voxel) | intercept (ms) | R² |\n|---|---|---|---|\n"
+     << "| one step per length | " << num(get(one, "us_per_voxel")) << " | " << num(get(one, "intercept_ms")) << " | "
+     << num(get(one, "r2"), 4) << " |\n"
+     << "| progressive steps | " << num(get(prog, "us_per_voxel")) << " | " << num(get(prog, "intercept_ms"))
+     << " | " << num(get(prog, "r2"), 4) << " |\n\n"
+     << in.plot("bench_cut_length.svg", cut_length_plot(length), "Experiment 2")
+     << "\n";
+  head << "- **Cost is linear in the cut voxels**: " << num(get(one, "us_per_voxel")) << " µs per cut voxel (R² "
+       << num(get(one, "r2"), 4) << ") for one-step cuts of growing length on " << length["mesh"].get<std::string>()
+       << " at " << length["resolution"] << ".\n";
+}
+
+// Section 3's heading, above its surface and physics parts (when either ran).
+void speed_error_heading(Results& in, std::ostream& md, std::ostream&) {
+  if (!in.read("bench_voxelize.json").is_null() || !in.read("bench_deform.json").is_null()) {
+    md << "## 3. Speed against error\n\n";
+  }
+}
+
+// Section 3, surface: voxelize + dual contouring, time against error (with OpenVDB's points when it ran).
+void surface_section(Results& in, std::ostream& md, std::ostream&) {
+  const json& voxelize = in.read("bench_voxelize.json");
+  const json& vdb = in.read("peers_vdb.json");
+  if (voxelize.is_null()) return;
+  md << "### Surface: voxelize + dual contouring against resolution\n\n"
+     << "Error: two-sided sampled distance between the dual-contoured surface and the input mesh, in voxels "
+        "(mean / max), " << voxelize.value("error_samples", 0) << " samples per side. Time: load excluded "
+        "(voxelize + contour, median).\n\n"
+     << "| mesh | res | voxelize + contour ms | error mean | error max | error mean (scene units) | triangles |\n"
+        "|---|---|---|---|---|---|---|\n";
+  std::map<std::string, PlotSeries> by_mesh;
+  const Scene defaults;
+  PlotSeries chosen = chosen_series("scene default (resolution " + std::to_string(defaults.resolution) + ")");
+  for (const json& r : voxelize["rows"]) {
+    if (r["status"] != "ok" || !r.contains("error_voxels")) continue;
+    const double ms = get(r["time_ms"], "voxelize") + get(r["time_ms"], "contour");
+    const double h = get(r, "voxel_size"), mean = get(r["error_voxels"], "mean");
+    md << "| " << r["mesh"].get<std::string>() << " | " << r["resolution"] << " | " << num(ms) << " | " << num(mean)
+       << " | " << num(get(r["error_voxels"], "max")) << " | " << num(mean * h) << " | " << r["surface_triangles"]
+       << " |\n";
+    PlotSeries& s = by_mesh.try_emplace(r["mesh"].get<std::string>(), series("divvox " + r["mesh"].get<std::string>(), true, true)).first->second;
+    s.x.push_back(ms);
+    s.y.push_back(mean / get(r, "resolution"));  // voxels over voxels per longest side
+    s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
+    if (r["resolution"] == defaults.resolution) {
+      chosen.x.push_back(ms);
+      chosen.y.push_back(s.y.back());
+    }
+  }
+  Plot plot;
+  plot.title = "Surface extraction: time against error (voxelize + dual contouring)";
+  plot.subtitle = measured_on(voxelize, "points labelled with the resolution");
+  plot.x_label = "voxelize + contour time, median (ms)";
+  plot.y_label = "mean error / longest side of the mesh";
+  plot.log_x = plot.log_y = true;
+  // The Pareto front of each mesh (with OpenVDB's points on its mesh), under the curves.
+  const std::string peer_mesh = vdb.is_object() ? vdb.value("mesh", std::string()) : std::string();
+  PlotSeries peer = series("OpenVDB " + peer_mesh, true, true);
+  peer.colour = "#555555";
+  peer.point_type = 5;
+  if (!vdb.is_null() && vdb.value("status", "") == "ok") {
+    for (const json& r : vdb["rows"]) {
+      peer.x.push_back(get(r, "total_ms"));
+      peer.y.push_back(get(r["error"], "mean") / get(r, "resolution"));
+      peer.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
+    }
+  }
+  for (auto& [mesh, s] : by_mesh) {
+    std::vector<double> x = s.x, y = s.y;
+    if (mesh == peer_mesh) {
+      x.insert(x.end(), peer.x.begin(), peer.x.end());
+      y.insert(y.end(), peer.y.begin(), peer.y.end());
+    }
+    plot.series.push_back(front_series(plot.series.empty() ? "Pareto front (per mesh)" : "", x, y));
+  }
+  for (auto& [mesh, s] : by_mesh) plot.series.push_back(s);
+  if (!peer.x.empty()) plot.series.push_back(peer);
+  if (!chosen.x.empty()) plot.series.push_back(chosen);
+  md << "\n" << in.plot("report_surface_pareto.svg", plot) << "\n";
+}
+
+// Section 3, physics: the Pareto-optimal simulation resolution x iterations, their plot, the speed target.
+void deform_section(Results& in, std::ostream& md, std::ostream&) {
+  const json& deform = in.read("bench_deform.json");
+  if (deform.is_null()) return;
+  md << "### Physics: simulation resolution × iterations\n\n"
+     << deform["mesh"].get<std::string>() << " at " << deform["resolution"] << ", anchored on one side under gravity, "
+     << num(get(deform, "seconds")) << " s simulated, " << deform["workers"] << " workers. Error: "
+     << deform["error"].get<std::string>() << ". The Pareto-optimal settings (no other setting is both faster and "
+        "more accurate; the reference run itself, error 0 by definition, left out). PBD's shape matching stiffens with "
+        "iterations and with coarser simulation voxels, so at coarse levels the error need not fall with iterations: "
+        "it includes the coarse model's own error, not only the solver's.\n\n| scenario | sim res | iterations | step p50 ms | error |\n|---|---|---|---|---|\n";
+  for (const char* scenario : {"anchored", "through_cut"}) {
+    std::vector<const json*> rows;
+    for (const json& r : deform["rows"]) {
+      if (r["scenario"] == scenario && get(r, "relative_error") > 0.0) rows.push_back(&r);
+    }
+    for (const json* r : rows) {
+      bool dominated = false;
+      for (const json* o : rows) {
+        dominated = dominated || (get(*o, "step_p50_ms") < get(*r, "step_p50_ms") &&
+                                  get(*o, "relative_error") <= get(*r, "relative_error"));
+      }
+      if (dominated) continue;
+      md << "| " << scenario << " | " << (*r)["sim_resolution"] << " | " << (*r)["iterations"] << " | "
+         << num(get(*r, "step_p50_ms")) << " | " << num(get(*r, "relative_error")) << " |\n";
+    }
+  }
+  md << "\n"
+     << in.plot("bench_deform.svg", deform_plot(deform), "physics speed against error")
+     << "\n";
+  const json& target = deform["target"];
+  if (target.is_object()) {
+    md << "Speed target: " << target["mesh"].get<std::string>() << " at " << target["resolution"] << " ("
+       << target["surface_vertices"] << " surface vertices), simulation " << target["sim_resolution"] << ", "
+       << target["iterations"] << " iterations, " << target["workers"] << " workers: PBD + embedding "
+       << num(get(target["step_ms"], "p50")) << " ms p50, " << num(get(target["step_ms"], "p99")) << " ms p99 per step.\n\n";
+  }
+}
+
+// Section 4 (paper Fig. 13): cut-surface angles against CGAL clip (when tools/peers ran), histograms.
+void quality_section(Results& in, std::ostream& md, std::ostream& head) {
+  const json& quality = in.read("bench_quality.json");
+  const json& clip = in.read("peers_clip.json");
+  if (quality.is_null()) return;
+  md << "## 4. Cut-surface mesh quality (paper Fig. 13)\n\n"
+     << quality["mesh"].get<std::string>() << ", cut through by the plane y = "
+     << num(quality["plane"]["point"][1].get<double>(), 5) << " (normal +y). divvox: the triangles on the cut faces "
+        "after the through-cut; CGAL: `Polygon_mesh_processing::clip` of the input mesh by the same plane, both "
+        "sides, with the cap closed (`clip_volume`); its cut surface is the cap plus the input triangles the plane "
+        "split.\n\n| method | triangles | min angle | mean min angle | θmin ≤ 10° | θmax ≥ 160° | time ms |\n"
+        "|---|---|---|---|---|---|---|\n";
+  auto row = [&](const std::string& name, const json& a, const std::string& time) {
+    md << "| " << name << " | " << a["triangles"] << " | " << num(get(a, "min_angle_deg")) << "° | "
+       << num(get(a, "mean_min_angle_deg")) << "° | " << pct(get(a, "fraction_min_le_10")) << " | "
+       << pct(get(a, "fraction_max_ge_160")) << " | " << time << " |\n";
+  };
+  Plot min_plot, max_plot;
+  for (Plot* p : {&min_plot, &max_plot}) {
+    const bool min = p == &min_plot;
+    p->title = std::string("Cut surface quality: the ") + (min ? "smallest" : "largest") + " angle of each triangle";
+    p->subtitle = measured_on(quality, quality["mesh"].get<std::string>() + " cut by a plane; 5-degree bins");
+    p->x_label = std::string(min ? "smallest" : "largest") + " angle (degrees)";
+    p->y_label = "fraction of the cut triangles";
+    p->x_lo = min ? 0.0 : 60.0;  // a triangle's smallest angle is at most 60°, its largest at least 60°
+    p->x_hi = min ? 60.0 : 180.0;
+  }
+  for (const json& r : quality["rows"]) {
+    const json& a = r["angles"]["cut_surface"];
+    const std::string name = "divvox " + std::to_string(r["resolution"].get<int>());
+    row(name, a, num(get(r, "one_step_ms")) + " (one step), " + num(get(r, "progressive_ms")) + " (" +
+                     std::to_string(quality["steps"].get<int>()) + " steps)");
+    min_plot.series.push_back(histogram_series(name, a, "min_angle_histogram"));
+    max_plot.series.push_back(histogram_series(name, a, "max_angle_histogram"));
+  }
+  if (!clip.is_null() && clip.value("status", "") == "ok") {
+    const json& a = clip["angles"];
+    row("CGAL clip: cap + split", a["cut_surface"], num(get(clip, "clip_both_ms")) + " (both sides)");
+    row("CGAL clip: cap only", a["cap"], "");
+    min_plot.series.push_back(histogram_series("CGAL clip", a["cut_surface"], "min_angle_histogram"));
+    max_plot.series.push_back(histogram_series("CGAL clip", a["cut_surface"], "max_angle_histogram"));
+    // The headline compares CGAL with divvox at the finest resolution measured.
+    const json& finest = quality["rows"].back();
+    const json& ours = finest["angles"]["cut_surface"];
+    head << "- **Cut-surface quality against CGAL clip** (" << quality["mesh"].get<std::string>() << "): "
+         << pct(get(ours, "fraction_min_le_10")) << " of divvox's cut triangles have θmin ≤ 10° (at "
+         << finest["resolution"] << ") against " << pct(get(a["cut_surface"], "fraction_min_le_10"))
+         << " for CGAL; the one-step cut takes " << num(get(finest, "one_step_ms")) << " ms against CGAL's "
+         << num(get(clip, "clip_both_ms")) << " ms (" << num(get(clip, "clip_both_ms") / get(finest, "one_step_ms"))
+         << "× faster), and divvox's cut is progressive and keeps the simulation's voxels.\n";
+  } else {
+    md << "| CGAL clip | not measured (build with -DDIVVOX_BENCH_PEERS=ON) | | | | | |\n";
+  }
+  row("input mesh (all triangles)", quality["input_angles"], "");
+  md << "\n" << in.plot("report_quality_min_angle.svg", min_plot)
+     << in.plot("report_quality_max_angle.svg", max_plot) << "\n";
+}
+
+// Section 5: static surface extraction against OpenVDB (when tools/peers ran).
+void vdb_section(Results& in, std::ostream& md, std::ostream& head) {
+  const json& vdb = in.read("peers_vdb.json");
+  const json& voxelize = in.read("bench_voxelize.json");
+  if (vdb.is_null() || vdb.value("status", "") != "ok" || voxelize.is_null()) return;
+  md << "## 5. Static surface extraction against OpenVDB\n\n"
+     << "Same mesh, same voxel size. divvox: exact ray-parity voxelization + dual contouring (1 thread); OpenVDB "
+     << vdb.value("openvdb_version", std::string()) << ": `meshToLevelSet` (half width 3) + `volumeToMesh` "
+     << "(adaptivity 0), " << vdb.value("threads", 0) << " thread(s). Error in voxels (two-sided, mean / max).\n\n"
+     << "| res | divvox ms | OpenVDB ms | time ratio (OpenVDB / divvox) | divvox error | OpenVDB error | divvox "
+        "triangles | OpenVDB triangles |\n|---|---|---|---|---|---|---|---|\n";
+  const std::string mesh = vdb.value("mesh", std::string());
+  for (const json& v : vdb["rows"]) {
+    for (const json& d : voxelize["rows"]) {
+      if (d["mesh"] != mesh || d["resolution"] != v["resolution"] || d["status"] != "ok") continue;
+      const double ours = get(d["time_ms"], "voxelize") + get(d["time_ms"], "contour");
+      md << "| " << v["resolution"] << " | " << num(ours) << " | " << num(get(v, "total_ms")) << " | "
+         << num(get(v, "total_ms") / ours) << " | " << num(get(d["error_voxels"], "mean")) << " / "
+         << num(get(d["error_voxels"], "max")) << " | " << num(get(v["error"], "mean")) << " / "
+         << num(get(v["error"], "max")) << " | " << d["surface_triangles"] << " | " << v["output_triangles"] << " |\n";
+      if (v["resolution"] == 256) {
+        head << "- **Against OpenVDB** (" << mesh << " at 256): voxelize + contour " << num(ours) << " ms against "
+             << num(get(v, "total_ms")) << " ms for meshToLevelSet + volumeToMesh (" << num(get(v, "total_ms") / ours)
+             << "×), mean error " << num(get(d["error_voxels"], "mean")) << " against "
+             << num(get(v["error"], "mean")) << " voxel.\n";
+      }
+    }
+  }
+  md << "\n";
+}
+
+// Section 6: determinism and throughput of headless replay (and the replay's timings plot).
+void replay_section(Results& in, std::ostream& md, std::ostream& head) {
+  const json& replay = in.read("bench_replay.json");
+  if (replay.is_null()) return;
+  md << "## 6. Determinism and throughput of headless replay\n\n"
+     << "Each shipped recording replayed with physics (no frames) several times with 1 and with 2 workers. "
+        "Deterministic: every run's final state hash agrees and every hash recorded in the file matched.\n\n"
+     << "| recording | workers | runs | steps | wall s (median) | × real time (median) | step p99 ms | "
+        "deterministic |\n|---|---|---|---|---|---|---|---|\n";
+  for (const json& r : replay["rows"]) {
+    std::map<int, std::vector<const json*>> by_workers;
+    for (const json& run : r["runs"]) by_workers[run["workers"].get<int>()].push_back(&run);
+    for (auto& [workers, runs] : by_workers) {
+      std::vector<double> wall, factor, p99;
+      for (const json* run : runs) {
+        wall.push_back(get(*run, "wall_s"));
+        factor.push_back(get(*run, "realtime_factor"));
+        p99.push_back(get((*run)["step_ms"], "p99"));
+      }
+      std::sort(wall.begin(), wall.end());
+      std::sort(factor.begin(), factor.end());
+      std::sort(p99.begin(), p99.end());
+      md << "| " << r["recording"].get<std::string>() << " | " << workers << " | " << runs.size() << " | "
+         << (*runs[0])["steps"] << " | " << num(wall[wall.size() / 2]) << " | " << num(factor[factor.size() / 2])
+         << " | " << num(p99[p99.size() / 2]) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
+         << " |\n";
+      if (workers == 1 && r["recording"] == "bunny_cut.jsonl") {
+        head << "- **Replay** of the default recording: " << num(factor[factor.size() / 2])
+             << "× real time with physics, " << (replay["deterministic"].get<bool>() ? "bit-identical" : "NOT identical")
+             << " across runs and worker counts.\n";
+      }
+    }
+  }
+  md << "\n";
+  if (fs::exists(in.dir / "replay_timings.svg")) {
+    md << "The default recording replayed as `tools/run.sh` does (frames every 10 steps on the render thread where "
+          "EGL works), "
+          "its `timings.svg`:\n\n![replay timings](" << in.link << "/replay_timings.svg)\n\n";
+  }
+}
+
+// Cutting alone (no physics): the step-time targets.
+void cut_section(Results& in, std::ostream& md, std::ostream&) {
+  const json& cut = in.read("bench_cut.json");
+  if (cut.is_null()) return;
+  md << "## Cutting alone (no physics)\n\n" << cut["mesh"].get<std::string>() << ", " << cut["steps"]
+     << " blade poses, median of " << cut["repeats"] << " repeats per step.\n\n"
+     << "| res | occupied voxels | step p50 ms | step p99 ms | µs per cut voxel | µs per newly divided voxel | "
+        "explicit B per divided voxel |\n|---|---|---|---|---|---|---|\n";
+  for (const json& r : cut["rows"]) {
+    md << "| " << r["resolution"] << " | " << r["occupied_voxels"] << " | " << num(get(r["step_ms"], "p50")) << " | "
+       << num(get(r["step_ms"], "p99")) << " | " << num(get(r, "us_per_cut_voxel")) << " | "
+       << num(get(r, "us_per_newly_divided_voxel")) << " | " << num(get(r, "bytes_per_divided_voxel")) << " |\n";
+  }
+  md << "\n";
+}
+// The report's sections in order. Each reads its own results (Results::read) and writes nothing when
+// they are absent; a new benchmark's section is one function above and one entry here.
+using Section = void (*)(Results& in, std::ostream& md, std::ostream& head);
+constexpr Section report_sections[] = {
+    scaling_section, cut_length_section, speed_error_heading, surface_section, deform_section,
+    quality_section, vdb_section,        replay_section,      cut_section,
+};
+
 }  // namespace
 
 std::string draw_bench_plot(const json& results, const std::string& dir, std::string& error) {
@@ -209,337 +555,28 @@ std::string draw_bench_plot(const json& results, const std::string& dir, std::st
 }
 
 std::string bench_report(const BenchReportOptions& options) {
-  const fs::path results(options.results_dir), report(options.report_path);
-  if (!fs::is_directory(results)) throw_input(results.string(), "no such results folder (run the benchmarks first)");
+  const fs::path report(options.report_path);
+  Results in;
+  in.dir = options.results_dir;
+  if (!fs::is_directory(in.dir)) throw_input(in.dir.string(), "no such results folder (run the benchmarks first)");
   const fs::path report_dir = report.parent_path().empty() ? fs::path(".") : report.parent_path();
   make_output_dir(report_dir.string());
-  const std::string link = fs::relative(fs::absolute(results), fs::absolute(report_dir)).generic_string();
-
-  const json scaling = read_results(results, "bench_scaling.json");
-  const json length = read_results(results, "bench_cut_length.json");
-  const json voxelize = read_results(results, "bench_voxelize.json");
-  const json deform = read_results(results, "bench_deform.json");
-  const json quality = read_results(results, "bench_quality.json");
-  const json clip = read_results(results, "peers_clip.json");
-  const json vdb = read_results(results, "peers_vdb.json");
-  const json replay = read_results(results, "bench_replay.json");
-  const json cut = read_results(results, "bench_cut.json");
+  in.link = fs::relative(fs::absolute(in.dir), fs::absolute(report_dir)).generic_string();
 
   std::ostringstream md, head;
-  std::string plot_error;
+  for (Section section : report_sections) section(in, md, head);
+
   const std::time_t now = std::time(nullptr);
   char date[32];
   std::strftime(date, sizeof date, "%Y-%m-%d %H:%M", std::localtime(&now));
-
-  // ---- Experiment 1 -------------------------------------------------------------------------
-  if (!scaling.is_null()) {
-    md << "## 1. Scaling with resolution (paper Table 1, Fig. 8)\n\n"
-       << "The same horizontal cut (scene units) through each mesh, " << scaling["steps"].get<int>()
-       << " blade poses, physics on (PBD at the simulation resolution shown, anchored on the lowest 20 %, gravity). "
-          "Times are per step whose sweep cut voxels: p50 / p99 in ms. Memory: peak RSS of the process for that "
-          "configuration; bytes per occupied voxel counts the voxel model and the explicit cut data.\n\n"
-       << "| mesh | res | lattice | occupied voxels | cut | surface | deform | total | peak RSS | B/occ. voxel | "
-          "triangles | status |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
-    std::map<std::string, PlotSeries> total_series;
-    for (const json& r : scaling["rows"]) {
-      const std::string mesh = r["mesh"];
-      if (r["status"] != "ok") {
-        md << "| " << mesh << " | " << r["resolution"] << " | | | | | | | | | | " << r["status"].get<std::string>()
-           << " |\n";
-        continue;
-      }
-      const json& t = r["step_ms"];
-      auto cell = [&](const char* k) { return num(get(t[k], "p50")) + " / " + num(get(t[k], "p99")); };
-      md << "| " << mesh << " | " << r["resolution"] << " | " << r["lattice"][0] << "×" << r["lattice"][1] << "×"
-         << r["lattice"][2] << " | " << r["occupied_voxels"] << " | " << cell("cut") << " | " << cell("surface")
-         << " | " << cell("deform") << " | " << cell("total") << " | " << mib(get(r, "peak_rss_bytes")) << " | "
-         << num(get(r, "bytes_per_occupied_voxel")) << " | " << r["surface_triangles"] << " | ok |\n";
-      PlotSeries& s = total_series[mesh];
-      s.name = mesh;
-      s.x.push_back(get(r, "occupied_voxels"));
-      s.y.push_back(get(t["total"], "p50"));
-      s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
-      if (mesh.rfind("armadillo", 0) == 0 && r["resolution"] == 256) {
-        head << "- **Cutting with physics**, armadillo at 256 (" << r["occupied_voxels"]
-             << " occupied voxels): " << cell("total") << " ms per cutting step with the physics (p50 / p99; cutting, including the simulation model's update, + surface "
-             << num(get(t["cut"], "p99") + get(t["surface"], "p99")) << " ms p99), "
-             << num(get(r, "bytes_per_occupied_voxel")) << " B per occupied voxel.\n";
-      }
-    }
-    Plot plot;
-    plot.title = "Experiment 1: time per cutting step (cut + surface + deform, p50) against model size";
-    plot.subtitle = measured_on(scaling, "points labelled with the resolution, physics on");
-    plot.x_label = "occupied voxels";
-    plot.y_label = "ms per cutting step (p50)";
-    plot.log_x = plot.log_y = true;
-    for (auto& [name, s] : total_series) plot.series.push_back(s);
-    plot.lines.push_back({33.0, "frame budget 33 ms", "#b03030", 1, true, false});
-    md << "\n" << plot_file(results, link, "report_scaling.svg", plot) << "\n";
-  }
-
-  // ---- Experiment 2 -------------------------------------------------------------------------
-  if (!length.is_null()) {
-    const json& one = length["single_step"]["fit"];
-    const json& prog = length["progressive"]["fit"];
-    md << "## 2. Time against cut voxels (paper Fig. 9–10)\n\n"
-       << length["mesh"].get<std::string>() << " at " << length["resolution"]
-       << ", no physics. *One step per length*: cuts of 1/10 … 10/10 of the path, each made in one step on a "
-          "fresh model; *progressive*: each step of a " << length["progressive"]["steps"]
-       << "-step cut. Least-squares lines (time = intercept + slope × voxels):\n\n"
-       << "| samples | slope (µs per cut voxel) | intercept (ms) | R² |\n|---|---|---|---|\n"
-       << "| one step per length | " << num(get(one, "us_per_voxel")) << " | " << num(get(one, "intercept_ms")) << " | "
-       << num(get(one, "r2"), 4) << " |\n"
-       << "| progressive steps | " << num(get(prog, "us_per_voxel")) << " | " << num(get(prog, "intercept_ms"))
-       << " | " << num(get(prog, "r2"), 4) << " |\n\n"
-       << image_line("Experiment 2", link, draw_into(results, "bench_cut_length.svg", cut_length_plot(length), plot_error),
-                     plot_error)
-       << "\n";
-    head << "- **Cost is linear in the cut voxels**: " << num(get(one, "us_per_voxel")) << " µs per cut voxel (R² "
-         << num(get(one, "r2"), 4) << ") for one-step cuts of growing length on " << length["mesh"].get<std::string>()
-         << " at " << length["resolution"] << ".\n";
-  }
-
-  // ---- Speed against error ------------------------------------------------------------------
-  if (!voxelize.is_null() || !deform.is_null()) {
-    md << "## 3. Speed against error\n\n";
-  }
-  if (!voxelize.is_null()) {
-    md << "### Surface: voxelize + dual contouring against resolution\n\n"
-       << "Error: two-sided sampled distance between the dual-contoured surface and the input mesh, in voxels "
-          "(mean / max), " << voxelize.value("error_samples", 0) << " samples per side. Time: load excluded "
-          "(voxelize + contour, median).\n\n"
-       << "| mesh | res | voxelize + contour ms | error mean | error max | error mean (scene units) | triangles |\n"
-          "|---|---|---|---|---|---|---|\n";
-    std::map<std::string, PlotSeries> by_mesh;
-    const Scene defaults;
-    PlotSeries chosen = chosen_series("scene default (resolution " + std::to_string(defaults.resolution) + ")");
-    for (const json& r : voxelize["rows"]) {
-      if (r["status"] != "ok" || !r.contains("error_voxels")) continue;
-      const double ms = get(r["time_ms"], "voxelize") + get(r["time_ms"], "contour");
-      const double h = get(r, "voxel_size"), mean = get(r["error_voxels"], "mean");
-      md << "| " << r["mesh"].get<std::string>() << " | " << r["resolution"] << " | " << num(ms) << " | " << num(mean)
-         << " | " << num(get(r["error_voxels"], "max")) << " | " << num(mean * h) << " | " << r["surface_triangles"]
-         << " |\n";
-      PlotSeries& s = by_mesh.try_emplace(r["mesh"].get<std::string>(), series("divvox " + r["mesh"].get<std::string>(), true, true)).first->second;
-      s.x.push_back(ms);
-      s.y.push_back(mean / get(r, "resolution"));  // voxels over voxels per longest side
-      s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
-      if (r["resolution"] == defaults.resolution) {
-        chosen.x.push_back(ms);
-        chosen.y.push_back(s.y.back());
-      }
-    }
-    Plot plot;
-    plot.title = "Surface extraction: time against error (voxelize + dual contouring)";
-    plot.subtitle = measured_on(voxelize, "points labelled with the resolution");
-    plot.x_label = "voxelize + contour time, median (ms)";
-    plot.y_label = "mean error / longest side of the mesh";
-    plot.log_x = plot.log_y = true;
-    // The Pareto front of each mesh (with OpenVDB's points on its mesh), under the curves.
-    const std::string peer_mesh = vdb.is_object() ? vdb.value("mesh", std::string()) : std::string();
-    PlotSeries peer = series("OpenVDB " + peer_mesh, true, true);
-    peer.colour = "#555555";
-    peer.point_type = 5;
-    if (!vdb.is_null() && vdb.value("status", "") == "ok") {
-      for (const json& r : vdb["rows"]) {
-        peer.x.push_back(get(r, "total_ms"));
-        peer.y.push_back(get(r["error"], "mean") / get(r, "resolution"));
-        peer.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
-      }
-    }
-    for (auto& [mesh, s] : by_mesh) {
-      std::vector<double> x = s.x, y = s.y;
-      if (mesh == peer_mesh) {
-        x.insert(x.end(), peer.x.begin(), peer.x.end());
-        y.insert(y.end(), peer.y.begin(), peer.y.end());
-      }
-      plot.series.push_back(front_series(plot.series.empty() ? "Pareto front (per mesh)" : "", x, y));
-    }
-    for (auto& [mesh, s] : by_mesh) plot.series.push_back(s);
-    if (!peer.x.empty()) plot.series.push_back(peer);
-    if (!chosen.x.empty()) plot.series.push_back(chosen);
-    md << "\n" << plot_file(results, link, "report_surface_pareto.svg", plot) << "\n";
-  }
-  if (!deform.is_null()) {
-    md << "### Physics: simulation resolution × iterations\n\n"
-       << deform["mesh"].get<std::string>() << " at " << deform["resolution"] << ", anchored on one side under gravity, "
-       << num(get(deform, "seconds")) << " s simulated, " << deform["workers"] << " workers. Error: "
-       << deform["error"].get<std::string>() << ". The Pareto-optimal settings (no other setting is both faster and "
-          "more accurate; the reference run itself, error 0 by definition, left out). PBD's shape matching stiffens with "
-          "iterations and with coarser simulation voxels, so at coarse levels the error need not fall with iterations: "
-          "it includes the coarse model's own error, not only the solver's.\n\n| scenario | sim res | iterations | step p50 ms | error |\n|---|---|---|---|---|\n";
-    for (const char* scenario : {"anchored", "through_cut"}) {
-      std::vector<const json*> rows;
-      for (const json& r : deform["rows"]) {
-        if (r["scenario"] == scenario && get(r, "relative_error") > 0.0) rows.push_back(&r);
-      }
-      for (const json* r : rows) {
-        bool dominated = false;
-        for (const json* o : rows) {
-          dominated = dominated || (get(*o, "step_p50_ms") < get(*r, "step_p50_ms") &&
-                                    get(*o, "relative_error") <= get(*r, "relative_error"));
-        }
-        if (dominated) continue;
-        md << "| " << scenario << " | " << (*r)["sim_resolution"] << " | " << (*r)["iterations"] << " | "
-           << num(get(*r, "step_p50_ms")) << " | " << num(get(*r, "relative_error")) << " |\n";
-      }
-    }
-    md << "\n"
-       << image_line("physics speed against error", link, draw_into(results, "bench_deform.svg", deform_plot(deform), plot_error),
-                     plot_error)
-       << "\n";
-    const json& target = deform["target"];
-    if (target.is_object()) {
-      md << "Speed target: " << target["mesh"].get<std::string>() << " at " << target["resolution"] << " ("
-         << target["surface_vertices"] << " surface vertices), simulation " << target["sim_resolution"] << ", "
-         << target["iterations"] << " iterations, " << target["workers"] << " workers: PBD + embedding "
-         << num(get(target["step_ms"], "p50")) << " ms p50, " << num(get(target["step_ms"], "p99")) << " ms p99 per step.\n\n";
-    }
-  }
-
-  // ---- Mesh quality (against CGAL) ---------------------------------------------------------
-  if (!quality.is_null()) {
-    md << "## 4. Cut-surface mesh quality (paper Fig. 13)\n\n"
-       << quality["mesh"].get<std::string>() << ", cut through by the plane y = "
-       << num(quality["plane"]["point"][1].get<double>(), 5) << " (normal +y). divvox: the triangles on the cut faces "
-          "after the through-cut; CGAL: `Polygon_mesh_processing::clip` of the input mesh by the same plane, both "
-          "sides, with the cap closed (`clip_volume`); its cut surface is the cap plus the input triangles the plane "
-          "split.\n\n| method | triangles | min angle | mean min angle | θmin ≤ 10° | θmax ≥ 160° | time ms |\n"
-          "|---|---|---|---|---|---|---|\n";
-    auto row = [&](const std::string& name, const json& a, const std::string& time) {
-      md << "| " << name << " | " << a["triangles"] << " | " << num(get(a, "min_angle_deg")) << "° | "
-         << num(get(a, "mean_min_angle_deg")) << "° | " << pct(get(a, "fraction_min_le_10")) << " | "
-         << pct(get(a, "fraction_max_ge_160")) << " | " << time << " |\n";
-    };
-    Plot min_plot, max_plot;
-    for (Plot* p : {&min_plot, &max_plot}) {
-      const bool min = p == &min_plot;
-      p->title = std::string("Cut surface quality: the ") + (min ? "smallest" : "largest") + " angle of each triangle";
-      p->subtitle = measured_on(quality, quality["mesh"].get<std::string>() + " cut by a plane; 5-degree bins");
-      p->x_label = std::string(min ? "smallest" : "largest") + " angle (degrees)";
-      p->y_label = "fraction of the cut triangles";
-      p->x_lo = min ? 0.0 : 60.0;  // a triangle's smallest angle is at most 60°, its largest at least 60°
-      p->x_hi = min ? 60.0 : 180.0;
-    }
-    for (const json& r : quality["rows"]) {
-      const json& a = r["angles"]["cut_surface"];
-      const std::string name = "divvox " + std::to_string(r["resolution"].get<int>());
-      row(name, a, num(get(r, "one_step_ms")) + " (one step), " + num(get(r, "progressive_ms")) + " (" +
-                       std::to_string(quality["steps"].get<int>()) + " steps)");
-      min_plot.series.push_back(histogram_series(name, a, "min_angle_histogram"));
-      max_plot.series.push_back(histogram_series(name, a, "max_angle_histogram"));
-    }
-    if (!clip.is_null() && clip.value("status", "") == "ok") {
-      const json& a = clip["angles"];
-      row("CGAL clip: cap + split", a["cut_surface"], num(get(clip, "clip_both_ms")) + " (both sides)");
-      row("CGAL clip: cap only", a["cap"], "");
-      min_plot.series.push_back(histogram_series("CGAL clip", a["cut_surface"], "min_angle_histogram"));
-      max_plot.series.push_back(histogram_series("CGAL clip", a["cut_surface"], "max_angle_histogram"));
-      // The headline compares CGAL with divvox at the finest resolution measured.
-      const json& finest = quality["rows"].back();
-      const json& ours = finest["angles"]["cut_surface"];
-      head << "- **Cut-surface quality against CGAL clip** (" << quality["mesh"].get<std::string>() << "): "
-           << pct(get(ours, "fraction_min_le_10")) << " of divvox's cut triangles have θmin ≤ 10° (at "
-           << finest["resolution"] << ") against " << pct(get(a["cut_surface"], "fraction_min_le_10"))
-           << " for CGAL; the one-step cut takes " << num(get(finest, "one_step_ms")) << " ms against CGAL's "
-           << num(get(clip, "clip_both_ms")) << " ms (" << num(get(clip, "clip_both_ms") / get(finest, "one_step_ms"))
-           << "× faster), and divvox's cut is progressive and keeps the simulation's voxels.\n";
-    } else {
-      md << "| CGAL clip | not measured (build with -DDIVVOX_BENCH_PEERS=ON) | | | | | |\n";
-    }
-    row("input mesh (all triangles)", quality["input_angles"], "");
-    md << "\n" << plot_file(results, link, "report_quality_min_angle.svg", min_plot)
-       << plot_file(results, link, "report_quality_max_angle.svg", max_plot) << "\n";
-  }
-
-  // ---- Static surface extraction against OpenVDB -------------------------------------------
-  if (!vdb.is_null() && vdb.value("status", "") == "ok" && !voxelize.is_null()) {
-    md << "## 5. Static surface extraction against OpenVDB\n\n"
-       << "Same mesh, same voxel size. divvox: exact ray-parity voxelization + dual contouring (1 thread); OpenVDB "
-       << vdb.value("openvdb_version", std::string()) << ": `meshToLevelSet` (half width 3) + `volumeToMesh` "
-       << "(adaptivity 0), " << vdb.value("threads", 0) << " thread(s). Error in voxels (two-sided, mean / max).\n\n"
-       << "| res | divvox ms | OpenVDB ms | time ratio (OpenVDB / divvox) | divvox error | OpenVDB error | divvox "
-          "triangles | OpenVDB triangles |\n|---|---|---|---|---|---|---|---|\n";
-    const std::string mesh = vdb.value("mesh", std::string());
-    for (const json& v : vdb["rows"]) {
-      for (const json& d : voxelize["rows"]) {
-        if (d["mesh"] != mesh || d["resolution"] != v["resolution"] || d["status"] != "ok") continue;
-        const double ours = get(d["time_ms"], "voxelize") + get(d["time_ms"], "contour");
-        md << "| " << v["resolution"] << " | " << num(ours) << " | " << num(get(v, "total_ms")) << " | "
-           << num(get(v, "total_ms") / ours) << " | " << num(get(d["error_voxels"], "mean")) << " / "
-           << num(get(d["error_voxels"], "max")) << " | " << num(get(v["error"], "mean")) << " / "
-           << num(get(v["error"], "max")) << " | " << d["surface_triangles"] << " | " << v["output_triangles"] << " |\n";
-        if (v["resolution"] == 256) {
-          head << "- **Against OpenVDB** (" << mesh << " at 256): voxelize + contour " << num(ours) << " ms against "
-               << num(get(v, "total_ms")) << " ms for meshToLevelSet + volumeToMesh (" << num(get(v, "total_ms") / ours)
-               << "×), mean error " << num(get(d["error_voxels"], "mean")) << " against "
-               << num(get(v["error"], "mean")) << " voxel.\n";
-        }
-      }
-    }
-    md << "\n";
-  }
-
-  // ---- Determinism and throughput ----------------------------------------------------------
-  if (!replay.is_null()) {
-    md << "## 6. Determinism and throughput of headless replay\n\n"
-       << "Each shipped recording replayed with physics (no frames) several times with 1 and with 2 workers. "
-          "Deterministic: every run's final state hash agrees and every hash recorded in the file matched.\n\n"
-       << "| recording | workers | runs | steps | wall s (median) | × real time (median) | step p99 ms | "
-          "deterministic |\n|---|---|---|---|---|---|---|---|\n";
-    for (const json& r : replay["rows"]) {
-      std::map<int, std::vector<const json*>> by_workers;
-      for (const json& run : r["runs"]) by_workers[run["workers"].get<int>()].push_back(&run);
-      for (auto& [workers, runs] : by_workers) {
-        std::vector<double> wall, factor, p99;
-        for (const json* run : runs) {
-          wall.push_back(get(*run, "wall_s"));
-          factor.push_back(get(*run, "realtime_factor"));
-          p99.push_back(get((*run)["step_ms"], "p99"));
-        }
-        std::sort(wall.begin(), wall.end());
-        std::sort(factor.begin(), factor.end());
-        std::sort(p99.begin(), p99.end());
-        md << "| " << r["recording"].get<std::string>() << " | " << workers << " | " << runs.size() << " | "
-           << (*runs[0])["steps"] << " | " << num(wall[wall.size() / 2]) << " | " << num(factor[factor.size() / 2])
-           << " | " << num(p99[p99.size() / 2]) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
-           << " |\n";
-        if (workers == 1 && r["recording"] == "bunny_cut.jsonl") {
-          head << "- **Replay** of the default recording: " << num(factor[factor.size() / 2])
-               << "× real time with physics, " << (replay["deterministic"].get<bool>() ? "bit-identical" : "NOT identical")
-               << " across runs and worker counts.\n";
-        }
-      }
-    }
-    md << "\n";
-    if (fs::exists(results / "replay_timings.svg")) {
-      md << "The default recording replayed as `tools/run.sh` does (frames every 10 steps on the render thread where "
-            "EGL works), "
-            "its `timings.svg`:\n\n![replay timings](" << link << "/replay_timings.svg)\n\n";
-    }
-  }
-
-  // ---- Cutting only (no physics): the step-time targets --------------------------------------
-  if (!cut.is_null()) {
-    md << "## Cutting alone (no physics)\n\n" << cut["mesh"].get<std::string>() << ", " << cut["steps"]
-       << " blade poses, median of " << cut["repeats"] << " repeats per step.\n\n"
-       << "| res | occupied voxels | step p50 ms | step p99 ms | µs per cut voxel | µs per newly divided voxel | "
-          "explicit B per divided voxel |\n|---|---|---|---|---|---|---|\n";
-    for (const json& r : cut["rows"]) {
-      md << "| " << r["resolution"] << " | " << r["occupied_voxels"] << " | " << num(get(r["step_ms"], "p50")) << " | "
-         << num(get(r["step_ms"], "p99")) << " | " << num(get(r, "us_per_cut_voxel")) << " | "
-         << num(get(r, "us_per_newly_divided_voxel")) << " | " << num(get(r, "bytes_per_divided_voxel")) << " |\n";
-    }
-    md << "\n";
-  }
-
+  const json& scaling = in.read("bench_scaling.json");
   std::ostringstream doc;
   doc << "# divvox benchmark report\n\n"
       << "Generated " << date << " by `tools/bench_report.sh" << (options.mode == "quick" ? " --quick" : "")
-      << "` (" << options.mode << " mode) on: " << machine_of(scaling.is_object() ? scaling : voxelize)
+      << "` (" << options.mode << " mode) on: " << machine_of(scaling.is_object() ? scaling : in.read("bench_voxelize.json"))
       << ". All figures in one table come from one run on this machine; compare ratios, not absolute times"
-      << (fs::exists(results / "MACHINE.md") ? " (see [MACHINE.md](" + link + "/MACHINE.md))" : std::string())
-      << ". The CSV and JSON files beside the plots in `" << link << "/` hold every number.\n\n## Headline\n\n"
+      << (fs::exists(in.dir / "MACHINE.md") ? " (see [MACHINE.md](" + in.link + "/MACHINE.md))" : std::string())
+      << ". The CSV and JSON files beside the plots in `" << in.link << "/` hold every number.\n\n## Headline\n\n"
       << (head.str().empty() ? "- (no results found)\n" : head.str()) << "\n"
       << md.str();
   write_text_file(report.string(), doc.str());
