@@ -52,7 +52,7 @@ TEST_SUITE("fuzz_regressions") {
   TEST_CASE("scene inputs as files load or are refused with InputError") {
     replay_all("scene", dvx_fuzz::run_scene_file);
   }
-  TEST_CASE("recording inputs read or are refused with InputError") {
+  TEST_CASE("recording inputs load as a playback (read, typed, stepped) or are refused with InputError") {
     replay_all("recording", dvx_fuzz::run_recording);
   }
   TEST_CASE("mesh inputs load, voxelize and contour, or are refused with InputError") {

@@ -5,7 +5,7 @@
 
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
-#include "engine/recording.h"
+#include "engine/playback.h"
 #include "engine/scene.h"
 #include "engine/voxelize_job.h"
 #include "sim/contour.h"
@@ -62,11 +62,20 @@ inline void run_scene_file(const uint8_t* data, size_t size) {
   (void)dvx::load_scene(path);
 }
 
-// bytes -> JSON Lines file -> read_recording (the scene's mesh need not exist).
+// bytes -> JSON Lines file -> load_playback (the one playback module: read_recording, then every step
+// line typed), then every step handed out by next_commands and the physics-mode rule of the hashes, as
+// a replay drives them (the scene's mesh need not exist: no session runs).
 inline void run_recording(const uint8_t* data, size_t size) {
   const std::string path = temp_path(".jsonl");
   write_file(path, data, size);
-  (void)dvx::read_recording(path);
+  const dvx::Playback playback = dvx::load_playback(path);
+  // Every recorded step in order (steps can be up to 2^32 apart: the loop walks the lines, not the steps).
+  dvx::PlaybackCursor cursor;
+  for (const dvx::PlaybackStep& recorded : playback.steps) {
+    if (dvx::next_commands(playback, cursor, recorded.step) != &recorded) throw std::logic_error("fuzz: next_commands skipped a step");
+  }
+  std::string warning;
+  (void)dvx::hashes_apply(playback, true, warning);
 }
 
 // Triangle cap above which the mesh target only loads (keeps executions fast).
