@@ -5,11 +5,11 @@
 #include "engine/output.h"
 #include "engine/plot.h"
 #include "engine/resources.h"
+#include "engine/stats.h"
 #include "engine/voxelize_job.h"
 
 #include <nlohmann/json.hpp>
 
-#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -17,13 +17,6 @@
 
 namespace dvx {
 namespace {
-
-double median(std::vector<double> values) {
-  if (values.empty()) return 0.0;
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
 
 // One benchmark row: medians over the repeats of one (mesh, resolution).
 struct VoxelizeRow {
@@ -60,10 +53,10 @@ VoxelizeRow measure(const std::string& mesh, int resolution, int repeats, uint64
     row.boundary_edges = result.stats.boundary_edges;
     row.components = result.stats.components;
   }
-  row.load_ms = median(load);
-  row.voxelize_ms = median(vox);
-  row.contour_ms = median(contour);
-  row.total_ms = median(total);
+  row.load_ms = quantile(load, 0.5);
+  row.voxelize_ms = quantile(vox, 0.5);
+  row.contour_ms = quantile(contour, 0.5);
+  row.total_ms = quantile(total, 0.5);
   row.peak_rss = peak_rss_bytes();
   // The error to the input in one more, untimed run (after the peak memory was read: the sampling
   // and its tree are not part of voxelization).

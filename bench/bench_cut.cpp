@@ -79,7 +79,7 @@ std::string bench_cut(const BenchCutOptions& options) {
                          {"lattice", {l.nx, l.ny, l.nz}},
                          {"occupied_voxels", model.occupied_voxels},
                          {"init_ms", quantile(init_ms, 0.5)},
-                         {"step_ms", {{"p50", quantile(totals, 0.5)}, {"p99", quantile(totals, 0.99)}, {"max", quantile(totals, 1.0)}}},
+                         {"step_ms", percentiles_json(totals)},
                          {"divide_ms_p50", quantile(divides, 0.5)},
                          {"surface_ms_p50", quantile(surfaces, 0.5)},
                          {"voxels_cut", sum_voxels},

@@ -78,7 +78,7 @@ std::vector<double> simulate(const Scenario& s, const PbdParams& params, int ste
   for (int i = 0; i < steps; ++i) {
     const Clock::time_point t0 = Clock::now();
     pbd_step(s.cut, pbd, pool.runner());
-    times.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    times.push_back(ms_between(t0, Clock::now()));
   }
   return times;
 }
@@ -179,7 +179,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
                    {"iterations", options.target_iterations},
                    {"workers", pool.workers()},
                    {"surface_vertices", s.cut.surface.live_vertices()},
-                   {"step_ms", {{"p50", quantile(times, 0.5)}, {"p99", quantile(times, 0.99)}, {"max", quantile(times, 1.0)}}}};
+                   {"step_ms", percentiles_json(times)}};
   }
   const nlohmann::json results = {{"benchmark", "deform"},
                    {"machine", machine_summary()},

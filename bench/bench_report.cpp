@@ -5,6 +5,7 @@
 #include "engine/output.h"
 #include "engine/plot.h"
 #include "engine/scene.h"
+#include "engine/stats.h"
 
 #include <nlohmann/json.hpp>
 
@@ -499,15 +500,12 @@ void replay_section(Results& in, std::ostream& md, std::ostream& head) {
         factor.push_back(get(*run, "realtime_factor"));
         p99.push_back(get((*run)["step_ms"], "p99"));
       }
-      std::sort(wall.begin(), wall.end());
-      std::sort(factor.begin(), factor.end());
-      std::sort(p99.begin(), p99.end());
       md << "| " << r["recording"].get<std::string>() << " | " << workers << " | " << runs.size() << " | "
-         << (*runs[0])["steps"] << " | " << num(wall[wall.size() / 2]) << " | " << num(factor[factor.size() / 2])
-         << " | " << num(p99[p99.size() / 2]) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
+         << (*runs[0])["steps"] << " | " << num(quantile(wall, 0.5)) << " | " << num(quantile(factor, 0.5))
+         << " | " << num(quantile(p99, 0.5)) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
          << " |\n";
       if (workers == 1 && r["recording"] == "bunny_cut.jsonl") {
-        head << "- **Replay** of the default recording: " << num(factor[factor.size() / 2])
+        head << "- **Replay** of the default recording: " << num(quantile(factor, 0.5))
              << "× real time with physics, " << (replay["deterministic"].get<bool>() ? "bit-identical" : "NOT identical")
              << " across runs and worker counts.\n";
       }

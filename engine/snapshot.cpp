@@ -8,11 +8,10 @@ namespace dvx {
 void fill_snapshot(Snapshot& slot, uint64_t slot_sequence, const CutSurface& surface,
                    const std::vector<Vec3f>* deformed, DirtyHistory& history, uint32_t step,
                    const StepTimings& timings) {
-  // This publish's dirty range joins the history, which keeps the last 8 publishes (a slot that missed
-  // more is copied in full; the triple buffer's slots rarely miss more than a few).
+  // This publish's dirty range joins the history of the last DirtyHistory::kKept publishes.
   const uint64_t sequence = history.first_sequence + history.ranges.size();
   history.ranges.emplace_back(surface.dirty_triangle_begin, surface.dirty_triangle_end);
-  while (history.ranges.size() > 8) {
+  while (history.ranges.size() > DirtyHistory::kKept) {
     history.ranges.erase(history.ranges.begin());
     ++history.first_sequence;
   }

@@ -107,6 +107,9 @@ class SnapshotExchange {
 // triangle slots changed since the slot's last fill (`history` holds the dirty ranges of the recent
 // publishes, newest last; an older slot is copied in full).
 struct DirtyHistory {
+  // Publishes remembered: a slot that missed more is copied in full (with three slots a slot rarely
+  // misses more than a few publishes).
+  static constexpr size_t kKept = 8;
   std::vector<std::pair<uint32_t, uint32_t>> ranges;  // per publish, sequence = first_sequence + index
   uint64_t first_sequence = 1;
 };

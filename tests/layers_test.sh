@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The include graph goes one way: sim <- render <- engine <- bench, ui <- app (DESIGN §2). Fails,
-# naming the file and the include, when a folder includes one above it, or when a render/ header
-# names sim/ types other than the plain mesh arrays (sim/mesh.h, sim/surface_mesh.h).
+# naming the file and the include, when a folder includes one above it (so engine/, render/ and sim/
+# never include ui/ or bench/), when a layer's CMakeLists.txt links a library above it, or when a
+# render/ header includes or names sim/ types other than the plain mesh arrays (sim/mesh.h,
+# sim/surface_mesh.h).
 #   tests/layers_test.sh [SOURCE_DIR]
 set -uo pipefail
 root="${1:-$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)}"
@@ -44,8 +46,37 @@ while IFS= read -r hit; do
   esac
 done < <(grep -nE '^[[:space:]]*#[[:space:]]*include[[:space:]]*"sim/' render/*.h)
 
+# render/ headers: nor any sim/ type by name (a forward declaration would hide it from the include
+# check). The types are those sim/ headers other than the plain arrays declare; comments do not count.
+sim_types="$(grep -hoE '^[[:space:]]*(struct|class|enum class|enum|using)[[:space:]]+[A-Za-z_][A-Za-z0-9_]*' \
+               $(ls sim/*.h | grep -v -e '^sim/mesh\.h$' -e '^sim/surface_mesh\.h$') |
+             sed -E 's/.*[[:space:]]([A-Za-z_][A-Za-z0-9_]*)$/\1/' | sort -u | paste -sd '|')"
+if [[ -n $sim_types ]]; then
+  while IFS= read -r hit; do
+    echo "layers: ${hit%%:*} names the sim/ type $(grep -owE "$sim_types" <<<"${hit#*:}" | head -1) (render/ headers take plain arrays)"
+    failures=$((failures + 1))
+  done < <(for h in render/*.h; do sed -E 's://.*$::' "$h" | grep -nwE -- "$sim_types" | sed "s|^|$h:|"; done)
+fi
+
+# Link graph: a layer's CMakeLists.txt links only the libraries of the layers it may include
+# (divvox_glad is render's; generator expressions and if() branches count alike).
+for layer in sim render engine bench ui app; do
+  [[ -f $layer/CMakeLists.txt ]] || continue
+  while IFS= read -r hit; do
+    lib="${hit##*:}"
+    folder="${lib#divvox_}"
+    [[ $folder == glad ]] && folder=render
+    [[ " sim render engine bench ui app " == *" $folder "* ]] || continue
+    if [[ " ${allowed[$layer]} " != *" $folder "* ]]; then
+      echo "layers: $layer/CMakeLists.txt links $lib ($layer/ may use only: ${allowed[$layer]})"
+      failures=$((failures + 1))
+    fi
+  done < <(sed -E 's/#.*$//' "$layer/CMakeLists.txt" | tr '\n' ' ' | grep -oE 'target_link_libraries\([^)]*\)' |
+           grep -oE '\bdivvox_[a-z]+\b' | sort -u | sed "s|^|$layer:|")
+done
+
 if ((failures > 0)); then
-  echo "layers: $failures include(s) against the layer order"
+  echo "layers: $failures include(s), sim/ type name(s) or link(s) against the layer order"
   exit 1
 fi
 echo "layers: ok (sim <- render <- engine <- bench, ui <- app)"
