@@ -75,6 +75,18 @@ std::string image_line(const std::string& title, const std::string& link_dir, co
   return "![" + title + "](" + link_dir + "/" + name + ")\n";
 }
 
+// A plot with both axes logarithmic.
+Plot log_log_plot(const std::string& title, const std::string& subtitle, const std::string& x_label,
+                  const std::string& y_label) {
+  Plot plot;
+  plot.title = title;
+  plot.subtitle = subtitle;
+  plot.x_label = x_label;
+  plot.y_label = y_label;
+  plot.log_x = plot.log_y = true;
+  return plot;
+}
+
 PlotSeries series(const std::string& name, bool markers, bool lines) {
   PlotSeries s;
   s.name = name;
@@ -250,12 +262,9 @@ void scaling_section(Results& in, std::ostream& md, std::ostream& head) {
            << num(get(r, "bytes_per_occupied_voxel")) << " B per occupied voxel.\n";
     }
   }
-  Plot plot;
-  plot.title = "Experiment 1: time per cutting step (cut + surface + deform, p50) against model size";
-  plot.subtitle = measured_on(scaling, "points labelled with the resolution, physics on");
-  plot.x_label = "occupied voxels";
-  plot.y_label = "ms per cutting step (p50)";
-  plot.log_x = plot.log_y = true;
+  Plot plot = log_log_plot("Experiment 1: time per cutting step (cut + surface + deform, p50) against model size",
+                           measured_on(scaling, "points labelled with the resolution, physics on"), "occupied voxels",
+                           "ms per cutting step (p50)");
   for (auto& [name, s] : total_series) plot.series.push_back(s);
   plot.lines.push_back({33.0, "frame budget 33 ms", "#b03030", 1, true, false});
   md << "\n" << in.plot("report_scaling.svg", plot) << "\n";
@@ -321,12 +330,9 @@ void surface_section(Results& in, std::ostream& md, std::ostream&) {
       chosen.y.push_back(s.y.back());
     }
   }
-  Plot plot;
-  plot.title = "Surface extraction: time against error (voxelize + dual contouring)";
-  plot.subtitle = measured_on(voxelize, "points labelled with the resolution");
-  plot.x_label = "voxelize + contour time, median (ms)";
-  plot.y_label = "mean error / longest side of the mesh";
-  plot.log_x = plot.log_y = true;
+  Plot plot = log_log_plot("Surface extraction: time against error (voxelize + dual contouring)",
+                           measured_on(voxelize, "points labelled with the resolution"),
+                           "voxelize + contour time, median (ms)", "mean error / longest side of the mesh");
   // The Pareto front of each mesh (with OpenVDB's points on its mesh), under the curves.
   const std::string peer_mesh = vdb.is_object() ? vdb.value("mesh", std::string()) : std::string();
   PlotSeries peer = series("OpenVDB " + peer_mesh, true, true);

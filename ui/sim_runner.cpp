@@ -343,7 +343,7 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   history_.first_sequence = published_ + 1;
   generation_first_sequence_.store(published_ + 1);
   publish(StepTimings());
-  const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  const double ms = ms_between(t0, Clock::now());
   std::printf("%s: back to step %u (hash %s, kept %s) in %.1f ms\n", what, s.step, hash_hex(hash).c_str(),
               hash_hex(kept.hash).c_str(), ms);
   std::fflush(stdout);

@@ -40,6 +40,15 @@ std::string read_file(const fs::path& p) {
 
 const std::string kBunny = dvx_test::source_path("assets/meshes/bunny_npm.obj");
 
+// The options of a replay of `recording` into `out` (the rest at their defaults: physics on).
+ReplayOptions replay_of(const std::string& recording, const fs::path& out, bool physics = true) {
+  ReplayOptions o;
+  o.recording = recording;
+  o.out_dir = out.string();
+  o.physics = physics;
+  return o;
+}
+
 // A scripted session: a blade along z sweeping along x at height y, then a partial vertical cut.
 void write_session(const std::string& path, int resolution) {
   Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
@@ -105,9 +114,7 @@ TEST_SUITE("replay") {
 
   TEST_CASE("the shipped recording replays with every state hash matching") {
     TempDir dir;
-    ReplayOptions options;
-    options.recording = dvx_test::source_path("assets/recordings/bunny_cut.jsonl");
-    options.out_dir = dir.path.string();
+    ReplayOptions options = replay_of(dvx_test::source_path("assets/recordings/bunny_cut.jsonl"), dir.path);
     const ReplayResult r = run_replay(options);
     CHECK(r.hash_checked >= 4);
     CHECK(r.hash_mismatched == 0);
@@ -127,9 +134,7 @@ TEST_SUITE("replay") {
     TempDir dir;
     const std::string session = (dir.path / "session.jsonl").string();
     write_session(session, 32);
-    ReplayOptions options;
-    options.recording = session;
-    options.out_dir = (dir.path / "plotted").string();
+    ReplayOptions options = replay_of(session, dir.path / "plotted");
     std::string error;
     if (find_gnuplot(error).empty()) {
       MESSAGE("plotting part skipped: " << error);
@@ -167,18 +172,12 @@ TEST_SUITE("replay") {
     const std::string session = (dir.path / "session.jsonl").string();
     write_session(session, 48);
     // First replay writes a recording with hashes every 10 steps.
-    ReplayOptions first;
-    first.recording = session;
-    first.out_dir = (dir.path / "a").string();
+    ReplayOptions first = replay_of(session, dir.path / "a", false);
     first.record_path = (dir.path / "hashed.jsonl").string();
     first.hash_every = 10;
-    first.physics = false;
     const ReplayResult a = run_replay(first);
     // Replaying that recording checks every hash.
-    ReplayOptions second;
-    second.recording = first.record_path;
-    second.out_dir = (dir.path / "b").string();
-    second.physics = false;
+    ReplayOptions second = replay_of(first.record_path, dir.path / "b", false);
     const ReplayResult b = run_replay(second);
     CHECK(b.hash_checked >= 10);
     CHECK(b.hash_mismatched == 0);
@@ -190,12 +189,9 @@ TEST_SUITE("replay") {
     TempDir dir;
     const std::string session = (dir.path / "session.jsonl").string();
     write_session(session, 32);
-    ReplayOptions first;
-    first.recording = session;
-    first.out_dir = (dir.path / "a").string();
+    ReplayOptions first = replay_of(session, dir.path / "a", false);
     first.record_path = (dir.path / "hashed.jsonl").string();
     first.hash_every = 20;
-    first.physics = false;
     run_replay(first);
     // Change the hash recorded at step 80.
     std::string text = read_file(first.record_path);
@@ -205,10 +201,7 @@ TEST_SUITE("replay") {
     const size_t hash_at = text.rfind("\"hash\":\"", at) + 8;
     text[hash_at] = text[hash_at] == '0' ? '1' : '0';
     std::ofstream(first.record_path, std::ios::binary | std::ios::trunc) << text;
-    ReplayOptions second;
-    second.recording = first.record_path;
-    second.out_dir = (dir.path / "b").string();
-    second.physics = false;
+    ReplayOptions second = replay_of(first.record_path, dir.path / "b", false);
     const ReplayResult r = run_replay(second);
     CHECK(r.hash_mismatched == 1);
     CHECK(r.first_mismatch_step == 80);
@@ -218,17 +211,13 @@ TEST_SUITE("replay") {
     TempDir dir;
     const std::string session = (dir.path / "session.jsonl").string();
     write_session(session, 32);
-    ReplayOptions first;
-    first.recording = session;
-    first.out_dir = (dir.path / "a").string();
+    ReplayOptions first = replay_of(session, dir.path / "a");
     first.record_path = (dir.path / "hashed.jsonl").string();
     first.hash_every = 10;
     first.workers = 2;
     const ReplayResult a = run_replay(first);
     for (int workers : {1, 2}) {
-      ReplayOptions again;
-      again.recording = first.record_path;
-      again.out_dir = (dir.path / ("w" + std::to_string(workers))).string();
+      ReplayOptions again = replay_of(first.record_path, dir.path / ("w" + std::to_string(workers)));
       again.workers = workers;
       const ReplayResult r = run_replay(again);
       CHECK(r.hash_checked >= 10);
@@ -246,9 +235,7 @@ TEST_SUITE("replay") {
     DVX_SKIP_OR_FAIL_WITHOUT_GL("this build has no renderer");
 #else
     TempDir dir;
-    ReplayOptions options;
-    options.recording = dvx_test::source_path("assets/recordings/bunny_cut.jsonl");
-    options.out_dir = dir.path.string();
+    ReplayOptions options = replay_of(dvx_test::source_path("assets/recordings/bunny_cut.jsonl"), dir.path);
     options.frames_every = 130;
     options.width = 320;
     options.height = 180;
@@ -306,9 +293,7 @@ TEST_SUITE("replay") {
     }
     const auto coverage_of = [&](const std::string& camera_line, const std::string& name) {
       std::ofstream((dir.path / name).string()) << h.dump() << "\n" << camera_line << body;
-      ReplayOptions o;
-      o.recording = (dir.path / name).string();
-      o.out_dir = (dir.path / (name + ".out")).string();
+      ReplayOptions o = replay_of((dir.path / name).string(), dir.path / (name + ".out"));
       o.frames_every = 10;
       o.width = 160;
       o.height = 90;
