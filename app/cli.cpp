@@ -433,15 +433,8 @@ int run_command(const CliCommand& c) {
 int run_cli(int argc, char** argv) {
   try {
     return run_command(parse_cli(argc, argv));
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "divvox: error: %s\n", e.what());
-    return kExitBadInput;
-  } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "divvox: error: out of memory\n");
-    return kExitInternal;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "divvox: internal error: %s\n", e.what());
-    return kExitInternal;
+  } catch (...) {
+    return exit_for_current_exception("divvox");
   }
 }
 

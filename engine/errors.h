@@ -21,4 +21,9 @@ std::string input_message(const std::string& file, const std::string& problem);
   throw InputError(input_message(file, problem));
 }
 
+// Inside a catch block: prints the exception being handled as one line on stderr and returns its exit
+// code — InputError "PROGRAM: error: MESSAGE", 2; out of memory "PROGRAM: error: out of memory", 1;
+// anything else "PROGRAM: internal error: MESSAGE", 1. The last step of every program's main.
+int exit_for_current_exception(const char* program);
+
 }  // namespace dvx

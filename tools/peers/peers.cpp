@@ -141,7 +141,7 @@ int main(int argc, char** argv) {
     return kExitBadInput;
   }
 
-  // Run the chosen benchmark; bad input -> "divvox_peers: FILE: problem", exit 2.
+  // Run the chosen benchmark; bad input -> "divvox_peers: error: FILE: problem", exit 2.
   try {
     std::string written;
     if (clip_cmd->parsed()) {
@@ -155,14 +155,7 @@ int main(int argc, char** argv) {
     }
     std::printf("wrote %s\n", written.c_str());
     return kExitOk;
-  } catch (const InputError& e) {
-    std::fprintf(stderr, "divvox_peers: %s\n", e.what());
-    return kExitBadInput;
-  } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "divvox_peers: internal error: out of memory\n");
-    return kExitInternal;
-  } catch (const std::exception& e) {
-    std::fprintf(stderr, "divvox_peers: internal error: %s\n", e.what());
-    return kExitInternal;
+  } catch (...) {
+    return exit_for_current_exception("divvox_peers");
   }
 }
