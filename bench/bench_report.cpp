@@ -540,12 +540,20 @@ void cut_section(Results& in, std::ostream& md, std::ostream&) {
   }
   md << "\n";
 }
+
 // The report's sections in order. Each reads its own results (Results::read) and writes nothing when
-// they are absent; a new benchmark's section is one function above and one entry here.
+// they are absent; a new benchmark's section is one function above and one line here.
 using Section = void (*)(Results& in, std::ostream& md, std::ostream& head);
 constexpr Section report_sections[] = {
-    scaling_section, cut_length_section, speed_error_heading, surface_section, deform_section,
-    quality_section, vdb_section,        replay_section,      cut_section,
+    scaling_section,      // 1. bench_scaling.json
+    cut_length_section,   // 2. bench_cut_length.json
+    speed_error_heading,  // 3. heading of surface + physics
+    surface_section,      //    bench_voxelize.json (+ peers_vdb.json)
+    deform_section,       //    bench_deform.json
+    quality_section,      // 4. bench_quality.json (+ peers_clip.json)
+    vdb_section,          // 5. peers_vdb.json + bench_voxelize.json
+    replay_section,       // 6. bench_replay.json
+    cut_section,          //    bench_cut.json
 };
 
 }  // namespace
