@@ -5,8 +5,31 @@
 # render/ header includes or names sim/ types other than the plain mesh arrays (sim/mesh.h,
 # sim/surface_mesh.h).
 #   tests/layers_test.sh [SOURCE_DIR]
+#   tests/layers_test.sh --self-test [SOURCE_DIR]   (a copy with one violation of each kind must fail)
 set -uo pipefail
-root="${1:-$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)}"
+script="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)/$(basename "${BASH_SOURCE[0]}")"
+
+# Self-test: the check must see an include of ui/ from engine/, of bench/ from sim/, a sim/ type named
+# in a render/ header and a higher library linked from engine/'s CMakeLists.txt (four failures).
+if [[ "${1:-}" == --self-test ]]; then
+  src="${2:-$(cd "$(dirname "$script")/.." && pwd)}"
+  copy="$(mktemp -d)"
+  trap 'rm -rf "$copy"' EXIT
+  for layer in sim render engine bench ui app; do
+    [[ -d $src/$layer ]] && cp -r "$src/$layer" "$copy/"
+  done
+  echo '#include "ui/app.h"' >>"$copy/engine/errors.h"
+  echo '#include "bench/bench.h"' >>"$copy/sim/mesh.h"
+  echo 'struct CutSurface;  // a forward declaration hides the include' >>"$copy/render/camera.h"
+  echo 'target_link_libraries(divvox_engine PUBLIC $<$<TARGET_EXISTS:divvox_ui>:divvox_ui>)' >>"$copy/engine/CMakeLists.txt"
+  output="$(bash "$script" "$copy")" && { echo "layers self-test: the violations passed"; exit 1; }
+  echo "$output"
+  [[ $(grep -v 'against the layer order' <<<"$output" | grep -c '^layers: ') == 4 ]] || { echo "layers self-test: expected 4 failures"; exit 1; }
+  echo "layers self-test: ok (4 violations found)"
+  exit 0
+fi
+
+root="${1:-$(cd "$(dirname "$script")/.." && pwd)}"
 cd "$root" || exit 2
 
 # What each layer may include (project folders; system and package headers are not checked).
