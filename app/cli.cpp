@@ -19,11 +19,13 @@ namespace dvx {
 namespace {
 
 constexpr const char* kDefaultScene = "assets/scenes/bunny.json";
+// The window opens the liver on its tray (the headless jobs keep the bunny).
+constexpr const char* kDefaultWindowScene = "assets/scenes/liver.json";
 
 // The default scene: relative to the working directory, else to the source tree.
-std::string default_scene_path() {
-  if (std::filesystem::exists(kDefaultScene)) return kDefaultScene;
-  return (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / kDefaultScene).string();
+std::string default_scene_path(const char* scene = kDefaultScene) {
+  if (std::filesystem::exists(scene)) return scene;
+  return (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / scene).string();
 }
 
 // Flags parsed as text and turned into typed options after parsing (parse_size, parse_resolutions,
@@ -46,7 +48,7 @@ struct Subcommands {
 // divvox [SCENE.json]: the window (no subcommand).
 void add_window(CLI::App& app, CliCommand& c, RawFlags& raw) {
   WindowOptions& w = c.window;
-  app.add_option("scene", w.scene_path, "Scene to open in the window (default: assets/scenes/bunny.json)");
+  app.add_option("scene", w.scene_path, "Scene to open in the window (default: assets/scenes/liver.json)");
   app.add_option("--record", w.record_path, "Record the window's session (from step 0) to this recording");
   app.add_option("--play", w.play_path, "Drive the window from a recording (prints its final hash after its last step)");
   app.add_option("--exit-after-frames", w.exit_after_frames,
@@ -259,7 +261,7 @@ void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
   if (!w.play_path.empty() && !w.scene_path.empty()) {
     throw_input("--play", "the recording holds its own scene; drop " + w.scene_path);
   }
-  if (w.scene_path.empty()) w.scene_path = default_scene_path();
+  if (w.scene_path.empty()) w.scene_path = default_scene_path(kDefaultWindowScene);
 }
 
 // `divvox voxelize`: the job, its two files and a summary on stdout.

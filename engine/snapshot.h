@@ -25,6 +25,11 @@ struct Snapshot {
   uint32_t dirty_triangle_begin = 0, dirty_triangle_end = 0;  // triangle slots changed since the previous snapshot
   bool capture = false;             // a frame must be captured of this snapshot
   StepTimings timings;
+  // Split vertex normals (render/normals.h: outer surface, cut faces), filled by the window's
+  // simulation thread when asked (ui/sim_runner.h); empty elsewhere (the headless renderer computes
+  // its own). normals_ms: the time that took.
+  std::vector<Vec3f> normals, cut_normals;
+  double normals_ms = 0.0;
   // A camera set by the recording ("camera" in step lines), else the default framing is used.
   bool has_camera = false;
   Vec3f camera_target = Vec3f::Zero();

@@ -54,8 +54,10 @@ void main() {
 // wrapped diffuse (light bleeds past the terminator as in translucent tissue), a sharp and a broad
 // highlight and a Fresnel sheen (a wet, glossy film); the cut faces are darker, redder and wetter.
 // Two-sided: back faces flip the normal. Smooth normals come per vertex (the cut faces' own where
-// the GPU computed them: crisp rims); without them (or where one is zero) the face normal from
-// screen-space derivatives gives flat shading. A little dither keeps slow gradients from banding.
+// the GPU computed them: crisp rims); without them (u_flat) the face normal from screen-space
+// derivatives gives flat shading. A little dither keeps slow gradients from banding.
+// Cheap on a software rasteriser (it runs for every covered pixel on the CPU): powers by repeated
+// squaring (n.h^64 and ^16, not pow's exp2/log2), the derivatives only for flat shading.
 const char* kSurfaceFragmentShader = "#version 450 core\n" DVX_FLAG_BLOCK R"(
 in vec3 v_eye_position;
 in vec3 v_eye_normal;
@@ -71,27 +73,28 @@ void main() {
   // The outer surface blushes toward the cut colour next to a cut's rim: an incision line that shows
   // even while the slit is closed.
   vec3 base = cut ? u_cut_color : mix(u_surface_color, 0.85 * u_cut_color, 0.85 * v_rim * v_rim);
-  vec3 face = cross(dFdx(v_eye_position), dFdy(v_eye_position));  // always faces the eye
   vec3 n = (cut && u_split != 0) ? v_eye_cut_normal : v_eye_normal;
   vec3 v = normalize(-v_eye_position);
-  if (u_flat != 0 || dot(n, n) < 1e-12) {
-    n = face;
+  if (u_flat != 0) {
+    n = cross(dFdx(v_eye_position), dFdy(v_eye_position));  // always faces the eye
   } else if (!gl_FrontFacing && dot(n, v) < 0.0) {
     n = -n;  // a back face seen through a hole (not a sliver triangle folded against its neighbours)
   }
-  n = dot(n, n) > 0.0 ? normalize(n) : vec3(0.0, 0.0, 1.0);
-  const vec3 key = normalize(vec3(-0.4, 0.6, 0.7));
-  const vec3 fill = normalize(vec3(0.7, -0.1, 0.4));
-  const float wrap = 0.35;
-  float diffuse = 0.72 * max((dot(n, key) + wrap) / (1.0 + wrap), 0.0) + 0.25 * max(dot(n, fill), 0.0);
+  float len2 = dot(n, n);
+  n = len2 > 1e-24 ? n * inversesqrt(len2) : v;
+  const vec3 key = vec3(-0.3980, 0.5970, 0.6965);   // normalize(-0.4, 0.6, 0.7)
+  const vec3 fill = vec3(0.8616, -0.1231, 0.4924);  // normalize(0.7, -0.1, 0.4)
+  float diffuse = 0.72 * max((dot(n, key) + 0.35) * (1.0 / 1.35), 0.0) + 0.25 * max(dot(n, fill), 0.0);
   float nh = max(dot(n, normalize(key + v)), 0.0);
+  float nh2 = nh * nh, nh4 = nh2 * nh2, nh16 = nh4 * nh4 * nh4 * nh4, nh64 = nh16 * nh16 * nh16 * nh16;
   float gloss = cut ? 1.3 : 1.0;
-  float specular = gloss * (0.45 * pow(nh, 90.0) + 0.08 * pow(nh, 14.0));
-  float fresnel = 0.12 * pow(1.0 - max(dot(n, v), 0.0), 4.0);
+  float specular = gloss * (0.45 * nh64 + 0.08 * nh16);
+  float rim = 1.0 - max(dot(n, v), 0.0), rim2 = rim * rim;
+  float fresnel = 0.12 * rim2 * rim2;
   vec3 color = base * (0.20 + diffuse) + vec3(specular + fresnel) * vec3(1.0, 0.97, 0.95);
   // Dither: +-0.5 of an 8-bit step, from a hash of the pixel.
   float noise = fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715)))) - 0.5;
-  frag_color = vec4(clamp(color + noise / 255.0, 0.0, 1.0), 1.0);
+  frag_color = vec4(clamp(color + noise * (1.0 / 255.0), 0.0, 1.0), 1.0);
 }
 )";
 
@@ -187,14 +190,15 @@ bool create_target(Renderer& r, std::string& error) {
     return false;
   }
   r.samples = std::clamp(r.samples, 0, int(max_samples));
-  // Drawn-into framebuffer: RGBA8 colour + 24-bit depth, multisampled when asked.
+  // Drawn-into framebuffer: RGBA8 colour + 24-bit depth + 8-bit stencil (the trays' shadows),
+  // multisampled when asked.
   glCreateRenderbuffers(1, &r.color_renderbuffer);
   glCreateRenderbuffers(1, &r.depth_renderbuffer);
   glNamedRenderbufferStorageMultisample(r.color_renderbuffer, r.samples, GL_RGBA8, r.width, r.height);
-  glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH_COMPONENT24, r.width, r.height);
+  glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH24_STENCIL8, r.width, r.height);
   glCreateFramebuffers(1, &r.framebuffer);
   glNamedFramebufferRenderbuffer(r.framebuffer, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, r.color_renderbuffer);
-  glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
+  glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_STENCIL_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
   // Single-sample copy for readback when multisampled.
   r.resolve_framebuffer = r.framebuffer;
   if (r.samples > 0) {
@@ -313,7 +317,7 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
   if (r.surface_program) r.wire_program = gl_link_program(kVertexShader, kWireFragmentShader, error);
   if (r.wire_program) r.triangle_normal_program = gl_link_compute(kTriangleNormalShader, error);
   if (r.triangle_normal_program) r.vertex_normal_program = gl_link_compute(kVertexNormalShader, error);
-  if (!r.surface_program || !r.wire_program || !r.vertex_normal_program) {
+  if (!r.surface_program || !r.wire_program || !r.vertex_normal_program || !tray_init(r, error)) {
     renderer_destroy(r);
     return false;
   }
@@ -431,8 +435,10 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glViewport(0, 0, r.width, r.height);
   glClearColor(options.background.x(), options.background.y(), options.background.z(), 1.0f);
   glClearDepth(1.0);
+  glClearStencil(0);
   glDepthMask(GL_TRUE);
-  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  glStencilMask(0xFF);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT | GL_STENCIL_BUFFER_BIT);
   if (r.triangle_count == 0 || !r.surface_program) return;
 
   // Camera and colours (the wire program uses only the view-projection and its colour).
@@ -495,6 +501,9 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glUseProgram(0);
   glBindVertexArray(0);
   glDisable(GL_CULL_FACE);
+
+  // Pass 3: the trays and the shadows on them.
+  tray_draw(r, camera, options);
 }
 
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
@@ -543,6 +552,7 @@ void renderer_destroy(Renderer& r) {
   if (r.wire_program) glDeleteProgram(r.wire_program);
   if (r.triangle_normal_program) glDeleteProgram(r.triangle_normal_program);
   if (r.vertex_normal_program) glDeleteProgram(r.vertex_normal_program);
+  tray_destroy(r);
   if (r.vertex_array) glDeleteVertexArrays(1, &r.vertex_array);
   const GLuint buffers[] = {r.position_buffer,   r.normal_buffer,         r.index_buffer,
                             r.flag_buffer,       r.cut_normal_buffer,     r.corner_normal_buffer,

@@ -50,8 +50,18 @@ struct RenderMesh {
 RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* normals = nullptr,
                           const std::vector<uint8_t>* flags = nullptr);
 
+// A scene's contact plane drawn as a tray: a square `half_size` around `centre` (a point on the plane)
+// with a darker lip, and the surface's shadow on it (projected along the key light, clipped to the
+// tray by the stencil, pulled toward the eye by a depth offset so it never z-fights the tray).
+struct TrayPlane {
+  Vec3f centre = Vec3f::Zero(), normal = Vec3f::UnitY();
+  float half_size = 1.0f;
+};
+
 struct DrawOptions {
   bool wireframe = false;                         // overlay the triangle edges
+  std::vector<TrayPlane> trays;                   // drawn after the surface (none: no ground)
+  bool shadows = true;                            // the surface's shadow on the trays
   // Skip back faces (the surface is closed, so none is visible from outside): on a software
   // rasteriser, where triangle setup dominates, it saves about half the draw.
   bool cull_back_faces = false;
@@ -59,6 +69,8 @@ struct DrawOptions {
   Vec3f cut_color = Vec3f(0.80f, 0.17f, 0.20f);      // exposed tissue on the cut faces
   Vec3f wire_color = Vec3f(0.20f, 0.12f, 0.12f);
   Vec3f background = Vec3f(0.15f, 0.16f, 0.19f);
+  Vec3f tray_color = Vec3f(0.55f, 0.60f, 0.64f);  // brushed steel
+  float shadow_alpha = 0.55f;                     // how much the shadow darkens the tray
 };
 
 // GL object names and the capacities of the GPU buffers.
@@ -81,6 +93,9 @@ struct Renderer {
   uint32_t resolve_framebuffer = 0, resolve_renderbuffer = 0;
   // Programs: lit surface, wireframe overlay.
   uint32_t surface_program = 0, wire_program = 0;
+  // Trays and shadows (render/tray.cpp): the tray's quad comes from gl_VertexID (an empty vertex
+  // array); the shadow re-draws the surface's index buffer, flattened onto the plane.
+  uint32_t tray_program = 0, shadow_program = 0, empty_vertex_array = 0;
   // Mesh buffers, mirroring the caller's slots.
   uint32_t vertex_array = 0;
   uint32_t position_buffer = 0;  // (vertex_capacity x 3 floats)
@@ -123,6 +138,11 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh);
 void renderer_update_normals(Renderer& r);
 // Draws the uploaded surface into the offscreen target.
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
+// Trays (render/tray.cpp): creates / deletes their programs (renderer_init / renderer_destroy call
+// them); draws options.trays and the shadows into the bound offscreen target, after the surface.
+bool tray_init(Renderer& r, std::string& error);
+void tray_destroy(Renderer& r);
+void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
 // Copies the last image into another framebuffer (0: the window's), scaled to w x h, its lower-left

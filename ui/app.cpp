@@ -130,7 +130,7 @@ double fps_percentile(std::vector<double> intervals_ms, double q) {
 
 // The window's frame statistics from the first frame showing a scene, printed at exit.
 struct FrameStats {
-  std::string gl_renderer;
+  std::string gl_renderer, normals_where;
   bool profiled = false;
   uint64_t counted_frames = 0;
   Clock::time_point first, last;
@@ -138,8 +138,11 @@ struct FrameStats {
   std::vector<double> phase_ms[6];  // upload, normals, draw, overlays + blit, panels, swap
   ThreadCpu cpu_start;
   uint32_t step_start = 0;
+  uint64_t fresh_frames = 0;  // frames that showed a new snapshot
 
-  void add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end) {
+  // `fresh`: the frame took a new snapshot (the upload and normals phases count only those).
+  void add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end,
+           bool fresh) {
     if (counted_frames == 0) {
       first = end;
       cpu_start = thread_cpu();
@@ -149,7 +152,10 @@ struct FrameStats {
     ++counted_frames;
     render_ms.push_back(render);
     if (counted_frames > 1) interval_ms.push_back(interval);
-    for (int k = 0; k < 6; ++k) phase_ms[k].push_back(phases[k]);
+    fresh_frames += fresh ? 1 : 0;
+    for (int k = 0; k < 6; ++k) {
+      if (fresh || k >= 2) phase_ms[k].push_back(phases[k]);
+    }
   }
 
   void print(const AppState& app) const {
@@ -166,6 +172,9 @@ struct FrameStats {
                 percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
                 percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms, 0.5),
                 fps_percentile(interval_ms, 0.05));
+    std::printf("window: %llu of %llu frames showed a new snapshot (normals: %s)\n",
+                static_cast<unsigned long long>(fresh_frames), static_cast<unsigned long long>(counted_frames),
+                normals_where.c_str());
     const ThreadCpu cpu_end = thread_cpu();
     const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
     std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
@@ -182,9 +191,18 @@ struct FrameStats {
 
 }  // namespace
 
+std::string default_output_path(const std::string& name) {
+  std::error_code ec;
+  std::filesystem::create_directories(kWindowOutputDir, ec);
+  return (std::filesystem::path(kWindowOutputDir) / name).string();
+}
+
 bool take_screenshot(AppState& app, const std::string& path, std::string& message) {
   std::vector<uint8_t> rgba;
   std::string error;
+  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  std::error_code ec;
+  if (!parent.empty()) std::filesystem::create_directories(parent, ec);
   if (!renderer_read_pixels(*app.renderer, rgba)) {
     message = "screenshot: cannot read the frame back";
     return false;
@@ -205,7 +223,7 @@ std::string default_screenshot_name() {
   const std::time_t now = std::time(nullptr);
   char name[64];
   std::strftime(name, sizeof name, "divvox_%Y%m%d_%H%M%S.png", std::localtime(&now));
-  return name;
+  return default_output_path(name);
 }
 
 namespace {
@@ -219,27 +237,17 @@ void load_play_poses(AppState& app, const Playback& playback) {
   }
 }
 
-// The CPU's split normals (render/normals.h), reused between snapshots.
-struct SplitNormals {
-  std::vector<Vec3f> surface, cut;
-};
-
-// A snapshot to the renderer: every position (they all move), the dirty triangle slots, and the
-// normals computed once per snapshot: on the GPU (`split` null) or here.
-// Returns the CPU normals' time (ms).
-double upload_snapshot_split_normals(Renderer& renderer, const Snapshot& s, bool full, SplitNormals* split) {
-  RenderMesh mesh = snapshot_render_mesh(s, full);
-  const Clock::time_point t0 = Clock::now();
-  if (split) {
-    split_vertex_normals(s.positions, s.triangles, s.triangle_flags, split->surface, split->cut);
-    mesh.normals = split->surface.data();
-    mesh.cut_normals = split->cut.data();
-  } else {
-    mesh.gpu_normals = true;
+// The scene's contact planes as trays: centred under the object, a little wider than it.
+void set_trays(AppState& app) {
+  app.draw.trays.clear();
+  const Vec3d centre = 0.5 * (app.bounds.min + app.bounds.max);
+  for (const ScenePlane& p : app.status.scene.planes) {
+    TrayPlane tray;
+    tray.normal = p.normal.cast<float>();
+    tray.centre = (centre - (centre - p.point).dot(p.normal) * p.normal).cast<float>();
+    tray.half_size = float(0.8 * app.bounds.extent().maxCoeff());
+    app.draw.trays.push_back(tray);
   }
-  const double normals_ms = ms_between(t0, Clock::now());
-  renderer_upload(renderer, mesh);
-  return normals_ms;
 }
 
 void frame_camera(AppState& app) {
@@ -583,6 +591,7 @@ void follow_simulation(AppState& app, uint64_t& generation) {
     app.bounds = app.status.bounds;
     app.edit = scene_edit_of(app.status.scene);
     frame_camera(app);
+    set_trays(app);
     app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.resolution, 1));
     app.cut_depth = float(app.status.scene.scalpel.length);
     set_cut_depth(app, app.cut_depth);
@@ -628,11 +637,30 @@ void request_undo(AppState& app, bool redo) {
   }
 }
 
-int run_window(const WindowOptions& options) {
-  AppState app;
-  // Bad input first (exit 2 before any window opens).
-  Scene scene;
-  std::shared_ptr<const Playback> playback;
+namespace {
+
+// Everything the window's frame loop works with: the GLFW window, the renderer and overlays, the
+// simulation thread, the frame statistics and the per-frame scratch.
+struct WindowContext {
+  GLFWwindow* window = nullptr;
+  std::string gl_renderer;
+  bool software = false;  // llvmpipe / softpipe: the frame runs on the same CPU cores as the simulation
+  Renderer renderer;
+  LineOverlay overlay;
+  SolidOverlay solid_overlay;
+  SimRunner sim;
+  FrameStats stats;
+  std::vector<LineVertex> lines;
+  std::vector<SolidVertex> solids;
+  uint64_t generation = 0, last_sequence = 0;
+  Clock::time_point last_frame = Clock::now();
+  bool profile = false;      // DIVVOX_FRAME_PROFILE=1
+  bool gpu_normals = false;  // normals from the GPU passes (else from the simulation thread)
+};
+
+// Reads the scene or the recording before any window opens (bad input: exit 2 at once).
+// Returns -1 when both are fine, else the exit code.
+int load_window_input(const WindowOptions& options, Scene& scene, std::shared_ptr<const Playback>& playback) {
   try {
     if (options.play_path.empty()) {
       scene = load_scene(options.scene_path);
@@ -647,7 +675,12 @@ int run_window(const WindowOptions& options) {
     std::fprintf(stderr, "divvox: internal error: %s\n", e.what());
     return kExitInternal;
   }
+  return -1;
+}
 
+// The GLFW window with a current GL 4.5 core context and its entry points loaded. Returns -1, or
+// the exit code after a one-line error (no display, no GL 4.5).
+int open_gl_window(const WindowOptions& options, WindowContext& w) {
   glfwSetErrorCallback(on_glfw_error);
   const char* display = std::getenv("DISPLAY");
   const char* wayland = std::getenv("WAYLAND_DISPLAY");
@@ -662,8 +695,8 @@ int run_window(const WindowOptions& options) {
   glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 4);
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 5);
   glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
-  GLFWwindow* window = glfwCreateWindow(options.width, options.height, "divvox", nullptr, nullptr);
-  if (window == nullptr) {
+  w.window = glfwCreateWindow(options.width, options.height, "divvox", nullptr, nullptr);
+  if (w.window == nullptr) {
     if (g_glfw_error_code == GLFW_VERSION_UNAVAILABLE || g_glfw_error_code == GLFW_API_UNAVAILABLE) {
       std::fprintf(stderr, "divvox: error: the display offers no OpenGL 4.5 core context (%s); use 'divvox replay REC --headless'\n",
                    g_glfw_error.c_str());
@@ -673,172 +706,168 @@ int run_window(const WindowOptions& options) {
     glfwTerminate();
     return kExitBadInput;
   }
-  glfwMakeContextCurrent(window);
+  glfwMakeContextCurrent(w.window);
   glfwSwapInterval(1);
   if (gladLoadGL(reinterpret_cast<GLADloadfunc>(glfwGetProcAddress)) == 0) {
     std::fprintf(stderr, "divvox: error: cannot load OpenGL 4.5 entry points\n");
-    glfwDestroyWindow(window);
+    glfwDestroyWindow(w.window);
     glfwTerminate();
     return kExitInternal;
   }
-  const std::string gl_renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
-  int fb_w = 0, fb_h = 0;
-  glfwGetFramebufferSize(window, &fb_w, &fb_h);
-  fb_w = std::max(fb_w, 16);
-  fb_h = std::max(fb_h, 16);
-  // The 3D view: right of the docked panel.
+  w.gl_renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
+  w.software = w.gl_renderer.find("llvmpipe") != std::string::npos || w.gl_renderer.find("softpipe") != std::string::npos;
+  return -1;
+}
+
+// The 3D view right of the docked panel, for a framebuffer size.
+void layout_view(AppState& app, int fb_w, int fb_h) {
   app.panel_width = panel_width_for(fb_w);
   app.view_x = app.panel_width;
-  const int view_w = std::max(fb_w - app.view_x, 16);
+  app.viewport = {std::max(fb_w - app.view_x, 16), fb_h};
+}
+
+// Renderer, overlays and ImGui. False after a one-line error (the window is closed then).
+bool init_graphics(AppState& app, WindowContext& w) {
+  int fb_w = 0, fb_h = 0;
+  glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
+  layout_view(app, std::max(fb_w, 16), std::max(fb_h, 16));
   // 4x MSAA on a GPU; none on a software rasteriser (llvmpipe), where 2x or 4x triples the
   // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128).
-  const bool software = gl_renderer.find("llvmpipe") != std::string::npos || gl_renderer.find("softpipe") != std::string::npos;
-  int samples = software ? 0 : 4;
+  int samples = w.software ? 0 : 4;
   if (const char* msaa = std::getenv("DIVVOX_MSAA")) samples = std::clamp(std::atoi(msaa), 0, 16);
-  Renderer renderer;
   std::string error;
-  if (!renderer_init(renderer, view_w, fb_h, error, samples)) {
+  if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples)) {
     std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
-    glfwDestroyWindow(window);
+    glfwDestroyWindow(w.window);
     glfwTerminate();
-    return kExitInternal;
+    return false;
   }
-  LineOverlay overlay;
-  if (!overlay_init(overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no blade overlay)\n", error.c_str());
-  SolidOverlay solid_overlay;
-  if (!solid_overlay_init(solid_overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
-
-  glfwSetScrollCallback(window, on_scroll);
-  glfwSetKeyCallback(window, on_key);
+  if (!overlay_init(w.overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no blade overlay)\n", error.c_str());
+  if (!solid_overlay_init(w.solid_overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
+  glfwSetScrollCallback(w.window, on_scroll);
+  glfwSetKeyCallback(w.window, on_key);
   IMGUI_CHECKVERSION();
   ImGui::CreateContext();
   ImGui::GetIO().IniFilename = nullptr;
   ImGui::StyleColorsDark();
-  ImGui_ImplGlfw_InitForOpenGL(window, true);  // chains the callbacks above
+  ImGui_ImplGlfw_InitForOpenGL(w.window, true);  // chains the callbacks above
   ImGui_ImplOpenGL3_Init("#version 330 core");
-
-  SimRunner sim;
-  app.sim = &sim;
-  app.renderer = &renderer;
-  app.gl_renderer = gl_renderer;
-  app.viewport = {view_w, fb_h};
-  app.window_options = options;
-  app.draw.cull_back_faces = true;
-  std::snprintf(app.record_path, sizeof app.record_path, "%s",
-                options.record_path.empty() ? "divvox_recording.jsonl" : options.record_path.c_str());
-  if (playback) {
-    std::snprintf(app.play_path, sizeof app.play_path, "%s", options.play_path.c_str());
-    sim.play(playback);
-  } else {
-    sim.open(scene, scene.solver.dt, options.record_path);
-  }
-  std::snprintf(app.scene_path, sizeof app.scene_path, "%s", options.scene_path.c_str());
-
-  int exit_code = kExitOk;
-  uint64_t generation = 0, last_sequence = 0;
-  std::vector<LineVertex> lines;
-  std::vector<SolidVertex> solids;
-  Clock::time_point last_frame = Clock::now();
-  FrameStats stats;
-  stats.gl_renderer = gl_renderer;
   // DIVVOX_FRAME_PROFILE=1: glFinish after each phase, so the phase times are the GPU's too (costs
   // some pipelining; for measuring only).
   const char* profile_env = std::getenv("DIVVOX_FRAME_PROFILE");
-  const bool profile = profile_env != nullptr && std::string(profile_env) == "1";
-  stats.profiled = profile;
+  w.profile = profile_env != nullptr && std::string(profile_env) == "1";
+  w.stats.profiled = w.profile;
+  w.stats.gl_renderer = w.gl_renderer;
   // Normals on the GPU, except on a software rasteriser (there its compute passes run on the same
-  // CPU cores, ~40x slower than the plain loop); DIVVOX_GPU_NORMALS=0/1 overrides.
-  bool gpu_normals = !software;
-  if (const char* g = std::getenv("DIVVOX_GPU_NORMALS")) gpu_normals = std::string(g) == "1";
-  SplitNormals split;
-  while (!glfwWindowShouldClose(window)) {
-    glfwPollEvents();
-    app.status = sim.status();
-    // Initial scene failed to open: nothing to show.
-    if (!app.status.ready && !app.status.loading && !app.status.error.empty()) {
-      exit_code = kExitBadInput;
-      break;
-    }
-    follow_simulation(app, generation);
-    // Window resize: a new panel width and offscreen target.
-    glfwGetFramebufferSize(window, &fb_w, &fb_h);
-    if (fb_w >= 16 && fb_h >= 16) {
-      app.panel_width = panel_width_for(fb_w);
-      app.view_x = app.panel_width;
-      const int vw = std::max(fb_w - app.view_x, 16);
-      if ((vw != renderer.width || fb_h != renderer.height) && renderer_resize(renderer, vw, fb_h, error)) {
-        app.viewport = {vw, fb_h};
-      }
-    }
+  // CPU cores, ~40x slower than the plain loop, which then runs on the simulation thread, once per
+  // snapshot the renderer takes); DIVVOX_GPU_NORMALS=0/1 overrides.
+  w.gpu_normals = !w.software;
+  if (const char* g = std::getenv("DIVVOX_GPU_NORMALS")) w.gpu_normals = std::string(g) == "1";
+  w.sim.set_cpu_normals(!w.gpu_normals);
+  w.stats.normals_where = w.gpu_normals ? "GPU passes on the render thread" : "CPU, on the simulation thread";
+  app.sim = &w.sim;
+  app.renderer = &w.renderer;
+  app.gl_renderer = w.gl_renderer;
+  app.draw.cull_back_faces = true;
+  return true;
+}
 
-    ImGui_ImplOpenGL3_NewFrame();
-    ImGui_ImplGlfw_NewFrame();
-    ImGui::NewFrame();
-    handle_keys(app, window);
-    handle_mouse(app, window);
+// The newest snapshot to the renderer (what changed since the last one, its normals as the
+// simulation thread computed them, else the GPU's), the input-to-cut latency probe. Returns the
+// normals' time (ms, on the simulation thread) of the snapshot taken, or -1 when none was new.
+double take_snapshot(AppState& app, WindowContext& w) {
+  const Snapshot* s = w.sim.take();
+  if (s == nullptr) return -1.0;
+  app.current = s;
+  const bool full = s->sequence != w.last_sequence + 1 || s->sequence == w.sim.generation_first_sequence();
+  RenderMesh mesh = snapshot_render_mesh(*s, full);
+  const bool have_normals = s->normals.size() == s->positions.size() && s->cut_normals.size() == s->positions.size();
+  if (have_normals && !w.gpu_normals) {
+    mesh.normals = s->normals.data();
+    mesh.cut_normals = s->cut_normals.data();
+  } else {
+    mesh.gpu_normals = true;
+  }
+  renderer_upload(w.renderer, mesh);
+  w.last_sequence = s->sequence;
+  app.triangles = 0;
+  for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
+  if (app.latency_probe_stamp != 0 && s->step + 1 >= app.latency_probe_stamp) {
+    app.latency_frames.push_back(double(app.frame - app.latency_probe_frame));
+    if (app.latency_frames.size() > 120) app.latency_frames.erase(app.latency_frames.begin());
+    app.latency_probe_stamp = 0;
+  }
+  return s->normals_ms;
+}
 
-    // The newest snapshot: upload what changed.
-    const Clock::time_point t0 = Clock::now();
-    double cpu_normals_ms = 0.0;
-    if (const Snapshot* s = sim.exchange().take()) {
-      app.current = s;
-      const bool full = s->sequence != last_sequence + 1 || s->sequence == sim.generation_first_sequence();
-      cpu_normals_ms = upload_snapshot_split_normals(renderer, *s, full, gpu_normals ? nullptr : &split);
-      last_sequence = s->sequence;
-      app.triangles = 0;
-      for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
-      if (app.latency_probe_stamp != 0 && s->step + 1 >= app.latency_probe_stamp) {
-        app.latency_frames.push_back(double(app.frame - app.latency_probe_frame));
-        if (app.latency_frames.size() > 120) app.latency_frames.erase(app.latency_frames.begin());
-        app.latency_probe_stamp = 0;
-      }
-    }
-    if (profile) glFinish();
-    const Clock::time_point t1 = Clock::now();
-    renderer_update_normals(renderer);
-    if (profile) glFinish();
-    const Clock::time_point t1n = Clock::now();
-    renderer_draw(renderer, app.camera, app.draw);
-    if (profile) glFinish();
-    const Clock::time_point t1d = Clock::now();
-    overlay_geometry(app, lines, solids);
-    solid_overlay_draw(solid_overlay, renderer.framebuffer, renderer.width, renderer.height, app.camera, solids);
-    overlay_draw(overlay, renderer.framebuffer, renderer.width, renderer.height, app.camera, lines);
-    glBindFramebuffer(GL_FRAMEBUFFER, 0);
-    glClearColor(0.1f, 0.1f, 0.12f, 1.0f);
-    glClear(GL_COLOR_BUFFER_BIT);
-    renderer_blit(renderer, 0, renderer.width, renderer.height, app.view_x, 0);
-    if (profile) glFinish();
-    const Clock::time_point t2 = Clock::now();
-
-    cursor_label(app);
-    draw_panels(app);
-    ImGui::Render();
-    glBindFramebuffer(GL_FRAMEBUFFER, 0);
-    glViewport(0, 0, fb_w, fb_h);
-    ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
-    if (profile) glFinish();
-    const Clock::time_point t3 = Clock::now();
-    glfwSwapBuffers(window);
-    const Clock::time_point t4 = Clock::now();
-
-    // Frame statistics.
-    const double render_ms = ms_between(t0, t3), interval = ms_between(last_frame, t4);
-    last_frame = t4;
-    app.push_frame(ms_between(t0, t1), ms_between(t1, t2), render_ms, interval);
-    ++app.frame;
-    if (app.status.ready && app.current != nullptr) {
-      const double phases[6] = {ms_between(t0, t1) - cpu_normals_ms, ms_between(t1, t1n) + cpu_normals_ms,
-                                ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3), ms_between(t3, t4)};
-      stats.add(app, phases, render_ms, interval, t4);
-    }
-    if (options.exit_after_frames > 0 && stats.counted_frames >= uint64_t(options.exit_after_frames)) {
-      const bool playing = app.status.playing && !sim.play_done();
-      if (!playing) break;
+// One frame: input, the snapshot, the scene (only when something it shows changed), overlays,
+// panels, swap; its phase times into the statistics.
+void run_frame(AppState& app, WindowContext& w) {
+  glfwPollEvents();
+  app.status = w.sim.status();
+  follow_simulation(app, w.generation);
+  // Window resize: a new panel width and offscreen target.
+  int fb_w = 0, fb_h = 0;
+  glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
+  if (fb_w >= 16 && fb_h >= 16) {
+    const Viewport before = app.viewport;
+    layout_view(app, fb_w, fb_h);
+    std::string error;
+    if ((app.viewport.width != w.renderer.width || app.viewport.height != w.renderer.height) &&
+        !renderer_resize(w.renderer, app.viewport.width, app.viewport.height, error)) {
+      app.viewport = before;
     }
   }
+  ImGui_ImplOpenGL3_NewFrame();
+  ImGui_ImplGlfw_NewFrame();
+  ImGui::NewFrame();
+  handle_keys(app, w.window);
+  handle_mouse(app, w.window);
 
-  // The last frame as a PNG.
+  const Clock::time_point t0 = Clock::now();
+  const double normals_ms = take_snapshot(app, w);
+  if (w.profile) glFinish();
+  const Clock::time_point t1 = Clock::now();
+  renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
+  if (w.profile) glFinish();
+  const Clock::time_point t1n = Clock::now();
+  renderer_draw(w.renderer, app.camera, app.draw);
+  if (w.profile) glFinish();
+  const Clock::time_point t1d = Clock::now();
+  overlay_geometry(app, w.lines, w.solids);
+  solid_overlay_draw(w.solid_overlay, w.renderer.framebuffer, w.renderer.width, w.renderer.height, app.camera, w.solids);
+  overlay_draw(w.overlay, w.renderer.framebuffer, w.renderer.width, w.renderer.height, app.camera, w.lines);
+  // The view covers the window right of the panel and the panel is opaque: no clear needed.
+  renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
+  if (w.profile) glFinish();
+  const Clock::time_point t2 = Clock::now();
+
+  cursor_label(app);
+  draw_panels(app);
+  ImGui::Render();
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  glViewport(0, 0, fb_w, fb_h);
+  ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+  if (w.profile) glFinish();
+  const Clock::time_point t3 = Clock::now();
+  glfwSwapBuffers(w.window);
+  const Clock::time_point t4 = Clock::now();
+
+  // Frame statistics (normals: the simulation thread's time for the snapshot shown, or the GPU passes).
+  const double render_ms = ms_between(t0, t3), interval = ms_between(w.last_frame, t4);
+  w.last_frame = t4;
+  app.push_frame(ms_between(t0, t1), ms_between(t1, t2), render_ms, interval);
+  ++app.frame;
+  if (app.status.ready && app.current != nullptr) {
+    const double normals = w.gpu_normals ? ms_between(t1, t1n) : std::max(normals_ms, 0.0);
+    const double phases[6] = {ms_between(t0, t1), normals, ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3),
+                              ms_between(t3, t4)};
+    w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0);
+  }
+}
+
+// After the loop: the --screenshot PNG, the statistics, the replay check; then everything closed.
+int finish_window(AppState& app, WindowContext& w, const WindowOptions& options, int exit_code) {
   if (!options.screenshot_path.empty() && exit_code == kExitOk) {
     std::string message;
     if (take_screenshot(app, options.screenshot_path, message)) {
@@ -848,27 +877,64 @@ int run_window(const WindowOptions& options) {
       exit_code = kExitBadInput;
     }
   }
-  stats.print(app);
+  w.stats.print(app);
   std::printf("window: layout panel %d px (drawn %.0f px), view %dx%d\n", app.panel_width, app.panel_drawn_width,
               app.viewport.width, app.viewport.height);
-  const SimStatus final_status = sim.status();
+  const SimStatus final_status = w.sim.status();
   if (final_status.playing && final_status.hash_mismatched > 0) {
     std::fprintf(stderr, "divvox: error: %s: the window's simulation diverged from the recording (%u of %u hashes differ)\n",
                  final_status.play_path.c_str(), final_status.hash_mismatched, final_status.hash_checked);
     exit_code = kExitInternal;
   }
   std::fflush(stdout);
-
-  sim.stop();
+  w.sim.stop();
   ImGui_ImplOpenGL3_Shutdown();
   ImGui_ImplGlfw_Shutdown();
   ImGui::DestroyContext();
-  overlay_destroy(overlay);
-  overlay_destroy(solid_overlay);
-  renderer_destroy(renderer);
-  glfwDestroyWindow(window);
+  overlay_destroy(w.overlay);
+  overlay_destroy(w.solid_overlay);
+  renderer_destroy(w.renderer);
+  glfwDestroyWindow(w.window);
   glfwTerminate();
   return exit_code;
+}
+
+}  // namespace
+
+int run_window(const WindowOptions& options) {
+  Scene scene;
+  std::shared_ptr<const Playback> playback;
+  if (const int code = load_window_input(options, scene, playback); code >= 0) return code;
+  AppState app;
+  WindowContext w;
+  if (const int code = open_gl_window(options, w); code >= 0) return code;
+  if (!init_graphics(app, w)) return kExitInternal;
+  app.window_options = options;
+  std::snprintf(app.record_path, sizeof app.record_path, "%s",
+                options.record_path.empty() ? default_output_path("divvox_recording.jsonl").c_str()
+                                            : options.record_path.c_str());
+  if (playback) {
+    std::snprintf(app.play_path, sizeof app.play_path, "%s", options.play_path.c_str());
+    w.sim.play(playback);
+  } else {
+    w.sim.open(scene, scene.solver.dt, options.record_path);
+  }
+  std::snprintf(app.scene_path, sizeof app.scene_path, "%s", options.scene_path.c_str());
+
+  int exit_code = kExitOk;
+  while (!glfwWindowShouldClose(w.window)) {
+    run_frame(app, w);
+    // The initial scene failed to open: nothing to show.
+    if (!app.status.ready && !app.status.loading && !app.status.error.empty()) {
+      exit_code = kExitBadInput;
+      break;
+    }
+    if (options.exit_after_frames > 0 && w.stats.counted_frames >= uint64_t(options.exit_after_frames)) {
+      const bool playing = app.status.playing && !w.sim.play_done();
+      if (!playing) break;
+    }
+  }
+  return finish_window(app, w, options, exit_code);
 }
 
 }  // namespace dvx

@@ -114,6 +114,11 @@ void show_message(AppState& app, const std::string& text, double seconds = 6.0);
 void request_undo(AppState& app, bool redo);
 // Reads the last scene image back and writes it as PNG; `message` says what happened.
 bool take_screenshot(AppState& app, const std::string& path, std::string& message);
+// The window's output folder (F12 screenshots, the default recording), relative to the working
+// directory like the other commands' out/ folders.
+constexpr const char* kWindowOutputDir = "out/window";
+// kWindowOutputDir/name, the folder created.
+std::string default_output_path(const std::string& name);
 std::string default_screenshot_name();
 
 }  // namespace dvx

@@ -180,6 +180,7 @@ void view_panel(AppState& app) {
   ImGui::Checkbox("wireframe (W)", &app.draw.wireframe);
   ImGui::Checkbox("blade trail (T)", &app.show_trail);
   ImGui::SliderInt("trail length", &app.trail_length, 2, 200);
+  ImGui::Checkbox("shadow on the tray", &app.draw.shadows);
   ImGui::ColorEdit3("cut colour", app.draw.cut_color.data());
   ImGui::ColorEdit3("surface colour", app.draw.surface_color.data());
   if (ImGui::Button("Reset view (R)")) {
@@ -228,7 +229,13 @@ void recording_panel(AppState& app) {
   const SimStatus& s = app.status;
   ImGui::InputText("record to", app.record_path, sizeof app.record_path);
   if (!s.recording) {
-    if (ImGui::Button("Record (restarts the scene)")) app.sim->start_recording(app.record_path);
+    if (ImGui::Button("Record (restarts the scene)")) {
+      const std::filesystem::path parent = std::filesystem::path(app.record_path).parent_path();
+      std::error_code ec;
+      if (!parent.empty()) std::filesystem::create_directories(parent, ec);
+      app.sim->start_recording(app.record_path);
+      show_message(app, std::string("recording to ") + app.record_path, 4.0);
+    }
   } else {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.3f, 0.3f, 1));
     ImGui::TextWrapped("recording %s", s.recording_path.c_str());
@@ -267,7 +274,7 @@ void help_panel(AppState& app) {
       {"R or Home", "reset the view"},
       {"space, .", "pause / play, one step"},
       {"W, T", "wireframe, blade trail"},
-      {"F12", "screenshot (PNG in the working directory)"},
+      {"F12", "screenshot (PNG in out/window/)"},
       {"F1", "this help"},
       {"shift+Esc", "quit"}};
   if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingStretchProp)) {

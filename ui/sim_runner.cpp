@@ -2,7 +2,11 @@
 
 #include "engine/errors.h"
 #include "engine/timing.h"
+#include "render/normals.h"
 #include "sim/state_hash.h"
+
+#include <cstdlib>
+#include <string>
 
 #include <algorithm>
 #include <chrono>
@@ -28,7 +32,11 @@ int default_workers() {
 
 }  // namespace
 
-SimRunner::SimRunner() { thread_ = std::thread([this] { run(); }); }
+SimRunner::SimRunner() {
+  const char* every = std::getenv("DIVVOX_SNAPSHOT_EVERY_STEP");
+  every_step_ = every != nullptr && std::string(every) == "1";
+  thread_ = std::thread([this] { run(); });
+}
 
 SimRunner::~SimRunner() { stop(); }
 
@@ -116,12 +124,38 @@ SimStatus SimRunner::status() {
   return status_;
 }
 
-void SimRunner::publish(const StepTimings& timings) {
+const Snapshot* SimRunner::take() {
+  const Snapshot* s = exchange_.take();
+  if (s) {
+    taken_.store(s->sequence);
+    wake_.notify_all();  // a held-back step can go out now
+  }
+  return s;
+}
+
+void SimRunner::publish(const StepTimings& timings, bool force) {
+  // Held back while the renderer has not taken the last one; the surface's dirty ranges keep
+  // growing until the next publish, so that one carries every change.
+  if (!force && !every_step_ && taken_.load() < published_) {
+    unpublished_ = true;
+    unpublished_timings_ = timings;
+    return;
+  }
+  unpublished_ = false;
   Session& s = *session_;
   const uint32_t step = s.step == 0 ? 0 : s.step - 1;
+  const bool normals = cpu_normals_.load();
   exchange_.publish(
       [&](Snapshot& slot, uint64_t slot_sequence) {
         fill_snapshot(slot, slot_sequence, s.cut.surface, s.pbd ? &s.pbd->deformed : nullptr, history_, step, timings);
+        const Clock::time_point t0 = Clock::now();
+        if (normals) {
+          split_vertex_normals(slot.positions, slot.triangles, slot.triangle_flags, slot.normals, slot.cut_normals);
+        } else {
+          slot.normals.clear();
+          slot.cut_normals.clear();
+        }
+        slot.normals_ms = ms_between(t0, Clock::now());
       },
       false);
   ++published_;
@@ -194,7 +228,7 @@ void SimRunner::do_open(OpenRequest& request) {
   history_ = DirtyHistory();
   history_.first_sequence = published_ + 1;
   generation_first_sequence_.store(published_ + 1);
-  publish(StepTimings());
+  publish(StepTimings(), true);
 }
 
 void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
@@ -233,7 +267,7 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
     std::printf("final hash %s (played %s to step %u)\n", final_hash.c_str(), playing_->file.c_str(), step);
     std::fflush(stdout);
   }
-  publish(report.timings);
+  publish(report.timings, false);
 
   lock.lock();
   next_step_.store(s.step);
@@ -342,7 +376,7 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   history_ = DirtyHistory();
   history_.first_sequence = published_ + 1;
   generation_first_sequence_.store(published_ + 1);
-  publish(StepTimings());
+  publish(StepTimings(), true);
   const double ms = ms_between(t0, Clock::now());
   std::printf("%s: back to step %u (hash %s, kept %s) in %.1f ms\n", what, s.step, hash_hex(hash).c_str(),
               hash_hex(kept.hash).c_str(), ms);
@@ -419,6 +453,13 @@ void SimRunner::run() {
       redo_stack_.clear();
       status_.undo_levels = uint32_t(undo_stack_.size());
       status_.redo_levels = 0;
+    }
+    // A held-back snapshot goes out as soon as the renderer has taken the previous one.
+    if (session_ && unpublished_ && taken_.load() >= published_) {
+      lock.unlock();
+      publish(unpublished_timings_, false);
+      lock.lock();
+      continue;
     }
     if (!session_ || (paused_ && single_steps_ == 0)) {
       wake_.wait_for(lock, std::chrono::milliseconds(50));

@@ -65,6 +65,15 @@ class SimRunner {
   SimRunner& operator=(const SimRunner&) = delete;
 
   SnapshotExchange& exchange() { return exchange_; }
+  // Render side: the newest snapshot not seen yet, or nullptr (valid until the next take).
+  // The simulation thread publishes a step's snapshot only once the previous one was taken (a
+  // snapshot the renderer would skip costs its copy and normals for nothing, on the cores the
+  // rasteriser needs); a step that was not published is published when the renderer catches up.
+  // DIVVOX_SNAPSHOT_EVERY_STEP=1 publishes every step (for comparing).
+  const Snapshot* take();
+  // Snapshots carry split vertex normals computed on the simulation thread (the render thread then
+  // only uploads them); off: the renderer computes them (GPU passes).
+  void set_cpu_normals(bool on) { cpu_normals_.store(on); }
   // Sequence number of the first snapshot of the current session (the renderer uploads it in full).
   uint64_t generation_first_sequence() const { return generation_first_sequence_.load(); }
 
@@ -111,7 +120,8 @@ class SimRunner {
   void run();
   void do_open(OpenRequest& request);
   void do_step(std::unique_lock<std::mutex>& lock);
-  void publish(const StepTimings& timings);
+  // force: publish even if the renderer has not taken the previous snapshot (a new session, a restore).
+  void publish(const StepTimings& timings, bool force);
   void finish_recording();
   // Undo (sim_runner.cpp, the section "Undo").
   struct KeptState {
@@ -155,6 +165,11 @@ class SimRunner {
   DirtyHistory history_;
   std::vector<KeptState> undo_stack_, redo_stack_;
   uint64_t published_ = 0;
+  bool unpublished_ = false;  // a step ran whose snapshot was held back (the renderer was behind)
+  bool every_step_ = false;   // DIVVOX_SNAPSHOT_EVERY_STEP=1
+  StepTimings unpublished_timings_;
+  std::atomic<uint64_t> taken_{0};  // sequence of the snapshot the renderer took last
+  std::atomic<bool> cpu_normals_{false};
   std::atomic<uint64_t> generation_first_sequence_{1};
   std::atomic<uint32_t> next_step_{0};
   std::atomic<bool> play_done_{false};

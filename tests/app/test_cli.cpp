@@ -90,7 +90,7 @@ TEST_SUITE("cli") {
     REQUIRE(w.kind == CliCommand::kWindow);
     CHECK(w.window.width == 640);
     CHECK(w.window.exit_after_frames == 3);
-    CHECK(w.window.scene_path.find("assets/scenes/bunny.json") != std::string::npos);
+    CHECK(w.window.scene_path.find("assets/scenes/liver.json") != std::string::npos);  // the window opens the liver
     CHECK(parse({"--play", "r.jsonl"}).window.play_path == "r.jsonl");
     CHECK_THROWS_WITH_AS(parse({"--play", "r.jsonl", "s.json"}),
                          "--play: the recording holds its own scene; drop s.json", InputError);
