@@ -1,19 +1,27 @@
 #!/usr/bin/env bash
 # Frame rate of the window while cutting (not part of ctest: timing depends on the machine). Starts
-# the window at 1280x720 under its own Xvfb with SCENE (default: the bunny), waits until it is ready,
-# then sweeps the scalpel back and forth across the object for SECONDS (default 20) while holding the
-# button, closes it and prints its frame statistics: fps p50 / p5 (wall clock), phase times, CPU ms
-# per frame by thread kind (independent of other load on the machine), input-to-cut latency in frames.
-# Usage: tests/cli/window_fps.sh DIVVOX [SCENE] [SECONDS] [RESOLUTION]
+# the window at 1280x720 under its own Xvfb with SCENE (default: the window's default, the liver on
+# its tray; "-" also means the default), waits until it is ready, then sweeps the scalpel back and
+# forth across the object's middle for SECONDS (default 20) while holding the button, closes it and
+# prints its frame statistics: fps p50 / p5 (wall clock), phase times, CPU ms per frame by thread
+# kind (independent of other load on the machine), input-to-cut latency in frames; last a line
+#   fps while cutting: p50 X p5 Y (scene, resolution R)
+# Usage: tests/cli/window_fps.sh DIVVOX [SCENE|-] [SECONDS] [RESOLUTION]
+#   e.g. tests/cli/window_fps.sh build/engine/divvox - 20 128; ... - 20 256
+# Environment passes through (DIVVOX_SNAPSHOT_EVERY_STEP, DIVVOX_GPU_NORMALS, LP_NUM_THREADS, ...).
 set -u
 divvox=$1
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
-scene=${2:-$here/assets/scenes/bunny.json}
+scene=${2:--}
+[[ $scene == - ]] && scene=$here/assets/scenes/liver.json
 seconds=${3:-20}
 resolution=${4:-}
 if [[ -z ${DISPLAY:-} && -z ${WINDOW_FPS_IN_XVFB:-} ]]; then
   WINDOW_FPS_IN_XVFB=1 exec xvfb-run -a -s "-screen 0 1280x720x24" "$0" "$divvox" "$scene" "$seconds" "${resolution:-0}"
 fi
+name=$(basename "$scene" .json)
+# The middle of the default view (window coordinates; the view starts right of the 384 px panel).
+y0=$([[ $name == bunny ]] && echo 430 || echo 340)
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 if [[ -n $resolution && $resolution != 0 ]]; then
@@ -31,15 +39,15 @@ fi
 pid=$!
 for _ in $(seq 300); do grep -q "^window: ready" "$tmp/out" && break; sleep 0.5; done
 sleep 2
-xdotool mousemove 700 430
+xdotool mousemove 720 $y0
 xdotool mousedown 1
 end=$((SECONDS + seconds))
-x=700
+x=720
 dx=6
 while ((SECONDS < end)); do
   x=$((x + dx))
-  ((x > 940 || x < 680)) && dx=$((-dx))
-  xdotool mousemove $x $((430 + (x - 700) / 10))
+  ((x > 960 || x < 700)) && dx=$((-dx))
+  xdotool mousemove $x $((y0 + (x - 720) / 10))
   sleep 0.03
 done
 xdotool mouseup 1
@@ -48,3 +56,6 @@ xdotool key shift+Escape
 wait $pid
 grep -E "^window:|^input to cut" "$tmp/out"
 echo "load average: $(cut -d' ' -f1-3 /proc/loadavg), $(nproc) cores"
+fps=$(sed -n 's/.*; fps p50 \([0-9.]*\) p5 \([0-9.]*\)$/p50 \1 p5 \2/p' "$tmp/out" | head -1)
+[[ -z $resolution || $resolution == 0 ]] && resolution="the scene's"
+echo "fps while cutting: ${fps:-?} ($name, resolution $resolution)"

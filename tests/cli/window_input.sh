@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
-# One real-input case of the window test, run inside an X server (xvfb-run): starts the window on
-# the default scene at 1280x720, drives it with xdotool, checks what it printed.
-#   middle: a scalpel drag across the bunny's body; ear: across its right ear (thin, far from the
-#           bounding box's faces). Both with --record; the recording must replay headless with
-#           voxels_cut > 0 and its hashes matching.
-#   undo:   a cut, then ctrl+z: the restored state's hash equals the hash kept before the cut;
-#           then a drag starting on the panel's edge: the panel keeps its width.
+# One real-input case of the window test, run inside an X server (xvfb-run): starts the window at
+# 1280x720, drives it with xdotool from the default view, checks what it printed.
+#   middle: a scalpel drag across the default scene's (the liver's) thick middle; lobe: across the
+#           tip of its thin left lobe (far from the bounding box's faces, a tissue ~1 unit thick);
+#           ear: across the bunny's right ear (assets/scenes/bunny.json given explicitly). With
+#           --record; the recording must replay headless with voxels_cut > 0 and its hashes matching.
+#   undo:   a cut on the default scene, then ctrl+z: the restored state's hash equals the hash kept
+#           before the cut; then a drag starting on the panel's edge: the panel keeps its width.
 # Usage: window_input.sh DIVVOX REPO CASE OUTDIR
 set -u
 divvox=$1
@@ -21,7 +22,9 @@ fail() {
 
 record=()
 [[ $case != undo ]] && record=(--record "$out/session.jsonl")
-"$divvox" "$repo/assets/scenes/bunny.json" --size 1280x720 "${record[@]}" >"$out/win.out" 2>"$out/win.err" &
+scene=()  # the window's default scene (the liver), except for the bunny's ear
+[[ $case == ear ]] && scene=("$repo/assets/scenes/bunny.json")
+"$divvox" "${scene[@]}" --size 1280x720 "${record[@]}" >"$out/win.out" 2>"$out/win.err" &
 pid=$!
 trap 'kill $pid 2>/dev/null' EXIT
 
@@ -53,11 +56,14 @@ drag() {
 wait_for "^window: ready" 150
 panel=$(sed -n 's/^window: ready.*panel \([0-9]*\) px.*/\1/p' "$out/win.out" | head -1)
 sleep 2
-# Window coordinates of the default view at 1280x720 (panel on the left): the body's middle, the ear.
+grep -q "^window: ready.*$([[ $case == ear ]] && echo bunny || echo liver).json" "$out/win.out" || fail "wrong scene: $(head -1 "$out/win.out")"
+# Window coordinates of the default view at 1280x720 (panel on the left): the liver's middle, its
+# left lobe's tip (a drag across it, top to bottom), the bunny's ear.
 case $case in
-  middle) drag 680 430 900 450 12 ;;
+  middle) drag 740 330 960 350 12 ;;
+  lobe) drag 1040 200 1046 320 10 ;;
   ear) drag 745 190 830 212 10 ;;
-  undo) drag 680 430 900 450 12 ;;
+  undo) drag 740 330 960 350 12 ;;
 esac
 wait_for "^cut: " 60
 cut=$(sed -n 's/^cut: \([0-9]*\) voxels.*/\1/p' "$out/win.out" | head -1)

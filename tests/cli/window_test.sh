@@ -5,9 +5,9 @@
 # exit 2 with the one-line "no display" message. Skips (exit 0) when xvfb-run is missing, unless
 # DIVVOX_REQUIRE_GL=1 (tools/test.sh), where that is a failure.
 # With xdotool, real mouse input (tests/cli/window_input.sh): scalpel drags across the default
-# scene's thick middle and across an ear cut (their --record files replay headless with
-# voxels_cut > 0), ctrl+z restores the kept state's hash, a drag at the panel's edge leaves its
-# width alone.
+# scene's (the liver's) thick middle and its thin left lobe, and across the bunny's ear, cut (their
+# --record files replay headless with voxels_cut > 0); ctrl+z restores the kept state's hash; a
+# drag at the panel's edge leaves its width alone.
 # Usage: window_test.sh DIVVOX REPO
 set -u
 divvox=$1
@@ -112,7 +112,7 @@ fi
 
 # Real input (xdotool): each case in its own X server.
 if command -v xdotool >/dev/null 2>&1; then
-  for case in middle ear undo; do
+  for case in middle lobe ear undo; do
     timeout 300 xvfb-run -a -s "-screen 0 1280x720x24" bash "$repo/tests/cli/window_input.sh" "$divvox" "$repo" "$case" \
       "$tmp/input_$case" >"$tmp/input_$case.log" 2>&1
     code=$?
