@@ -190,15 +190,14 @@ bool create_target(Renderer& r, std::string& error) {
     return false;
   }
   r.samples = std::clamp(r.samples, 0, int(max_samples));
-  // Drawn-into framebuffer: RGBA8 colour + 24-bit depth + 8-bit stencil (the trays' shadows),
-  // multisampled when asked.
+  // Drawn-into framebuffer: RGBA8 colour + 24-bit depth, multisampled when asked.
   glCreateRenderbuffers(1, &r.color_renderbuffer);
   glCreateRenderbuffers(1, &r.depth_renderbuffer);
   glNamedRenderbufferStorageMultisample(r.color_renderbuffer, r.samples, GL_RGBA8, r.width, r.height);
-  glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH24_STENCIL8, r.width, r.height);
+  glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH_COMPONENT24, r.width, r.height);
   glCreateFramebuffers(1, &r.framebuffer);
   glNamedFramebufferRenderbuffer(r.framebuffer, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, r.color_renderbuffer);
-  glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_STENCIL_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
+  glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
   // Single-sample copy for readback when multisampled.
   r.resolve_framebuffer = r.framebuffer;
   if (r.samples > 0) {
@@ -435,10 +434,8 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glViewport(0, 0, r.width, r.height);
   glClearColor(options.background.x(), options.background.y(), options.background.z(), 1.0f);
   glClearDepth(1.0);
-  glClearStencil(0);
   glDepthMask(GL_TRUE);
-  glStencilMask(0xFF);
-  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT | GL_STENCIL_BUFFER_BIT);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
   if (r.triangle_count == 0 || !r.surface_program) return;
 
   // Camera and colours (the wire program uses only the view-projection and its colour).
@@ -502,7 +499,7 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glBindVertexArray(0);
   glDisable(GL_CULL_FACE);
 
-  // Pass 3: the trays and the shadows on them.
+  // Pass 3: the trays, with the surface's shadow (tray_shadow_update).
   tray_draw(r, camera, options);
 }
 

@@ -51,8 +51,11 @@ RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* nor
                           const std::vector<uint8_t>* flags = nullptr);
 
 // A scene's contact plane drawn as a tray: a square `half_size` around `centre` (a point on the plane)
-// with a darker lip, and the surface's shadow on it (projected along the key light, clipped to the
-// tray by the stencil, pulled toward the eye by a depth offset so it never z-fights the tray).
+// with a darker lip, and the surface's shadow on it: the deformed surface's vertices projected onto
+// the plane along the key light into a small grid (tray_shadow_grid), blurred, and sampled by the
+// tray's own fragment shader. Part of the tray itself, so it cannot z-fight it, and it costs no
+// second pass over the surface's triangles (on llvmpipe a projected-geometry shadow, drawn again
+// with a flattening matrix and a stencil, cost ~30 % of the frame).
 struct TrayPlane {
   Vec3f centre = Vec3f::Zero(), normal = Vec3f::UnitY();
   float half_size = 1.0f;
@@ -95,7 +98,10 @@ struct Renderer {
   uint32_t surface_program = 0, wire_program = 0;
   // Trays and shadows (render/tray.cpp): the tray's quad comes from gl_VertexID (an empty vertex
   // array); the shadow re-draws the surface's index buffer, flattened onto the plane.
-  uint32_t tray_program = 0, shadow_program = 0, empty_vertex_array = 0;
+  uint32_t tray_program = 0, empty_vertex_array = 0, shadow_texture = 0;
+  bool shadow_valid = false;  // shadow_texture holds the first tray's shadow for this frame
+  std::vector<float> shadow_grid, shadow_scratch;
+  std::vector<uint8_t> shadow_bytes;
   // Mesh buffers, mirroring the caller's slots.
   uint32_t vertex_array = 0;
   uint32_t position_buffer = 0;  // (vertex_capacity x 3 floats)
@@ -138,11 +144,24 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh);
 void renderer_update_normals(Renderer& r);
 // Draws the uploaded surface into the offscreen target.
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
-// Trays (render/tray.cpp): creates / deletes their programs (renderer_init / renderer_destroy call
-// them); draws options.trays and the shadows into the bound offscreen target, after the surface.
+// Trays (render/tray.cpp): creates / deletes their program and shadow texture (renderer_init /
+// renderer_destroy call them); draws options.trays into the bound offscreen target, after the surface.
 bool tray_init(Renderer& r, std::string& error);
 void tray_destroy(Renderer& r);
 void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
+// The shadow of the surface at `positions` (count vertex slots; non-finite ones skipped) on the
+// first tray, for this frame's camera (the light is the camera's key light). Call it before
+// renderer_draw when the surface or the camera changed; without it the tray has no shadow.
+void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, const Camera& camera,
+                        const DrawOptions& options);
+// The shadow grid (no GL): kTrayShadowGrid^2 cells over the tray's square, row-major along the
+// tray's axes; 1 where the vertices projected along `light` land (then blurred), 0 far from them.
+constexpr int kTrayShadowGrid = 96;
+void tray_shadow_grid(const Vec3f* positions, uint32_t count, const TrayPlane& tray, const Vec3f& light,
+                      std::vector<float>& grid, std::vector<float>& scratch);
+// The direction toward the light for a tray: the camera's key light, raised to at least 60 degrees
+// from the plane so the shadow stays near the object.
+Vec3f tray_light(const Camera& camera, const Vec3f& normal);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
 // Copies the last image into another framebuffer (0: the window's), scaled to w x h, its lower-left

@@ -30,45 +30,21 @@ void main() {
 }
 )";
 
+// Flat and directionally lit, so its shade is one colour per tray (u_shade, from the CPU); per pixel
+// only the lip and the shadow (one bilinear fetch of the shadow grid): the tray covers much of the
+// view and a software rasteriser pays per pixel.
 const char* kTrayFragmentShader = R"(#version 450 core
-layout(location = 5) uniform vec3 u_eye_normal;
-layout(location = 6) uniform vec3 u_tray_color;
+layout(location = 6) uniform vec3 u_shade;
+layout(location = 7) uniform float u_shadow_alpha;  // 0: no shadow on this tray
+layout(binding = 0) uniform sampler2D u_shadow;
 in vec2 v_uv;
 in vec3 v_eye_position;
 out vec4 frag_color;
 void main() {
-  vec3 n = u_eye_normal;
-  vec3 v = normalize(-v_eye_position);
-  if (dot(n, v) < 0.0) n = -n;
-  const vec3 key = normalize(vec3(-0.4, 0.6, 0.7));
-  float diffuse = 0.55 * max(dot(n, key), 0.0);
-  float nh = max(dot(n, normalize(key + v)), 0.0);
-  float nh2 = nh * nh, nh4 = nh2 * nh2, nh8 = nh4 * nh4;
   float r = max(abs(v_uv.x), abs(v_uv.y));
-  float lip = smoothstep(0.93, 0.95, r);
-  vec3 c = u_tray_color * (0.30 + diffuse) * (1.0 - 0.4 * lip) + vec3(0.18 * nh8 * nh8);
-  frag_color = vec4(c, 1.0);
+  float shadow = u_shadow_alpha > 0.0 ? u_shadow_alpha * texture(u_shadow, 0.5 * v_uv + 0.5).r : 0.0;
+  frag_color = vec4(u_shade * ((r > 0.94 ? 0.6 : 1.0) * (1.0 - shadow)), 1.0);
 }
-)";
-
-// The shadow: each surface vertex slid along the light onto the plane.
-const char* kShadowVertexShader = R"(#version 450 core
-layout(location = 0) in vec3 a_position;
-layout(location = 0) uniform mat4 u_view_projection;
-layout(location = 2) uniform vec3 u_point;
-layout(location = 3) uniform vec3 u_normal;
-layout(location = 4) uniform vec3 u_light;
-void main() {
-  float h = dot(a_position - u_point, u_normal);
-  vec3 p = a_position - (h / dot(u_light, u_normal)) * u_light;
-  gl_Position = u_view_projection * vec4(p, 1.0);
-}
-)";
-
-const char* kShadowFragmentShader = R"(#version 450 core
-layout(location = 5) uniform float u_alpha;
-out vec4 frag_color;
-void main() { frag_color = vec4(0.0, 0.0, 0.0, u_alpha); }
 )";
 
 // Two unit vectors spanning the plane of normal n.
@@ -80,83 +56,121 @@ void plane_axes(const Vec3f& n, Vec3f& u, Vec3f& v) {
 
 }  // namespace
 
+Vec3f tray_light(const Camera& camera, const Vec3f& normal) {
+  const Eigen::Matrix3f rotation = view_matrix(camera).topLeftCorner<3, 3>();
+  Vec3f light = rotation.transpose() * Vec3f(-0.4f, 0.6f, 0.7f).normalized();
+  const Vec3f n = normal.normalized();
+  if (light.dot(n) < 0.5f) light = (light + (0.5f - light.dot(n)) * n).normalized();
+  return light;
+}
+
+void tray_shadow_grid(const Vec3f* positions, uint32_t count, const TrayPlane& tray, const Vec3f& light,
+                      std::vector<float>& grid, std::vector<float>& scratch) {
+  constexpr int g = kTrayShadowGrid;
+  grid.assign(size_t(g) * g, 0.0f);
+  const Vec3f n = tray.normal.normalized();
+  Vec3f u, v;
+  plane_axes(n, u, v);
+  const float ln = light.dot(n), scale = 0.5f * float(g) / tray.half_size;
+  // Splat: every surface vertex slid along the light onto the plane marks its cell.
+  for (uint32_t k = 0; k < count; ++k) {
+    const Vec3f& p = positions[k];
+    if (!p.allFinite() || !(ln > 0.0f)) continue;
+    const Vec3f q = p - ((p - tray.centre).dot(n) / ln) * light - tray.centre;
+    const int x = int(std::floor(q.dot(u) * scale + 0.5f * float(g)));
+    const int y = int(std::floor(q.dot(v) * scale + 0.5f * float(g)));
+    if (x >= 0 && y >= 0 && x < g && y < g) grid[size_t(y) * g + size_t(x)] = 1.0f;
+  }
+  // Two 3x3 box blurs: closes the gaps between splats and softens the edge (a penumbra).
+  scratch.resize(grid.size());
+  for (int pass = 0; pass < 2; ++pass) {
+    for (int y = 0; y < g; ++y) {
+      for (int x = 0; x < g; ++x) {
+        float sum = 0.0f;
+        for (int dy = -1; dy <= 1; ++dy) {
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int xx = std::clamp(x + dx, 0, g - 1), yy = std::clamp(y + dy, 0, g - 1);
+            sum += grid[size_t(yy) * g + size_t(xx)];
+          }
+        }
+        scratch[size_t(y) * g + size_t(x)] = std::min(sum * (pass == 0 ? 0.5f : 1.0f / 9.0f), 1.0f);
+      }
+    }
+    grid.swap(scratch);
+  }
+}
+
 bool tray_init(Renderer& r, std::string& error) {
   r.tray_program = gl_link_program(kTrayVertexShader, kTrayFragmentShader, error);
-  if (r.tray_program) r.shadow_program = gl_link_program(kShadowVertexShader, kShadowFragmentShader, error);
-  if (!r.shadow_program) return false;
+  if (!r.tray_program) return false;
   glCreateVertexArrays(1, &r.empty_vertex_array);
+  glCreateTextures(GL_TEXTURE_2D, 1, &r.shadow_texture);
+  glTextureStorage2D(r.shadow_texture, 1, GL_R8, kTrayShadowGrid, kTrayShadowGrid);
+  glTextureParameteri(r.shadow_texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTextureParameteri(r.shadow_texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTextureParameteri(r.shadow_texture, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTextureParameteri(r.shadow_texture, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
   return true;
 }
 
 void tray_destroy(Renderer& r) {
   if (r.tray_program) glDeleteProgram(r.tray_program);
-  if (r.shadow_program) glDeleteProgram(r.shadow_program);
   if (r.empty_vertex_array) glDeleteVertexArrays(1, &r.empty_vertex_array);
-  r.tray_program = r.shadow_program = r.empty_vertex_array = 0;
+  if (r.shadow_texture) glDeleteTextures(1, &r.shadow_texture);
+  r.tray_program = r.empty_vertex_array = r.shadow_texture = 0;
+  r.shadow_valid = false;
+}
+
+void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, const Camera& camera,
+                        const DrawOptions& options) {
+  r.shadow_valid = false;
+  if (!r.shadow_texture || options.trays.empty() || !options.shadows || positions == nullptr) return;
+  const TrayPlane& tray = options.trays.front();
+  tray_shadow_grid(positions, count, tray, tray_light(camera, tray.normal), r.shadow_grid, r.shadow_scratch);
+  r.shadow_bytes.resize(r.shadow_grid.size());
+  for (size_t k = 0; k < r.shadow_grid.size(); ++k) r.shadow_bytes[k] = uint8_t(std::lround(255.0f * r.shadow_grid[k]));
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+  glTextureSubImage2D(r.shadow_texture, 0, 0, 0, kTrayShadowGrid, kTrayShadowGrid, GL_RED, GL_UNSIGNED_BYTE,
+                      r.shadow_bytes.data());
+  r.shadow_valid = true;
 }
 
 void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
-  if (options.trays.empty() || !r.tray_program || !r.shadow_program) return;
+  if (options.trays.empty() || !r.tray_program) return;
   const Eigen::Matrix4f view = view_matrix(camera);
   const Eigen::Matrix4f view_projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect()) * view;
   const Eigen::Matrix3f rotation = view.topLeftCorner<3, 3>();
   const Vec3f eye = camera_eye(camera);
-  // The key light (fixed to the camera, as in the surface shader) in world space.
-  const Vec3f key_world = rotation.transpose() * Vec3f(-0.4f, 0.6f, 0.7f).normalized();
+  const Vec3f key_eye = Vec3f(-0.4f, 0.6f, 0.7f).normalized();  // the surface shader's key light
   glProgramUniformMatrix4fv(r.tray_program, 0, 1, GL_FALSE, view_projection.data());
   glProgramUniformMatrix4fv(r.tray_program, 1, 1, GL_FALSE, view.data());
-  glProgramUniform3fv(r.tray_program, 6, 1, options.tray_color.data());
-  glProgramUniformMatrix4fv(r.shadow_program, 0, 1, GL_FALSE, view_projection.data());
-  glProgramUniform1f(r.shadow_program, 5, options.shadow_alpha);
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LEQUAL);
-  glEnable(GL_STENCIL_TEST);
+  glDepthMask(GL_TRUE);
   glDisable(GL_CULL_FACE);
-  const GLsizei index_count = GLsizei(std::min<uint64_t>(uint64_t(r.triangle_count) * 3, INT32_MAX / 3 * 3));
-  for (const TrayPlane& tray : options.trays) {
+  glDisable(GL_BLEND);
+  glUseProgram(r.tray_program);
+  glBindVertexArray(r.empty_vertex_array);
+  glBindTextureUnit(0, r.shadow_texture);
+  for (size_t k = 0; k < options.trays.size(); ++k) {
+    const TrayPlane& tray = options.trays[k];
     const Vec3f n = tray.normal.normalized();
     Vec3f u, v;
     plane_axes(n, u, v);
-    // The tray, marking its visible pixels in the stencil.
-    const Vec3f axis_u = tray.half_size * u, axis_v = tray.half_size * v, eye_normal = rotation * n;
+    const Vec3f axis_u = tray.half_size * u, axis_v = tray.half_size * v;
+    // Its shade: ambient + the key light's diffuse on the side facing the eye.
+    const Vec3f facing = rotation * ((eye - tray.centre).dot(n) >= 0.0f ? n : Vec3f(-n));
+    const Vec3f shade = options.tray_color * (0.30f + 0.55f * std::max(facing.dot(key_eye), 0.0f));
+    // The shadow: the first tray's, seen from above only.
+    const bool shadow = k == 0 && r.shadow_valid && options.shadows && (eye - tray.centre).dot(n) > 0.0f;
     glProgramUniform3fv(r.tray_program, 2, 1, tray.centre.data());
     glProgramUniform3fv(r.tray_program, 3, 1, axis_u.data());
     glProgramUniform3fv(r.tray_program, 4, 1, axis_v.data());
-    glProgramUniform3fv(r.tray_program, 5, 1, eye_normal.data());
-    glStencilFunc(GL_ALWAYS, 1, 0xFF);
-    glStencilOp(GL_KEEP, GL_KEEP, GL_REPLACE);
-    glDepthMask(GL_TRUE);
-    glUseProgram(r.tray_program);
-    glBindVertexArray(r.empty_vertex_array);
+    glProgramUniform3fv(r.tray_program, 6, 1, shade.data());
+    glProgramUniform1f(r.tray_program, 7, shadow ? options.shadow_alpha : 0.0f);
     glDrawArrays(GL_TRIANGLE_STRIP, 0, 4);
-    // The shadow, seen from above the plane only: the surface's light-facing triangles (front faces
-    // once flattened: half the triangles) darken each tray pixel once (the stencil goes back to 0).
-    const bool above = (eye - tray.centre).dot(n) > 0.0f;
-    if (!options.shadows || !above || r.triangle_count == 0) continue;
-    Vec3f light = key_world;
-    if (light.dot(n) < 0.5f) light = (light + (0.5f - light.dot(n)) * n).normalized();
-    glProgramUniform3fv(r.shadow_program, 2, 1, tray.centre.data());
-    glProgramUniform3fv(r.shadow_program, 3, 1, n.data());
-    glProgramUniform3fv(r.shadow_program, 4, 1, light.data());
-    glStencilFunc(GL_EQUAL, 1, 0xFF);
-    glStencilOp(GL_KEEP, GL_KEEP, GL_ZERO);
-    glDepthMask(GL_FALSE);
-    glEnable(GL_POLYGON_OFFSET_FILL);
-    glPolygonOffset(-1.0f, -8.0f);
-    glEnable(GL_BLEND);
-    glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
-    glEnable(GL_CULL_FACE);
-    glCullFace(GL_BACK);
-    glFrontFace(GL_CCW);
-    glUseProgram(r.shadow_program);
-    glBindVertexArray(r.vertex_array);
-    glDrawElements(GL_TRIANGLES, index_count, GL_UNSIGNED_INT, nullptr);
-    glDisable(GL_CULL_FACE);
-    glDisable(GL_BLEND);
-    glDisable(GL_POLYGON_OFFSET_FILL);
   }
-  glDepthMask(GL_TRUE);
-  glDisable(GL_STENCIL_TEST);
+  glBindTextureUnit(0, 0);
   glUseProgram(0);
   glBindVertexArray(0);
 }

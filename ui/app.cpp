@@ -769,6 +769,8 @@ bool init_graphics(AppState& app, WindowContext& w) {
   app.renderer = &w.renderer;
   app.gl_renderer = w.gl_renderer;
   app.draw.cull_back_faces = true;
+  // DIVVOX_SHADOWS=0: start with the tray's shadow off (View panel: "shadow on the tray").
+  if (const char* sh = std::getenv("DIVVOX_SHADOWS")) app.draw.shadows = std::string(sh) != "0";
   return true;
 }
 
@@ -831,6 +833,10 @@ void run_frame(AppState& app, WindowContext& w) {
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
   if (w.profile) glFinish();
   const Clock::time_point t1n = Clock::now();
+  if (app.current != nullptr) {  // the tray's shadow (counted in the draw phase)
+    tray_shadow_update(w.renderer, app.current->positions.data(), uint32_t(app.current->positions.size()), app.camera,
+                       app.draw);
+  }
   renderer_draw(w.renderer, app.camera, app.draw);
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
