@@ -12,6 +12,7 @@
 
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -506,6 +507,81 @@ TEST_CASE("renderer: buffers grow past capacity / incremental cut uploads match 
   renderer_destroy(r);
   renderer_destroy(fresh);
   renderer_destroy(incremental);
+}
+
+TEST_CASE("tray shadow grid: dark under the object along the light, clear far from it") {
+  // A ball of vertices 3 above the plane y = 0, the light straight up: the shadow is a disc under it.
+  std::vector<Vec3f> points;
+  for (int k = 0; k < 4000; ++k) {
+    const float a = 2.399963f * float(k), z = 1.0f - 2.0f * (float(k) + 0.5f) / 4000.0f, r = std::sqrt(1.0f - z * z);
+    points.push_back(Vec3f(r * std::cos(a), 3.0f + z, r * std::sin(a)));
+  }
+  points.push_back(Vec3f(NAN, NAN, NAN));  // a free slot is skipped
+  TrayPlane tray;
+  tray.centre = Vec3f::Zero();
+  tray.half_size = 4.0f;
+  std::vector<float> grid, scratch;
+  const int g = kTrayShadowGrid;
+  const auto at = [&](float along_u, float along_v) {  // the cell at tray coordinates in [-1, 1]
+    const int x = std::clamp(int((0.5f * along_u + 0.5f) * float(g)), 0, g - 1);
+    const int y = std::clamp(int((0.5f * along_v + 0.5f) * float(g)), 0, g - 1);
+    return grid[size_t(y) * size_t(g) + size_t(x)];
+  };
+  tray_shadow_grid(points.data(), uint32_t(points.size()), tray, Vec3f::UnitY(), grid, scratch);
+  REQUIRE(grid.size() == size_t(g) * size_t(g));
+  CHECK(at(0.0f, 0.0f) > 0.9f);   // under the ball's centre
+  CHECK(at(0.6f, 0.0f) == 0.0f);  // 2.4 away, the ball's radius is 1
+  CHECK(at(0.0f, -0.6f) == 0.0f);
+  // A slanted light moves the shadow away from under the ball, opposite to the light's tilt.
+  const Vec3f light = Vec3f(1.0f, 1.0f, 0.0f).normalized();
+  tray_shadow_grid(points.data(), uint32_t(points.size()), tray, light, grid, scratch);
+  float sum = 0.0f, moment = 0.0f;
+  Vec3f u = tray.normal.cross(std::abs(tray.normal.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY()).normalized();
+  for (int y = 0; y < g; ++y) {
+    for (int x = 0; x < g; ++x) {
+      const float w = grid[size_t(y) * size_t(g) + size_t(x)];
+      const Vec3f cell = u * ((float(x) + 0.5f) / float(g) * 2.0f - 1.0f) * tray.half_size +
+                         tray.normal.cross(u) * ((float(y) + 0.5f) / float(g) * 2.0f - 1.0f) * tray.half_size;
+      sum += w;
+      moment += w * cell.x();
+    }
+  }
+  REQUIRE(sum > 0.0f);
+  MESSAGE("shadow centre x " << moment / sum << " (the ball at 3 above, light at 45 degrees: -3)");
+  CHECK(moment / sum == doctest::Approx(-3.0f).epsilon(0.1));
+}
+
+TEST_CASE("renderer: a tray under the surface, darker where its shadow falls") {
+  GlScope gl;
+  if (!gl.ok) return;
+  const Shape shape = make_shape();
+  Renderer r = make_renderer();
+  renderer_upload(r, render_mesh_of(shape.surface, &shape.normals));
+  Camera camera = frame_box(shape.box, Viewport{kWidth, kHeight}.aspect());
+  DrawOptions options;
+  const Vec3d centre = 0.5 * (shape.box.min + shape.box.max);
+  TrayPlane tray;
+  tray.centre = Vec3f(float(centre.x()), float(shape.box.min.y()) - 0.01f, float(centre.z()));
+  tray.half_size = float(shape.box.extent().maxCoeff());
+  options.trays.push_back(tray);
+  const std::vector<uint8_t> bare = draw(r, camera, DrawOptions());
+  options.shadows = false;
+  const std::vector<uint8_t> lit = draw(r, camera, options);
+  options.shadows = true;
+  tray_shadow_update(r, shape.surface.positions.data(), uint32_t(shape.surface.positions.size()), camera, options);
+  REQUIRE(r.shadow_valid);
+  const std::vector<uint8_t> shadowed = draw(r, camera, options);
+  // The tray covers background; the shadow only darkens (never lightens) tray pixels, and some.
+  CHECK(coverage(lit, options.background) > coverage(bare, options.background) + 0.05);
+  size_t darker = 0, lighter = 0;
+  for (size_t i = 0; i < lit.size(); i += 4) {
+    darker += shadowed[i] + 8 < lit[i] ? 1 : 0;
+    lighter += shadowed[i] > lit[i] + 1 ? 1 : 0;
+  }
+  MESSAGE("shadowed pixels " << darker);
+  CHECK(darker > 200);
+  CHECK(lighter == 0);
+  renderer_destroy(r);
 }
 
 }  // TEST_SUITE
