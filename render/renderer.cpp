@@ -19,22 +19,21 @@ namespace {
 constexpr uint32_t kMinVertexCapacity = 1024;
 constexpr uint32_t kMinTriangleCapacity = 2048;
 
-// Shared vertex stage: positions and normals to eye space (the view matrix is rigid, so its 3x3
-// part transforms normals too). a_cut_normal: the cut-face normal where the GPU computed two.
+// Shared vertex stage: normals to eye space (the view matrix is rigid, so its 3x3 part transforms
+// normals too). a_cut_normal: the cut-face normal where there are two (zero elsewhere: its
+// interpolated length is how near a fragment is to a cut's rim). Only the two normals are
+// interpolated: a software rasteriser sets up every varying of every triangle on the render thread,
+// so the eye position is rebuilt in the fragment shader from gl_FragCoord instead.
 const char* kVertexShader = R"(#version 450 core
 layout(location = 0) in vec3 a_position;
 layout(location = 1) in vec3 a_normal;
 layout(location = 2) in vec3 a_cut_normal;
 layout(location = 0) uniform mat4 u_view_projection;
 layout(location = 1) uniform mat4 u_view;
-out vec3 v_eye_position;
 out vec3 v_eye_normal;
 out vec3 v_eye_cut_normal;
-out float v_rim;
 void main() {
   vec4 p = vec4(a_position, 1.0);
-  v_rim = dot(a_cut_normal, a_cut_normal) > 0.25 ? 1.0 : 0.0;  // the vertex touches a cut face
-  v_eye_position = (u_view * p).xyz;
   v_eye_normal = mat3(u_view) * a_normal;
   v_eye_cut_normal = mat3(u_view) * a_cut_normal;
   gl_Position = u_view_projection * p;
@@ -59,24 +58,32 @@ void main() {
 // Cheap on a software rasteriser (it runs for every covered pixel on the CPU): powers by repeated
 // squaring (n.h^64 and ^16, not pow's exp2/log2), the derivatives only for flat shading.
 const char* kSurfaceFragmentShader = "#version 450 core\n" DVX_FLAG_BLOCK R"(
-in vec3 v_eye_position;
 in vec3 v_eye_normal;
 in vec3 v_eye_cut_normal;
-in float v_rim;
 layout(location = 2) uniform vec3 u_surface_color;
 layout(location = 3) uniform vec3 u_cut_color;
 layout(location = 4) uniform int u_flat;
 layout(location = 6) uniform int u_split;
+// Eye rays from gl_FragCoord: (2 / width, 2 / height, 1 / P[0][0], 1 / P[1][1]); eye depth from the
+// window depth: (P[2][2], P[2][3]).
+layout(location = 7) uniform vec4 u_unproject;
+layout(location = 8) uniform vec2 u_depth;
 out vec4 frag_color;
 void main() {
   bool cut = (triangle_flags() & 1u) != 0u;
-  // The outer surface blushes toward the cut colour next to a cut's rim: an incision line that shows
-  // even while the slit is closed.
-  vec3 base = cut ? u_cut_color : mix(u_surface_color, 0.85 * u_cut_color, 0.85 * v_rim * v_rim);
+  // The outer surface blushes toward the cut colour right at a cut's rim: an incision line that shows
+  // even while the slit is closed. Only the part of the rim vertices' triangles nearest them: the
+  // whole triangle fan blushed into a saw-tooth band as wide as the (uneven) triangles.
+  float near_rim = min(dot(v_eye_cut_normal, v_eye_cut_normal), 1.0);
+  float blush = smoothstep(0.55, 0.95, near_rim);
+  vec3 base = cut ? u_cut_color : mix(u_surface_color, 0.85 * u_cut_color, 0.85 * blush);
   vec3 n = (cut && u_split != 0) ? v_eye_cut_normal : v_eye_normal;
-  vec3 v = normalize(-v_eye_position);
+  vec3 ray = vec3((gl_FragCoord.xy * u_unproject.xy - 1.0) * u_unproject.zw, -1.0);  // eye position / depth
+  vec3 v = -normalize(ray);
   if (u_flat != 0) {
-    n = cross(dFdx(v_eye_position), dFdy(v_eye_position));  // always faces the eye
+    float z = u_depth.y / (gl_FragCoord.z * 2.0 - 1.0 + u_depth.x);  // the eye depth (positive)
+    vec3 eye_position = z * ray;
+    n = cross(dFdx(eye_position), dFdy(eye_position));  // always faces the eye
   } else if (!gl_FrontFacing && dot(n, v) < 0.0) {
     n = -n;  // a back face seen through a hole (not a sliver triangle folded against its neighbours)
   }
@@ -448,6 +455,10 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glProgramUniform3fv(r.surface_program, 3, 1, options.cut_color.data());
   glProgramUniform1i(r.surface_program, 4, r.has_normals || r.gpu_normals ? 0 : 1);
   glProgramUniform1i(r.surface_program, 6, r.split_normals ? 1 : 0);
+  const Eigen::Matrix4f projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect());
+  const float unproject[4] = {2.0f / float(r.width), 2.0f / float(r.height), 1.0f / projection(0, 0), 1.0f / projection(1, 1)};
+  glProgramUniform4fv(r.surface_program, 7, 1, unproject);
+  glProgramUniform2f(r.surface_program, 8, projection(2, 2), projection(2, 3));
   renderer_update_normals(r);
   glBindFramebuffer(GL_FRAMEBUFFER, r.framebuffer);
   glProgramUniform3fv(r.wire_program, 5, 1, options.wire_color.data());

@@ -155,14 +155,16 @@ void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
   for (size_t k = 0; k < options.trays.size(); ++k) {
     const TrayPlane& tray = options.trays[k];
     const Vec3f n = tray.normal.normalized();
+    // Seen from below, a tray would hide the object: it is drawn from above only.
+    if ((eye - tray.centre).dot(n) <= 0.0f) continue;
     Vec3f u, v;
     plane_axes(n, u, v);
     const Vec3f axis_u = tray.half_size * u, axis_v = tray.half_size * v;
-    // Its shade: ambient + the key light's diffuse on the side facing the eye.
-    const Vec3f facing = rotation * ((eye - tray.centre).dot(n) >= 0.0f ? n : Vec3f(-n));
+    // Its shade: ambient + the key light's diffuse.
+    const Vec3f facing = rotation * n;
     const Vec3f shade = options.tray_color * (0.30f + 0.55f * std::max(facing.dot(key_eye), 0.0f));
-    // The shadow: the first tray's, seen from above only.
-    const bool shadow = k == 0 && r.shadow_valid && options.shadows && (eye - tray.centre).dot(n) > 0.0f;
+    // The shadow: the first tray's.
+    const bool shadow = k == 0 && r.shadow_valid && options.shadows;
     glProgramUniform3fv(r.tray_program, 2, 1, tray.centre.data());
     glProgramUniform3fv(r.tray_program, 3, 1, axis_u.data());
     glProgramUniform3fv(r.tray_program, 4, 1, axis_v.data());
