@@ -6,11 +6,11 @@
 # Usage: tests/cli/window_screenshots.sh DIVVOX OUTDIR
 set -u
 divvox=$1
-out=$2
+out=$(mkdir -p "$2" && cd "$2" && pwd)
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 if [[ -z ${DISPLAY:-} && -z ${WINDOW_SHOTS_IN_XVFB:-} ]]; then
   WINDOW_SHOTS_IN_XVFB=1 exec xvfb-run -a -s "-screen 0 1280x720x24" "$0" "$divvox" "$out"
 fi
-mkdir -p "$out"
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 cd "$tmp" || exit 1
@@ -19,20 +19,8 @@ pid=$!
 for _ in $(seq 300); do grep -q "^window: ready" "$tmp/out" && break; sleep 0.5; done
 sleep 4
 shot() { import -window root "$out/$1.png"; }
-# A left drag from ($1,$2) to ($3,$4) in $5 moves.
-drag() {
-  xdotool mousemove "$1" "$2"
-  sleep 1
-  xdotool mousedown 1
-  sleep 0.5
-  local k
-  for ((k = 1; k <= $5; ++k)); do
-    xdotool mousemove $(($1 + ($3 - $1) * k / $5)) $(($2 + ($4 - $2) * k / $5))
-    sleep 0.4
-  done
-  sleep 0.5
-  xdotool mouseup 1
-}
+# drag X0 Y0 X1 Y1 MOVES
+source "$here/window_drag.sh"
 xdotool mousemove 860 300
 sleep 3
 shot liver_hover
