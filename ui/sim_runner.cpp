@@ -364,8 +364,18 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   queue_.clear();
   lock.unlock();
   const Clock::time_point t0 = Clock::now();
-  KeptState now = kept_of_session();
   Session& s = *session_;
+  // The current state goes on the other stack: moved out, not copied (it is replaced at once).
+  KeptState now;
+  now.hash = session_hash(s);
+  now.step = s.step;
+  now.cut = std::move(s.cut);
+  if (kept.pbd && s.pbd) now.pbd = std::move(s.pbd);
+  now.blade = s.blade;
+  now.sweep = std::move(s.sweep);
+  now.sweep_stats = s.sweep_stats;
+  now.have_blade = s.have_blade;
+  now.cutting = s.cutting;
   s.cut = std::move(kept.cut);
   if (kept.pbd) s.pbd = std::move(kept.pbd);
   s.blade = kept.blade;

@@ -6,7 +6,8 @@
 #           ear: across the bunny's right ear (assets/scenes/bunny.json given explicitly). With
 #           --record; the recording must replay headless with voxels_cut > 0 and its hashes matching.
 #   undo:   a cut on the default scene, then ctrl+z: the restored state's hash equals the hash kept
-#           before the cut; then a drag starting on the panel's edge: the panel keeps its width.
+#           before the cut; ctrl+shift+z redoes it (the state after the cut, its hash intact); then a
+#           drag starting on the panel's edge: the panel keeps its width.
 # Usage: window_input.sh DIVVOX REPO CASE OUTDIR
 set -u
 divvox=$1
@@ -68,6 +69,13 @@ if [[ $case == undo ]]; then
   read -r s_step s_hash s_kept <<<"$step"
   [[ "$s_step $s_hash" == "$kept" ]] || fail "undo restored step/hash '$s_step $s_hash', kept '$kept'"
   [[ $s_hash == "$s_kept" ]] || fail "restored hash $s_hash != kept $s_kept"
+  # Redo: back to the state after the cut (moved onto the redo stack by the undo), its hash intact.
+  xdotool key ctrl+shift+z
+  wait_for "^redo: back to" 30
+  line=$(grep "^redo: back to" "$out/win.out" | head -1)
+  echo "$line"
+  read -r r_hash r_kept <<<"$(sed -n 's/^redo: back to step [0-9]* (hash \([0-9a-f]*\), kept \([0-9a-f]*\)).*/\1 \2/p' <<<"$line")"
+  [[ -n $r_hash && $r_hash == "$r_kept" ]] || fail "redo restored hash '$r_hash' != kept '$r_kept'"
   # A drag starting on the panel's right edge must not resize it.
   drag $((panel - 1)) 300 900 320 6
   sleep 1
