@@ -490,11 +490,15 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glBindVertexArray(r.vertex_array);
   glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 0, r.flag_buffer);
   const GLsizei index_count = GLsizei(std::min<uint64_t>(uint64_t(r.triangle_count) * 3, INT32_MAX / 3 * 3));
+  // The index range is known (every slot names vertices below vertex_count: dead ones name 0), so
+  // the draws pass it: with plain glDrawElements Mesa scans the whole index buffer for its bounds on
+  // the CPU after every upload that touched it.
+  const GLuint last_index = r.vertex_count > 0 ? r.vertex_count - 1 : 0;
 
   // Pass 1: the lit surface.
   glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
   glUseProgram(r.surface_program);
-  glDrawElements(GL_TRIANGLES, index_count, GL_UNSIGNED_INT, nullptr);
+  glDrawRangeElements(GL_TRIANGLES, 0, last_index, index_count, GL_UNSIGNED_INT, nullptr);
 
   // Pass 2: edges on top, pulled toward the eye so they win the depth test against their own faces.
   if (options.wireframe) {
@@ -502,7 +506,7 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
     glEnable(GL_POLYGON_OFFSET_LINE);
     glPolygonOffset(-1.0f, -1.0f);
     glUseProgram(r.wire_program);
-    glDrawElements(GL_TRIANGLES, index_count, GL_UNSIGNED_INT, nullptr);
+    glDrawRangeElements(GL_TRIANGLES, 0, last_index, index_count, GL_UNSIGNED_INT, nullptr);
     glDisable(GL_POLYGON_OFFSET_LINE);
     glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
   }
