@@ -656,6 +656,8 @@ struct WindowContext {
   Clock::time_point last_frame = Clock::now();
   bool profile = false;      // DIVVOX_FRAME_PROFILE=1
   bool gpu_normals = false;  // normals from the GPU passes (else from the simulation thread)
+  bool idle = false;         // the last frame showed nothing new and the simulation is paused
+  Eigen::Vector2f last_cursor = Eigen::Vector2f::Zero();
 };
 
 // Reads the scene or the recording before any window opens (bad input: exit 2 at once).
@@ -827,7 +829,11 @@ void run_frame(AppState& app, WindowContext& w) {
   handle_mouse(app, w.window);
 
   const Clock::time_point t0 = Clock::now();
+  const Eigen::Vector2f cursor_before = w.last_cursor;
+  w.last_cursor = app.cursor;
   const double normals_ms = take_snapshot(app, w);
+  w.idle = normals_ms < 0.0 && app.status.ready && app.status.paused && !app.left_down && !app.camera_drag &&
+           cursor_before == app.cursor && app.message.empty();
   if (w.profile) glFinish();
   const Clock::time_point t1 = Clock::now();
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
@@ -929,6 +935,9 @@ int run_window(const WindowOptions& options) {
 
   int exit_code = kExitOk;
   while (!glfwWindowShouldClose(w.window)) {
+    // Paused with nothing new on the last frame: wait for input (up to 50 ms) instead of redrawing
+    // the same image at full speed (on a software rasteriser that is two busy cores for nothing).
+    if (w.idle) glfwWaitEventsTimeout(0.05);
     run_frame(app, w);
     // The initial scene failed to open: nothing to show.
     if (!app.status.ready && !app.status.loading && !app.status.error.empty()) {
