@@ -872,6 +872,7 @@ void run_frame(AppState& app, WindowContext& w) {
   ++app.frame;
   if (app.status.ready && app.current != nullptr) {
     const double normals = w.gpu_normals ? ms_between(t1, t1n) : std::max(normals_ms, 0.0);
+    if (normals_ms >= 0.0) AppState::push(app.normals_ms, normals);
     const double phases[6] = {ms_between(t0, t1), normals, ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3),
                               ms_between(t3, t4)};
     w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0);

@@ -88,15 +88,16 @@ struct AppState {
   uint64_t triangles = 0;
   double last_coverage = 0.0;
   std::vector<float> upload_ms, draw_ms, render_ms, fps;
+  std::vector<float> normals_ms;  // per snapshot shown: its normals' time (simulation thread or GPU passes)
   std::vector<double> latency_frames;  // frames from a cutting command to the snapshot showing it
   uint32_t latency_probe_stamp = 0;
   uint64_t latency_probe_frame = 0;
 
+  static void push(std::vector<float>& v, double x) {
+    v.push_back(float(x));
+    if (v.size() > kFrameHistory) v.erase(v.begin());
+  }
   void push_frame(double upload, double draw_, double render, double interval_ms) {
-    const auto push = [](std::vector<float>& v, double x) {
-      v.push_back(float(x));
-      if (v.size() > kFrameHistory) v.erase(v.begin());
-    };
     push(upload_ms, upload);
     push(draw_ms, draw_);
     push(render_ms, render);

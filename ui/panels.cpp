@@ -208,6 +208,8 @@ void performance_panel(AppState& app) {
   plot("surface ms", surface, "ms", true);
   plot("deform ms", deform, "ms");
   plot("step ms", total, "ms");
+  plot("upload ms", app.upload_ms, "ms");
+  plot("normals ms", app.normals_ms, "ms");
   plot("render ms", app.render_ms, "ms");
   plot("FPS", app.fps, "fps");
   const SimStatus& s = app.status;
