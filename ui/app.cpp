@@ -851,6 +851,7 @@ void run_frame(AppState& app, WindowContext& w) {
   overlay_draw(w.overlay, w.renderer.framebuffer, w.renderer.width, w.renderer.height, app.camera, w.lines);
   // The view covers the window right of the panel and the panel is opaque: no clear needed.
   renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
+  w.sim.frame_done();  // the next snapshot may go out now
   if (w.profile) glFinish();
   const Clock::time_point t2 = Clock::now();
 
