@@ -33,7 +33,7 @@ const Snapshot* next_snapshot(SimRunner& sim) {
 }  // namespace
 
 TEST_SUITE("ui") {
-TEST_CASE("sim runner: one snapshot per take, consecutive, newest state, normals when asked") {
+TEST_CASE("sim runner: one snapshot per frame drawn, consecutive, of a later step, with its normals when asked") {
   const std::filesystem::path mesh = std::filesystem::path(DIVVOX_SOURCE_DIR) / "assets/meshes/bunny_npm.obj";
   REQUIRE(std::filesystem::exists(mesh));
   const Scene scene = parse_scene(nlohmann::json{{"mesh", mesh.string()}, {"resolution", 24}, {"sim_resolution", 6}},
