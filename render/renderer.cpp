@@ -57,7 +57,7 @@ void main() {
 // derivatives gives flat shading. A little dither keeps slow gradients from banding.
 // Cheap on a software rasteriser (it runs for every covered pixel on the CPU): powers by repeated
 // squaring (n.h^64 and ^16, not pow's exp2/log2), the derivatives only for flat shading.
-const char* kSurfaceFragmentShader = "#version 450 core\n" DVX_FLAG_BLOCK R"(
+const char* kSurfaceFragmentShader = R"(#version 450 core
 in vec3 v_eye_normal;
 in vec3 v_eye_cut_normal;
 layout(location = 2) uniform vec3 u_surface_color;
@@ -68,9 +68,10 @@ layout(location = 6) uniform int u_split;
 // window depth: (P[2][2], P[2][3]).
 layout(location = 7) uniform vec4 u_unproject;
 layout(location = 8) uniform vec2 u_depth;
+layout(location = 9) uniform int u_cut;  // this pass draws the cut faces (see Renderer: pass buffers)
 out vec4 frag_color;
 void main() {
-  bool cut = (triangle_flags() & 1u) != 0u;
+  bool cut = u_cut != 0;
   // The outer surface blushes toward the cut colour right at a cut's rim: an incision line that shows
   // even while the slit is closed. Only the part of the rim vertices' triangles nearest them: the
   // whole triangle fan blushed into a saw-tooth band as wide as the (uneven) triangles.
@@ -287,6 +288,8 @@ void compute_normals(Renderer& r) {
 void allocate_triangle_buffers(Renderer& r, uint32_t capacity) {
   r.triangle_capacity = capacity;
   glNamedBufferData(r.index_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.outer_index_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
+  glNamedBufferData(r.cut_index_buffer, GLsizeiptr(capacity) * 12, nullptr, GL_DYNAMIC_DRAW);
   glNamedBufferData(r.flag_buffer, (GLsizeiptr(capacity) + 3) / 4 * 4, nullptr, GL_DYNAMIC_DRAW);
   glNamedBufferData(r.corner_normal_buffer, GLsizeiptr(capacity) * 36, nullptr, GL_DYNAMIC_DRAW);
 }
@@ -332,6 +335,8 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
   glCreateBuffers(1, &r.position_buffer);
   glCreateBuffers(1, &r.normal_buffer);
   glCreateBuffers(1, &r.index_buffer);
+  glCreateBuffers(1, &r.outer_index_buffer);
+  glCreateBuffers(1, &r.cut_index_buffer);
   glCreateBuffers(1, &r.flag_buffer);
   glCreateBuffers(1, &r.cut_normal_buffer);
   glCreateBuffers(1, &r.corner_normal_buffer);
@@ -404,17 +409,35 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
   if (tb < te && mesh.triangles) {
     const uint32_t n = te - tb;
     r.scratch_triangles.resize(n);
+    r.scratch_outer.resize(n);
+    r.scratch_cut.resize(n);
     r.scratch_flags.resize(n);
+    if (triangles_full) r.cut_begin = r.cut_end = 0;
     for (uint32_t i = 0; i < n; ++i) {
       const Tri& t = mesh.triangles[tb + i];
       const bool dead = t[0] >= mesh.vertex_count || t[1] >= mesh.vertex_count || t[2] >= mesh.vertex_count;
       const uint8_t flags = mesh.triangle_flags ? uint8_t(mesh.triangle_flags[tb + i] & kTriangleCut) : 0;
+      const bool cut = !dead && flags != 0;
       r.scratch_triangles[i] = dead ? Tri{0, 0, 0} : t;
+      r.scratch_outer[i] = dead || cut ? Tri{0, 0, 0} : t;
+      r.scratch_cut[i] = cut ? t : Tri{0, 0, 0};
       r.scratch_flags[i] = dead ? kTriangleDead : flags;
+      if (cut) {  // the cut pass draws the slots [cut_begin, cut_end) (grown, shrunk by full uploads)
+        const uint32_t slot = tb + i;
+        if (r.cut_begin >= r.cut_end) {
+          r.cut_begin = slot;
+          r.cut_end = slot + 1;
+        } else {
+          r.cut_begin = std::min(r.cut_begin, slot);
+          r.cut_end = std::max(r.cut_end, slot + 1);
+        }
+      }
     }
     glNamedBufferSubData(r.index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_triangles.data());
+    glNamedBufferSubData(r.outer_index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_outer.data());
+    glNamedBufferSubData(r.cut_index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_cut.data());
     glNamedBufferSubData(r.flag_buffer, GLintptr(tb), GLsizeiptr(n), r.scratch_flags.data());
-    r.last_upload_bytes += uint64_t(n) * 13;
+    r.last_upload_bytes += uint64_t(n) * 37;
   }
 
   r.vertex_count = mesh.vertex_count;
@@ -495,10 +518,21 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   // the CPU after every upload that touched it.
   const GLuint last_index = r.vertex_count > 0 ? r.vertex_count - 1 : 0;
 
-  // Pass 1: the lit surface.
+  // Pass 1: the lit surface, the outer surface then the cut faces (each from its own index buffer,
+  // the other class's slots degenerate there; the cut pass only over the slots that hold cut faces).
   glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
   glUseProgram(r.surface_program);
+  glProgramUniform1i(r.surface_program, 9, 0);
+  glVertexArrayElementBuffer(r.vertex_array, r.outer_index_buffer);
   glDrawRangeElements(GL_TRIANGLES, 0, last_index, index_count, GL_UNSIGNED_INT, nullptr);
+  const uint32_t cut_end = std::min(r.cut_end, r.triangle_count);
+  if (r.cut_begin < cut_end) {
+    glProgramUniform1i(r.surface_program, 9, 1);
+    glVertexArrayElementBuffer(r.vertex_array, r.cut_index_buffer);
+    glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(cut_end - r.cut_begin) * 3, GL_UNSIGNED_INT,
+                        reinterpret_cast<const void*>(uintptr_t(r.cut_begin) * 12));
+  }
+  glVertexArrayElementBuffer(r.vertex_array, r.index_buffer);  // every live slot (wireframe, compute)
 
   // Pass 2: edges on top, pulled toward the eye so they win the depth test against their own faces.
   if (options.wireframe) {
@@ -567,6 +601,7 @@ void renderer_destroy(Renderer& r) {
   tray_destroy(r);
   if (r.vertex_array) glDeleteVertexArrays(1, &r.vertex_array);
   const GLuint buffers[] = {r.position_buffer,   r.normal_buffer,         r.index_buffer,
+                            r.outer_index_buffer, r.cut_index_buffer,
                             r.flag_buffer,       r.cut_normal_buffer,     r.corner_normal_buffer,
                             r.adjacency_offset_buffer, r.adjacency_buffer};
   for (GLuint b : buffers)

@@ -82,11 +82,13 @@ struct DrawOptions {
 // appends new ones), so the GPU buffers mirror the caller's slot arrays one to one and a cut step
 // only rewrites the few slots it touched. Buffers grow geometrically, and only a growth forces a
 // full upload. Dead triangle slots are written as {0,0,0} (zero area, no fragments), which keeps
-// every live triangle at its slot so gl_PrimitiveID equals the slot index; the fragment shader
-// reads the triangle's flags from a byte array in a shader storage buffer indexed by it (an SSBO
-// rather than a texture buffer: its guaranteed size, 128 MiB, covers any surface, where a texture
-// buffer is only guaranteed 64 Ki texels). Flat per-triangle data that way needs no duplicated
-// vertices along the rim of a cut, where a cut face and the outer surface share vertices.
+// every live triangle at its slot so gl_PrimitiveID equals the slot index; the wireframe pass and
+// the GPU normal passes read the triangle's flags from a byte array in a shader storage buffer
+// indexed by it (an SSBO rather than a texture buffer: its guaranteed size, 128 MiB, covers any
+// surface, where a texture buffer is only guaranteed 64 Ki texels). The lit passes instead draw the
+// outer surface and the cut faces from two index buffers mirroring the same slots (the other
+// class degenerate) with the class as a uniform. Either way flat per-triangle data needs no
+// duplicated vertices along the rim of a cut, where a cut face and the outer surface share vertices.
 struct Renderer {
   // Offscreen target: `framebuffer` is drawn into (multisampled when samples > 0), and
   // `resolve_framebuffer` holds the single-sample image read back or blitted (== framebuffer
@@ -107,6 +109,13 @@ struct Renderer {
   uint32_t position_buffer = 0;  // (vertex_capacity x 3 floats)
   uint32_t normal_buffer = 0;    // (vertex_capacity x 3 floats)
   uint32_t index_buffer = 0;     // (triangle_capacity x 3 uint32)
+  // The same slots split by class for the lit passes: the outer surface's triangles (cut and dead
+  // ones degenerate) and the cut faces' (the others degenerate), so the fragment shader knows a
+  // triangle's class from a uniform: reading the flags by gl_PrimitiveID makes llvmpipe run its
+  // primitive assembler, which grows its output one realloc per triangle (~20 % of the render
+  // thread at 128). The cut pass draws only slots [cut_begin, cut_end).
+  uint32_t outer_index_buffer = 0, cut_index_buffer = 0;
+  uint32_t cut_begin = 0, cut_end = 0;
   uint32_t flag_buffer = 0;      // (triangle_capacity bytes, rounded up to 4) SSBO binding 0
   // GPU normals, in two passes without atomics (so the sums do not depend on scheduling): per
   // triangle slot, its unit normal times each corner's angle (corner_normal_buffer, 3 corners x 3
@@ -128,7 +137,7 @@ struct Renderer {
   bool uploaded = false;           // false until the first upload (which is always full)
   uint64_t last_upload_bytes = 0;  // bytes sent by the last renderer_upload (tests, stats)
   // Scratch for the converted triangle range (dead slots degenerated, flags with kTriangleDead).
-  std::vector<Tri> scratch_triangles;
+  std::vector<Tri> scratch_triangles, scratch_outer, scratch_cut;
   std::vector<uint8_t> scratch_flags;
 };
 
