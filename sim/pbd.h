@@ -179,6 +179,13 @@ struct PbdModel {
   std::vector<uint64_t> scratch_changed;
 };
 
+// One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
+struct StepBatch {
+  enum Kind : uint8_t { kPredict, kStretch, kShape, kGrab, kPieceContact, kPlaneContact, kVelocity };
+  uint8_t kind;
+  uint32_t index;  // colour group, or contact batch
+};
+
 // The dynamic state: what a step writes.
 struct PbdData {
   std::vector<Vec3d> position, velocity, previous;  // (particle slots)
@@ -198,6 +205,9 @@ struct PbdData {
   // shape-matching rest frame of each piece slot, and each piece's corners in float for the embedding.
   std::vector<ShapeRest> shape_rest;
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 3)
+  // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
+  std::vector<StepBatch> step_batches;
+  std::vector<TaskBatch> task_batches;
 };
 
 // Model and data together (what the engine holds). Field names of the data are forwarded for the
