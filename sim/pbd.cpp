@@ -1271,7 +1271,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       case StepBatch::kShape:
         for (uint32_t i = begin; i < end; ++i) {
           const uint32_t slot = s.piece_groups[b.index][i];
-          solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot]);
+          solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot], 0);
         }
         break;
       case StepBatch::kGrab:
