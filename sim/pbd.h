@@ -35,9 +35,10 @@
 // the dynamic state (positions, velocities, lambdas, rotations' warm starts, grab, deformed surface).
 // Cuts edit the model between steps; a step reads the model and writes the data.
 //
-// Threads. The solver runs colour groups through a TaskRunner the caller provides (sim/ owns no
-// threads); constraints of one colour share no particle, so results are bit-identical for any number
-// of workers.
+// Threads. Each substep is one TaskRunner job (run_batches: predict, per iteration the colour groups
+// of each constraint type and the contact batches, velocities; a barrier between batches) that the
+// caller's runner executes (sim/ owns no threads); constraints of one colour share no particle, so
+// results are bit-identical for any number of workers.
 #pragma once
 
 #include "sim/colouring.h"
