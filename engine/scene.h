@@ -38,7 +38,7 @@ struct Scene {
     double dt = 1.0 / 60.0;
     int substeps = 1;
     int iterations = 10;
-    double damping = 0.01;  // fraction of particle velocity removed per substep
+    double damping = 0.01;  // fraction of particle velocity removed per time step (whatever the substeps)
   } solver;
   Vec3d gravity = Vec3d(0.0, -9.81, 0.0);
   std::vector<FixedBox> fixed;

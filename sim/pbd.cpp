@@ -848,23 +848,6 @@ void gather_plane_contacts(const CutState& cut, PbdState& s) {
   contacts_finish(set);
 }
 
-// One pass over a contact set: batch by batch (the groups of a batch share no particle), the overflow
-// batch serially; everything serially when there are few points.
-void solve_contacts(PbdState& s, ContactSet& set, const TaskRunner& tasks) {
-  static_assert(kContactOverflow == kOverflowColour, "one overflow batch for both contact sets");
-  if (set.points.empty()) return;
-  double* x = s.position[0].data();
-  const double* previous = s.previous[0].data();
-  const double* w = s.inv_mass.data();
-  const TaskRunner serial{};
-  for (uint32_t b = 0; b < contact_batches(set); ++b) {
-    const uint32_t begin = set.batch_begin[b], end = set.batch_begin[b + 1];
-    const bool run_serially = b == kOverflowColour || set.points.size() < 256;
-    parallel(run_serially ? serial : tasks, end - begin, 16,
-             [&](uint32_t g) { solve_contact_group(x, previous, w, set, begin + g); });
-  }
-}
-
 // Marks the vertex slots a cut made or moved since the last step as fresh (allowance = infinity).
 void refresh_allowances(const CutState& cut, PieceContacts& pc) {
   const size_t slots = cut.surface.positions.size();
@@ -985,6 +968,82 @@ void plane_backstop(PbdState& s, uint32_t p) {
   if (!s.params.planes.empty()) {
     project_particles_to_planes(s.position[0].data(), s.inv_mass.data(), p, p + 1, s.params.planes.data(),
                                 uint32_t(s.params.planes.size()), s.sim_size);
+  }
+}
+
+// ---- Solver step -----------------------------------------------------------------------------
+
+// Shape-matching rest frames of the live pieces, once per step (masses change only between steps).
+void build_shape_rest(PbdState& s) {
+  s.shape_rest.resize(s.pieces.size());
+  for (const std::vector<uint32_t>& group : s.piece_groups) {
+    for (const uint32_t slot : group) {
+      const uint32_t* particles = s.pieces[slot].particles;
+      double rest[24];
+      for (int k = 0; k < 8; ++k) {
+        for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
+      }
+      shape_matching_rest(s.inv_mass.data(), particles, rest, 8, s.shape_rest[slot]);
+    }
+  }
+}
+
+// Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
+// a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
+// constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact group ~200.
+constexpr uint32_t kParticleGrain = 4096;
+constexpr uint32_t kStretchGrain = 1024;
+constexpr uint32_t kShapeGrain = 64;
+constexpr uint32_t kContactGrain = 16;
+constexpr uint32_t kSerial = ~0u;
+
+// The batches of one substep, in order: predict; per iteration the stretch colours (overflow last,
+// serially), the shape-matching colours, the grab, the contact batches between pieces and with the
+// planes; velocities. One TaskRunner job runs them all (sim/colouring.h run_batches).
+void build_step_batches(PbdState& s, bool stretch_on) {
+  std::vector<StepBatch>& steps = s.step_batches;
+  std::vector<TaskBatch>& batches = s.task_batches;
+  steps.clear();
+  batches.clear();
+  const auto add = [&](uint8_t kind, uint32_t index, uint32_t count, uint32_t grain) {
+    if (count == 0) return;
+    steps.push_back(StepBatch{kind, index});
+    batches.push_back(TaskBatch{count, grain});
+  };
+  const auto add_contacts = [&](uint8_t kind, const ContactSet& set) {
+    for (uint32_t b = 0; b < contact_batches(set); ++b) {
+      const bool serial = b == kOverflowColour || set.points.size() < 256;
+      add(kind, b, set.batch_begin[b + 1] - set.batch_begin[b], serial ? kSerial : kContactGrain);
+    }
+  };
+  const uint32_t n = uint32_t(s.position.size());
+  add(StepBatch::kPredict, 0, n, kParticleGrain);
+  for (int it = 0; it < s.params.iterations; ++it) {
+    for (int c = 0; stretch_on && c < kColourGroups; ++c) {
+      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
+    }
+    for (int c = 0; c < kColourGroups; ++c) {
+      add(StepBatch::kShape, uint32_t(c), uint32_t(s.piece_groups[c].size()), c == kOverflowColour ? kSerial : kShapeGrain);
+    }
+    if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) add(StepBatch::kGrab, 0, 1, kSerial);
+    // Contact between pieces, then with the static planes, last so each iteration ends with the
+    // surface above them.
+    static_assert(kContactOverflow == kOverflowColour, "one overflow batch for both contact sets");
+    add_contacts(StepBatch::kPieceContact, s.piece_contacts.set);
+    add_contacts(StepBatch::kPlaneContact, s.contacts);
+  }
+  add(StepBatch::kVelocity, 0, n, kParticleGrain);
+}
+
+// Grab: a compliant attachment of one particle to its target (XPBD, per axis).
+void solve_grab(PbdState& s, double h, double lambda[3]) {
+  const uint32_t p = s.grab_particle;
+  const double alpha = s.grab_compliance / (h * h);
+  for (int a = 0; a < 3; ++a) {
+    const double constraint = s.position[p][a] - s.grab_target[a];
+    const double dl = (-constraint - alpha * lambda[a]) / (s.inv_mass[p] + alpha);
+    lambda[a] += dl;
+    s.position[p][a] += s.inv_mass[p] * dl;
   }
 }
 
@@ -1176,76 +1235,70 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   const PbdParams& params = s.params;
   const int substeps = std::max(1, params.substeps);
   const double h = params.dt / substeps;
-  const uint32_t n = uint32_t(s.position.size());
   double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
-  // Shape-matching rest frames of the live pieces, once per step (masses change only between steps).
-  s.shape_rest.resize(s.pieces.size());
-  for (const std::vector<uint32_t>& group : s.piece_groups) {
-    for (const uint32_t slot : group) {
-      const uint32_t* particles = s.pieces[slot].particles;
-      double rest[24];
-      for (int k = 0; k < 8; ++k) {
-        for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
-      }
-      shape_matching_rest(w, particles, rest, 8, s.shape_rest[slot]);
-    }
-  }
-  // One constraint of each kind (the loops below run them colour by colour; overflow serially).
+  build_shape_rest(s);
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
-  const auto stretch = [&](uint8_t c, uint32_t i) {
-    const StretchConstraint& k = s.stretch_groups[c][i];
-    solve_distance_alpha(x, w, k.a, k.b, k.rest, alpha, s.stretch_lambda[c][i]);
-  };
-  const auto shape = [&](uint8_t c, uint32_t i) {
-    const uint32_t slot = s.piece_groups[c][i];
-    solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot]);
-  };
+  // Damping per unit time: `damping` of the velocity goes per time step dt whatever the substeps.
+  const double keep = substeps == 1 ? 1.0 - params.damping : std::pow(1.0 - params.damping, 1.0 / substeps);
   gather_plane_contacts(cut, s);  // contact (sim/contact.h)
   collect_piece_contacts(cut, s);
-  for (int sub = 0; sub < substeps; ++sub) {
-    // Predict.
-    parallel(tasks, n, 4096, [&](uint32_t p) {
-      s.previous[p] = s.position[p];
-      if (s.inv_mass[p] == 0.0) {
-        s.velocity[p].setZero();
-        return;
+  build_step_batches(s, stretch_on);
+  double grab_lambda[3] = {0, 0, 0};
+  // One job per substep: the batches of build_step_batches in order (a barrier between batches).
+  const auto run = [&](uint32_t batch, uint32_t begin, uint32_t end) {
+    const StepBatch& b = s.step_batches[batch];
+    switch (b.kind) {
+      case StepBatch::kPredict:
+        for (uint32_t p = begin; p < end; ++p) {
+          s.previous[p] = s.position[p];
+          if (s.inv_mass[p] == 0.0) {
+            s.velocity[p].setZero();
+            continue;
+          }
+          s.velocity[p] += h * params.gravity;
+          s.position[p] += h * s.velocity[p];
+        }
+        break;
+      case StepBatch::kStretch: {
+        const StretchConstraint* k = s.stretch_groups[b.index].data();
+        double* lambda = s.stretch_lambda[b.index].data();
+        for (uint32_t i = begin; i < end; ++i) solve_distance_alpha(x, w, k[i].a, k[i].b, k[i].rest, alpha, lambda[i]);
+        break;
       }
-      s.velocity[p] += h * params.gravity;
-      s.position[p] += h * s.velocity[p];
-    });
+      case StepBatch::kShape:
+        for (uint32_t i = begin; i < end; ++i) {
+          const uint32_t slot = s.piece_groups[b.index][i];
+          solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot], 0);
+        }
+        break;
+      case StepBatch::kGrab:
+        solve_grab(s, h, grab_lambda);
+        break;
+      case StepBatch::kPieceContact:
+      case StepBatch::kPlaneContact: {
+        ContactSet& set = b.kind == StepBatch::kPieceContact ? s.piece_contacts.set : s.contacts;
+        const uint32_t first = set.batch_begin[b.index];
+        for (uint32_t g = begin; g < end; ++g) solve_contact_group(x, s.previous[0].data(), w, set, first + g);
+        break;
+      }
+      case StepBatch::kVelocity:
+        for (uint32_t p = begin; p < end; ++p) {
+          if (s.inv_mass[p] == 0.0) continue;
+          plane_backstop(s, p);
+          s.velocity[p] = (s.position[p] - s.previous[p]) * (keep / h);
+        }
+        break;
+    }
+  };
+  for (int sub = 0; sub < substeps; ++sub) {
     for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     contacts_begin_substep(s.contacts);
     contacts_begin_substep(s.piece_contacts.set);
-    double grab_lambda[3] = {0, 0, 0};
-    for (int it = 0; it < params.iterations; ++it) {
-      // Stretching, colour by colour (the overflow colour serially), then shape matching the same way.
-      solve_colour_groups(tasks, 2048, [&](uint8_t c) { return uint32_t(s.stretch_groups[c].size()); }, stretch);
-      solve_colour_groups(tasks, 256, [&](uint8_t c) { return uint32_t(s.piece_groups[c].size()); }, shape);
-      // Grab: a compliant attachment of one particle to its target (XPBD, per axis).
-      if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) {
-        const double alpha = s.grab_compliance / (h * h);
-        for (int a = 0; a < 3; ++a) {
-          const double constraint = s.position[s.grab_particle][a] - s.grab_target[a];
-          const double dl = (-constraint - alpha * grab_lambda[a]) / (s.inv_mass[s.grab_particle] + alpha);
-          grab_lambda[a] += dl;
-          s.position[s.grab_particle][a] += s.inv_mass[s.grab_particle] * dl;
-        }
-      }
-      // Contact between pieces, then with the static planes, last so each iteration ends with the
-      // surface above them.
-      solve_contacts(s, s.piece_contacts.set, tasks);
-      solve_contacts(s, s.contacts, tasks);
-    }
-    // Velocities from the positional change, with damping.
-    const double keep = 1.0 - params.damping;
-    parallel(tasks, n, 4096, [&](uint32_t p) {
-      if (s.inv_mass[p] == 0.0) return;
-      plane_backstop(s, p);
-      s.velocity[p] = (s.position[p] - s.previous[p]) * (keep / h);
-    });
+    for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
+    run_batches(tasks, s.task_batches.data(), uint32_t(s.task_batches.size()), run);
   }
   ++s.steps;
   pbd_embed(cut, s, tasks);

@@ -35,9 +35,10 @@
 // the dynamic state (positions, velocities, lambdas, rotations' warm starts, grab, deformed surface).
 // Cuts edit the model between steps; a step reads the model and writes the data.
 //
-// Threads. The solver runs colour groups through a TaskRunner the caller provides (sim/ owns no
-// threads); constraints of one colour share no particle, so results are bit-identical for any number
-// of workers.
+// Threads. Each substep is one TaskRunner job (run_batches: predict, per iteration the colour groups
+// of each constraint type and the contact batches, velocities; a barrier between batches) that the
+// caller's runner executes (sim/ owns no threads); constraints of one colour share no particle, so
+// results are bit-identical for any number of workers.
 #pragma once
 
 #include "sim/colouring.h"
@@ -65,7 +66,7 @@ struct PbdParams {
   int substeps = 1;
   int iterations = 10;
   Vec3d gravity = Vec3d(0.0, -9.81, 0.0);
-  double damping = 0.01;             // fraction of velocity removed per substep
+  double damping = 0.01;             // fraction of velocity removed per time step dt ((1-d)^(1/substeps) per substep)
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
   std::vector<ContactPlane> planes;  // static contact planes (sim/contact.h)
   bool piece_contact = true;         // pieces of different bodies do not interpenetrate (sim/contact.h)
@@ -179,6 +180,13 @@ struct PbdModel {
   std::vector<uint64_t> scratch_changed;
 };
 
+// One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
+struct StepBatch {
+  enum Kind : uint8_t { kPredict, kStretch, kShape, kGrab, kPieceContact, kPlaneContact, kVelocity };
+  uint8_t kind;
+  uint32_t index;  // colour group, or contact batch
+};
+
 // The dynamic state: what a step writes.
 struct PbdData {
   std::vector<Vec3d> position, velocity, previous;  // (particle slots)
@@ -198,6 +206,9 @@ struct PbdData {
   // shape-matching rest frame of each piece slot, and each piece's corners in float for the embedding.
   std::vector<ShapeRest> shape_rest;
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 3)
+  // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
+  std::vector<StepBatch> step_batches;
+  std::vector<TaskBatch> task_batches;
 };
 
 // Model and data together (what the engine holds). Field names of the data are forwarded for the

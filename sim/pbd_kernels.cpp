@@ -85,36 +85,68 @@ inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d&
 }
 
 // Centre and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0) need,
-// from its rest frame (shape_matching_rest). The same Eigen expressions as the one-shot version had
-// (Eigen's 3x3 product sums its rows in an order of its own), so results are bit-identical.
-constexpr int kShapeRotationIterations = 3;
+// from its rest frame (shape_matching_rest), in scalar loops with the axes written out (the sums run
+// in slot order: the compiler may not reorder them under -ffp-contract=off and strict IEEE rules,
+// so vectorising the reductions would not pay; the gathered positions stay in registers and L1).
+constexpr int kS = kShapeMaxParticles;
+
+struct ShapeFrame {
+  double p[kS][3];  // gathered positions
+  double centre[3];
+  double rot[3][3];
+};
 
 void shape_matching_frame(const double* x, const uint32_t* indices, const ShapeRest& r, Quaterniond& rotation,
-                          Vector3d& centre, Matrix3d& rot) {
-  const int count = r.count;
-  Vector3d sum_x = Vector3d::Zero();
-  for (int k = 0; k < count; ++k) {
-    const double* xi = x + 3 * size_t(indices[k]);
-    sum_x += r.mass[k] * Vector3d(xi[0], xi[1], xi[2]);
+                          int rotation_iterations, ShapeFrame& f) {
+  // All kS slots (padding slots weigh 0 and have zero offsets: they add exact zeros), so the loops
+  // unroll and the sums stay in registers.
+  double c0 = 0.0, c1 = 0.0, c2 = 0.0;
+  for (int k = 0; k < kS; ++k) {
+    const double* xi = x + 3 * size_t(indices[k < r.count ? k : 0]);
+    const double m = r.mass[k];
+    f.p[k][0] = xi[0];
+    f.p[k][1] = xi[1];
+    f.p[k][2] = xi[2];
+    c0 += m * xi[0];
+    c1 += m * xi[1];
+    c2 += m * xi[2];
   }
-  centre = sum_x / r.total;
-
-  // A = sum_i m_i (x_i - c)(r_i - c0)^T, its rotation warm-started from the previous one.
-  Matrix3d a = Matrix3d::Zero();
-  for (int k = 0; k < count; ++k) {
-    const double* xi = x + 3 * size_t(indices[k]);
-    const double* q = r.offset + 3 * k;
-    const Vector3d p = Vector3d(xi[0], xi[1], xi[2]) - centre;
-    a += (r.mass[k] * p) * Vector3d(q[0], q[1], q[2]).transpose();
+  c0 *= r.inv_total;
+  c1 *= r.inv_total;
+  c2 *= r.inv_total;
+  f.centre[0] = c0;
+  f.centre[1] = c1;
+  f.centre[2] = c2;
+  // A = sum_i m_i (x_i - c)(r_i - c0)^T.
+  double a00 = 0.0, a01 = 0.0, a02 = 0.0, a10 = 0.0, a11 = 0.0, a12 = 0.0, a20 = 0.0, a21 = 0.0, a22 = 0.0;
+  for (int k = 0; k < kS; ++k) {
+    const double m = r.mass[k];
+    const double d0 = m * (f.p[k][0] - c0), d1 = m * (f.p[k][1] - c1), d2 = m * (f.p[k][2] - c2);
+    const double q0 = r.offset[k][0], q1 = r.offset[k][1], q2 = r.offset[k][2];
+    a00 += d0 * q0;
+    a01 += d0 * q1;
+    a02 += d0 * q2;
+    a10 += d1 * q0;
+    a11 += d1 * q1;
+    a12 += d1 * q2;
+    a20 += d2 * q0;
+    a21 += d2 * q1;
+    a22 += d2 * q2;
   }
-  // Warm-started every solve, so a few iterations per call converge over the solver iterations.
-  rotation = extract_rotation(a, rotation, kShapeRotationIterations);
-  rot = rotation.toRotationMatrix();
+  Matrix3d a;
+  a << a00, a01, a02, a10, a11, a12, a20, a21, a22;
+  // Warm-started every solve, so the rotation converges over the solver's iterations.
+  rotation = rotation_iterations > 0 ? extract_rotation(a, rotation, rotation_iterations)
+                                     : extract_rotation_step(a, rotation, kShapeRotationIterations);
+  const Matrix3d rot = rotation.toRotationMatrix();
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) f.rot[i][j] = rot(i, j);
+  }
 }
 
-// Goal of particle k: c + R q_k.
-inline Vector3d shape_goal(const Vector3d& centre, const Matrix3d& rot, const double* q) {
-  return centre + rot * Vector3d(q[0], q[1], q[2]);
+// Goal of slot k: c + R q_k.
+inline void shape_goal(const ShapeFrame& f, const double* q, double goal[3]) {
+  for (int e = 0; e < 3; ++e) goal[e] = f.centre[e] + (f.rot[e][0] * q[0] + f.rot[e][1] * q[1] + f.rot[e][2] * q[2]);
 }
 
 }  // namespace
@@ -211,6 +243,58 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
   return q;
 }
 
+Quaterniond extract_rotation_step(const Matrix3d& a, const Quaterniond& q, int fallback_iterations) {
+  // The usual case inline: q a unit quaternion, B clearly positive definite. Then the exact line
+  // search along the Newton axis n = B^-1 g has a closed form: along n/|n|, c = n.g/|n| and
+  // b = n.Bn/|n|^2 = n.g/|n|^2, so the step is atan(c / b) = atan(|n|). No scaling of A: the axis
+  // and |n| do not depend on it, and the pivots are compared with kPivotMin x max |a_ij|.
+  const double qw = q.w(), qx = q.x(), qy = q.y(), qz = q.z();
+  const double qq = qw * qw + qx * qx + qy * qy + qz * qz;
+  if (!(std::fabs(qq - 1.0) < 1e-12)) return extract_rotation(a, q, fallback_iterations);
+  double scale = 0.0;
+  for (int k = 0; k < 9; ++k) scale = std::max(scale, std::fabs(a.data()[k]));
+  // R(q), column-major like Eigen's.
+  const double xx = qx * qx, yy = qy * qy, zz = qz * qz, xy = qx * qy, xz = qx * qz, yz = qy * qz;
+  const double wx = qw * qx, wy = qw * qy, wz = qw * qz;
+  const double r00 = 1.0 - 2.0 * (yy + zz), r01 = 2.0 * (xy - wz), r02 = 2.0 * (xz + wy);
+  const double r10 = 2.0 * (xy + wz), r11 = 1.0 - 2.0 * (xx + zz), r12 = 2.0 * (yz - wx);
+  const double r20 = 2.0 * (xz - wy), r21 = 2.0 * (yz + wx), r22 = 1.0 - 2.0 * (xx + yy);
+  // f = tr(R^T A), g = sum_i r_i x a_i, M = A R^T, B = f I - sym(M).
+  const double f = r00 * a(0, 0) + r10 * a(1, 0) + r20 * a(2, 0) + r01 * a(0, 1) + r11 * a(1, 1) + r21 * a(2, 1) +
+                   r02 * a(0, 2) + r12 * a(1, 2) + r22 * a(2, 2);
+  const double g0 = (r10 * a(2, 0) - r20 * a(1, 0)) + (r11 * a(2, 1) - r21 * a(1, 1)) + (r12 * a(2, 2) - r22 * a(1, 2));
+  const double g1 = (r20 * a(0, 0) - r00 * a(2, 0)) + (r21 * a(0, 1) - r01 * a(2, 1)) + (r22 * a(0, 2) - r02 * a(2, 2));
+  const double g2 = (r00 * a(1, 0) - r10 * a(0, 0)) + (r01 * a(1, 1) - r11 * a(0, 1)) + (r02 * a(1, 2) - r12 * a(0, 2));
+  const double m00 = a(0, 0) * r00 + a(0, 1) * r01 + a(0, 2) * r02;
+  const double m11 = a(1, 0) * r10 + a(1, 1) * r11 + a(1, 2) * r12;
+  const double m22 = a(2, 0) * r20 + a(2, 1) * r21 + a(2, 2) * r22;
+  const double m01 = a(0, 0) * r10 + a(0, 1) * r11 + a(0, 2) * r12, m10 = a(1, 0) * r00 + a(1, 1) * r01 + a(1, 2) * r02;
+  const double m02 = a(0, 0) * r20 + a(0, 1) * r21 + a(0, 2) * r22, m20 = a(2, 0) * r00 + a(2, 1) * r01 + a(2, 2) * r02;
+  const double m12 = a(1, 0) * r20 + a(1, 1) * r21 + a(1, 2) * r22, m21 = a(2, 0) * r10 + a(2, 1) * r11 + a(2, 2) * r12;
+  const double b00 = f - m00, b11 = f - m11, b22 = f - m22;
+  const double b10 = -0.5 * (m10 + m01), b20 = -0.5 * (m20 + m02), b21 = -0.5 * (m21 + m12);
+  // LDL^T of B and n = B^-1 g (newton_axis with pivots relative to the scale of A).
+  const double pivot_min = kPivotMin * scale;
+  const double d0 = b00;
+  if (!(d0 > pivot_min)) return extract_rotation(a, q, fallback_iterations);
+  const double l10 = b10 / d0, l20 = b20 / d0;
+  const double d1 = b11 - l10 * l10 * d0;
+  if (!(d1 > pivot_min)) return extract_rotation(a, q, fallback_iterations);
+  const double l21 = (b21 - l20 * l10 * d0) / d1;
+  const double d2 = b22 - l20 * l20 * d0 - l21 * l21 * d1;
+  if (!(d2 > pivot_min)) return extract_rotation(a, q, fallback_iterations);
+  const double y0 = g0, y1 = g1 - l10 * y0, y2 = g2 - l20 * y0 - l21 * y1;
+  const double n2 = y2 / d2;
+  const double n1 = y1 / d1 - l21 * n2;
+  const double n0 = y0 / d0 - l10 * n1 - l20 * n2;
+  const double length = std::sqrt(n0 * n0 + n1 * n1 + n2 * n2);
+  if (!std::isfinite(length)) return extract_rotation(a, q, fallback_iterations);
+  const double angle = length < 1e-4 ? length * (1.0 - length * length * (1.0 / 3.0 - length * length * (1.0 / 5.0)))
+                                     : std::atan(length);
+  if (!(angle > kMinAngle)) return q;  // converged
+  return rotate(q, angle, Vector3d(n0, n1, n2) / length);
+}
+
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
                     double dt, double& lambda) {
   // alpha~ = compliance / dt^2; a soft constraint without a time step does nothing.
@@ -224,7 +308,7 @@ void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, d
 
 bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const double* rest, int count,
                          ShapeRest& out) {
-  out.count = 0;
+  out = ShapeRest{};
   if (count <= 0 || count > kShapeMaxParticles) return false;
   // Mean mass of the free particles; anchored ones weigh kAnchorWeight times that.
   constexpr double kAnchorWeight = 1e6;
@@ -252,35 +336,37 @@ bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const 
     total += m;
   }
   out.total = total;
+  out.inv_total = 1.0 / total;
   const Vector3d rest_centre = sum_r / total;
   for (int k = 0; k < count; ++k) {
-    const Vector3d q = Vector3d(rest[3 * k], rest[3 * k + 1], rest[3 * k + 2]) - rest_centre;
-    for (int e = 0; e < 3; ++e) out.offset[3 * k + e] = q[e];
+    for (int e = 0; e < 3; ++e) out.offset[k][e] = rest[3 * k + e] - rest_centre[e];
   }
   out.count = count;
   return true;
 }
 
 void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r, double stiffness,
-                          Quaterniond& rotation) {
+                          Quaterniond& rotation, int rotation_iterations) {
   if (r.count == 0) return;
-  Vector3d centre;
-  Matrix3d rot;
-  shape_matching_frame(x, indices, r, rotation, centre, rot);
+  ShapeFrame f;
+  shape_matching_frame(x, indices, r, rotation, rotation_iterations, f);
   // Goals depend only on the frame computed above, so moving particles one by one is the same as
   // applying shape_matching_corrections' deltas.
   for (int k = 0; k < r.count; ++k) {
     if (!r.moves[k]) continue;
+    double goal[3];
+    shape_goal(f, r.offset[k], goal);
     double* xi = x + 3 * size_t(indices[k]);
-    const Vector3d goal = shape_goal(centre, rot, r.offset + 3 * k);
-    for (int e = 0; e < 3; ++e) xi[e] += stiffness * (goal[e] - xi[e]);
+    for (int e = 0; e < 3; ++e) xi[e] = f.p[k][e] + stiffness * (goal[e] - f.p[k][e]);
   }
 }
 
 void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* indices, const double* rest, int count,
                           double stiffness, Quaterniond& rotation) {
   ShapeRest r;
-  if (shape_matching_rest(inv_mass, indices, rest, count, r)) solve_shape_matching(x, indices, r, stiffness, rotation);
+  if (shape_matching_rest(inv_mass, indices, rest, count, r)) {
+    solve_shape_matching(x, indices, r, stiffness, rotation, kShapeRotationIterations);
+  }
 }
 
 void shape_matching_corrections(const double* x, const double* inv_mass, const uint32_t* indices, const double* rest,
@@ -288,14 +374,13 @@ void shape_matching_corrections(const double* x, const double* inv_mass, const u
   for (int k = 0; k < 3 * count; ++k) delta[k] = 0.0;
   ShapeRest r;
   if (!shape_matching_rest(inv_mass, indices, rest, count, r)) return;
-  Vector3d centre;
-  Matrix3d rot;
-  shape_matching_frame(x, indices, r, rotation, centre, rot);
+  ShapeFrame f;
+  shape_matching_frame(x, indices, r, rotation, kShapeRotationIterations, f);
   for (int k = 0; k < count; ++k) {
     if (!r.moves[k]) continue;
-    const double* xi = x + 3 * size_t(indices[k]);
-    const Vector3d goal = shape_goal(centre, rot, r.offset + 3 * k);
-    for (int e = 0; e < 3; ++e) delta[3 * k + e] = stiffness * (goal[e] - xi[e]);
+    double goal[3];
+    shape_goal(f, r.offset[k], goal);
+    for (int e = 0; e < 3; ++e) delta[3 * k + e] = stiffness * (goal[e] - f.p[k][e]);
   }
 }
 

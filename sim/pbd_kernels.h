@@ -23,6 +23,20 @@ namespace dvx {
 // rotation); tr(R^T A) never decreases, so it does not flip between two answers from step to step.
 Eigen::Quaterniond extract_rotation(const Eigen::Matrix3d& a, const Eigen::Quaterniond& q, int max_iterations = 20);
 
+// One step of extract_rotation from a warm start, written out for the solver's usual case (q a unit
+// quaternion near the answer, B clearly positive definite): the Newton axis n = B^-1 g with the exact
+// line search along it in closed form (along n/|n| the step atan(c/b) is atan(|n|)), without scaling
+// A (the axis and |n| do not depend on it; the pivots are compared with kPivotMin x max |a_ij|).
+// Near the answer the error falls ~cubically per call, so a solver that calls it every iteration
+// tracks the rotation. Where the step is not defined (q not unit, A not finite, B not clearly
+// positive definite: far away, inverted or flattened) it is extract_rotation(a, q,
+// fallback_iterations). Not bit-identical to extract_rotation (other operations).
+Eigen::Quaterniond extract_rotation_step(const Eigen::Matrix3d& a, const Eigen::Quaterniond& q, int fallback_iterations);
+
+// Rotation iterations per shape-matching solve: the solver's path takes one extract_rotation_step
+// (extract_rotation with this many iterations where that step is not defined).
+constexpr int kShapeRotationIterations = 3;
+
 // One XPBD distance constraint between particles i and j (Macklin et al. 2016):
 //   C = |x_i - x_j| - rest,  alpha~ = compliance / dt^2,
 //   dlambda = (-C - alpha~ lambda) / (w_i + w_j + alpha~), x_i += w_i dlambda n, x_j -= w_j dlambda n.
@@ -74,23 +88,25 @@ void shape_matching_corrections(const double* x, const double* inv_mass, const u
 // same between solves while the cluster's masses and rest positions do (the solver builds it once per
 // step: cuts and anchoring change masses only between steps). Masses (anchored particles weigh
 // kAnchorWeight x the free particles' mean), their total, and the rest offsets r_i - c0 from the rest
-// mass centre. Solving from it gives bit-identical results to solve_shape_matching above (the same
-// operations in the same order), with no divisions and no rest-centre sums per solve.
+// mass centre (double: in float a rigidly moved cluster would drift by ~1e-9 of its size per solve
+// against the double stretch rest lengths, for no fewer instructions: the kernel computes in double).
 constexpr int kShapeMaxParticles = 8;
 struct ShapeRest {
   int count = 0;  // 0: no particle can move (the cluster is skipped)
-  double total = 0.0;
-  double mass[kShapeMaxParticles];
-  uint8_t moves[kShapeMaxParticles];    // inverse mass > 0
-  double offset[3 * kShapeMaxParticles];  // r_i - c0
+  double total = 0.0, inv_total = 0.0;
+  double mass[kShapeMaxParticles] = {};
+  double offset[kShapeMaxParticles][3] = {};  // r_i - c0
+  uint8_t moves[kShapeMaxParticles] = {};     // inverse mass > 0
 };
 
 // Builds the rest frame (count <= kShapeMaxParticles); false (out.count = 0) when no particle moves.
 bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const double* rest, int count,
                          ShapeRest& out);
 
-// solve_shape_matching from a prebuilt rest frame.
+// solve_shape_matching from a prebuilt rest frame; rotation_iterations > 0: extract_rotation with
+// that many iterations (the one-shot versions above use kShapeRotationIterations); 0: one
+// extract_rotation_step (the solver's path).
 void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& rest, double stiffness,
-                          Eigen::Quaterniond& rotation);
+                          Eigen::Quaterniond& rotation, int rotation_iterations = kShapeRotationIterations);
 
 }  // namespace dvx

@@ -5,6 +5,8 @@
 #include <doctest/doctest.h>
 
 #include <atomic>
+#include <chrono>
+#include <thread>
 #include <vector>
 
 using namespace dvx;
@@ -19,6 +21,47 @@ struct Counts {
 void count_range(uint32_t begin, uint32_t end, void* user) {
   Counts& c = *static_cast<Counts*>(user);
   for (uint32_t i = begin; i < end; ++i) c.hits[i].fetch_add(1);
+}
+
+// A phased job: batch b writes value[b][i] = 1 + (sum of batch b - 1's values), so an item that started
+// before every item of the batch before it finished writes a wrong value.
+struct Phased {
+  std::vector<TaskBatch> batches;
+  std::vector<std::vector<std::atomic<int64_t>>> value;
+  std::atomic<int> calls_out_of_range{0};
+  explicit Phased(const std::vector<TaskBatch>& b) : batches(b), value(b.size()) {
+    for (size_t i = 0; i < b.size(); ++i) value[i] = std::vector<std::atomic<int64_t>>(b[i].count);
+  }
+  int64_t sum(uint32_t batch) const {
+    int64_t total = 0;
+    for (const std::atomic<int64_t>& v : value[batch]) total += v.load();
+    return total;
+  }
+};
+
+void phased_chunk(uint32_t batch, uint32_t begin, uint32_t end, void* user) {
+  Phased& p = *static_cast<Phased*>(user);
+  if (batch >= p.batches.size() || begin >= end || end > p.batches[batch].count) {
+    p.calls_out_of_range.fetch_add(1);
+    return;
+  }
+  // The first chunk of a batch sleeps, so that another thread reaches the next batch before this
+  // one is done (a missing barrier shows as a wrong sum).
+  if (begin == 0 && end < p.batches[batch].count) std::this_thread::sleep_for(std::chrono::microseconds(300));
+  const int64_t before = batch == 0 ? 0 : p.sum(batch - 1);
+  for (uint32_t i = begin; i < end; ++i) p.value[batch][i].fetch_add(1 + before);
+}
+
+// What a correct run of the job writes: batch b's items are 1 + sum of batch b - 1 (skipping nothing:
+// an empty batch sums to 0).
+std::vector<int64_t> expected_sums(const std::vector<TaskBatch>& batches) {
+  std::vector<int64_t> sums;
+  int64_t previous = 0;
+  for (const TaskBatch& b : batches) {
+    sums.push_back(int64_t(b.count) * (1 + previous));
+    previous = sums.back();
+  }
+  return sums;
 }
 
 }  // namespace
@@ -52,5 +95,59 @@ TEST_SUITE("task_pool") {
     int wrong = 0;
     for (uint32_t i = 0; i < 64; ++i) wrong += c.hits[i].load() != 2000;
     CHECK(wrong == 0);
+  }
+
+  TEST_CASE("run_batches: every item once, each batch after the whole batch before it, for any worker count") {
+    // Big parallel batches, one-chunk batches (merged into runs), empty batches, a serial overflow.
+    const std::vector<TaskBatch> job = {{1000, 16}, {3, 1024}, {0, 16}, {5, 1024}, {257, 8}, {1, ~0u},
+                                        {64, 1},   {0, 1},    {2, 1024}, {4099, 64}, {7, 1}};
+    const std::vector<int64_t> want = expected_sums(job);
+    for (int workers : {1, 2, 4}) {
+      TaskPool pool(workers);
+      const TaskRunner runner = pool.runner();
+      REQUIRE((runner.run_batches != nullptr));
+      for (int repeat = 0; repeat < 20; ++repeat) {
+        CAPTURE(workers);
+        CAPTURE(repeat);
+        Phased p(job);
+        runner.run_batches(runner.context, job.data(), uint32_t(job.size()), phased_chunk, &p);
+        CHECK(p.calls_out_of_range.load() == 0);
+        for (uint32_t b = 0; b < job.size(); ++b) {
+          CAPTURE(b);
+          CHECK(p.sum(b) == want[b]);
+        }
+      }
+    }
+  }
+
+  TEST_CASE("run_batches wakes the workers once per job, and not at all when no batch is worth sharing") {
+    TaskPool pool(2);
+    const TaskRunner runner = pool.runner();
+    const std::vector<TaskBatch> parallel_job(40, TaskBatch{512, 16});
+    const std::vector<TaskBatch> serial_job(40, TaskBatch{512, 1024});
+    for (int job = 0; job < 10; ++job) {
+      Phased p(parallel_job);
+      runner.run_batches(runner.context, parallel_job.data(), uint32_t(parallel_job.size()), phased_chunk, &p);
+      CHECK(p.sum(39) == expected_sums(parallel_job)[39]);
+    }
+    CHECK(pool.wakeups() == 10);
+    Phased p(serial_job);
+    runner.run_batches(runner.context, serial_job.data(), uint32_t(serial_job.size()), phased_chunk, &p);
+    CHECK(p.sum(39) == expected_sums(serial_job)[39]);
+    CHECK(pool.wakeups() == 10);
+  }
+
+  TEST_CASE("run_batches through the sim helper without run_batches (parallel_for per batch) and serially") {
+    const std::vector<TaskBatch> job = {{100, 8}, {0, 8}, {9, 1}, {1, 1}, {300, 1000}};
+    const std::vector<int64_t> want = expected_sums(job);
+    TaskPool pool(3);
+    TaskRunner only_parallel_for = pool.runner();
+    only_parallel_for.run_batches = nullptr;
+    for (const TaskRunner& runner : {only_parallel_for, TaskRunner{}}) {
+      Phased p(job);
+      run_batches(runner, job.data(), uint32_t(job.size()),
+                  [&](uint32_t batch, uint32_t begin, uint32_t end) { phased_chunk(batch, begin, end, &p); });
+      for (uint32_t b = 0; b < job.size(); ++b) CHECK(p.sum(b) == want[b]);
+    }
   }
 }
