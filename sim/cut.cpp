@@ -2,6 +2,7 @@
 
 #include "sim/contour.h"
 #include "sim/surface_metrics.h"
+#include "sim/union_find.h"
 
 #include <algorithm>
 #include <bit>
@@ -127,16 +128,6 @@ const EdgeCut* find_cut(const CutState& state, uint32_t edge) {
   return i == kDeadIndex ? nullptr : &state.edge_cuts[i];
 }
 
-// Union-find over a few small integers (corners, half-edge slots), smaller root kept.
-int uf_find(uint8_t* parent, int x) {
-  while (parent[x] != x) x = parent[x] = parent[parent[x]];
-  return x;
-}
-void uf_unite(uint8_t* parent, int x, int y) {
-  const int a = uf_find(parent, x), b = uf_find(parent, y);
-  if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
-}
-
 // Inside bits of a voxel's corners (bit c: corner c inside).
 uint8_t corner_inside_bits(const VoxelModel& model, const int32_t vc[3]) {
   uint8_t bits = 0;
@@ -151,8 +142,8 @@ void material_components(const VoxelModel& model, uint16_t cut_edges, uint16_t a
   uint8_t parent[8];
   const uint8_t in_bits = corner_inside_bits(model, vc);
   for (int c = 0; c < 8; ++c) parent[c] = uint8_t(c);
-  const auto find = [&](int c) { return uf_find(parent, c); };
-  const auto join = [&](int c0, int c1) { uf_unite(parent, c0, c1); };
+  const auto find = [&](int c) { return int(uf_find(parent, uint8_t(c))); };
+  const auto join = [&](int c0, int c1) { uf_unite(parent, uint8_t(c0), uint8_t(c1)); };
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
     if ((in_bits >> ve.c0 & 1u) && (in_bits >> ve.c1 & 1u) && !((cut_edges >> e) & 1u)) join(ve.c0, ve.c1);
@@ -354,16 +345,18 @@ bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge,
       consider(0.5, n);
     }
   }
+  // The cut: each inside end sees its nearest crossing, except on an edge with both ends inside,
+  // where the upper end owns everything above the lowest crossing (every interval between two
+  // crossings stays material: a sliver between them belongs to the upper node's piece).
+  double t_cut = -1.0;
   if (cut != nullptr) {
-    if (side == 0) {
-      consider(cut->t_lo, cut->normal_lo.cast<double>());
-    } else {
-      consider(cut->t_hi, cut->normal_hi.cast<double>());
-    }
+    const bool lower = side == 0 || in0;
+    t_cut = lower ? cut->t_lo : cut->t_hi;
+    consider(t_cut, (lower ? cut->normal_lo : cut->normal_hi).cast<double>());
   }
   if (best < 0.0 || best > 1.0) return false;
   t = best;
-  if (from_cut != nullptr) *from_cut = cut != nullptr && (side ? best == double(cut->t_hi) : best == double(cut->t_lo));
+  if (from_cut != nullptr) *from_cut = cut != nullptr && best == t_cut;
   // Outward: from the end node toward the boundary.
   if (normal[axis] * (side ? -1.0 : 1.0) < 0.0) normal = -normal;
   return true;
@@ -412,7 +405,7 @@ struct FaceMerges {
 // j and the end of arc j with the start of arc m instead: the two arcs meet across the face, the
 // arcs between them keep their curves (nested, never crossing). The cycles of pairs are the patches.
 void pair_faces(uint8_t in_bits, uint16_t cut_edges, uint32_t present, const FaceMerges& merges, uint8_t parent[24]) {
-  const auto unite = [&](int x, int y) { uf_unite(parent, x, y); };
+  const auto unite = [&](int x, int y) { uf_unite(parent, uint8_t(x), uint8_t(y)); };
   const uint8_t joins = voxel_material_joins(in_bits, cut_edges);
   for (int f = 0; f < 6; ++f) {
     int pts[8];
@@ -450,8 +443,7 @@ void number_patches(uint8_t in_bits, uint16_t face_cut_edges, uint16_t cut_edges
   std::fill(id_of_root, id_of_root + 24, uint8_t(0xFF));
   for (int h = 0; h < 24; ++h) {
     if (!((out.present >> h) & 1u)) continue;
-    int r = h;
-    while (parent[r] != r) r = parent[r];
+    const int r = uf_find(parent, uint8_t(h));
     if (id_of_root[r] == 0xFF) {
       const uint8_t p = out.patch_count < kMaxPatches ? out.patch_count++ : uint8_t(kMaxPatches - 1);
       id_of_root[r] = p;
@@ -1364,9 +1356,9 @@ double cut_dropped_length(const VoxelModel& model, const CutState& state) {
   for (const EdgeCut& c : state.edge_cuts) {
     const uint32_t n0 = c.edge / 3;
     const bool in0 = model.is_inside(n0), in1 = model.is_inside(n0 + node_stride(l, int(c.edge % 3)));
-    if (in0 && in1) {
-      sum += double(c.t_hi) - double(c.t_lo);
-    } else if (in0 != in1) {
+    // Both ends inside: every interval has an owner (half_edge_param); one end inside: the
+    // material between the outermost cut and the surface crossing holds no node.
+    if (in0 != in1) {
       const EdgeCrossing* x = model.find_crossing(c.edge);
       const double ts = x != nullptr ? double(x->t) : 0.5;
       sum += in0 ? ts - double(c.t_lo) : double(c.t_hi) - ts;

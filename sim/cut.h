@@ -50,13 +50,14 @@ namespace dvx {
 constexpr uint8_t kNoPiece = 0xFF;
 constexpr uint32_t kDeadIndex = ~0u;  // triangle slots not in use hold {kDeadIndex x3}
 
-// A lattice edge the blade has crossed. 32 bytes.
+// A lattice edge the blade has crossed (36 bytes: one per cut edge, kept flat).
 struct EdgeCut {
   uint32_t edge;
   float t_lo, t_hi;  // lowest / highest crossing parameter along the edge (from its lower node)
   Vec3f normal_lo;   // blade normal at t_lo (unit; oriented by the reader)
   Vec3f normal_hi;   // blade normal at t_hi
 };
+static_assert(sizeof(EdgeCut) == 36, "EdgeCut: 4 + 2 x 4 + 2 x 12 bytes, no padding");
 
 // A voxel with at least one cut edge, split into pieces (the paper's divided voxels).
 struct DividedVoxel {
