@@ -5,6 +5,7 @@
 #include "sim/union_find.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <limits>
@@ -373,6 +374,28 @@ struct VoxelPatches {
   uint16_t partial = 0;  // bit p: patch p holds both half-edges of a cut edge (the slit's tip is here)
 };
 
+// Half-edge slots (bits 2e, 2e+1) of the four edges of each face.
+constexpr std::array<uint32_t, 6> make_face_slots() {
+  std::array<uint32_t, 6> slots{};
+  for (int f = 0; f < 6; ++f) {
+    for (int i = 0; i < 4; ++i) slots[size_t(f)] |= 3u << (2 * kFaceEdges.edge[f][i]);
+  }
+  return slots;
+}
+constexpr std::array<uint32_t, 6> kFaceSlots = make_face_slots();
+
+// Number of half-edge points on face f's perimeter.
+int face_point_count(uint32_t present, int f) { return std::popcount(present & kFaceSlots[size_t(f)]); }
+
+// Voxel edges holding a half-edge (bit e: slot 2e or 2e+1 present).
+uint32_t present_edges(uint32_t present) {
+  uint32_t edges = 0;
+  for (uint32_t bits = (present | (present >> 1)) & 0x555555u; bits; bits &= bits - 1) {
+    edges |= 1u << (std::countr_zero(bits) / 2);
+  }
+  return edges;
+}
+
 // The half-edge points of face f's perimeter in cyclic order (corner k0 -> k1 -> k2 -> k3): slots h.
 // Returns their count (even: each point is a switch between inside and outside).
 int face_perimeter(uint32_t present, int f, int pts[8]) {
@@ -408,9 +431,9 @@ void pair_faces(uint8_t in_bits, uint16_t cut_edges, uint32_t present, const Fac
   const auto unite = [&](int x, int y) { uf_unite(parent, uint8_t(x), uint8_t(y)); };
   const uint8_t joins = voxel_material_joins(in_bits, cut_edges);
   for (int f = 0; f < 6; ++f) {
+    if (face_point_count(present, f) < 2) continue;
     int pts[8];
     const int k = face_perimeter(present, f, pts);
-    if (k < 2) continue;
     const bool start_inside = (in_bits >> kVoxelFaceCorners[f][0]) & 1u;
     const bool joined = (joins >> f) & 1u;
     // The arc from point j to point j+1 is inside when start_inside != (j even); it is paired
@@ -461,46 +484,30 @@ void number_patches(uint8_t in_bits, uint16_t face_cut_edges, uint16_t cut_edges
   }
 }
 
-// The voxel's own data for its patches: inside corners, pieces, cut and air edges, half-edge points.
+// The voxel's own data for its patches: inside corners, pieces, cut and air edges.
 struct VoxelData {
   uint8_t in_bits = 0;
   uint8_t corner_piece[8];
   uint16_t cut_edges = 0, air_edges = 0;
+  bool divided = false;
 };
 
-void voxel_data(const VoxelModel& model, const CutState& state, uint32_t voxel, VoxelData& out) {
-  uint8_t piece_count = 0, partial_mask = 0;
-  pieces_of(model, state, voxel, out.corner_piece, piece_count, partial_mask);
-  out.in_bits = 0;
-  for (int c = 0; c < 8; ++c) out.in_bits = uint8_t(out.in_bits | (out.corner_piece[c] != kNoPiece ? 1u << c : 0u));
+void voxel_data(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& out) {
   const uint32_t d = state.divided_of.get(voxel);
-  out.cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
-  out.air_edges = d != kDeadIndex ? state.divided[d].air_edges : 0;
-}
-
-// Patches by the face rule alone (no toggles): half-edge points and their cycles.
-void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
-                  VoxelPatches& out) {
-  const Lattice& l = model.lattice;
-  voxel_data(model, state, voxel, data);
-  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
-  out.present = 0;
-  for (int e = 0; e < 12; ++e) {
-    const VoxelEdge& ve = kVoxelEdges[e];
-    const uint32_t edge = voxel_edge_id(l, vc, e);
-    const EdgeCut* cut = (data.cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
-    for (int side = 0; side < 2; ++side) {
-      double t = 0.0;
-      const int h = 2 * e + side;
-      if (!half_edge_param(model, cut, edge, side, t, out.normal[h])) continue;
-      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
-      p[ve.axis] += t * l.voxel_size;
-      out.point[h] = p;
-      out.present |= 1u << h;
-    }
+  out.divided = d != kDeadIndex;
+  if (out.divided) {
+    const DividedVoxel& dv = state.divided[d];
+    std::copy(dv.corner_piece, dv.corner_piece + 8, out.corner_piece);
+    out.in_bits = 0;
+    for (int c = 0; c < 8; ++c) out.in_bits = uint8_t(out.in_bits | (dv.corner_piece[c] != kNoPiece ? 1u << c : 0u));
+    out.cut_edges = dv.cut_edges;
+    out.air_edges = dv.air_edges;
+    return;
   }
-  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
-                 out);
+  // Uncut: one implicit piece of all inside corners.
+  out.in_bits = corner_inside_bits(model, vc);
+  for (int c = 0; c < 8; ++c) out.corner_piece[c] = (out.in_bits >> c) & 1u ? 0 : kNoPiece;
+  out.cut_edges = out.air_edges = 0;
 }
 
 // The half-edges a voxel has, from its signs and cut edges alone (as half_edge_param decides them):
@@ -516,14 +523,6 @@ uint32_t half_edge_presence(uint8_t in_bits, uint16_t cut_edges) {
   return present;
 }
 
-// Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
-void topology_patches(const CutState& state, uint32_t voxel, const VoxelModel& model, VoxelData& data, VoxelPatches& out) {
-  voxel_data(model, state, voxel, data);
-  out.present = half_edge_presence(data.in_bits, data.cut_edges);
-  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
-                 out);
-}
-
 // A pair of curves of one face that belong to one patch: a candidate for a merge.
 struct CurvePair {
   uint8_t face, m, j;  // curves m < j
@@ -535,9 +534,9 @@ int doubled_curves(const VoxelData& data, const VoxelPatches& patches, CurvePair
   int count = 0;
   const uint8_t joins = voxel_material_joins(data.in_bits, uint16_t(data.cut_edges | data.air_edges));
   for (int f = 0; f < 6; ++f) {
+    if (face_point_count(patches.present, f) < 4) continue;
     int pts[8];
     const int k = face_perimeter(patches.present, f, pts);
-    if (k < 4) continue;
     const bool start_inside = (data.in_bits >> kVoxelFaceCorners[f][0]) & 1u;
     const int j0 = ((!start_inside) != bool((joins >> f) & 1u)) ? 0 : 1;
     for (int m = 0; m < k / 2; ++m) {
@@ -550,6 +549,89 @@ int doubled_curves(const VoxelData& data, const VoxelPatches& patches, CurvePair
     }
   }
   return count;
+}
+
+// Patches of an uncut voxel depend on its inside corners alone: one table of the 256 cases (the
+// face rule, before merges), so building the surface and refreshing the voxels around a cut never
+// pair faces for an uncut voxel, and one whose faces hold no doubled curve skips the merge search.
+struct UncutPatches {
+  uint32_t present;
+  uint8_t patch_count;
+  bool doubled;  // a face holds two curves of one patch (merge candidates, see voxel_patches)
+  uint8_t patch_of[24];
+  uint32_t patch_half_edges[kMaxPatches];
+};
+
+const UncutPatches& uncut_patches(uint8_t in_bits) {
+  static const std::vector<UncutPatches> table = [] {
+    std::vector<UncutPatches> t(256);
+    for (int bits = 0; bits < 256; ++bits) {
+      VoxelData data;
+      data.in_bits = uint8_t(bits);
+      for (int c = 0; c < 8; ++c) data.corner_piece[c] = (bits >> c) & 1 ? 0 : kNoPiece;
+      VoxelPatches patches;
+      patches.present = half_edge_presence(data.in_bits, 0);
+      number_patches(data.in_bits, 0, 0, FaceMerges{}, data.corner_piece, patches);
+      CurvePair pairs[36];
+      UncutPatches& u = t[size_t(bits)];
+      u.present = patches.present;
+      u.patch_count = patches.patch_count;
+      u.doubled = doubled_curves(data, patches, pairs) > 0;
+      std::copy(patches.patch_of, patches.patch_of + 24, u.patch_of);
+      std::copy(patches.patch_half_edges, patches.patch_half_edges + kMaxPatches, u.patch_half_edges);
+    }
+    return t;
+  }();
+  return table[in_bits];
+}
+
+// Patches by the face rule alone (no merges) from the voxel's data: the table for uncut voxels.
+void rule_patches(const VoxelData& data, VoxelPatches& out) {
+  if (data.divided) {
+    out.present = half_edge_presence(data.in_bits, data.cut_edges);
+    number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{},
+                   data.corner_piece, out);
+    return;
+  }
+  const UncutPatches& u = uncut_patches(data.in_bits);
+  out.present = u.present;
+  out.patch_count = u.patch_count;
+  out.partial = 0;
+  std::copy(u.patch_of, u.patch_of + 24, out.patch_of);
+  std::copy(u.patch_half_edges, u.patch_half_edges + u.patch_count, out.patch_half_edges);
+  std::fill(out.patch_piece, out.patch_piece + u.patch_count, uint8_t(0));
+}
+
+// Patches by the face rule alone (no merges), with the Hermite data of every half-edge.
+void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+                  VoxelPatches& out) {
+  const Lattice& l = model.lattice;
+  voxel_data(model, state, voxel, vc, data);
+  rule_patches(data, out);
+  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
+  for (uint32_t edges = present_edges(out.present); edges; edges &= edges - 1) {
+    const int e = std::countr_zero(edges);
+    const VoxelEdge& ve = kVoxelEdges[e];
+    const uint32_t edge = voxel_edge_id(l, vc, e);
+    const EdgeCut* cut = (data.cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
+    for (int side = 0; side < 2; ++side) {
+      double t = 0.0;
+      const int h = 2 * e + side;
+      if (!((out.present >> h) & 1u)) continue;
+      // half_edge_presence and half_edge_param agree: every present half-edge has its point.
+      half_edge_param(model, cut, edge, side, t, out.normal[h]);
+      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
+      p[ve.axis] += t * l.voxel_size;
+      out.point[h] = p;
+    }
+  }
+}
+
+// Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
+void topology_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                      VoxelData& data, VoxelPatches& out) {
+  voxel_data(model, state, voxel, vc, data);
+  rule_patches(data, out);
 }
 
 // The same half-edge slot seen from the voxel across face f (2 * axis + s).
@@ -570,6 +652,7 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
                    VoxelPatches& out) {
   VoxelData data;
   base_patches(model, state, voxel, vc, data, out);
+  if (!data.divided && !uncut_patches(data.in_bits).doubled) return false;
   CurvePair pairs[36];
   const int count = doubled_curves(data, out, pairs);
   if (count == 0) return false;
@@ -585,7 +668,7 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
     nc[c.face / 2] += c.face % 2 ? 1 : -1;
     if (nc[c.face / 2] < 0 || nc[c.face / 2] >= dims[c.face / 2]) continue;
     if (other_face != c.face) {
-      topology_patches(state, model.lattice.voxel(nc[0], nc[1], nc[2]), model, other_data, other);
+      topology_patches(model, state, model.lattice.voxel(nc[0], nc[1], nc[2]), nc, other_data, other);
       other_face = c.face;
     }
     const int a = slot_across(c.point_m, c.face), b = slot_across(c.point_j, c.face);
@@ -610,10 +693,7 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
 // the voxel across.
 uint8_t four_point_faces(uint32_t present) {
   uint8_t faces = 0;
-  for (int f = 0; f < 6; ++f) {
-    int pts[8];
-    if (face_perimeter(present, f, pts) >= 4) faces = uint8_t(faces | (1u << f));
-  }
+  for (int f = 0; f < 6; ++f) faces = uint8_t(faces | (face_point_count(present, f) >= 4 ? 1u << f : 0u));
   return faces;
 }
 
@@ -791,8 +871,12 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     l.voxel_coords(voxel, vc);
     const uint32_t d = state.divided_of.get(voxel);
     const uint16_t cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
+    const uint8_t in_bits = corner_inside_bits(model, vc);
     for (int e = 0; e < 12; ++e) {
-      const uint32_t edge = voxel_edge_id(l, vc, e);
+      // Only surface edges and cut edges ever hold a quad (cuts are never undone).
+      const VoxelEdge& ve = kVoxelEdges[e];
+      const bool cut_edge = (cut_edges >> e) & 1u;
+      if (!cut_edge && ((in_bits >> ve.c0) & 1u) == ((in_bits >> ve.c1) & 1u)) continue;
       uint32_t around[4];
       uint8_t corners[4];
       voxels_around_voxel_edge(l, vc, e, around, corners);
@@ -801,12 +885,8 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
         owner = !(around[q] < voxel && in_list(around[q]));
       }
       if (!owner) continue;
-      const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
-      // Only surface edges and cut edges ever hold a quad (cuts are never undone).
-      const VoxelEdge& ve = kVoxelEdges[e];
-      if (cut == nullptr && model.is_inside(corner_node(l, vc, ve.c0)) == model.is_inside(corner_node(l, vc, ve.c1))) {
-        continue;
-      }
+      const uint32_t edge = voxel_edge_id(l, vc, e);
+      const EdgeCut* cut = cut_edge ? find_cut(state, edge) : nullptr;
       EdgeQuads quads;
       plan_edge_quads(model, state, edge, cut, around, corners, quads);
       for (int side = 0; side < 2; ++side) {
@@ -1097,17 +1177,21 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state = CutState{};
   state.contour = params;
   // Every voxel around a sign-change edge holds a surface vertex.
-  std::vector<uint32_t> voxels;
-  voxels.reserve(model.crossings.size() * 4);
+  // (marked in a bitset and read back in order: no sort of four entries per crossing).
+  std::vector<uint64_t> marked((model.lattice.voxel_count() + 63) / 64, 0);
   for (const EdgeCrossing& c : model.crossings) {
     uint32_t around[4];
     uint8_t corners[4];
     voxels_around_edge(model.lattice, c.edge, around, corners);
     for (uint32_t v : around) {
-      if (v != kDeadIndex) voxels.push_back(v);
+      if (v != kDeadIndex) marked[v >> 6] |= uint64_t(1) << (v & 63);
     }
   }
-  sorted_unique(voxels);
+  std::vector<uint32_t> voxels;
+  voxels.reserve(model.crossings.size() * 2);
+  for (size_t w = 0; w < marked.size(); ++w) {
+    for (uint64_t bits = marked[w]; bits; bits &= bits - 1) voxels.push_back(uint32_t(64 * w) + uint32_t(std::countr_zero(bits)));
+  }
   // Headroom for cuts, so a step rarely pays for growing a table (a p99 spike otherwise).
   const uint32_t vertices = uint32_t(voxels.size()), quads = uint32_t(model.crossings.size());
   state.surface.vertex_of_patch.reserve(vertices + vertices / 2 + 1024);
