@@ -29,12 +29,14 @@ constexpr VoxelEdge kVoxelEdges[12] = {{0, 1, 0}, {2, 3, 0}, {4, 5, 0}, {6, 7, 0
                                        {4, 6, 1}, {5, 7, 1}, {0, 4, 2}, {1, 5, 2}, {2, 6, 2}, {3, 7, 2}};
 
 // Index in kVoxelEdges of the edge along `axis` starting at corner c0 (c0 has bit `axis` clear).
-int voxel_edge_index(int axis, int c0) {
-  for (int e = 0; e < 12; ++e) {
-    if (kVoxelEdges[e].axis == axis && kVoxelEdges[e].c0 == c0) return e;
-  }
-  return -1;
+constexpr std::array<std::array<int8_t, 8>, 3> make_edge_index() {
+  std::array<std::array<int8_t, 8>, 3> t{};
+  for (auto& row : t) row.fill(-1);
+  for (int e = 0; e < 12; ++e) t[kVoxelEdges[e].axis][kVoxelEdges[e].c0] = int8_t(e);
+  return t;
 }
+constexpr std::array<std::array<int8_t, 8>, 3> kEdgeIndex = make_edge_index();
+int voxel_edge_index(int axis, int c0) { return kEdgeIndex[size_t(axis)][size_t(c0)]; }
 
 // Index in kVoxelEdges of the edge joining corners a and b (-1 when they share no edge).
 constexpr int edge_between(int a, int b) {
@@ -91,15 +93,18 @@ uint32_t node_stride(const Lattice& l, int axis) {
 // The voxels around the lattice edge from node n along `axis` (see voxels_around_edge).
 void voxels_around_node_edge(const Lattice& l, const int32_t n[3], int axis, uint32_t voxels[4],
                              uint8_t lower_corner[4]) {
-  const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+  static constexpr int kNext[3][2] = {{1, 2}, {2, 0}, {0, 1}};
+  const int u = kNext[axis][0], v = kNext[axis][1];
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  const int64_t stride[3] = {1, int64_t(l.nx), int64_t(l.nx) * int64_t(l.ny)};
+  // The voxel at the edge's node (it may lie past the border along u or v), then its neighbours.
+  const int64_t base = int64_t(n[0]) + stride[1] * n[1] + stride[2] * n[2];
+  const bool u_hi = n[u] < dims[u], u_lo = n[u] > 0, v_hi = n[v] < dims[v], v_lo = n[v] > 0;
+  const bool in_axis = n[axis] >= 0 && n[axis] < dims[axis];
   static constexpr int kOffsets[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+  const bool ok[4] = {u_hi && v_hi, u_lo && v_hi, u_lo && v_lo, u_hi && v_lo};
   for (int q = 0; q < 4; ++q) {
-    int32_t c[3] = {n[0], n[1], n[2]};
-    c[u] -= kOffsets[q][0];
-    c[v] -= kOffsets[q][1];
-    const bool inside = c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] < dims[0] && c[1] < dims[1] && c[2] < dims[2];
-    voxels[q] = inside ? l.voxel(c[0], c[1], c[2]) : kDeadIndex;
+    voxels[q] = in_axis && ok[q] ? uint32_t(base - kOffsets[q][0] * stride[u] - kOffsets[q][1] * stride[v]) : kDeadIndex;
     lower_corner[q] = uint8_t((kOffsets[q][0] << u) | (kOffsets[q][1] << v));
   }
 }
@@ -363,6 +368,13 @@ bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge,
   return true;
 }
 
+// Whether an uncut edge has the half-edge at end `side` (as half_edge_param decides it).
+bool uncut_half_edge(const VoxelModel& model, uint32_t edge, int side) {
+  const uint32_t n0 = edge / 3;
+  const bool in0 = model.is_inside(n0), in1 = model.is_inside(n0 + node_stride(model.lattice, int(edge % 3)));
+  return in0 != in1 && (side ? in1 : in0);
+}
+
 // The surface of one voxel: its half-edges (slot h = 2 * voxel edge + side) and their patches.
 struct VoxelPatches {
   uint32_t present = 0;  // bit h: the half-edge exists
@@ -373,6 +385,18 @@ struct VoxelPatches {
   uint8_t patch_piece[kMaxPatches];
   uint16_t partial = 0;  // bit p: patch p holds both half-edges of a cut edge (the slit's tip is here)
 };
+
+// Voxel edges whose two corners differ in sign, by the voxel's inside corners.
+constexpr std::array<uint16_t, 256> make_sign_change_edges() {
+  std::array<uint16_t, 256> t{};
+  for (int bits = 0; bits < 256; ++bits) {
+    for (int e = 0; e < 12; ++e) {
+      if (((bits >> kVoxelEdges[e].c0) & 1) != ((bits >> kVoxelEdges[e].c1) & 1)) t[size_t(bits)] |= uint16_t(1u << e);
+    }
+  }
+  return t;
+}
+constexpr std::array<uint16_t, 256> kSignChangeEdges = make_sign_change_edges();
 
 // Half-edge slots (bits 2e, 2e+1) of the four edges of each face.
 constexpr std::array<uint32_t, 6> make_face_slots() {
@@ -385,7 +409,14 @@ constexpr std::array<uint32_t, 6> make_face_slots() {
 constexpr std::array<uint32_t, 6> kFaceSlots = make_face_slots();
 
 // Number of half-edge points on face f's perimeter.
-int face_point_count(uint32_t present, int f) { return std::popcount(present & kFaceSlots[size_t(f)]); }
+int face_point_count(uint32_t present, int f) {
+  // (a bit count written out: std::popcount is a library call without a popcount instruction)
+  uint32_t x = present & kFaceSlots[size_t(f)];
+  x = x - ((x >> 1) & 0x55555555u);
+  x = (x & 0x33333333u) + ((x >> 2) & 0x33333333u);
+  x = (x + (x >> 4)) & 0x0F0F0F0Fu;
+  return int((x * 0x01010101u) >> 24);
+}
 
 // Voxel edges holding a half-edge (bit e: slot 2e or 2e+1 present).
 uint32_t present_edges(uint32_t present) {
@@ -749,10 +780,10 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     double t;
     Vec3d normal;
     uint8_t pieces[4];
-    if (!half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side]) ||
-        !sharing_pieces(model, state, edge, side, around, corners, pieces)) {
-      continue;
-    }
+    // (an uncut edge: the half-edge exists at an inside end of a sign change, never on the cut)
+    const bool present = cut != nullptr ? half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side])
+                                        : uncut_half_edge(model, edge, side);
+    if (!present || !sharing_pieces(model, state, edge, side, around, corners, pieces)) continue;
     bool ok = true;
     for (int q = 0; q < 4; ++q) {
       const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
@@ -871,12 +902,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     l.voxel_coords(voxel, vc);
     const uint32_t d = state.divided_of.get(voxel);
     const uint16_t cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
-    const uint8_t in_bits = corner_inside_bits(model, vc);
-    for (int e = 0; e < 12; ++e) {
-      // Only surface edges and cut edges ever hold a quad (cuts are never undone).
-      const VoxelEdge& ve = kVoxelEdges[e];
+    // Only surface edges and cut edges ever hold a quad (cuts are never undone).
+    for (uint32_t edges = kSignChangeEdges[corner_inside_bits(model, vc)] | cut_edges; edges; edges &= edges - 1) {
+      const int e = std::countr_zero(edges);
       const bool cut_edge = (cut_edges >> e) & 1u;
-      if (!cut_edge && ((in_bits >> ve.c0) & 1u) == ((in_bits >> ve.c1) & 1u)) continue;
       uint32_t around[4];
       uint8_t corners[4];
       voxels_around_voxel_edge(l, vc, e, around, corners);
