@@ -7,8 +7,16 @@
 // - EdgeCut: a lattice edge crossed by the blade, with its lowest and highest crossing. Material
 //   does not connect across a cut edge. Each inside end of an edge sees the nearest boundary along
 //   the edge (mesh crossing or cut): that "half-edge" carries the Hermite data dual contouring uses.
-//   An edge crossed twice by one cut keeps both ends' nearest crossings; the sliver between them is
-//   dropped (thinner than a voxel, never corrupting).
+//   Every crossing is kept as material: cuts have no thickness, so the intervals between crossings
+//   of an edge are all material. On an edge with both ends inside, the lower end owns [0, t_lo] and
+//   the upper end everything above t_lo (both half-edges sit at t_lo): a sliver between two
+//   crossings (a V-notch's wedge, a hairpin's tongue, a blade turning back within one voxel) stays
+//   material, in the upper node's piece, and the surface keeps its volume. What one vertex per patch
+//   cannot show there is the second sheet on that edge: the sliver is not separated from the upper
+//   piece (it holds no node, so the physics could not move it on its own either). The lowest and
+//   the highest crossing are all this needs, so no list of crossings is stored. On a surface edge
+//   (one end inside) the inside end sees its nearest cut; the material between the outermost cut
+//   and the surface crossing holds no node and is dropped (measured: cut_dropped_length).
 //
 // - DividedVoxel: a voxel with at least one cut edge. Its inside corner nodes are grouped into
 //   *pieces*: the connected components of the voxel's material graph (see voxel_material_joins for
@@ -201,12 +209,11 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
 bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error);
 
 // Material the surface cannot represent (measured, never silent). Material is held by lattice nodes:
-// each inside end of a cut edge keeps the material up to its nearest crossing, and the material
-// between the two outermost blade crossings of an edge with both ends inside (or between the cut and
-// the surface crossing of a surface edge) holds no node and is dropped — a sliver thinner than a
-// voxel along that edge (a V-notch's wedge, a hairpin's tongue). Returns the summed length of those
-// intervals in voxels; the volume dropped is about this times voxel_size^3 (a sliver is sampled by
-// the one family of lattice lines that crosses it; see test_manifold, "slivers").
+// on an edge with both ends inside every interval has an owner (see EdgeCut), and on a surface
+// edge the material between the inside end's nearest cut and the surface crossing holds no node
+// and is dropped (at the rim where a cut meets the organ's surface, a sliver thinner than a voxel
+// along that edge). Returns the summed length of those intervals in voxels; the volume dropped is
+// about this times voxel_size^3.
 double cut_dropped_length(const VoxelModel& model, const CutState& state);
 
 // Bytes held by the explicit cut elements (edge cuts, divided voxels, their maps).
