@@ -143,10 +143,9 @@ uint8_t corner_inside_bits(const VoxelModel& model, const int32_t vc[3]) {
 
 // Components of the voxel's material graph (voxel_material_joins: uncut edges, uncut ambiguous faces).
 // `air_edges`: surface edges the blade crossed outside the material (they cut the faces they bound).
-void material_components(const VoxelModel& model, uint16_t cut_edges, uint16_t air_edges, const int32_t vc[3],
-                         uint8_t corner_piece[8], uint8_t& piece_count, uint8_t& partial_mask) {
+void material_components(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges, uint8_t corner_piece[8],
+                         uint8_t& piece_count, uint8_t& partial_mask) {
   uint8_t parent[8];
-  const uint8_t in_bits = corner_inside_bits(model, vc);
   for (int c = 0; c < 8; ++c) parent[c] = uint8_t(c);
   const auto find = [&](int c) { return int(uf_find(parent, uint8_t(c))); };
   const auto join = [&](int c0, int c1) { uf_unite(parent, uint8_t(c0), uint8_t(c1)); };
@@ -582,63 +581,97 @@ int doubled_curves(const VoxelData& data, const VoxelPatches& patches, CurvePair
   return count;
 }
 
-// Patches of an uncut voxel depend on its inside corners alone: one table of the 256 cases (the
-// face rule, before merges), so building the surface and refreshing the voxels around a cut never
-// pair faces for an uncut voxel, and one whose faces hold no doubled curve skips the merge search.
-struct UncutPatches {
-  uint32_t present;
-  uint8_t patch_count;
-  bool doubled;  // a face holds two curves of one patch (merge candidates, see voxel_patches)
-  uint8_t patch_of[24];
-  uint32_t patch_half_edges[kMaxPatches];
-};
+// The shape of a voxel (PatchShape): pieces, half-edges and patches by the face rule (before merges).
+// `divided`: pieces are the material graph's components; otherwise one implicit piece.
+void make_shape(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges, bool divided, PatchShape& out) {
+  VoxelData data;
+  data.in_bits = in_bits;
+  data.cut_edges = cut_edges;
+  data.air_edges = air_edges;
+  data.divided = divided;
+  out.piece_partial = 0;
+  if (divided) {
+    material_components(in_bits, cut_edges, air_edges, data.corner_piece, out.piece_count, out.piece_partial);
+  } else {
+    for (int c = 0; c < 8; ++c) data.corner_piece[c] = (in_bits >> c) & 1u ? 0 : kNoPiece;
+    out.piece_count = in_bits != 0 ? 1 : 0;
+  }
+  VoxelPatches patches;
+  patches.present = half_edge_presence(in_bits, cut_edges);
+  number_patches(in_bits, uint16_t(cut_edges | air_edges), cut_edges, FaceMerges{}, data.corner_piece, patches);
+  CurvePair pairs[36];
+  out.present = patches.present;
+  out.patch_count = patches.patch_count;
+  out.patch_partial = patches.partial;
+  out.doubled = doubled_curves(data, patches, pairs) > 0;
+  std::copy(data.corner_piece, data.corner_piece + 8, out.corner_piece);
+  std::copy(patches.patch_of, patches.patch_of + 24, out.patch_of);
+  std::fill(out.patch_half_edges, out.patch_half_edges + kMaxPatches, 0u);
+  std::fill(out.patch_piece, out.patch_piece + kMaxPatches, kNoPiece);
+  std::copy(patches.patch_half_edges, patches.patch_half_edges + patches.patch_count, out.patch_half_edges);
+  std::copy(patches.patch_piece, patches.patch_piece + patches.patch_count, out.patch_piece);
+}
 
-const UncutPatches& uncut_patches(uint8_t in_bits) {
-  static const std::vector<UncutPatches> table = [] {
-    std::vector<UncutPatches> t(256);
-    for (int bits = 0; bits < 256; ++bits) {
-      VoxelData data;
-      data.in_bits = uint8_t(bits);
-      for (int c = 0; c < 8; ++c) data.corner_piece[c] = (bits >> c) & 1 ? 0 : kNoPiece;
-      VoxelPatches patches;
-      patches.present = half_edge_presence(data.in_bits, 0);
-      number_patches(data.in_bits, 0, 0, FaceMerges{}, data.corner_piece, patches);
-      CurvePair pairs[36];
-      UncutPatches& u = t[size_t(bits)];
-      u.present = patches.present;
-      u.patch_count = patches.patch_count;
-      u.doubled = doubled_curves(data, patches, pairs) > 0;
-      std::copy(patches.patch_of, patches.patch_of + 24, u.patch_of);
-      std::copy(patches.patch_half_edges, patches.patch_half_edges + kMaxPatches, u.patch_half_edges);
-    }
+// Uncut voxels' shapes depend on their inside corners alone: one table of the 256 cases, so building
+// the surface and refreshing the voxels around a cut never pair faces for an uncut voxel, and one
+// whose faces hold no doubled curve skips the merge search.
+const PatchShape& uncut_shape(uint8_t in_bits) {
+  static const std::vector<PatchShape> table = [] {
+    std::vector<PatchShape> t(256);
+    for (int bits = 0; bits < 256; ++bits) make_shape(uint8_t(bits), 0, 0, false, t[size_t(bits)]);
     return t;
   }();
   return table[in_bits];
 }
 
-// Patches by the face rule alone (no merges) from the voxel's data: the table for uncut voxels.
-void rule_patches(const VoxelData& data, VoxelPatches& out) {
-  if (data.divided) {
-    out.present = half_edge_presence(data.in_bits, data.cut_edges);
-    number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{},
-                   data.corner_piece, out);
-    return;
+uint64_t shape_key(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges) {
+  return uint64_t(in_bits) | uint64_t(cut_edges) << 8 | uint64_t(air_edges) << 20;
+}
+
+// A divided voxel's shape from the memo, computed and kept when new (refresh_voxels: every divided
+// voxel passes here before its patches are read).
+const PatchShape& divided_shape(CutState& state, uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges) {
+  const uint64_t key = shape_key(in_bits, cut_edges, air_edges);
+  uint32_t i = state.shape_of.get(key);
+  if (i == kDeadIndex) {
+    i = uint32_t(state.shapes.size());
+    state.shapes.emplace_back();
+    make_shape(in_bits, cut_edges, air_edges, true, state.shapes.back());
+    state.shape_of.set(key, i);
   }
-  const UncutPatches& u = uncut_patches(data.in_bits);
-  out.present = u.present;
-  out.patch_count = u.patch_count;
-  out.partial = 0;
-  std::copy(u.patch_of, u.patch_of + 24, out.patch_of);
-  std::copy(u.patch_half_edges, u.patch_half_edges + u.patch_count, out.patch_half_edges);
-  std::fill(out.patch_piece, out.patch_piece + u.patch_count, uint8_t(0));
+  return state.shapes[i];
+}
+
+// Patches by the face rule alone (no merges) from the voxel's data: the table for uncut voxels, the
+// memo for divided ones (computed here when absent). Returns whether merges are possible.
+bool rule_patches(const CutState& state, const VoxelData& data, VoxelPatches& out) {
+  PatchShape local;
+  const PatchShape* shape = &local;
+  if (!data.divided) {
+    shape = &uncut_shape(data.in_bits);
+  } else {
+    const uint32_t i = state.shape_of.get(shape_key(data.in_bits, data.cut_edges, data.air_edges));
+    if (i != kDeadIndex) {
+      shape = &state.shapes[i];
+    } else {
+      make_shape(data.in_bits, data.cut_edges, data.air_edges, true, local);
+    }
+  }
+  out.present = shape->present;
+  out.patch_count = shape->patch_count;
+  out.partial = shape->patch_partial;
+  std::copy(shape->patch_of, shape->patch_of + 24, out.patch_of);
+  std::copy(shape->patch_half_edges, shape->patch_half_edges + shape->patch_count, out.patch_half_edges);
+  std::copy(shape->patch_piece, shape->patch_piece + shape->patch_count, out.patch_piece);
+  return shape->doubled;
 }
 
 // Patches by the face rule alone (no merges), with the Hermite data of every half-edge.
-void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+bool base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
                   VoxelPatches& out) {
   const Lattice& l = model.lattice;
   voxel_data(model, state, voxel, vc, data);
-  rule_patches(data, out);
+  const bool doubled = rule_patches(state, data, out);
   const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
   for (uint32_t edges = present_edges(out.present); edges; edges &= edges - 1) {
     const int e = std::countr_zero(edges);
@@ -656,13 +689,14 @@ void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel
       out.point[h] = p;
     }
   }
+  return doubled;
 }
 
 // Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
 void topology_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
                       VoxelData& data, VoxelPatches& out) {
   voxel_data(model, state, voxel, vc, data);
-  rule_patches(data, out);
+  rule_patches(state, data, out);
 }
 
 // The same half-edge slot seen from the voxel across face f (2 * axis + s).
@@ -682,8 +716,7 @@ int slot_across(int h, int f) {
 bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
                    VoxelPatches& out) {
   VoxelData data;
-  base_patches(model, state, voxel, vc, data, out);
-  if (!data.divided && !uncut_patches(data.in_bits).doubled) return false;
+  if (!base_patches(model, state, voxel, vc, data, out)) return false;
   CurvePair pairs[36];
   const int count = doubled_curves(data, out, pairs);
   if (count == 0) return false;
@@ -863,7 +896,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
     DividedVoxel& dv = state.divided[d];
-    material_components(model, dv.cut_edges, dv.air_edges, vc, dv.corner_piece, dv.piece_count, dv.partial_mask);
+    const PatchShape& shape = divided_shape(state, corner_inside_bits(model, vc), dv.cut_edges, dv.air_edges);
+    std::copy(shape.corner_piece, shape.corner_piece + 8, dv.corner_piece);
+    dv.piece_count = shape.piece_count;
+    dv.partial_mask = shape.piece_partial;
   }
   for (uint32_t voxel : voxels) {
     const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
@@ -1357,7 +1393,7 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
     if (mask != dv.cut_edges || air != dv.air_edges) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " has a stale cut-edge mask");
     }
-    material_components(model, mask, air, vc, pieces, count, partial);
+    material_components(corner_inside_bits(model, vc), mask, air, pieces, count, partial);
     if (count != dv.piece_count || partial != dv.partial_mask || !std::equal(pieces, pieces + 8, dv.corner_piece)) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " pieces differ from its material graph");
     }
@@ -1483,7 +1519,8 @@ double cut_dropped_length(const VoxelModel& model, const CutState& state) {
 uint64_t cut_memory_bytes(const CutState& state) {
   return state.edge_cuts.capacity() * sizeof(EdgeCut) + state.edge_cut_of.memory_bytes() +
          state.divided.capacity() * sizeof(DividedVoxel) + state.divided_of.memory_bytes() +
-         state.fronts.capacity() * sizeof(VoxelFront) + state.front_of.memory_bytes() + state.air_edges.memory_bytes();
+         state.fronts.capacity() * sizeof(VoxelFront) + state.front_of.memory_bytes() + state.air_edges.memory_bytes() +
+         state.shapes.capacity() * sizeof(PatchShape) + state.shape_of.memory_bytes();
 }
 
 }  // namespace dvx

@@ -77,6 +77,21 @@ struct DividedVoxel {
   uint16_t air_edges;       // bit e: surface edge e crossed by the blade outside the material only
 };
 
+// The pieces and surface patches of a voxel as far as they follow from its inside corners and its
+// cut and air edges alone (no positions): a pure function of those 32 bits, so divided voxels share
+// it through a memo (a cut meets few distinct cases) and uncut voxels read it from a 256-entry table.
+struct PatchShape {
+  uint32_t present;                // bit h (2 * voxel edge + side): the half-edge exists
+  uint32_t patch_half_edges[12];   // bit h: patch p holds half-edge h
+  uint8_t patch_of[24];            // patch of each present half-edge
+  uint8_t patch_piece[12];         // piece each patch bounds
+  uint8_t corner_piece[8];         // piece of each corner, kNoPiece outside
+  uint8_t patch_count, piece_count;
+  uint8_t piece_partial;           // bit p: piece p holds both ends of a cut edge
+  bool doubled;                    // a face holds two curves of one patch (merges possible)
+  uint16_t patch_partial;          // bit p: patch p holds both half-edges of a cut edge
+};
+
 // Points where the cut front crosses the faces of one voxel (paper Fig. 5: the "face vertices").
 // The front is the blade's current edge plus the trails its two ends leave; trail crossings are
 // kept for good (they do not depend on how the motion was split into steps), crossings of the
@@ -128,6 +143,8 @@ struct CutState {
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
   std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
   std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
+  std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)
+  FlatMap shape_of;                      // inside corners | cut edges << 8 | air edges << 20 -> index in shapes
   CutSurface surface;
   ContourParams contour;                 // vertex placement rule (as dual_contour)
   BladePose last_blade;                  // where the last step left the blade (valid when steps > 0)
@@ -216,7 +233,7 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
 // about this times voxel_size^3.
 double cut_dropped_length(const VoxelModel& model, const CutState& state);
 
-// Bytes held by the explicit cut elements (edge cuts, divided voxels, their maps).
+// Bytes held by the explicit cut elements (edge cuts, divided voxels, fronts, shapes, their maps).
 uint64_t cut_memory_bytes(const CutState& state);
 
 }  // namespace dvx
