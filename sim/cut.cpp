@@ -597,6 +597,7 @@ void make_shape(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges, bool di
     out.piece_count = in_bits != 0 ? 1 : 0;
   }
   VoxelPatches patches;
+  std::fill(patches.patch_of, patches.patch_of + 24, uint8_t(0xFF));  // absent half-edges: no patch
   patches.present = half_edge_presence(in_bits, cut_edges);
   number_patches(in_bits, uint16_t(cut_edges | air_edges), cut_edges, FaceMerges{}, data.corner_piece, patches);
   CurvePair pairs[36];
@@ -1397,6 +1398,30 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
     if (count != dv.piece_count || partial != dv.partial_mask || !std::equal(pieces, pieces + 8, dv.corner_piece)) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " pieces differ from its material graph");
     }
+  }
+
+  // The memo of shapes holds each key's shape (a pure function of its key), checked for the keys of
+  // the divided voxels.
+  if (state.shape_of.size() != state.shapes.size()) return fail("shape memo map and array differ in size");
+  std::vector<uint8_t> shape_checked(state.shapes.size(), 0);
+  for (const DividedVoxel& dv : state.divided) {
+    int32_t vc[3];
+    l.voxel_coords(dv.voxel, vc);
+    const uint8_t in_bits = corner_inside_bits(model, vc);
+    const uint32_t i = state.shape_of.get(shape_key(in_bits, dv.cut_edges, dv.air_edges));
+    if (i == kDeadIndex) return fail("divided voxel " + std::to_string(dv.voxel) + " has no memoised shape");
+    if (shape_checked[i]) continue;
+    shape_checked[i] = 1;
+    const PatchShape& m = state.shapes[i];
+    PatchShape fresh;
+    make_shape(in_bits, dv.cut_edges, dv.air_edges, true, fresh);
+    const bool same = fresh.present == m.present && fresh.patch_count == m.patch_count && fresh.piece_count == m.piece_count &&
+                      fresh.piece_partial == m.piece_partial && fresh.doubled == m.doubled &&
+                      fresh.patch_partial == m.patch_partial && std::equal(m.corner_piece, m.corner_piece + 8, fresh.corner_piece) &&
+                      std::equal(m.patch_of, m.patch_of + 24, fresh.patch_of) &&
+                      std::equal(m.patch_half_edges, m.patch_half_edges + 12, fresh.patch_half_edges) &&
+                      std::equal(m.patch_piece, m.patch_piece + 12, fresh.patch_piece);
+    if (!same) return fail("memoised shape of divided voxel " + std::to_string(dv.voxel) + " differs from its key's shape");
   }
 
   // Every live vertex is a patch of its voxel (piece, half-edges, position), and every patch of a
