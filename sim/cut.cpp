@@ -1129,12 +1129,24 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
   };
   walk_segment(l, from.a, to.a, false, state.scratch_params, add_trail);
   walk_segment(l, from.b, to.b, false, state.scratch_params, add_trail);
-  // The blade edge now (its voxels first, to know where the blade is).
-  std::vector<uint32_t>& now = state.scratch_edges;
-  now.clear();
-  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d&) {
-    if (has_material(model, voxel)) now.push_back(voxel);
+  // The blade edge now, walked once: its points in voxels with material (added below, once the
+  // parked points are settled) and its voxels (sorted, to know where the blade is).
+  std::vector<uint32_t>& blade_voxel = state.scratch_blade_voxels;
+  std::vector<Vec3f>& blade_point = state.scratch_blade_points;
+  blade_voxel.clear();
+  blade_point.clear();
+  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d& point) {
+    if (!blade_voxel.empty() && blade_voxel.back() == voxel) {
+      blade_voxel.push_back(voxel);  // same voxel as the last point: material already known
+    } else if (has_material(model, voxel)) {
+      blade_voxel.push_back(voxel);
+    } else {
+      return;
+    }
+    blade_point.push_back(point.cast<float>());
   });
+  std::vector<uint32_t>& now = state.scratch_edges;
+  now.assign(blade_voxel.begin(), blade_voxel.end());
   sorted_unique(now);
   // The previous blade edge's points: replaced when this sweep continues from it; otherwise they
   // are parked (a slit tip) until the blade comes back to their voxel.
@@ -1167,14 +1179,13 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
     }
   }
   state.parked_voxels.resize(kept);
-  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d& point) {
-    if (!has_material(model, voxel)) return;
-    VoxelFront& f = front_for(state, voxel);
-    f.blade_sum += point.cast<float>();
+  for (size_t i = 0; i < blade_voxel.size(); ++i) {
+    VoxelFront& f = front_for(state, blade_voxel[i]);
+    f.blade_sum += blade_point[i];
     ++f.blade_count;
-    state.blade_voxels.push_back(voxel);
-    changed.push_back(voxel);
-  });
+    state.blade_voxels.push_back(blade_voxel[i]);
+    changed.push_back(blade_voxel[i]);
+  }
   sorted_unique(state.blade_voxels);
   state.last_blade = to;
 }

@@ -153,6 +153,8 @@ struct CutState {
   std::vector<EdgeHit> scratch_hits;
   std::vector<uint32_t> scratch_voxels, scratch_edges, scratch_touched, scratch_across;
   std::vector<double> scratch_params;
+  std::vector<uint32_t> scratch_blade_voxels;  // the blade edge's points' voxels and points (update_front)
+  std::vector<Vec3f> scratch_blade_points;
 };
 
 // What one cut step did.
