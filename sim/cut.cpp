@@ -2,8 +2,10 @@
 
 #include "sim/contour.h"
 #include "sim/surface_metrics.h"
+#include "sim/union_find.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <limits>
@@ -27,12 +29,14 @@ constexpr VoxelEdge kVoxelEdges[12] = {{0, 1, 0}, {2, 3, 0}, {4, 5, 0}, {6, 7, 0
                                        {4, 6, 1}, {5, 7, 1}, {0, 4, 2}, {1, 5, 2}, {2, 6, 2}, {3, 7, 2}};
 
 // Index in kVoxelEdges of the edge along `axis` starting at corner c0 (c0 has bit `axis` clear).
-int voxel_edge_index(int axis, int c0) {
-  for (int e = 0; e < 12; ++e) {
-    if (kVoxelEdges[e].axis == axis && kVoxelEdges[e].c0 == c0) return e;
-  }
-  return -1;
+constexpr std::array<std::array<int8_t, 8>, 3> make_edge_index() {
+  std::array<std::array<int8_t, 8>, 3> t{};
+  for (auto& row : t) row.fill(-1);
+  for (int e = 0; e < 12; ++e) t[kVoxelEdges[e].axis][kVoxelEdges[e].c0] = int8_t(e);
+  return t;
 }
+constexpr std::array<std::array<int8_t, 8>, 3> kEdgeIndex = make_edge_index();
+int voxel_edge_index(int axis, int c0) { return kEdgeIndex[size_t(axis)][size_t(c0)]; }
 
 // Index in kVoxelEdges of the edge joining corners a and b (-1 when they share no edge).
 constexpr int edge_between(int a, int b) {
@@ -89,15 +93,18 @@ uint32_t node_stride(const Lattice& l, int axis) {
 // The voxels around the lattice edge from node n along `axis` (see voxels_around_edge).
 void voxels_around_node_edge(const Lattice& l, const int32_t n[3], int axis, uint32_t voxels[4],
                              uint8_t lower_corner[4]) {
-  const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+  static constexpr int kNext[3][2] = {{1, 2}, {2, 0}, {0, 1}};
+  const int u = kNext[axis][0], v = kNext[axis][1];
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  const int64_t stride[3] = {1, int64_t(l.nx), int64_t(l.nx) * int64_t(l.ny)};
+  // The voxel at the edge's node (it may lie past the border along u or v), then its neighbours.
+  const int64_t base = int64_t(n[0]) + stride[1] * n[1] + stride[2] * n[2];
+  const bool u_hi = n[u] < dims[u], u_lo = n[u] > 0, v_hi = n[v] < dims[v], v_lo = n[v] > 0;
+  const bool in_axis = n[axis] >= 0 && n[axis] < dims[axis];
   static constexpr int kOffsets[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+  const bool ok[4] = {u_hi && v_hi, u_lo && v_hi, u_lo && v_lo, u_hi && v_lo};
   for (int q = 0; q < 4; ++q) {
-    int32_t c[3] = {n[0], n[1], n[2]};
-    c[u] -= kOffsets[q][0];
-    c[v] -= kOffsets[q][1];
-    const bool inside = c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] < dims[0] && c[1] < dims[1] && c[2] < dims[2];
-    voxels[q] = inside ? l.voxel(c[0], c[1], c[2]) : kDeadIndex;
+    voxels[q] = in_axis && ok[q] ? uint32_t(base - kOffsets[q][0] * stride[u] - kOffsets[q][1] * stride[v]) : kDeadIndex;
     lower_corner[q] = uint8_t((kOffsets[q][0] << u) | (kOffsets[q][1] << v));
   }
 }
@@ -127,16 +134,6 @@ const EdgeCut* find_cut(const CutState& state, uint32_t edge) {
   return i == kDeadIndex ? nullptr : &state.edge_cuts[i];
 }
 
-// Union-find over a few small integers (corners, half-edge slots), smaller root kept.
-int uf_find(uint8_t* parent, int x) {
-  while (parent[x] != x) x = parent[x] = parent[parent[x]];
-  return x;
-}
-void uf_unite(uint8_t* parent, int x, int y) {
-  const int a = uf_find(parent, x), b = uf_find(parent, y);
-  if (a != b) parent[std::max(a, b)] = uint8_t(std::min(a, b));
-}
-
 // Inside bits of a voxel's corners (bit c: corner c inside).
 uint8_t corner_inside_bits(const VoxelModel& model, const int32_t vc[3]) {
   uint8_t bits = 0;
@@ -146,13 +143,12 @@ uint8_t corner_inside_bits(const VoxelModel& model, const int32_t vc[3]) {
 
 // Components of the voxel's material graph (voxel_material_joins: uncut edges, uncut ambiguous faces).
 // `air_edges`: surface edges the blade crossed outside the material (they cut the faces they bound).
-void material_components(const VoxelModel& model, uint16_t cut_edges, uint16_t air_edges, const int32_t vc[3],
-                         uint8_t corner_piece[8], uint8_t& piece_count, uint8_t& partial_mask) {
+void material_components(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges, uint8_t corner_piece[8],
+                         uint8_t& piece_count, uint8_t& partial_mask) {
   uint8_t parent[8];
-  const uint8_t in_bits = corner_inside_bits(model, vc);
   for (int c = 0; c < 8; ++c) parent[c] = uint8_t(c);
-  const auto find = [&](int c) { return uf_find(parent, c); };
-  const auto join = [&](int c0, int c1) { uf_unite(parent, c0, c1); };
+  const auto find = [&](int c) { return int(uf_find(parent, uint8_t(c))); };
+  const auto join = [&](int c0, int c1) { uf_unite(parent, uint8_t(c0), uint8_t(c1)); };
   for (int e = 0; e < 12; ++e) {
     const VoxelEdge& ve = kVoxelEdges[e];
     if ((in_bits >> ve.c0 & 1u) && (in_bits >> ve.c1 & 1u) && !((cut_edges >> e) & 1u)) join(ve.c0, ve.c1);
@@ -354,19 +350,28 @@ bool half_edge_param(const VoxelModel& model, const EdgeCut* cut, uint32_t edge,
       consider(0.5, n);
     }
   }
+  // The cut: each inside end sees its nearest crossing, except on an edge with both ends inside,
+  // where the upper end owns everything above the lowest crossing (every interval between two
+  // crossings stays material: a sliver between them belongs to the upper node's piece).
+  double t_cut = -1.0;
   if (cut != nullptr) {
-    if (side == 0) {
-      consider(cut->t_lo, cut->normal_lo.cast<double>());
-    } else {
-      consider(cut->t_hi, cut->normal_hi.cast<double>());
-    }
+    const bool lower = side == 0 || in0;
+    t_cut = lower ? cut->t_lo : cut->t_hi;
+    consider(t_cut, (lower ? cut->normal_lo : cut->normal_hi).cast<double>());
   }
   if (best < 0.0 || best > 1.0) return false;
   t = best;
-  if (from_cut != nullptr) *from_cut = cut != nullptr && (side ? best == double(cut->t_hi) : best == double(cut->t_lo));
+  if (from_cut != nullptr) *from_cut = cut != nullptr && best == t_cut;
   // Outward: from the end node toward the boundary.
   if (normal[axis] * (side ? -1.0 : 1.0) < 0.0) normal = -normal;
   return true;
+}
+
+// Whether an uncut edge has the half-edge at end `side` (as half_edge_param decides it).
+bool uncut_half_edge(const VoxelModel& model, uint32_t edge, int side) {
+  const uint32_t n0 = edge / 3;
+  const bool in0 = model.is_inside(n0), in1 = model.is_inside(n0 + node_stride(model.lattice, int(edge % 3)));
+  return in0 != in1 && (side ? in1 : in0);
 }
 
 // The surface of one voxel: its half-edges (slot h = 2 * voxel edge + side) and their patches.
@@ -379,6 +384,47 @@ struct VoxelPatches {
   uint8_t patch_piece[kMaxPatches];
   uint16_t partial = 0;  // bit p: patch p holds both half-edges of a cut edge (the slit's tip is here)
 };
+
+// Voxel edges whose two corners differ in sign, by the voxel's inside corners.
+constexpr std::array<uint16_t, 256> make_sign_change_edges() {
+  std::array<uint16_t, 256> t{};
+  for (int bits = 0; bits < 256; ++bits) {
+    for (int e = 0; e < 12; ++e) {
+      if (((bits >> kVoxelEdges[e].c0) & 1) != ((bits >> kVoxelEdges[e].c1) & 1)) t[size_t(bits)] |= uint16_t(1u << e);
+    }
+  }
+  return t;
+}
+constexpr std::array<uint16_t, 256> kSignChangeEdges = make_sign_change_edges();
+
+// Half-edge slots (bits 2e, 2e+1) of the four edges of each face.
+constexpr std::array<uint32_t, 6> make_face_slots() {
+  std::array<uint32_t, 6> slots{};
+  for (int f = 0; f < 6; ++f) {
+    for (int i = 0; i < 4; ++i) slots[size_t(f)] |= 3u << (2 * kFaceEdges.edge[f][i]);
+  }
+  return slots;
+}
+constexpr std::array<uint32_t, 6> kFaceSlots = make_face_slots();
+
+// Number of half-edge points on face f's perimeter.
+int face_point_count(uint32_t present, int f) {
+  // (a bit count written out: std::popcount is a library call without a popcount instruction)
+  uint32_t x = present & kFaceSlots[size_t(f)];
+  x = x - ((x >> 1) & 0x55555555u);
+  x = (x & 0x33333333u) + ((x >> 2) & 0x33333333u);
+  x = (x + (x >> 4)) & 0x0F0F0F0Fu;
+  return int((x * 0x01010101u) >> 24);
+}
+
+// Voxel edges holding a half-edge (bit e: slot 2e or 2e+1 present).
+uint32_t present_edges(uint32_t present) {
+  uint32_t edges = 0;
+  for (uint32_t bits = (present | (present >> 1)) & 0x555555u; bits; bits &= bits - 1) {
+    edges |= 1u << (std::countr_zero(bits) / 2);
+  }
+  return edges;
+}
 
 // The half-edge points of face f's perimeter in cyclic order (corner k0 -> k1 -> k2 -> k3): slots h.
 // Returns their count (even: each point is a switch between inside and outside).
@@ -412,12 +458,12 @@ struct FaceMerges {
 // j and the end of arc j with the start of arc m instead: the two arcs meet across the face, the
 // arcs between them keep their curves (nested, never crossing). The cycles of pairs are the patches.
 void pair_faces(uint8_t in_bits, uint16_t cut_edges, uint32_t present, const FaceMerges& merges, uint8_t parent[24]) {
-  const auto unite = [&](int x, int y) { uf_unite(parent, x, y); };
+  const auto unite = [&](int x, int y) { uf_unite(parent, uint8_t(x), uint8_t(y)); };
   const uint8_t joins = voxel_material_joins(in_bits, cut_edges);
   for (int f = 0; f < 6; ++f) {
+    if (face_point_count(present, f) < 2) continue;
     int pts[8];
     const int k = face_perimeter(present, f, pts);
-    if (k < 2) continue;
     const bool start_inside = (in_bits >> kVoxelFaceCorners[f][0]) & 1u;
     const bool joined = (joins >> f) & 1u;
     // The arc from point j to point j+1 is inside when start_inside != (j even); it is paired
@@ -450,8 +496,7 @@ void number_patches(uint8_t in_bits, uint16_t face_cut_edges, uint16_t cut_edges
   std::fill(id_of_root, id_of_root + 24, uint8_t(0xFF));
   for (int h = 0; h < 24; ++h) {
     if (!((out.present >> h) & 1u)) continue;
-    int r = h;
-    while (parent[r] != r) r = parent[r];
+    const int r = uf_find(parent, uint8_t(h));
     if (id_of_root[r] == 0xFF) {
       const uint8_t p = out.patch_count < kMaxPatches ? out.patch_count++ : uint8_t(kMaxPatches - 1);
       id_of_root[r] = p;
@@ -469,46 +514,30 @@ void number_patches(uint8_t in_bits, uint16_t face_cut_edges, uint16_t cut_edges
   }
 }
 
-// The voxel's own data for its patches: inside corners, pieces, cut and air edges, half-edge points.
+// The voxel's own data for its patches: inside corners, pieces, cut and air edges.
 struct VoxelData {
   uint8_t in_bits = 0;
   uint8_t corner_piece[8];
   uint16_t cut_edges = 0, air_edges = 0;
+  bool divided = false;
 };
 
-void voxel_data(const VoxelModel& model, const CutState& state, uint32_t voxel, VoxelData& out) {
-  uint8_t piece_count = 0, partial_mask = 0;
-  pieces_of(model, state, voxel, out.corner_piece, piece_count, partial_mask);
-  out.in_bits = 0;
-  for (int c = 0; c < 8; ++c) out.in_bits = uint8_t(out.in_bits | (out.corner_piece[c] != kNoPiece ? 1u << c : 0u));
+void voxel_data(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& out) {
   const uint32_t d = state.divided_of.get(voxel);
-  out.cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
-  out.air_edges = d != kDeadIndex ? state.divided[d].air_edges : 0;
-}
-
-// Patches by the face rule alone (no toggles): half-edge points and their cycles.
-void base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
-                  VoxelPatches& out) {
-  const Lattice& l = model.lattice;
-  voxel_data(model, state, voxel, data);
-  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
-  out.present = 0;
-  for (int e = 0; e < 12; ++e) {
-    const VoxelEdge& ve = kVoxelEdges[e];
-    const uint32_t edge = voxel_edge_id(l, vc, e);
-    const EdgeCut* cut = (data.cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
-    for (int side = 0; side < 2; ++side) {
-      double t = 0.0;
-      const int h = 2 * e + side;
-      if (!half_edge_param(model, cut, edge, side, t, out.normal[h])) continue;
-      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
-      p[ve.axis] += t * l.voxel_size;
-      out.point[h] = p;
-      out.present |= 1u << h;
-    }
+  out.divided = d != kDeadIndex;
+  if (out.divided) {
+    const DividedVoxel& dv = state.divided[d];
+    std::copy(dv.corner_piece, dv.corner_piece + 8, out.corner_piece);
+    out.in_bits = 0;
+    for (int c = 0; c < 8; ++c) out.in_bits = uint8_t(out.in_bits | (dv.corner_piece[c] != kNoPiece ? 1u << c : 0u));
+    out.cut_edges = dv.cut_edges;
+    out.air_edges = dv.air_edges;
+    return;
   }
-  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
-                 out);
+  // Uncut: one implicit piece of all inside corners.
+  out.in_bits = corner_inside_bits(model, vc);
+  for (int c = 0; c < 8; ++c) out.corner_piece[c] = (out.in_bits >> c) & 1u ? 0 : kNoPiece;
+  out.cut_edges = out.air_edges = 0;
 }
 
 // The half-edges a voxel has, from its signs and cut edges alone (as half_edge_param decides them):
@@ -524,14 +553,6 @@ uint32_t half_edge_presence(uint8_t in_bits, uint16_t cut_edges) {
   return present;
 }
 
-// Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
-void topology_patches(const CutState& state, uint32_t voxel, const VoxelModel& model, VoxelData& data, VoxelPatches& out) {
-  voxel_data(model, state, voxel, data);
-  out.present = half_edge_presence(data.in_bits, data.cut_edges);
-  number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, FaceMerges{}, data.corner_piece,
-                 out);
-}
-
 // A pair of curves of one face that belong to one patch: a candidate for a merge.
 struct CurvePair {
   uint8_t face, m, j;  // curves m < j
@@ -543,9 +564,9 @@ int doubled_curves(const VoxelData& data, const VoxelPatches& patches, CurvePair
   int count = 0;
   const uint8_t joins = voxel_material_joins(data.in_bits, uint16_t(data.cut_edges | data.air_edges));
   for (int f = 0; f < 6; ++f) {
+    if (face_point_count(patches.present, f) < 4) continue;
     int pts[8];
     const int k = face_perimeter(patches.present, f, pts);
-    if (k < 4) continue;
     const bool start_inside = (data.in_bits >> kVoxelFaceCorners[f][0]) & 1u;
     const int j0 = ((!start_inside) != bool((joins >> f) & 1u)) ? 0 : 1;
     for (int m = 0; m < k / 2; ++m) {
@@ -558,6 +579,125 @@ int doubled_curves(const VoxelData& data, const VoxelPatches& patches, CurvePair
     }
   }
   return count;
+}
+
+// The shape of a voxel (PatchShape): pieces, half-edges and patches by the face rule (before merges).
+// `divided`: pieces are the material graph's components; otherwise one implicit piece.
+void make_shape(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges, bool divided, PatchShape& out) {
+  VoxelData data;
+  data.in_bits = in_bits;
+  data.cut_edges = cut_edges;
+  data.air_edges = air_edges;
+  data.divided = divided;
+  out.piece_partial = 0;
+  if (divided) {
+    material_components(in_bits, cut_edges, air_edges, data.corner_piece, out.piece_count, out.piece_partial);
+  } else {
+    for (int c = 0; c < 8; ++c) data.corner_piece[c] = (in_bits >> c) & 1u ? 0 : kNoPiece;
+    out.piece_count = in_bits != 0 ? 1 : 0;
+  }
+  VoxelPatches patches;
+  std::fill(patches.patch_of, patches.patch_of + 24, uint8_t(0xFF));  // absent half-edges: no patch
+  patches.present = half_edge_presence(in_bits, cut_edges);
+  number_patches(in_bits, uint16_t(cut_edges | air_edges), cut_edges, FaceMerges{}, data.corner_piece, patches);
+  CurvePair pairs[36];
+  out.present = patches.present;
+  out.patch_count = patches.patch_count;
+  out.patch_partial = patches.partial;
+  out.doubled = doubled_curves(data, patches, pairs) > 0;
+  std::copy(data.corner_piece, data.corner_piece + 8, out.corner_piece);
+  std::copy(patches.patch_of, patches.patch_of + 24, out.patch_of);
+  std::fill(out.patch_half_edges, out.patch_half_edges + kMaxPatches, 0u);
+  std::fill(out.patch_piece, out.patch_piece + kMaxPatches, kNoPiece);
+  std::copy(patches.patch_half_edges, patches.patch_half_edges + patches.patch_count, out.patch_half_edges);
+  std::copy(patches.patch_piece, patches.patch_piece + patches.patch_count, out.patch_piece);
+}
+
+// Uncut voxels' shapes depend on their inside corners alone: one table of the 256 cases, so building
+// the surface and refreshing the voxels around a cut never pair faces for an uncut voxel, and one
+// whose faces hold no doubled curve skips the merge search.
+const PatchShape& uncut_shape(uint8_t in_bits) {
+  static const std::vector<PatchShape> table = [] {
+    std::vector<PatchShape> t(256);
+    for (int bits = 0; bits < 256; ++bits) make_shape(uint8_t(bits), 0, 0, false, t[size_t(bits)]);
+    return t;
+  }();
+  return table[in_bits];
+}
+
+uint64_t shape_key(uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges) {
+  return uint64_t(in_bits) | uint64_t(cut_edges) << 8 | uint64_t(air_edges) << 20;
+}
+
+// A divided voxel's shape from the memo, computed and kept when new (refresh_voxels: every divided
+// voxel passes here before its patches are read).
+const PatchShape& divided_shape(CutState& state, uint8_t in_bits, uint16_t cut_edges, uint16_t air_edges) {
+  const uint64_t key = shape_key(in_bits, cut_edges, air_edges);
+  uint32_t i = state.shape_of.get(key);
+  if (i == kDeadIndex) {
+    i = uint32_t(state.shapes.size());
+    state.shapes.emplace_back();
+    make_shape(in_bits, cut_edges, air_edges, true, state.shapes.back());
+    state.shape_of.set(key, i);
+  }
+  return state.shapes[i];
+}
+
+// Patches by the face rule alone (no merges) from the voxel's data: the table for uncut voxels, the
+// memo for divided ones (computed here when absent). Returns whether merges are possible.
+bool rule_patches(const CutState& state, const VoxelData& data, VoxelPatches& out) {
+  PatchShape local;
+  const PatchShape* shape = &local;
+  if (!data.divided) {
+    shape = &uncut_shape(data.in_bits);
+  } else {
+    const uint32_t i = state.shape_of.get(shape_key(data.in_bits, data.cut_edges, data.air_edges));
+    if (i != kDeadIndex) {
+      shape = &state.shapes[i];
+    } else {
+      make_shape(data.in_bits, data.cut_edges, data.air_edges, true, local);
+    }
+  }
+  out.present = shape->present;
+  out.patch_count = shape->patch_count;
+  out.partial = shape->patch_partial;
+  std::copy(shape->patch_of, shape->patch_of + 24, out.patch_of);
+  std::copy(shape->patch_half_edges, shape->patch_half_edges + shape->patch_count, out.patch_half_edges);
+  std::copy(shape->patch_piece, shape->patch_piece + shape->patch_count, out.patch_piece);
+  return shape->doubled;
+}
+
+// Patches by the face rule alone (no merges), with the Hermite data of every half-edge.
+bool base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+                  VoxelPatches& out) {
+  const Lattice& l = model.lattice;
+  voxel_data(model, state, voxel, vc, data);
+  const bool doubled = rule_patches(state, data, out);
+  const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
+  for (uint32_t edges = present_edges(out.present); edges; edges &= edges - 1) {
+    const int e = std::countr_zero(edges);
+    const VoxelEdge& ve = kVoxelEdges[e];
+    const uint32_t edge = voxel_edge_id(l, vc, e);
+    const EdgeCut* cut = (data.cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
+    for (int side = 0; side < 2; ++side) {
+      double t = 0.0;
+      const int h = 2 * e + side;
+      if (!((out.present >> h) & 1u)) continue;
+      // half_edge_presence and half_edge_param agree: every present half-edge has its point.
+      half_edge_param(model, cut, edge, side, t, out.normal[h]);
+      Vec3d p = origin + l.voxel_size * Vec3d(ve.c0 & 1, (ve.c0 >> 1) & 1, (ve.c0 >> 2) & 1);
+      p[ve.axis] += t * l.voxel_size;
+      out.point[h] = p;
+    }
+  }
+  return doubled;
+}
+
+// Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
+void topology_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                      VoxelData& data, VoxelPatches& out) {
+  voxel_data(model, state, voxel, vc, data);
+  rule_patches(state, data, out);
 }
 
 // The same half-edge slot seen from the voxel across face f (2 * axis + s).
@@ -577,7 +717,7 @@ int slot_across(int h, int f) {
 bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
                    VoxelPatches& out) {
   VoxelData data;
-  base_patches(model, state, voxel, vc, data, out);
+  if (!base_patches(model, state, voxel, vc, data, out)) return false;
   CurvePair pairs[36];
   const int count = doubled_curves(data, out, pairs);
   if (count == 0) return false;
@@ -593,7 +733,7 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
     nc[c.face / 2] += c.face % 2 ? 1 : -1;
     if (nc[c.face / 2] < 0 || nc[c.face / 2] >= dims[c.face / 2]) continue;
     if (other_face != c.face) {
-      topology_patches(state, model.lattice.voxel(nc[0], nc[1], nc[2]), model, other_data, other);
+      topology_patches(model, state, model.lattice.voxel(nc[0], nc[1], nc[2]), nc, other_data, other);
       other_face = c.face;
     }
     const int a = slot_across(c.point_m, c.face), b = slot_across(c.point_j, c.face);
@@ -618,10 +758,7 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
 // the voxel across.
 uint8_t four_point_faces(uint32_t present) {
   uint8_t faces = 0;
-  for (int f = 0; f < 6; ++f) {
-    int pts[8];
-    if (face_perimeter(present, f, pts) >= 4) faces = uint8_t(faces | (1u << f));
-  }
+  for (int f = 0; f < 6; ++f) faces = uint8_t(faces | (face_point_count(present, f) >= 4 ? 1u << f : 0u));
   return faces;
 }
 
@@ -677,10 +814,10 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     double t;
     Vec3d normal;
     uint8_t pieces[4];
-    if (!half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side]) ||
-        !sharing_pieces(model, state, edge, side, around, corners, pieces)) {
-      continue;
-    }
+    // (an uncut edge: the half-edge exists at an inside end of a sign change, never on the cut)
+    const bool present = cut != nullptr ? half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side])
+                                        : uncut_half_edge(model, edge, side);
+    if (!present || !sharing_pieces(model, state, edge, side, around, corners, pieces)) continue;
     bool ok = true;
     for (int q = 0; q < 4; ++q) {
       const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
@@ -760,7 +897,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
     DividedVoxel& dv = state.divided[d];
-    material_components(model, dv.cut_edges, dv.air_edges, vc, dv.corner_piece, dv.piece_count, dv.partial_mask);
+    const PatchShape& shape = divided_shape(state, corner_inside_bits(model, vc), dv.cut_edges, dv.air_edges);
+    std::copy(shape.corner_piece, shape.corner_piece + 8, dv.corner_piece);
+    dv.piece_count = shape.piece_count;
+    dv.partial_mask = shape.piece_partial;
   }
   for (uint32_t voxel : voxels) {
     const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
@@ -799,8 +939,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     l.voxel_coords(voxel, vc);
     const uint32_t d = state.divided_of.get(voxel);
     const uint16_t cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
-    for (int e = 0; e < 12; ++e) {
-      const uint32_t edge = voxel_edge_id(l, vc, e);
+    // Only surface edges and cut edges ever hold a quad (cuts are never undone).
+    for (uint32_t edges = kSignChangeEdges[corner_inside_bits(model, vc)] | cut_edges; edges; edges &= edges - 1) {
+      const int e = std::countr_zero(edges);
+      const bool cut_edge = (cut_edges >> e) & 1u;
       uint32_t around[4];
       uint8_t corners[4];
       voxels_around_voxel_edge(l, vc, e, around, corners);
@@ -809,12 +951,8 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
         owner = !(around[q] < voxel && in_list(around[q]));
       }
       if (!owner) continue;
-      const EdgeCut* cut = (cut_edges >> e) & 1u ? find_cut(state, edge) : nullptr;
-      // Only surface edges and cut edges ever hold a quad (cuts are never undone).
-      const VoxelEdge& ve = kVoxelEdges[e];
-      if (cut == nullptr && model.is_inside(corner_node(l, vc, ve.c0)) == model.is_inside(corner_node(l, vc, ve.c1))) {
-        continue;
-      }
+      const uint32_t edge = voxel_edge_id(l, vc, e);
+      const EdgeCut* cut = cut_edge ? find_cut(state, edge) : nullptr;
       EdgeQuads quads;
       plan_edge_quads(model, state, edge, cut, around, corners, quads);
       for (int side = 0; side < 2; ++side) {
@@ -991,12 +1129,24 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
   };
   walk_segment(l, from.a, to.a, false, state.scratch_params, add_trail);
   walk_segment(l, from.b, to.b, false, state.scratch_params, add_trail);
-  // The blade edge now (its voxels first, to know where the blade is).
-  std::vector<uint32_t>& now = state.scratch_edges;
-  now.clear();
-  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d&) {
-    if (has_material(model, voxel)) now.push_back(voxel);
+  // The blade edge now, walked once: its points in voxels with material (added below, once the
+  // parked points are settled) and its voxels (sorted, to know where the blade is).
+  std::vector<uint32_t>& blade_voxel = state.scratch_blade_voxels;
+  std::vector<Vec3f>& blade_point = state.scratch_blade_points;
+  blade_voxel.clear();
+  blade_point.clear();
+  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d& point) {
+    if (!blade_voxel.empty() && blade_voxel.back() == voxel) {
+      blade_voxel.push_back(voxel);  // same voxel as the last point: material already known
+    } else if (has_material(model, voxel)) {
+      blade_voxel.push_back(voxel);
+    } else {
+      return;
+    }
+    blade_point.push_back(point.cast<float>());
   });
+  std::vector<uint32_t>& now = state.scratch_edges;
+  now.assign(blade_voxel.begin(), blade_voxel.end());
   sorted_unique(now);
   // The previous blade edge's points: replaced when this sweep continues from it; otherwise they
   // are parked (a slit tip) until the blade comes back to their voxel.
@@ -1029,14 +1179,13 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
     }
   }
   state.parked_voxels.resize(kept);
-  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d& point) {
-    if (!has_material(model, voxel)) return;
-    VoxelFront& f = front_for(state, voxel);
-    f.blade_sum += point.cast<float>();
+  for (size_t i = 0; i < blade_voxel.size(); ++i) {
+    VoxelFront& f = front_for(state, blade_voxel[i]);
+    f.blade_sum += blade_point[i];
     ++f.blade_count;
-    state.blade_voxels.push_back(voxel);
-    changed.push_back(voxel);
-  });
+    state.blade_voxels.push_back(blade_voxel[i]);
+    changed.push_back(blade_voxel[i]);
+  }
   sorted_unique(state.blade_voxels);
   state.last_blade = to;
 }
@@ -1105,17 +1254,21 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state = CutState{};
   state.contour = params;
   // Every voxel around a sign-change edge holds a surface vertex.
-  std::vector<uint32_t> voxels;
-  voxels.reserve(model.crossings.size() * 4);
+  // (marked in a bitset and read back in order: no sort of four entries per crossing).
+  std::vector<uint64_t> marked((model.lattice.voxel_count() + 63) / 64, 0);
   for (const EdgeCrossing& c : model.crossings) {
     uint32_t around[4];
     uint8_t corners[4];
     voxels_around_edge(model.lattice, c.edge, around, corners);
     for (uint32_t v : around) {
-      if (v != kDeadIndex) voxels.push_back(v);
+      if (v != kDeadIndex) marked[v >> 6] |= uint64_t(1) << (v & 63);
     }
   }
-  sorted_unique(voxels);
+  std::vector<uint32_t> voxels;
+  voxels.reserve(model.crossings.size() * 2);
+  for (size_t w = 0; w < marked.size(); ++w) {
+    for (uint64_t bits = marked[w]; bits; bits &= bits - 1) voxels.push_back(uint32_t(64 * w) + uint32_t(std::countr_zero(bits)));
+  }
   // Headroom for cuts, so a step rarely pays for growing a table (a p99 spike otherwise).
   const uint32_t vertices = uint32_t(voxels.size()), quads = uint32_t(model.crossings.size());
   state.surface.vertex_of_patch.reserve(vertices + vertices / 2 + 1024);
@@ -1252,10 +1405,34 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
     if (mask != dv.cut_edges || air != dv.air_edges) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " has a stale cut-edge mask");
     }
-    material_components(model, mask, air, vc, pieces, count, partial);
+    material_components(corner_inside_bits(model, vc), mask, air, pieces, count, partial);
     if (count != dv.piece_count || partial != dv.partial_mask || !std::equal(pieces, pieces + 8, dv.corner_piece)) {
       return fail("divided voxel " + std::to_string(dv.voxel) + " pieces differ from its material graph");
     }
+  }
+
+  // The memo of shapes holds each key's shape (a pure function of its key), checked for the keys of
+  // the divided voxels.
+  if (state.shape_of.size() != state.shapes.size()) return fail("shape memo map and array differ in size");
+  std::vector<uint8_t> shape_checked(state.shapes.size(), 0);
+  for (const DividedVoxel& dv : state.divided) {
+    int32_t vc[3];
+    l.voxel_coords(dv.voxel, vc);
+    const uint8_t in_bits = corner_inside_bits(model, vc);
+    const uint32_t i = state.shape_of.get(shape_key(in_bits, dv.cut_edges, dv.air_edges));
+    if (i == kDeadIndex) return fail("divided voxel " + std::to_string(dv.voxel) + " has no memoised shape");
+    if (shape_checked[i]) continue;
+    shape_checked[i] = 1;
+    const PatchShape& m = state.shapes[i];
+    PatchShape fresh;
+    make_shape(in_bits, dv.cut_edges, dv.air_edges, true, fresh);
+    const bool same = fresh.present == m.present && fresh.patch_count == m.patch_count && fresh.piece_count == m.piece_count &&
+                      fresh.piece_partial == m.piece_partial && fresh.doubled == m.doubled &&
+                      fresh.patch_partial == m.patch_partial && std::equal(m.corner_piece, m.corner_piece + 8, fresh.corner_piece) &&
+                      std::equal(m.patch_of, m.patch_of + 24, fresh.patch_of) &&
+                      std::equal(m.patch_half_edges, m.patch_half_edges + 12, fresh.patch_half_edges) &&
+                      std::equal(m.patch_piece, m.patch_piece + 12, fresh.patch_piece);
+    if (!same) return fail("memoised shape of divided voxel " + std::to_string(dv.voxel) + " differs from its key's shape");
   }
 
   // Every live vertex is a patch of its voxel (piece, half-edges, position), and every patch of a
@@ -1364,9 +1541,9 @@ double cut_dropped_length(const VoxelModel& model, const CutState& state) {
   for (const EdgeCut& c : state.edge_cuts) {
     const uint32_t n0 = c.edge / 3;
     const bool in0 = model.is_inside(n0), in1 = model.is_inside(n0 + node_stride(l, int(c.edge % 3)));
-    if (in0 && in1) {
-      sum += double(c.t_hi) - double(c.t_lo);
-    } else if (in0 != in1) {
+    // Both ends inside: every interval has an owner (half_edge_param); one end inside: the
+    // material between the outermost cut and the surface crossing holds no node.
+    if (in0 != in1) {
       const EdgeCrossing* x = model.find_crossing(c.edge);
       const double ts = x != nullptr ? double(x->t) : 0.5;
       sum += in0 ? ts - double(c.t_lo) : double(c.t_hi) - ts;
@@ -1378,7 +1555,8 @@ double cut_dropped_length(const VoxelModel& model, const CutState& state) {
 uint64_t cut_memory_bytes(const CutState& state) {
   return state.edge_cuts.capacity() * sizeof(EdgeCut) + state.edge_cut_of.memory_bytes() +
          state.divided.capacity() * sizeof(DividedVoxel) + state.divided_of.memory_bytes() +
-         state.fronts.capacity() * sizeof(VoxelFront) + state.front_of.memory_bytes() + state.air_edges.memory_bytes();
+         state.fronts.capacity() * sizeof(VoxelFront) + state.front_of.memory_bytes() + state.air_edges.memory_bytes() +
+         state.shapes.capacity() * sizeof(PatchShape) + state.shape_of.memory_bytes();
 }
 
 }  // namespace dvx

@@ -7,8 +7,16 @@
 // - EdgeCut: a lattice edge crossed by the blade, with its lowest and highest crossing. Material
 //   does not connect across a cut edge. Each inside end of an edge sees the nearest boundary along
 //   the edge (mesh crossing or cut): that "half-edge" carries the Hermite data dual contouring uses.
-//   An edge crossed twice by one cut keeps both ends' nearest crossings; the sliver between them is
-//   dropped (thinner than a voxel, never corrupting).
+//   Every crossing is kept as material: cuts have no thickness, so the intervals between crossings
+//   of an edge are all material. On an edge with both ends inside, the lower end owns [0, t_lo] and
+//   the upper end everything above t_lo (both half-edges sit at t_lo): a sliver between two
+//   crossings (a V-notch's wedge, a hairpin's tongue, a blade turning back within one voxel) stays
+//   material, in the upper node's piece, and the surface keeps its volume. What one vertex per patch
+//   cannot show there is the second sheet on that edge: the sliver is not separated from the upper
+//   piece (it holds no node, so the physics could not move it on its own either). The lowest and
+//   the highest crossing are all this needs, so no list of crossings is stored. On a surface edge
+//   (one end inside) the inside end sees its nearest cut; the material between the outermost cut
+//   and the surface crossing holds no node and is dropped (measured: cut_dropped_length).
 //
 // - DividedVoxel: a voxel with at least one cut edge. Its inside corner nodes are grouped into
 //   *pieces*: the connected components of the voxel's material graph (see voxel_material_joins for
@@ -50,13 +58,14 @@ namespace dvx {
 constexpr uint8_t kNoPiece = 0xFF;
 constexpr uint32_t kDeadIndex = ~0u;  // triangle slots not in use hold {kDeadIndex x3}
 
-// A lattice edge the blade has crossed. 32 bytes.
+// A lattice edge the blade has crossed (36 bytes: one per cut edge, kept flat).
 struct EdgeCut {
   uint32_t edge;
   float t_lo, t_hi;  // lowest / highest crossing parameter along the edge (from its lower node)
   Vec3f normal_lo;   // blade normal at t_lo (unit; oriented by the reader)
   Vec3f normal_hi;   // blade normal at t_hi
 };
+static_assert(sizeof(EdgeCut) == 36, "EdgeCut: 4 + 2 x 4 + 2 x 12 bytes, no padding");
 
 // A voxel with at least one cut edge, split into pieces (the paper's divided voxels).
 struct DividedVoxel {
@@ -66,6 +75,21 @@ struct DividedVoxel {
   uint8_t partial_mask;     // bit p: piece p holds both ends of a cut edge (the voxel is partly cut)
   uint16_t cut_edges;       // bit e: voxel edge e (see kVoxelEdges in cut.cpp) is cut
   uint16_t air_edges;       // bit e: surface edge e crossed by the blade outside the material only
+};
+
+// The pieces and surface patches of a voxel as far as they follow from its inside corners and its
+// cut and air edges alone (no positions): a pure function of those 32 bits, so divided voxels share
+// it through a memo (a cut meets few distinct cases) and uncut voxels read it from a 256-entry table.
+struct PatchShape {
+  uint32_t present;                // bit h (2 * voxel edge + side): the half-edge exists
+  uint32_t patch_half_edges[12];   // bit h: patch p holds half-edge h
+  uint8_t patch_of[24];            // patch of each present half-edge
+  uint8_t patch_piece[12];         // piece each patch bounds
+  uint8_t corner_piece[8];         // piece of each corner, kNoPiece outside
+  uint8_t patch_count, piece_count;
+  uint8_t piece_partial;           // bit p: piece p holds both ends of a cut edge
+  bool doubled;                    // a face holds two curves of one patch (merges possible)
+  uint16_t patch_partial;          // bit p: patch p holds both half-edges of a cut edge
 };
 
 // Points where the cut front crosses the faces of one voxel (paper Fig. 5: the "face vertices").
@@ -119,6 +143,8 @@ struct CutState {
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
   std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
   std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
+  std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)
+  FlatMap shape_of;                      // inside corners | cut edges << 8 | air edges << 20 -> index in shapes
   CutSurface surface;
   ContourParams contour;                 // vertex placement rule (as dual_contour)
   BladePose last_blade;                  // where the last step left the blade (valid when steps > 0)
@@ -127,6 +153,8 @@ struct CutState {
   std::vector<EdgeHit> scratch_hits;
   std::vector<uint32_t> scratch_voxels, scratch_edges, scratch_touched, scratch_across;
   std::vector<double> scratch_params;
+  std::vector<uint32_t> scratch_blade_voxels;  // the blade edge's points' voxels and points (update_front)
+  std::vector<Vec3f> scratch_blade_points;
 };
 
 // What one cut step did.
@@ -200,15 +228,14 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
 bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error);
 
 // Material the surface cannot represent (measured, never silent). Material is held by lattice nodes:
-// each inside end of a cut edge keeps the material up to its nearest crossing, and the material
-// between the two outermost blade crossings of an edge with both ends inside (or between the cut and
-// the surface crossing of a surface edge) holds no node and is dropped — a sliver thinner than a
-// voxel along that edge (a V-notch's wedge, a hairpin's tongue). Returns the summed length of those
-// intervals in voxels; the volume dropped is about this times voxel_size^3 (a sliver is sampled by
-// the one family of lattice lines that crosses it; see test_manifold, "slivers").
+// on an edge with both ends inside every interval has an owner (see EdgeCut), and on a surface
+// edge the material between the inside end's nearest cut and the surface crossing holds no node
+// and is dropped (at the rim where a cut meets the organ's surface, a sliver thinner than a voxel
+// along that edge). Returns the summed length of those intervals in voxels; the volume dropped is
+// about this times voxel_size^3.
 double cut_dropped_length(const VoxelModel& model, const CutState& state);
 
-// Bytes held by the explicit cut elements (edge cuts, divided voxels, their maps).
+// Bytes held by the explicit cut elements (edge cuts, divided voxels, fronts, shapes, their maps).
 uint64_t cut_memory_bytes(const CutState& state);
 
 }  // namespace dvx

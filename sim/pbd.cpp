@@ -1,6 +1,7 @@
 #include "sim/pbd.h"
 
 #include "sim/pbd_kernels.h"
+#include "sim/union_find.h"
 
 #include <algorithm>
 #include <cmath>
@@ -92,10 +93,7 @@ uint8_t label_block(const VoxelModel& model, const CutState& cut, const PbdModel
   const uint32_t count = block_nodes(s);
   parent.resize(count);
   for (uint32_t i = 0; i < count; ++i) parent[i] = i;
-  const auto find = [&](uint32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
+  const auto find = [&](uint32_t x) { return uf_find(parent.data(), x); };
   for (int32_t z = 0; z < r && c[2] * r + z < l.nz; ++z) {
     for (int32_t y = 0; y < r && c[1] * r + y < l.ny; ++y) {
       for (int32_t x = 0; x < r && c[0] * r + x < l.nx; ++x) {
@@ -347,10 +345,7 @@ struct CornerMembers {
   int parent[kMax];
   int base[8];          // first member of the voxel around the corner in octant q (-1: none)
   int count = 0;
-  int find(int x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  }
+  int find(int x) { return uf_find(parent, x); }
 };
 
 // Label pairs (a in simulation voxel lo, b in its neighbour hi along `axis`) that share a fine node on
@@ -593,10 +588,7 @@ bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   w.pending.clear();
   w.dropped.clear();
   std::fill(w.active, w.active + 256, 0);
-  const auto find = [&](uint32_t x) {
-    while (w.parent[x] != x) x = w.parent[x] = w.parent[w.parent[x]];
-    return x;
-  };
+  const auto find = [&](uint32_t x) { return uf_find(w.parent.data(), x); };
   // Seeds: the inside corners of the changed fine voxels.
   for (const uint32_t* v = first; v != last; ++v) {
     int32_t vc[3];

@@ -1,4 +1,4 @@
-// Synthetic shapes written once and used by tests, benchmarks and scenes: each a closed,
+// Synthetic shapes written once and used by the tests (sim, engine, render): each a closed,
 // outward-wound triangle mesh unless stated otherwise.
 #pragma once
 
