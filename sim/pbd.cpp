@@ -3,6 +3,7 @@
 #include "sim/pbd_kernels.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -769,12 +770,37 @@ void note_cut_voxel(PbdModel& s, const Lattice& l, uint32_t voxel) {
   s.cut_rows[at + uint32_t(vc[1] % s.ratio) + uint32_t(s.ratio) * uint32_t(vc[2] % s.ratio)] |= uint64_t(1) << (vc[0] % s.ratio);
 }
 
-// Spans of a block (ratio <= 32): the block's inside nodes as runs along x joined by uncut x edges,
-// united across neighbouring rows where an uncut y or z edge joins them. An edge joins its two ends
-// when a fine voxel of the block that holds it is all inside and uncut (then all its edges join); the
-// other fine voxels with material (the surface's, the cut's) join their own pieces' corners
-// (fine_pieces). This is label_block's rule, a voxel row at a time: O(ratio^2) row masks plus the
-// surface and cut voxels of the block, instead of 8 lookups per fine voxel.
+// Whether the inside corners `bits` of a voxel are connected along the voxel's edges (an uncut voxel
+// joins all its inside corners; only the patterns this is false for need a look of their own).
+constexpr std::array<bool, 256> make_edge_connected() {
+  std::array<bool, 256> table{};
+  for (int bits = 0; bits < 256; ++bits) {
+    int seen = bits & -bits;
+    for (bool grew = true; grew;) {
+      grew = false;
+      for (const auto& e : kCubeEdges) {
+        for (int k = 0; k < 2; ++k) {
+          const int a = e[k], b = e[1 - k];
+          if (((seen >> a) & 1) && ((bits >> b) & 1) && !((seen >> b) & 1)) {
+            seen |= 1 << b;
+            grew = true;
+          }
+        }
+      }
+    }
+    table[size_t(bits)] = seen == bits;
+  }
+  return table;
+}
+constexpr std::array<bool, 256> kEdgeConnected = make_edge_connected();
+
+// Spans of a block (ratio <= 32): the block's inside nodes as runs along x joined by x edges,
+// united across neighbouring rows where a y or z edge joins them. An edge with both ends inside joins
+// them when a fine voxel of the block holding it is uncut (an uncut voxel is one piece of all its
+// inside corners); a divided voxel joins its own pieces' corners (voxel_pieces), and so does an uncut
+// voxel whose inside corners its edges do not connect (diagonal joins). This is label_block's rule, a
+// voxel row at a time: O(ratio^2) row masks plus the block's cut voxels and its few diagonal
+// patterns, instead of 8 lookups per fine voxel.
 void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w) {
   const Lattice& l = model.lattice;
   const int32_t r = s.ratio, n = r + 1;
@@ -792,20 +818,28 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       w.inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
     }
   }
-  // Voxel rows: all-inside uncut voxels, and the others holding material.
+  // Voxel rows: the uncut voxels (w.simple), and those that join corners their own way (w.explicit_).
   const uint64_t* cuts = cut_rows(s, sv);
   const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
   for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
     for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
       const uint64_t* in = w.inside.data() + (vy + n * vz);
-      const uint64_t all = in[0] & in[1] & in[n] & in[n + 1], any = in[0] | in[1] | in[n] | in[n + 1];
+      const uint64_t all4 = in[0] & in[1] & in[n] & in[n + 1], any4 = in[0] | in[1] | in[n] | in[n + 1];
+      const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
       const uint32_t v = uint32_t(vy + r * vz);
       const uint64_t divided = cuts ? cuts[v] : 0;
-      w.simple[v] = all & (all >> 1) & vmask & ~divided;
-      w.explicit_[v] = (any | (any >> 1)) & vmask & ~w.simple[v];
+      w.simple[v] = vmask & ~divided;
+      uint64_t odd = 0;
+      for (uint64_t m = any & ~all & ~divided; m != 0; m &= m - 1) {
+        const int x = __builtin_ctzll(m);
+        const uint32_t bits = uint32_t((in[0] >> x) & 3) | uint32_t((in[1] >> x) & 3) << 2 |
+                              uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
+        if (!kEdgeConnected[bits]) odd |= uint64_t(1) << x;
+      }
+      w.explicit_[v] = (divided & any) | odd;
     }
   }
-  const auto simple_at = [&](int32_t vy, int32_t vz) {
+  const auto uncut_at = [&](int32_t vy, int32_t vz) {
     return vy < 0 || vz < 0 || vy >= r || vz >= r ? uint64_t(0) : w.simple[uint32_t(vy + r * vz)];
   };
   // Spans per node row, in x order.
@@ -816,8 +850,9 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
       w.row_begin[row] = uint32_t(w.mask.size());
-      const uint64_t joins = simple_at(y - 1, z - 1) | simple_at(y, z - 1) | simple_at(y - 1, z) | simple_at(y, z);
-      for (uint64_t m = w.inside[row]; m != 0;) {
+      const uint64_t in = w.inside[row];
+      const uint64_t joins = in & (in >> 1) & (uncut_at(y - 1, z - 1) | uncut_at(y, z - 1) | uncut_at(y - 1, z) | uncut_at(y, z));
+      for (uint64_t m = in; m != 0;) {
         const int x0 = __builtin_ctzll(m);
         const int run = __builtin_ctzll(~(joins >> x0));  // joined edges x0, x0+1, ...: nodes x0 .. x0+run
         const uint64_t span = ((uint64_t(2) << run) - 1) << x0;
@@ -837,9 +872,9 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     b = find(b);
     if (a != b) w.parent[std::max(a, b)] = std::min(a, b);
   };
-  // Rows joined by uncut y and z edges (a voxel's edge mask covers its nodes x and x+1).
-  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t link) {
-    link |= link << 1;
+  // Rows joined by y and z edges: both ends inside, in an uncut voxel (voxel x holds nodes x and x+1).
+  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t voxels) {
+    const uint64_t link = (voxels | (voxels << 1)) & w.inside[a_row] & w.inside[b_row];
     if (link == 0) return;
     for (uint32_t a = w.row_begin[a_row]; a < w.row_begin[a_row + 1]; ++a) {
       if ((w.mask[a] & link) == 0) continue;
@@ -851,11 +886,11 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   for (int32_t z = 0; z < n; ++z) {
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
-      if (y < r) unite_rows(row, row + 1, simple_at(y, z - 1) | simple_at(y, z));
-      if (z < r) unite_rows(row, row + uint32_t(n), simple_at(y - 1, z) | simple_at(y, z));
+      if (y < r) unite_rows(row, row + 1, uncut_at(y, z - 1) | uncut_at(y, z));
+      if (z < r) unite_rows(row, row + uint32_t(n), uncut_at(y - 1, z) | uncut_at(y, z));
     }
   }
-  // The other voxels with material: each joins its own pieces' corners.
+  // The voxels joining corners their own way: each unites its pieces' corners.
   const auto span_at = [&](uint32_t row, int x) {
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
       if ((w.mask[i] >> x) & 1u) return i;
