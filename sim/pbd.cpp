@@ -366,16 +366,30 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     cache.data.push_back(0);
     const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;
     const int u_axis = (axis + 1) % 3, v_axis = (axis + 2) % 3;
+    // The face's nodes in both blocks' label arrays (the face is x = ratio in lo, x = 0 in hi along
+    // `axis`); an undivided block's label is 0 at an inside node (the node is the same in both).
+    const uint32_t dl = s.voxel_divided[lo], dh = s.voxel_divided[hi];
+    const uint8_t* lo_labels = dl == kDeadIndex ? nullptr : s.labels.data() + s.divided[dl].first_label;
+    const uint8_t* hi_labels = dh == kDeadIndex ? nullptr : s.labels.data() + s.divided[dh].first_label;
+    const uint32_t n = uint32_t(s.ratio + 1), stride[3] = {1, n, n * n};
+    const uint32_t lo_base = uint32_t(s.ratio) * stride[axis];
     int32_t node[3];
     node[axis] = hic[axis] * s.ratio;
     for (int32_t v = 0; v <= s.ratio; ++v) {
       for (int32_t u = 0; u <= s.ratio; ++u) {
-        node[u_axis] = loc[u_axis] * s.ratio + u;
-        node[v_axis] = loc[v_axis] * s.ratio + v;
-        const uint8_t a = node_label(model, s, lo, loc, node[0], node[1], node[2]);
-        if (a == kNoPiece) continue;
-        const uint8_t b = node_label(model, s, hi, hic, node[0], node[1], node[2]);
-        if (b == kNoPiece) continue;
+        const uint32_t b_hi = uint32_t(u) * stride[u_axis] + uint32_t(v) * stride[v_axis];
+        uint8_t a, b;
+        if (lo_labels && hi_labels) {
+          a = lo_labels[lo_base + b_hi];
+          b = hi_labels[b_hi];
+        } else {
+          node[u_axis] = loc[u_axis] * s.ratio + u;
+          node[v_axis] = loc[v_axis] * s.ratio + v;
+          const bool inside = fine_inside(model, node[0], node[1], node[2]);
+          a = lo_labels ? lo_labels[lo_base + b_hi] : inside ? 0 : kNoPiece;
+          b = hi_labels ? hi_labels[b_hi] : inside ? 0 : kNoPiece;
+        }
+        if (a == kNoPiece || b == kNoPiece) continue;
         const uint16_t pair = uint16_t(a << 8 | b);
         if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) == cache.data.end()) {
           cache.data.push_back(pair);
