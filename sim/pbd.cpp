@@ -763,25 +763,37 @@ uint64_t bit_range(const std::vector<uint64_t>& bits, uint64_t first, int32_t co
   return count >= 64 ? v : v & ((uint64_t(1) << count) - 1);
 }
 
-// The divided fine voxels of simulation voxel sv as row masks (null: none yet).
+// The cut record of simulation voxel sv (null: none yet): its divided fine voxels as ratio^2 voxel row
+// masks, then its cut lattice edges along x, y and z as 3 x (ratio+1)^2 node row masks (bit x of row
+// (y, z) along axis a: the edge from block node (x, y, z) along a is cut).
 const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
   const uint32_t at = s.cut_rows_of.get(sv);
   return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
 }
 
-// Records a divided fine voxel in its simulation voxel's row masks (idempotent).
-void note_cut_voxel(PbdModel& s, const Lattice& l, uint32_t voxel) {
+// Records a divided fine voxel and its cut edges in its simulation voxel's cut record (idempotent:
+// cuts only add).
+void note_cut_voxel(PbdModel& s, const Lattice& l, const DividedVoxel& dv) {
   if (s.ratio > kSpanRatio) return;
+  const int32_t r = s.ratio, n = r + 1;
   int32_t vc[3];
-  l.voxel_coords(voxel, vc);
-  const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
+  l.voxel_coords(dv.voxel, vc);
+  const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
   uint32_t at = s.cut_rows_of.get(sv);
   if (at == kDeadIndex) {
     at = uint32_t(s.cut_rows.size());
     s.cut_rows_of.set(sv, at);
-    s.cut_rows.resize(s.cut_rows.size() + size_t(s.ratio) * size_t(s.ratio), 0);
+    s.cut_rows.resize(s.cut_rows.size() + size_t(r * r + 3 * n * n), 0);
   }
-  s.cut_rows[at + uint32_t(vc[1] % s.ratio) + uint32_t(s.ratio) * uint32_t(vc[2] % s.ratio)] |= uint64_t(1) << (vc[0] % s.ratio);
+  uint64_t* rows = s.cut_rows.data() + at;
+  const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
+  rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
+  for (int e = 0; e < 12; ++e) {
+    if (!((dv.cut_edges >> e) & 1u)) continue;
+    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
+    const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
+    rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
+  }
 }
 
 // Whether the inside corners `bits` of a voxel are connected along the voxel's edges (an uncut voxel
@@ -810,11 +822,11 @@ constexpr std::array<bool, 256> kEdgeConnected = make_edge_connected();
 
 // Spans of a block (ratio <= 32): the block's inside nodes as runs along x joined by x edges,
 // united across neighbouring rows where a y or z edge joins them. An edge with both ends inside joins
-// them when a fine voxel of the block holding it is uncut (an uncut voxel is one piece of all its
-// inside corners); a divided voxel joins its own pieces' corners (voxel_pieces), and so does an uncut
-// voxel whose inside corners its edges do not connect (diagonal joins). This is label_block's rule, a
-// voxel row at a time: O(ratio^2) row masks plus the block's cut voxels and its few diagonal
-// patterns, instead of 8 lookups per fine voxel.
+// them unless the blade cut it (every fine voxel holding it, uncut or divided, joins its ends then);
+// the other joins are diagonal: an uncut voxel whose inside corners its edges do not connect joins
+// them all, and a divided voxel with an outside corner joins across its uncut ambiguous faces — those
+// voxels join their own pieces' corners (fine_pieces). This is label_block's rule, a row at a time:
+// O(ratio^2) row masks plus the block's few diagonal voxels, instead of 8 lookups per fine voxel.
 void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w) {
   const Lattice& l = model.lattice;
   const int32_t r = s.ratio, n = r + 1;
@@ -832,8 +844,11 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       w.inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
     }
   }
-  // Voxel rows: the uncut voxels (w.simple), and those that join corners their own way (w.explicit_).
+  // Voxel rows: the voxels of the block (w.simple), and those that join corners diagonally (w.explicit_).
   const uint64_t* cuts = cut_rows(s, sv);
+  const auto cut_edges = [&](int axis, uint32_t row) {
+    return cuts ? cuts[uint32_t(r * r + axis * n * n) + row] : uint64_t(0);
+  };
   const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
   for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
     for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
@@ -842,7 +857,7 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
       const uint32_t v = uint32_t(vy + r * vz);
       const uint64_t divided = cuts ? cuts[v] : 0;
-      w.simple[v] = vmask & ~divided;
+      w.simple[v] = vmask;
       uint64_t odd = 0;
       for (uint64_t m = any & ~all & ~divided; m != 0; m &= m - 1) {
         const int x = __builtin_ctzll(m);
@@ -850,7 +865,7 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
                               uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
         if (!kEdgeConnected[bits]) odd |= uint64_t(1) << x;
       }
-      w.explicit_[v] = (divided & any) | odd;
+      w.explicit_[v] = (divided & any & ~all) | odd;
     }
   }
   const auto uncut_at = [&](int32_t vy, int32_t vz) {
@@ -865,7 +880,8 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       const uint32_t row = uint32_t(y + n * z);
       w.row_begin[row] = uint32_t(w.mask.size());
       const uint64_t in = w.inside[row];
-      const uint64_t joins = in & (in >> 1) & (uncut_at(y - 1, z - 1) | uncut_at(y, z - 1) | uncut_at(y - 1, z) | uncut_at(y, z));
+      const uint64_t joins = in & (in >> 1) & ~cut_edges(0, row) &
+                             (uncut_at(y - 1, z - 1) | uncut_at(y, z - 1) | uncut_at(y - 1, z) | uncut_at(y, z));
       for (uint64_t m = in; m != 0;) {
         const int x0 = __builtin_ctzll(m);
         const int run = __builtin_ctzll(~(joins >> x0));  // joined edges x0, x0+1, ...: nodes x0 .. x0+run
@@ -886,9 +902,10 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     b = find(b);
     if (a != b) w.parent[std::max(a, b)] = std::min(a, b);
   };
-  // Rows joined by y and z edges: both ends inside, in an uncut voxel (voxel x holds nodes x and x+1).
-  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t voxels) {
-    const uint64_t link = (voxels | (voxels << 1)) & w.inside[a_row] & w.inside[b_row];
+  // Rows joined by y and z edges: both ends inside, not cut, in a voxel of the block (voxel x holds
+  // nodes x and x+1).
+  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t voxels, uint64_t cut) {
+    const uint64_t link = (voxels | (voxels << 1)) & w.inside[a_row] & w.inside[b_row] & ~cut;
     if (link == 0) return;
     for (uint32_t a = w.row_begin[a_row]; a < w.row_begin[a_row + 1]; ++a) {
       if ((w.mask[a] & link) == 0) continue;
@@ -900,11 +917,11 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   for (int32_t z = 0; z < n; ++z) {
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
-      if (y < r) unite_rows(row, row + 1, uncut_at(y, z - 1) | uncut_at(y, z));
-      if (z < r) unite_rows(row, row + uint32_t(n), uncut_at(y - 1, z) | uncut_at(y, z));
+      if (y < r) unite_rows(row, row + 1, uncut_at(y, z - 1) | uncut_at(y, z), cut_edges(1, row));
+      if (z < r) unite_rows(row, row + uint32_t(n), uncut_at(y - 1, z) | uncut_at(y, z), cut_edges(2, row));
     }
   }
-  // The voxels joining corners their own way: each unites its pieces' corners.
+  // The diagonal voxels: each unites its pieces' corners.
   const auto span_at = [&](uint32_t row, int x) {
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
       if ((w.mask[i] >> x) & 1u) return i;
@@ -1288,7 +1305,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.pieces_in_voxel.assign(voxels, 0);
 
   // Pieces: the material components of every block (cuts made before init included).
-  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(s, l, dv.voxel);
+  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(s, l, dv);
   s.scratch_labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
     const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
@@ -1320,8 +1337,9 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   std::vector<uint64_t>& changed = s.scratch_changed;
   changed.clear();
   for (uint32_t voxel : cut.changed_voxels) {
-    if (cut.divided_of.get(voxel) == kDeadIndex) continue;
-    note_cut_voxel(s, model.lattice, voxel);
+    const uint32_t d = cut.divided_of.get(voxel);
+    if (d == kDeadIndex) continue;
+    note_cut_voxel(s, model.lattice, cut.divided[d]);
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
     changed.push_back(uint64_t(sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio)) << 32 | voxel);

@@ -134,8 +134,8 @@ struct LocalSearch {
 // ("spans", one 64-bit mask per node row), united across rows where material joins them.
 struct SpanScratch {
   std::vector<uint64_t> inside;     // (node rows) inside nodes
-  std::vector<uint64_t> simple;     // (voxel rows) voxels all inside and uncut: all 12 edges join
-  std::vector<uint64_t> explicit_;  // (voxel rows) other voxels with material: their own pieces join
+  std::vector<uint64_t> simple;     // (voxel rows) voxels of the block (in the lattice)
+  std::vector<uint64_t> explicit_;  // (voxel rows) voxels joining corners diagonally: their own pieces join
   std::vector<uint32_t> row_begin;  // (node rows + 1) first span of each row
   std::vector<uint64_t> mask;       // (spans) nodes of the span
   std::vector<uint32_t> parent;     // (spans) union-find
@@ -203,9 +203,10 @@ struct PbdModel {
   LocalSearch search;
   SpanScratch spans;
   std::vector<uint64_t> scratch_changed, scratch_corner_ids;
-  // Divided fine voxels per simulation voxel (ratio <= 32): one 64-bit row mask per (y, z) voxel
-  // row of the block, so a relabel finds the block's cut voxels without looking up each of them.
-  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 rows)
+  // Cuts per simulation voxel (ratio <= 32): its divided fine voxels (one 64-bit mask per (y, z)
+  // voxel row) and its cut lattice edges (one mask per node row and axis), so a relabel finds the
+  // block's cuts without looking up each fine voxel.
+  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 + 3 (ratio+1)^2 rows)
   std::vector<uint64_t> cut_rows;
 };
 
