@@ -63,16 +63,26 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
   Session session;
   open_session(scene, scene.solver.dt, true, o.workers, session);
 
-  // Step 0 places the blade; steps 1..n sweep it along the path, cutting.
+  // Step 0 places the blade; steps 1..n sweep it along the path, cutting. Per step: the phases'
+  // times and the counters of the mapping and of the PBD model update.
   std::vector<double> cut, surface, deform, total, all_steps;
   uint64_t voxels_cut = 0;
+  nlohmann::json steps = nlohmann::json::array();
   for (int s = 0; s <= o.steps; ++s) {
     StepCommands commands;
     commands.has_blade = true;
     commands.blade = cut_pose(box, s, o.steps);
     commands.cutting = s > 0;
+    const SweepMapStats map_before = session.sweep_stats;
+    const double map_ms_before = session.map_ms;
     const StepReport report = session_step(session, commands);
     all_steps.push_back(report.timings.total_ms);
+    const PbdCutStats& p = report.pbd;
+    steps.push_back({s, report.timings.cut_ms, report.timings.surface_ms, report.timings.deform_ms,
+                     session.map_ms - map_ms_before, session.sweep_stats.samples - map_before.samples,
+                     session.sweep_stats.piece_tests - map_before.piece_tests, session.sweep_stats.quads - map_before.quads,
+                     report.cut.voxels_cut, p.sim_voxels, p.span_relabels, p.local_relabels + p.block_relabels, p.spans,
+                     p.nodes_searched, p.pieces_touched, p.corners});
     if (report.cut.voxels_cut == 0) continue;
     voxels_cut += report.cut.voxels_cut;
     cut.push_back(report.timings.cut_ms);
@@ -111,8 +121,14 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
           {"surface_triangles", stats.triangles},
           {"boundary_edges", stats.boundary_edges},
           {"components", stats.components},
+          {"steps", steps},
           {"status", "ok"}};
 }
+
+// The per-step columns of measure_scaling's "steps" rows.
+constexpr const char* kScalingStepColumns =
+    "step,cut_ms,surface_ms,deform_ms,map_ms,map_samples,map_piece_tests,rest_quads,voxels_cut,sim_voxels_relabelled,"
+    "span_relabels,node_relabels,spans,nodes_searched,pieces_touched,corners";
 
 // ---------------------------------------------------------------------------------------------
 // Mesh quality: the angle statistics of the live triangles of a cut surface.
@@ -147,7 +163,9 @@ std::string bench_scaling(const BenchScalingOptions& options) {
   csv << "mesh,resolution,nx,ny,nz,occupied_voxels,sim_resolution,iterations,workers,init_ms,cutting_steps,voxels_cut,"
          "cut_p50_ms,cut_p99_ms,surface_p50_ms,surface_p99_ms,deform_p50_ms,deform_p99_ms,total_p50_ms,total_p99_ms,"
          "model_bytes,cut_bytes,bytes_per_occupied_voxel,peak_rss_bytes,surface_triangles,boundary_edges,components,"
-         "status\n";
+         "map_samples,map_piece_tests_per_sample,map_us_per_sample,status\n";
+  std::ostringstream steps_csv;
+  steps_csv << "mesh,resolution," << kScalingStepColumns << '\n';
   nlohmann::json rows = nlohmann::json::array();
   for (const std::string& mesh : meshes) {
     for (int resolution : options.resolutions) {
@@ -161,7 +179,7 @@ std::string bench_scaling(const BenchScalingOptions& options) {
       }
       rows.push_back(row);
       if (row["status"] != "ok") {
-        csv << row["mesh"].get<std::string>() << ',' << resolution << ",,,,,,,,,,,,,,,,,,,,,,,,,,"
+        csv << row["mesh"].get<std::string>() << ',' << resolution << ",,,,,,,,,,,,,,,,,,,,,,,,,,,,,"
             << csv_field(row["status"].get<std::string>()) << '\n';
         continue;
       }
@@ -173,11 +191,22 @@ std::string bench_scaling(const BenchScalingOptions& options) {
           << t["surface"]["p99"] << ',' << t["deform"]["p50"] << ',' << t["deform"]["p99"] << ','
           << t["total"]["p50"] << ',' << t["total"]["p99"] << ',' << row["model_bytes"] << ',' << row["cut_bytes"]
           << ',' << row["bytes_per_occupied_voxel"] << ',' << row["peak_rss_bytes"] << ','
-          << row["surface_triangles"] << ',' << row["boundary_edges"] << ',' << row["components"] << ",ok\n";
+          << row["surface_triangles"] << ',' << row["boundary_edges"] << ',' << row["components"] << ',';
+      const nlohmann::json& map = row["world_to_rest"];
+      const double samples = map["samples"].get<double>();
+      csv << map["samples"] << ',' << (samples > 0 ? map["piece_tests"].get<double>() / samples : 0.0) << ','
+          << map["us_per_sample"] << ",ok\n";
+      for (const nlohmann::json& step : row["steps"]) {
+        steps_csv << row["mesh"].get<std::string>() << ',' << resolution;
+        for (const nlohmann::json& value : step) steps_csv << ',' << value;
+        steps_csv << '\n';
+      }
+      rows.back().erase("steps");  // per step in the CSV only (the JSON keeps the summaries)
     }
   }
   const fs::path out(options.out_dir);
   write_text_file((out / "bench_scaling.csv").string(), csv.str());
+  write_text_file((out / "bench_scaling_steps.csv").string(), steps_csv.str());
   write_json_file((out / "bench_scaling.json").string(),
                   {{"benchmark", "scaling"}, {"machine", machine_summary()},
                    {"steps", options.steps},

@@ -233,22 +233,31 @@ void scaling_section(Results& in, std::ostream& md, std::ostream& head) {
      << "The same horizontal cut (scene units) through each mesh, " << scaling["steps"].get<int>()
      << " blade poses, physics on (PBD at the simulation resolution shown, anchored on the lowest 20 %, gravity). "
         "Times are per step whose sweep cut voxels: p50 / p99 in ms. Memory: peak RSS of the process for that "
-        "configuration; bytes per occupied voxel counts the voxel model and the explicit cut data.\n\n"
-     << "| mesh | res | lattice | occupied voxels | cut | surface | deform | total | peak RSS | B/occ. voxel | "
-        "triangles | status |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "configuration; bytes per occupied voxel counts the voxel model and the explicit cut data. World to rest: "
+        "the blade's sweep mapped through the deformed pieces, µs per blade sample (Newton inversions per sample); "
+        "per-step counters in `bench_scaling_steps.csv`.\n\n"
+     << "| mesh | res | lattice | occupied voxels | cut | surface | deform | total | world to rest | peak RSS | "
+        "B/occ. voxel | triangles | status |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   std::map<std::string, PlotSeries> total_series;
   for (const json& r : scaling["rows"]) {
     const std::string mesh = r["mesh"];
     if (r["status"] != "ok") {
-      md << "| " << mesh << " | " << r["resolution"] << " | | | | | | | | | | " << r["status"].get<std::string>()
+      md << "| " << mesh << " | " << r["resolution"] << " | | | | | | | | | | | " << r["status"].get<std::string>()
          << " |\n";
       continue;
     }
     const json& t = r["step_ms"];
     auto cell = [&](const char* k) { return num(get(t[k], "p50")) + " / " + num(get(t[k], "p99")); };
+    std::string map_cell;  // world to rest: µs per sample (Newton inversions per sample)
+    if (r.contains("world_to_rest")) {
+      const json& m = r["world_to_rest"];
+      const double samples = get(m, "samples");
+      map_cell = num(get(m, "us_per_sample")) + " (" + num(samples > 0 ? get(m, "piece_tests") / samples : 0.0) + ")";
+    }
     md << "| " << mesh << " | " << r["resolution"] << " | " << r["lattice"][0] << "×" << r["lattice"][1] << "×"
        << r["lattice"][2] << " | " << r["occupied_voxels"] << " | " << cell("cut") << " | " << cell("surface")
-       << " | " << cell("deform") << " | " << cell("total") << " | " << mib(get(r, "peak_rss_bytes")) << " | "
+       << " | " << cell("deform") << " | " << cell("total") << " | " << map_cell << " | "
+       << mib(get(r, "peak_rss_bytes")) << " | "
        << num(get(r, "bytes_per_occupied_voxel")) << " | " << r["surface_triangles"] << " | ok |\n";
     PlotSeries& s = total_series[mesh];
     s.name = mesh;

@@ -104,7 +104,7 @@ StepReport session_step(Session& s, const StepCommands& commands) {
     const Clock::time_point t1 = Clock::now();
     cut_update_surface(s.model, s.cut, report.cut);
     const Clock::time_point t2 = Clock::now();
-    if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(s.model, s.cut, *s.pbd);
+    if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(s.model, s.cut, *s.pbd, &report.pbd);
     report.timings.cut_ms = ms_between(t0, t1) + ms_between(t2, Clock::now());  // map, divide, fine and coarse
     report.timings.surface_ms = ms_between(t1, t2);
   }

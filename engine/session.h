@@ -39,6 +39,7 @@ struct StepReport {
   StepTimings timings;
   CutStepStats cut;
   uint32_t sim_voxels_cut = 0;
+  PbdCutStats pbd;  // what the PBD model update did (with physics)
 };
 
 struct Session {

@@ -129,6 +129,14 @@ void sorted_unique(std::vector<uint32_t>& v) {
   v.erase(std::unique(v.begin(), v.end()), v.end());
 }
 
+// The same for a vector whose first `sorted` elements are sorted and unique already (the pending
+// voxels of earlier cut_divide calls in a step): sorts the tail and merges, O(n + tail log tail).
+void merge_sorted_unique(std::vector<uint32_t>& v, size_t sorted) {
+  std::sort(v.begin() + std::ptrdiff_t(sorted), v.end());
+  std::inplace_merge(v.begin(), v.begin() + std::ptrdiff_t(sorted), v.end());
+  v.erase(std::unique(v.begin(), v.end()), v.end());
+}
+
 const EdgeCut* find_cut(const CutState& state, uint32_t edge) {
   const uint32_t i = state.edge_cut_of.get(edge);
   return i == kDeadIndex ? nullptr : &state.edge_cuts[i];
@@ -1297,6 +1305,7 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 
   // Divide: record the cuts; the voxels around each changed edge are (re)divided.
   std::vector<uint32_t>& voxels = state.pending_voxels;
+  const size_t pending_before = voxels.size();  // sorted and unique (several calls per step with physics)
   for (const EdgeHit& hit : hits) {
     const EdgeChange change = record_cut(model, state, hit);
     if (change == EdgeChange::kNone) continue;
@@ -1326,18 +1335,19 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
       }
     }
   }
-  sorted_unique(voxels);
+  merge_sorted_unique(voxels, pending_before);
   stats.voxels_cut = uint32_t(voxels.size());
 
   // The cut front moved: partly cut voxels on it get new vertex positions.
   std::vector<uint32_t>& front_changed = state.scratch_voxels;
   front_changed.clear();
   update_front(model, state, from, to, front_changed);
+  const size_t divided_end = voxels.size();
   for (uint32_t v : front_changed) {
     const uint32_t d = state.divided_of.get(v);
     if (d != kDeadIndex && state.divided[d].partial_mask != 0) voxels.push_back(v);
   }
-  sorted_unique(voxels);
+  merge_sorted_unique(voxels, divided_end);
   stats.voxels_divided = uint32_t(state.divided.size());
   ++state.steps;
 }

@@ -4,6 +4,7 @@
 #include "sim/union_find.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -360,16 +361,30 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     cache.data.push_back(0);
     const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;
     const int u_axis = (axis + 1) % 3, v_axis = (axis + 2) % 3;
+    // The face's nodes in both blocks' label arrays (the face is x = ratio in lo, x = 0 in hi along
+    // `axis`); an undivided block's label is 0 at an inside node (the node is the same in both).
+    const uint32_t dl = s.voxel_divided[lo], dh = s.voxel_divided[hi];
+    const uint8_t* lo_labels = dl == kDeadIndex ? nullptr : s.labels.data() + s.divided[dl].first_label;
+    const uint8_t* hi_labels = dh == kDeadIndex ? nullptr : s.labels.data() + s.divided[dh].first_label;
+    const uint32_t n = uint32_t(s.ratio + 1), stride[3] = {1, n, n * n};
+    const uint32_t lo_base = uint32_t(s.ratio) * stride[axis];
     int32_t node[3];
     node[axis] = hic[axis] * s.ratio;
     for (int32_t v = 0; v <= s.ratio; ++v) {
       for (int32_t u = 0; u <= s.ratio; ++u) {
-        node[u_axis] = loc[u_axis] * s.ratio + u;
-        node[v_axis] = loc[v_axis] * s.ratio + v;
-        const uint8_t a = node_label(model, s, lo, loc, node[0], node[1], node[2]);
-        if (a == kNoPiece) continue;
-        const uint8_t b = node_label(model, s, hi, hic, node[0], node[1], node[2]);
-        if (b == kNoPiece) continue;
+        const uint32_t b_hi = uint32_t(u) * stride[u_axis] + uint32_t(v) * stride[v_axis];
+        uint8_t a, b;
+        if (lo_labels && hi_labels) {
+          a = lo_labels[lo_base + b_hi];
+          b = hi_labels[b_hi];
+        } else {
+          node[u_axis] = loc[u_axis] * s.ratio + u;
+          node[v_axis] = loc[v_axis] * s.ratio + v;
+          const bool inside = fine_inside(model, node[0], node[1], node[2]);
+          a = lo_labels ? lo_labels[lo_base + b_hi] : inside ? 0 : kNoPiece;
+          b = hi_labels ? hi_labels[b_hi] : inside ? 0 : kNoPiece;
+        }
+        if (a == kNoPiece || b == kNoPiece) continue;
         const uint16_t pair = uint16_t(a << 8 | b);
         if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) == cache.data.end()) {
           cache.data.push_back(pair);
@@ -456,42 +471,17 @@ void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, i
 
 // ---- Relabelling ---------------------------------------------------------------------------
 
-// Gives simulation voxel sv the pieces of `labels` (count components): storage as one piece or as a
-// divided voxel, new piece slots inheriting particles and rotation from the old piece that held the
-// same fine node (old labels in `old`, old slots in `old_slots`; `old_count` 0: no pieces before).
-// Old slots nobody inherits are freed.
-void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const uint8_t* labels, uint8_t count,
-                      const uint8_t* old, const uint32_t* old_slots, uint8_t old_count) {
-  const uint32_t nodes = block_nodes(s);
-  // Storage of the labels.
-  uint32_t d = s.voxel_divided[sv];
-  if (count > 1 && d == kDeadIndex) {
-    d = uint32_t(s.divided.size());
-    s.voxel_divided[sv] = d;
-    s.divided.push_back({sv, uint32_t(s.labels.size()), uint32_t(s.label_slots.size()), 0});
-    s.labels.resize(s.labels.size() + nodes, kNoPiece);
-    s.label_slots.resize(s.label_slots.size() + kLabelSlots, kDeadIndex);
-  }
-  if (d != kDeadIndex) {
-    std::copy(labels, labels + nodes, s.labels.begin() + s.divided[d].first_label);
-    s.divided[d].piece_count = count;
-  }
+// Gives the count labels of simulation voxel sv their piece slots: the first label whose first node
+// held old label inherit[p] reuses that label's slot (old_slots), the others get new slots starting
+// from its particles and rotation; old slots nobody inherits are freed. eighths: each label's volume.
+void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eighths, const uint8_t* inherit,
+                  const uint32_t* old_slots, uint8_t old_count) {
+  const uint32_t d = s.voxel_divided[sv];
+  if (d != kDeadIndex) s.divided[d].piece_count = count;
   s.pieces_in_voxel[sv] = count;
-  // New pieces: the first label meeting an old piece reuses its slot.
   bool reused[256] = {};
-  uint64_t eighths[256];
-  label_eighths(model, s, sv, labels, eighths);
-  // The old label at each new label's first node (one pass over the block).
-  uint8_t inherit[256];
-  bool seen[256] = {};
-  for (uint32_t b = 0; b < nodes; ++b) {
-    const uint8_t p = labels[b];
-    if (p == kNoPiece || seen[p]) continue;
-    seen[p] = true;
-    inherit[p] = old_count ? old[b] : uint8_t(kNoPiece);
-  }
   for (uint8_t p = 0; p < count; ++p) {
-    const uint8_t was = seen[p] ? inherit[p] : uint8_t(kNoPiece);
+    const uint8_t was = inherit[p];
     uint32_t slot;
     if (was != kNoPiece && was < old_count && !reused[was]) {
       slot = old_slots[was];
@@ -514,7 +504,44 @@ void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const u
   for (uint8_t p = 0; p < old_count; ++p) {
     if (!reused[p]) free_piece(s, old_slots[p]);
   }
-  if (count == 0) s.voxel_piece[sv] = kDeadIndex;
+  if (count == 0 || d != kDeadIndex) s.voxel_piece[sv] = kDeadIndex;
+}
+
+// Label storage for simulation voxel sv (a divided voxel's labels and slots), created on first use.
+uint32_t ensure_divided(PbdState& s, uint32_t sv) {
+  uint32_t d = s.voxel_divided[sv];
+  if (d != kDeadIndex) return d;
+  d = uint32_t(s.divided.size());
+  s.voxel_divided[sv] = d;
+  s.divided.push_back({sv, uint32_t(s.labels.size()), uint32_t(s.label_slots.size()), 0});
+  s.labels.resize(s.labels.size() + block_nodes(s), kNoPiece);
+  s.label_slots.resize(s.label_slots.size() + kLabelSlots, kDeadIndex);
+  return d;
+}
+
+// Gives simulation voxel sv the pieces of `labels` (count components): storage as one piece or as a
+// divided voxel, new piece slots inheriting particles and rotation from the old piece that held the
+// same fine node (old labels in `old`, old slots in `old_slots`; `old_count` 0: no pieces before).
+// Old slots nobody inherits are freed.
+void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const uint8_t* labels, uint8_t count,
+                      const uint8_t* old, const uint32_t* old_slots, uint8_t old_count) {
+  const uint32_t nodes = block_nodes(s);
+  // Storage of the labels.
+  const uint32_t d = count > 1 ? ensure_divided(s, sv) : s.voxel_divided[sv];
+  if (d != kDeadIndex) std::copy(labels, labels + nodes, s.labels.begin() + s.divided[d].first_label);
+  uint64_t eighths[256];
+  label_eighths(model, s, sv, labels, eighths);
+  // The old label at each new label's first node (one pass over the block).
+  uint8_t inherit[256];
+  std::fill(inherit, inherit + 256, kNoPiece);
+  bool seen[256] = {};
+  for (uint32_t b = 0; b < nodes; ++b) {
+    const uint8_t p = labels[b];
+    if (p == kNoPiece || seen[p]) continue;
+    seen[p] = true;
+    inherit[p] = old_count ? old[b] : uint8_t(kNoPiece);
+  }
+  assign_slots(s, sv, count, eighths, inherit, old_slots, old_count);
 }
 
 // ---- Local relabelling after a cut ---------------------------------------------------------
@@ -713,6 +740,268 @@ void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, ui
             s.scratch_old_slots.begin());
   const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent2, s.scratch_labels.data());
   set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
+}
+
+// ---- Span relabelling ----------------------------------------------------------------------
+
+constexpr int32_t kSpanRatio = 32;  // spans fit a 64-bit row mask up to this ratio
+
+// Bits [first, first + count) of a bitset (count <= 64).
+uint64_t bit_range(const std::vector<uint64_t>& bits, uint64_t first, int32_t count) {
+  const uint64_t word = first >> 6;
+  const int shift = int(first & 63);
+  uint64_t v = bits[word] >> shift;
+  if (shift != 0 && shift + count > 64 && word + 1 < bits.size()) v |= bits[word + 1] << (64 - shift);
+  return count >= 64 ? v : v & ((uint64_t(1) << count) - 1);
+}
+
+// The cut record of simulation voxel sv (null: none yet): its divided fine voxels as ratio^2 voxel row
+// masks, then its cut lattice edges along x, y and z as 3 x (ratio+1)^2 node row masks (bit x of row
+// (y, z) along axis a: the edge from block node (x, y, z) along a is cut).
+const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
+  const uint32_t at = s.cut_rows_of.get(sv);
+  return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
+}
+
+// Records a divided fine voxel and its cut edges in its simulation voxel's cut record (idempotent:
+// cuts only add).
+void note_cut_voxel(PbdModel& s, const Lattice& l, const DividedVoxel& dv) {
+  if (s.ratio > kSpanRatio) return;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t vc[3];
+  l.voxel_coords(dv.voxel, vc);
+  const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
+  uint32_t at = s.cut_rows_of.get(sv);
+  if (at == kDeadIndex) {
+    at = uint32_t(s.cut_rows.size());
+    s.cut_rows_of.set(sv, at);
+    s.cut_rows.resize(s.cut_rows.size() + size_t(r * r + 3 * n * n), 0);
+  }
+  uint64_t* rows = s.cut_rows.data() + at;
+  const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
+  rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
+  for (int e = 0; e < 12; ++e) {
+    if (!((dv.cut_edges >> e) & 1u)) continue;
+    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
+    const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
+    rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
+  }
+}
+
+// Whether the inside corners `bits` of a voxel are connected along the voxel's edges (an uncut voxel
+// joins all its inside corners; only the patterns this is false for need a look of their own).
+constexpr std::array<bool, 256> make_edge_connected() {
+  std::array<bool, 256> table{};
+  for (int bits = 0; bits < 256; ++bits) {
+    int seen = bits & -bits;
+    for (bool grew = true; grew;) {
+      grew = false;
+      for (const auto& e : kCubeEdges) {
+        for (int k = 0; k < 2; ++k) {
+          const int a = e[k], b = e[1 - k];
+          if (((seen >> a) & 1) && ((bits >> b) & 1) && !((seen >> b) & 1)) {
+            seen |= 1 << b;
+            grew = true;
+          }
+        }
+      }
+    }
+    table[size_t(bits)] = seen == bits;
+  }
+  return table;
+}
+constexpr std::array<bool, 256> kEdgeConnected = make_edge_connected();
+
+// Spans of a block (ratio <= 32): the block's inside nodes as runs along x joined by x edges,
+// united across neighbouring rows where a y or z edge joins them. An edge with both ends inside joins
+// them unless the blade cut it (every fine voxel holding it, uncut or divided, joins its ends then);
+// the other joins are diagonal: an uncut voxel whose inside corners its edges do not connect joins
+// them all, and a divided voxel with an outside corner joins across its uncut ambiguous faces — those
+// voxels join their own pieces' corners (fine_pieces). This is label_block's rule, a row at a time:
+// O(ratio^2) row masks plus the block's few diagonal voxels, instead of 8 lookups per fine voxel.
+void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w) {
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const int32_t gx = c[0] * r, gy = c[1] * r, gz = c[2] * r;
+  const uint32_t rows = uint32_t(n * n), vrows = uint32_t(r * r);
+  w.inside.assign(rows, 0);
+  w.simple.assign(vrows, 0);
+  w.explicit_.assign(vrows, 0);
+  // Inside nodes per node row (the lattice's last node is nx; outside the lattice nothing is inside).
+  const int32_t xnodes = std::min(r, l.nx - gx) + 1, xvoxels = std::min(r, l.nx - gx);
+  for (int32_t z = 0; z < n && gz + z <= l.nz; ++z) {
+    for (int32_t y = 0; y < n && gy + y <= l.ny; ++y) {
+      w.inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
+    }
+  }
+  // Voxel rows: the voxels of the block (w.simple), and those that join corners diagonally (w.explicit_).
+  const uint64_t* cuts = cut_rows(s, sv);
+  const auto cut_edges = [&](int axis, uint32_t row) {
+    return cuts ? cuts[uint32_t(r * r + axis * n * n) + row] : uint64_t(0);
+  };
+  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
+  for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
+    for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
+      const uint64_t* in = w.inside.data() + (vy + n * vz);
+      const uint64_t all4 = in[0] & in[1] & in[n] & in[n + 1], any4 = in[0] | in[1] | in[n] | in[n + 1];
+      const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
+      const uint32_t v = uint32_t(vy + r * vz);
+      const uint64_t divided = cuts ? cuts[v] : 0;
+      w.simple[v] = vmask;
+      uint64_t odd = 0;
+      for (uint64_t m = any & ~all & ~divided; m != 0; m &= m - 1) {
+        const int x = __builtin_ctzll(m);
+        const uint32_t bits = uint32_t((in[0] >> x) & 3) | uint32_t((in[1] >> x) & 3) << 2 |
+                              uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
+        if (!kEdgeConnected[bits]) odd |= uint64_t(1) << x;
+      }
+      w.explicit_[v] = (divided & any & ~all) | odd;
+    }
+  }
+  const auto uncut_at = [&](int32_t vy, int32_t vz) {
+    return vy < 0 || vz < 0 || vy >= r || vz >= r ? uint64_t(0) : w.simple[uint32_t(vy + r * vz)];
+  };
+  // Spans per node row, in x order.
+  w.row_begin.resize(rows + 1);
+  w.mask.clear();
+  w.parent.clear();
+  for (int32_t z = 0; z < n; ++z) {
+    for (int32_t y = 0; y < n; ++y) {
+      const uint32_t row = uint32_t(y + n * z);
+      w.row_begin[row] = uint32_t(w.mask.size());
+      const uint64_t in = w.inside[row];
+      const uint64_t joins = in & (in >> 1) & ~cut_edges(0, row) &
+                             (uncut_at(y - 1, z - 1) | uncut_at(y, z - 1) | uncut_at(y - 1, z) | uncut_at(y, z));
+      for (uint64_t m = in; m != 0;) {
+        const int x0 = __builtin_ctzll(m);
+        const int run = __builtin_ctzll(~(joins >> x0));  // joined edges x0, x0+1, ...: nodes x0 .. x0+run
+        const uint64_t span = ((uint64_t(2) << run) - 1) << x0;
+        w.parent.push_back(uint32_t(w.mask.size()));
+        w.mask.push_back(span);
+        m &= ~span;
+      }
+    }
+  }
+  w.row_begin[rows] = uint32_t(w.mask.size());
+  const auto find = [&](uint32_t x) {
+    while (w.parent[x] != x) x = w.parent[x] = w.parent[w.parent[x]];
+    return x;
+  };
+  const auto unite = [&](uint32_t a, uint32_t b) {
+    a = find(a);
+    b = find(b);
+    if (a != b) w.parent[std::max(a, b)] = std::min(a, b);
+  };
+  // Rows joined by y and z edges: both ends inside, not cut, in a voxel of the block (voxel x holds
+  // nodes x and x+1).
+  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t voxels, uint64_t cut) {
+    const uint64_t link = (voxels | (voxels << 1)) & w.inside[a_row] & w.inside[b_row] & ~cut;
+    if (link == 0) return;
+    for (uint32_t a = w.row_begin[a_row]; a < w.row_begin[a_row + 1]; ++a) {
+      if ((w.mask[a] & link) == 0) continue;
+      for (uint32_t b = w.row_begin[b_row]; b < w.row_begin[b_row + 1]; ++b) {
+        if (w.mask[a] & w.mask[b] & link) unite(a, b);
+      }
+    }
+  };
+  for (int32_t z = 0; z < n; ++z) {
+    for (int32_t y = 0; y < n; ++y) {
+      const uint32_t row = uint32_t(y + n * z);
+      if (y < r) unite_rows(row, row + 1, uncut_at(y, z - 1) | uncut_at(y, z), cut_edges(1, row));
+      if (z < r) unite_rows(row, row + uint32_t(n), uncut_at(y - 1, z) | uncut_at(y, z), cut_edges(2, row));
+    }
+  }
+  // The diagonal voxels: each unites its pieces' corners.
+  const auto span_at = [&](uint32_t row, int x) {
+    for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
+      if ((w.mask[i] >> x) & 1u) return i;
+    }
+    return kDeadIndex;  // not reached: a corner with a piece is inside
+  };
+  for (int32_t vz = 0; vz < r; ++vz) {
+    for (int32_t vy = 0; vy < r; ++vy) {
+      for (uint64_t e = w.explicit_[uint32_t(vy + r * vz)]; e != 0; e &= e - 1) {
+        const int x = __builtin_ctzll(e);
+        uint8_t corner_piece[8];
+        fine_pieces(model, cut, gx + x, gy + vy, gz + vz, corner_piece);
+        uint32_t first[8] = {kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex, kDeadIndex};
+        for (int q = 0; q < 8; ++q) {
+          const uint8_t p = corner_piece[q];
+          if (p >= 8) continue;
+          const uint32_t span = span_at(uint32_t(vy + ((q >> 1) & 1) + n * (vz + ((q >> 2) & 1))), x + (q & 1));
+          if (span == kDeadIndex) continue;
+          if (first[p] == kDeadIndex) {
+            first[p] = span;
+          } else {
+            unite(first[p], span);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Relabels a whole block from its spans (ratio <= 32); new pieces inherit from the old piece of their
+// first node. Labels are numbered in node order, as label_block numbers them.
+void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats) {
+  SpanScratch& w = s.spans;
+  build_spans(model, cut, s, sv, w);
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const uint32_t rows = uint32_t(n * n), spans = uint32_t(w.mask.size());
+  if (stats) stats->spans += spans;
+  // Components numbered by their first span (row order, x order within a row).
+  w.label.assign(spans, kNoPiece);
+  uint8_t count = 0;
+  uint32_t first_node[256];
+  for (uint32_t row = 0; row < rows; ++row) {
+    for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
+      uint32_t root = i;
+      while (w.parent[root] != root) root = w.parent[root];
+      if (w.label[root] == kNoPiece && count < kMaxSimPieces) {
+        first_node[count] = row * uint32_t(n) + uint32_t(__builtin_ctzll(w.mask[i]));
+        w.label[root] = count++;
+      } else if (w.label[root] == kNoPiece) {
+        w.label[root] = uint8_t(kMaxSimPieces - 1);  // beyond the label range: merged into the last
+      }
+      w.label[i] = w.label[root];
+    }
+  }
+  // The old pieces: slots, and the label each new label's first node had.
+  const uint8_t old_count = s.pieces_in_voxel[sv];
+  uint32_t old_slots[256];
+  for (uint8_t p = 0; p < old_count; ++p) old_slots[p] = slot_of_label(s, sv, p);
+  uint8_t inherit[256];
+  for (uint8_t p = 0; p < count; ++p) {
+    const uint32_t b = first_node[p];
+    const int32_t x = int32_t(b % uint32_t(n)), y = int32_t((b / uint32_t(n)) % uint32_t(n)), z = int32_t(b / uint32_t(n * n));
+    inherit[p] = old_count ? label_at(model, s, sv, c, b, c[0] * r + x, c[1] * r + y, c[2] * r + z) : uint8_t(kNoPiece);
+  }
+  // Volumes: per span, the eighths of its row times the prefix sums along x.
+  const auto around = [&](int32_t t, int32_t first, int32_t count_along) {
+    return uint64_t((t > 0 && first + t - 1 < count_along) + (t < r && first + t < count_along));
+  };
+  w.weight.assign(size_t(n) + 1, 0);
+  for (int32_t x = 0; x < n; ++x) w.weight[size_t(x) + 1] = w.weight[size_t(x)] + around(x, c[0] * r, l.nx);
+  uint64_t eighths[256] = {};
+  // Labels: written span by span when the block keeps labels.
+  const uint32_t d = count > 1 ? ensure_divided(s, sv) : s.voxel_divided[sv];
+  uint8_t* labels = d == kDeadIndex ? nullptr : s.labels.data() + s.divided[d].first_label;
+  for (uint32_t row = 0; row < rows; ++row) {
+    const int32_t y = int32_t(row % uint32_t(n)), z = int32_t(row / uint32_t(n));
+    const uint64_t wyz = around(y, c[1] * r, l.ny) * around(z, c[2] * r, l.nz);
+    if (labels) std::fill(labels + row * uint32_t(n), labels + (row + 1) * uint32_t(n), kNoPiece);
+    for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
+      const int x0 = __builtin_ctzll(w.mask[i]), x1 = 63 - __builtin_clzll(w.mask[i]);
+      eighths[w.label[i]] += wyz * (w.weight[size_t(x1) + 1] - w.weight[size_t(x0)]);
+      if (labels) std::fill(labels + row * uint32_t(n) + uint32_t(x0), labels + row * uint32_t(n) + uint32_t(x1) + 1, w.label[i]);
+    }
+  }
+  assign_slots(s, sv, count, eighths, inherit, old_slots, old_count);
 }
 
 // ---- Embedding -----------------------------------------------------------------------------
@@ -1067,6 +1356,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.pieces_in_voxel.assign(voxels, 0);
 
   // Pieces: the material components of every block (cuts made before init included).
+  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(s, l, dv);
   s.scratch_labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
     const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
@@ -1092,13 +1382,15 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   return true;
 }
 
-uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s) {
+uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
   // Changed divided fine voxels by simulation voxel (sim voxel << 32 | fine voxel), and the simulation
   // voxels holding them.
   std::vector<uint64_t>& changed = s.scratch_changed;
   changed.clear();
   for (uint32_t voxel : cut.changed_voxels) {
-    if (cut.divided_of.get(voxel) == kDeadIndex) continue;
+    const uint32_t d = cut.divided_of.get(voxel);
+    if (d == kDeadIndex) continue;
+    note_cut_voxel(s, model.lattice, cut.divided[d]);
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
     changed.push_back(uint64_t(sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio)) << 32 | voxel);
@@ -1132,25 +1424,37 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     // Detach their pieces (remembering the particles they used).
     std::vector<uint64_t>& touched = s.scratch_corners;
     touched.clear();
+    uint32_t pieces_touched = 0;
     for (uint32_t sv : near) {
       for_pieces(s, sv, [&](uint32_t slot) {
         for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
         detach_piece(s, slot);
+        ++pieces_touched;
       });
     }
-    // Relabel the affected voxels locally, from their changed fine voxels.
+    // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
+    // kSpanRatio locally from their changed fine voxels, else node by node.
     std::vector<uint32_t>& fine = s.scratch_parent;
     for (size_t i = 0; i < changed.size();) {
       const uint32_t sv = uint32_t(changed[i] >> 32);
       fine.clear();
       for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
-      if (has_pieces(s, sv) && !relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size())) {
-        relabel_block(model, cut, s, sv);
+      if (!has_pieces(s, sv)) continue;
+      if (s.ratio <= kSpanRatio) {
+        relabel_spans(model, cut, s, sv, stats);
+        if (stats) ++stats->span_relabels;
+        continue;
+      }
+      const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
+      if (!local) relabel_block(model, cut, s, sv);
+      if (stats) {
+        stats->nodes_searched += s.search.visited.size();
+        ++(local ? stats->local_relabels : stats->block_relabels);
       }
     }
     // Corner particles of the affected voxels.
-    std::vector<uint64_t> corners;
-    corners.reserve(affected.size() * 8);
+    std::vector<uint64_t>& corners = s.scratch_corner_ids;
+    corners.clear();
     for (uint32_t sv : affected) {
       int32_t c[3];
       sim_voxel_coords(s, sv, c);
@@ -1169,7 +1473,12 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
       for_pieces(s, sv, [&](uint32_t slot) {
         attach_piece(s, slot);
         for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+        ++pieces_touched;
       });
+    }
+    if (stats) {
+      stats->pieces_touched += pieces_touched;
+      stats->corners += uint32_t(corners.size());
     }
     sorted_unique(touched);
     for (uint64_t p : touched) {
@@ -1186,6 +1495,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   for (uint32_t slot : cut.changed_vertices) {
     if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
+  if (stats) stats->sim_voxels += uint32_t(affected.size());
   return uint32_t(affected.size());
 }
 

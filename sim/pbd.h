@@ -131,6 +131,31 @@ struct LocalSearch {
   int32_t active[256] = {};       // per label: groups still running
 };
 
+// Scratch of the span relabelling (sim/pbd.cpp relabel_spans): a block's fine nodes as runs along x
+// ("spans", one 64-bit mask per node row), united across rows where material joins them.
+struct SpanScratch {
+  std::vector<uint64_t> inside;     // (node rows) inside nodes
+  std::vector<uint64_t> simple;     // (voxel rows) voxels of the block (in the lattice)
+  std::vector<uint64_t> explicit_;  // (voxel rows) voxels joining corners diagonally: their own pieces join
+  std::vector<uint32_t> row_begin;  // (node rows + 1) first span of each row
+  std::vector<uint64_t> mask;       // (spans) nodes of the span
+  std::vector<uint32_t> parent;     // (spans) union-find
+  std::vector<uint8_t> label;       // (spans) label of a root
+  std::vector<uint64_t> weight;     // (ratio + 2) prefix sums of the eighths per node along x
+};
+
+// What one pbd_apply_cut did (counters for the benchmarks).
+struct PbdCutStats {
+  uint32_t sim_voxels = 0;       // simulation voxels relabelled
+  uint32_t local_relabels = 0;   // of those, relabelled by the local search
+  uint32_t span_relabels = 0;    // by spans (the whole block, O(ratio^2) rows)
+  uint32_t block_relabels = 0;   // by the node-by-node labelling (ratio > 32)
+  uint64_t nodes_searched = 0;   // fine nodes the local searches visited
+  uint64_t spans = 0;            // spans the span relabels built
+  uint32_t pieces_touched = 0;   // piece slots detached and re-attached
+  uint32_t corners = 0;          // coarse corners re-assigned
+};
+
 // The topology: what cuts edit.
 struct PbdModel {
   // Simulation grid.
@@ -177,7 +202,13 @@ struct PbdModel {
   std::vector<uint64_t> scratch_corners;
   FaceCache face_cache;
   LocalSearch search;
-  std::vector<uint64_t> scratch_changed;
+  SpanScratch spans;
+  std::vector<uint64_t> scratch_changed, scratch_corner_ids;
+  // Cuts per simulation voxel (ratio <= 32): its divided fine voxels (one 64-bit mask per (y, z)
+  // voxel row) and its cut lattice edges (one mask per node row and axis), so a relabel finds the
+  // block's cuts without looking up each fine voxel.
+  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 + 3 (ratio+1)^2 rows)
+  std::vector<uint64_t> cut_rows;
 };
 
 // One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
@@ -224,7 +255,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 // simulation voxels holding changed fine voxels, duplicates corner particles where material separated,
 // updates constraints and masses of the pieces around them, re-embeds the changed vertices. Returns
 // the number of simulation voxels relabelled.
-uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& state);
+uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& state, PbdCutStats* stats = nullptr);
 
 // One time step (substeps x iterations), then the deformed surface positions.
 void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});

@@ -154,7 +154,17 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const Piece
                        std::vector<RestHit>& out, uint32_t* tests) {
   const size_t before = out.size();
   constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces
+  const double slack = 1e-5 * pbd.sim_size;
   query_piece_grid(grid, world, [&](uint32_t slot) {
+    // The hexahedron lies in its corners' bounds (trilinear weights are a convex combination): a
+    // point outside them is not in the piece, and needs no Newton inversion.
+    const uint32_t* particles = pbd.pieces[slot].particles;
+    Vec3d lo = pbd.position[particles[0]], hi = lo;
+    for (int c = 1; c < 8; ++c) {
+      lo = lo.cwiseMin(pbd.position[particles[c]]);
+      hi = hi.cwiseMax(pbd.position[particles[c]]);
+    }
+    if ((world.array() < lo.array() - slack).any() || (world.array() > hi.array() + slack).any()) return;
     if (tests) ++*tests;
     Vec3d u;
     if (!piece_local(pbd, slot, world, Vec3d::Constant(0.5), u)) return;

@@ -112,6 +112,26 @@ TEST_SUITE("pbd") {
     CHECK(std::abs(total_mass(s.pbd) - before) <= 1e-12 * before);
   }
 
+  TEST_CASE("relabelling after cuts gives the material components: spans (ratio 16) and the local search (ratio 64)") {
+    // Curved surfaces, a torus's hole and two nested shells (thin gaps, ambiguous faces); cuts that
+    // cross, stop halfway and split simulation voxels in one step. check_pbd_state recomputes every
+    // block's components node by node (label_block) after each step.
+    const TriMesh shapes = merge_meshes(make_torus(Vec3d(0.011, 0.3, 0.007), 0.55, 0.22, 24, 12),
+                                        make_two_shells(Vec3d(0.013, -0.45, 0.021), 0.42, 0.33, 3));
+    for (const int sim_resolution : {4, 1}) {
+      CAPTURE(sim_resolution);
+      Scene s;
+      dvx_test::make_pbd_scene(s, shapes, 64, sim_resolution, PbdParams{});
+      const double before = total_mass(s.pbd);
+      horizontal_cut(s, 0.3137, -1.0, 1.0, 3);                                                            // through, fast
+      cut(s, {Vec3d(0.051, 1.5, -2), Vec3d(0.051, 1.5, 2)}, {Vec3d(0.051, -0.2, -2), Vec3d(0.051, -0.2, 2)}, 9);  // crossing
+      horizontal_cut(s, -0.4113, -1.0, 0.05, 5);                                                          // halfway
+      cut(s, {Vec3d(-1, -1.2, 0.3), Vec3d(1, 0.8, 0.3)}, {Vec3d(-1, -1.2, -0.2), Vec3d(1, 0.8, -0.2)}, 1);  // oblique, one step
+      CHECK(std::abs(total_mass(s.pbd) - before) <= 1e-12 * before);
+      CHECK(live_pieces(s.pbd) > 0);
+    }
+  }
+
   TEST_CASE("a block anchored at its top sags under gravity and comes to rest") {
     Scene s;
     PbdParams params = hanging(0.9);
