@@ -151,9 +151,8 @@ uint64_t cell_key(int64_t i, int64_t j, int64_t k) {
   return uint64_t(h) << 32;
 }
 
-// Sorts (cell << 32 | item) keys and indexes them: cells (distinct, sorted), their item ranges.
-void build_cells(PieceContactScratch& g) {
-  std::sort(g.keys.begin(), g.keys.end());
+// Indexes (cell << 32 | item) keys sorted by cell: cells (distinct, sorted), their item ranges.
+void build_sorted_cells(PieceContactScratch& g) {
   g.cells.clear();
   g.cell_begin.clear();
   g.cell_items.resize(g.keys.size());
@@ -168,9 +167,15 @@ void build_cells(PieceContactScratch& g) {
   g.cell_begin.push_back(uint32_t(g.keys.size()));
 }
 
-// Calls f(item) for the items of the 27 cells around cell (i, j, k).
+// Sorts (cell << 32 | item) keys and indexes them.
+void build_cells(PieceContactScratch& g) {
+  std::sort(g.keys.begin(), g.keys.end());
+  build_sorted_cells(g);
+}
+
+// Calls f(begin, end) for the item ranges of the 27 cells around cell (i, j, k) (those that exist).
 template <typename F>
-void for_neighbours(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
+void for_neighbour_cells(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
   for (int64_t dk = -1; dk <= 1; ++dk) {
     for (int64_t dj = -1; dj <= 1; ++dj) {
       for (int64_t di = -1; di <= 1; ++di) {
@@ -178,10 +183,31 @@ void for_neighbours(const PieceContactScratch& g, int64_t i, int64_t j, int64_t 
         const auto it = std::lower_bound(g.cells.begin(), g.cells.end(), cell);
         if (it == g.cells.end() || *it != cell) continue;
         const size_t c = size_t(it - g.cells.begin());
-        for (uint32_t n = g.cell_begin[c]; n < g.cell_begin[c + 1]; ++n) f(g.cell_items[n]);
+        f(g.cell_begin[c], g.cell_begin[c + 1]);
       }
     }
   }
+}
+
+// Calls f(item) for the items of the 27 cells around cell (i, j, k).
+template <typename F>
+void for_neighbours(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
+  for_neighbour_cells(g, i, j, k, [&](uint32_t begin, uint32_t end) {
+    for (uint32_t n = begin; n < end; ++n) f(g.cell_items[n]);
+  });
+}
+
+// The same over the items whose body is not `body`, for cells sorted by body (g.item_body): the
+// run of `body` in each cell is skipped.
+template <typename F>
+void for_other_bodies(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, uint32_t body, F&& f) {
+  for_neighbour_cells(g, i, j, k, [&](uint32_t begin, uint32_t end) {
+    const auto first = g.item_body.begin();
+    const uint32_t lo = uint32_t(std::lower_bound(first + begin, first + end, body) - first);
+    const uint32_t hi = uint32_t(std::upper_bound(first + lo, first + end, body) - first);
+    for (uint32_t n = begin; n < lo; ++n) f(g.cell_items[n]);
+    for (uint32_t n = hi; n < end; ++n) f(g.cell_items[n]);
+  });
 }
 
 }  // namespace
@@ -208,7 +234,7 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
 
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
                              uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
-                             PieceContactScratch& g) {
+                             PieceContactScratch& g, uint64_t* pairs_tested) {
   exposed.assign(piece_count, 0);
   // Cells at least as large as any grown piece: overlapping pieces have their low corners in
   // neighbouring cells.
@@ -227,17 +253,41 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
   }
   build_cells(g);
   uint32_t count = 0;
+  g.pairs.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
     const Vec3d a = lo[i] - Vec3d::Constant(reach), b = hi[i] + Vec3d::Constant(reach);
     for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t j) {
       if (j <= i || body[j] == body[i]) return;
+      if (pairs_tested) ++*pairs_tested;
       if ((lo[j].array() - reach > b.array()).any() || (hi[j].array() + reach < a.array()).any()) return;
       count += !exposed[i] + !exposed[j];
       exposed[i] = exposed[j] = 1;
+      g.pairs.push_back((uint64_t(i) << 32) | j);
+      g.pairs.push_back((uint64_t(j) << 32) | i);
     });
   }
+  // The partners of each piece, ascending.
+  std::sort(g.pairs.begin(), g.pairs.end());
+  g.partner_begin.assign(piece_count + 1, 0);
+  g.partners.resize(g.pairs.size());
+  for (size_t k = 0; k < g.pairs.size(); ++k) {
+    ++g.partner_begin[(g.pairs[k] >> 32) + 1];
+    g.partners[k] = uint32_t(g.pairs[k]);
+  }
+  for (uint32_t i = 0; i < piece_count; ++i) g.partner_begin[i + 1] += g.partner_begin[i];
   return count;
+}
+
+bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, uint32_t piece, const Vec3d& x,
+                  double reach) {
+  // A hair of slack: an embedded point may round a few ulps outside its piece's bounds.
+  const double r = reach * (1.0 + 1e-9);
+  for (uint32_t k = g.partner_begin[piece]; k < g.partner_begin[piece + 1]; ++k) {
+    const uint32_t j = g.partners[k];
+    if ((lo[j].array() - r <= x.array()).all() && (x.array() <= hi[j].array() + r).all()) return true;
+  }
+  return false;
 }
 
 // Two surface points face each other when their normals are more than ~155 degrees apart: the faces
@@ -246,16 +296,26 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
 constexpr double kFacing = -0.9;
 
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double friction, ContactSet& set, PieceContactScratch& g) {
+                               double reach, double friction, ContactSet& set, PieceContactScratch& g,
+                               uint64_t* pairs_tested) {
   if (count == 0 || !(reach > 0.0)) return 0;
-  // Points in cells of size `reach`.
+  // Points in cells of size `reach`, each cell's items by body (then index), so a query skips the
+  // run of its own body with two binary searches instead of testing each of its points.
   g.keys.clear();
   for (uint32_t v = 0; v < count; ++v) {
     const Vec3d& p = points[v].position;
     const uint64_t cell = cell_key(cell_coord(p.x(), reach), cell_coord(p.y(), reach), cell_coord(p.z(), reach));
     g.keys.push_back(cell | v);
   }
-  build_cells(g);
+  std::sort(g.keys.begin(), g.keys.end(), [&](uint64_t a, uint64_t b) {
+    const uint64_t ca = a >> 32, cb = b >> 32;
+    if (ca != cb) return ca < cb;
+    const uint32_t ba = points[uint32_t(a)].body, bb = points[uint32_t(b)].body;
+    return ba != bb ? ba < bb : uint32_t(a) < uint32_t(b);
+  });
+  build_sorted_cells(g);
+  g.item_body.resize(g.cell_items.size());
+  for (size_t n = 0; n < g.cell_items.size(); ++n) g.item_body[n] = points[g.cell_items[n]].body;
   g.busy.resize(particle_count, 0);
   std::vector<float>& fresh_allowance = g.allowance;  // written after the pass: pairs read the old values
   fresh_allowance.assign(count, 0.0f);
@@ -271,16 +331,17 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     const SurfacePoint& a = points[v];
     uint32_t best = ~0u;
     double best_d = reach * reach;
-    for_neighbours(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
-                   cell_coord(a.position.z(), reach), [&](uint32_t q) {
-                     const SurfacePoint& b = points[q];
-                     if (b.body == a.body || a.normal.dot(b.normal) > kFacing) return;
-                     const double d = (b.position - a.position).squaredNorm();
-                     if (d < best_d || (d == best_d && q < best)) {
-                       best_d = d;
-                       best = q;
-                     }
-                   });
+    for_other_bodies(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
+                     cell_coord(a.position.z(), reach), a.body, [&](uint32_t q) {
+                       if (pairs_tested) ++*pairs_tested;
+                       const SurfacePoint& b = points[q];
+                       if (a.normal.dot(b.normal) > kFacing) return;
+                       const double d = (b.position - a.position).squaredNorm();
+                       if (d < best_d || (d == best_d && q < best)) {
+                         best_d = d;
+                         best = q;
+                       }
+                     });
     if (best == ~0u) {
       fresh_allowance[v] = 0.0f;  // out of contact: no overlap allowed from now on
       continue;

@@ -61,7 +61,7 @@ TEST_SUITE("stress") {
     // and pair thousands of surface vertices every iteration, which makes 20 000 steps take minutes.
     // This test is about the stability of cutting and the PBD model; contact has its own tests
     // (tests/sim/test_contact.cpp) and its cost is measured from replays.
-    params.piece_contact = false;
+    params.piece_contact = std::getenv("DIVVOX_STRESS_CONTACT") != nullptr;
     Aabb anchor = box;  // anchored along its -x end
     anchor.min -= Vec3d::Constant(1.0);
     anchor.max.x() = box.min.x() + 0.15 * box.extent().x();
@@ -142,6 +142,9 @@ TEST_SUITE("stress") {
     MESSAGE("resident memory: " << memory_after_cutting / 1024 << " KiB when cutting stopped, " << memory_end / 1024
                                 << " KiB at the end; kinetic energy " << kinetic_energy(pbd) << ", mass "
                                 << total_mass(pbd) << " (initial " << mass << ")");
+    const PieceContacts::Counters& pcc = pbd.piece_contacts.counters;
+    MESSAGE("piece contact: " << pcc.gathers << " gathers, " << pcc.piece_pairs << " piece pairs, " << pcc.points
+                              << " points, " << pcc.point_pairs << " point pairs, " << pcc.contacts << " contacts");
     MESSAGE("after " << steps << " steps: " << cut.divided.size() << " divided voxels, " << sim_voxels_divided(pbd)
                                   << " divided simulation voxels, " << live_pieces(pbd) << " sim pieces");
   }
