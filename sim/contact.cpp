@@ -151,8 +151,11 @@ uint64_t cell_key(int64_t i, int64_t j, int64_t k) {
   return uint64_t(h) << 32;
 }
 
-// Indexes (cell << 32 | item) keys sorted by cell: cells (distinct, sorted), their item ranges.
-void build_sorted_cells(PieceContactScratch& g) {
+// Sorts (cell << 32 | item) keys and indexes them: cells (distinct, sorted), their item ranges, and
+// an open-addressing table from a cell key to its index (a query looks up 27 cells: a table probe
+// each, not a binary search).
+void build_cells(PieceContactScratch& g) {
+  std::sort(g.keys.begin(), g.keys.end());
   g.cells.clear();
   g.cell_begin.clear();
   g.cell_items.resize(g.keys.size());
@@ -165,48 +168,46 @@ void build_sorted_cells(PieceContactScratch& g) {
     g.cell_items[i] = uint32_t(g.keys[i]);
   }
   g.cell_begin.push_back(uint32_t(g.keys.size()));
+  // A power of two at least twice the cells; entries are cell index + 1 (0: empty).
+  g.table_bits = 1;
+  while ((size_t(1) << g.table_bits) < 2 * g.cells.size()) ++g.table_bits;
+  g.table.assign(size_t(1) << g.table_bits, 0);
+  const uint32_t mask = (1u << g.table_bits) - 1;
+  for (uint32_t c = 0; c < g.cells.size(); ++c) {
+    uint32_t slot = uint32_t(g.cells[c] >> 32) * 0x9E3779B1u >> (32 - g.table_bits);
+    while (g.table[slot] != 0) slot = (slot + 1) & mask;
+    g.table[slot] = c + 1;
+  }
 }
 
-// Sorts (cell << 32 | item) keys and indexes them.
-void build_cells(PieceContactScratch& g) {
-  std::sort(g.keys.begin(), g.keys.end());
-  build_sorted_cells(g);
+// The index of a cell in g.cells, or ~0u when it holds nothing.
+uint32_t find_cell(const PieceContactScratch& g, uint64_t cell) {
+  const uint32_t mask = (1u << g.table_bits) - 1;
+  for (uint32_t slot = uint32_t(cell >> 32) * 0x9E3779B1u >> (32 - g.table_bits);; slot = (slot + 1) & mask) {
+    const uint32_t c = g.table[slot];
+    if (c == 0) return ~0u;
+    if (g.cells[c - 1] == cell) return c - 1;
+  }
 }
 
-// Calls f(begin, end) for the item ranges of the 27 cells around cell (i, j, k) (those that exist).
+// Calls f(begin, end) for the ranges (in cell_items) of the 27 cells around cell (i, j, k).
 template <typename F>
 void for_neighbour_cells(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
   for (int64_t dk = -1; dk <= 1; ++dk) {
     for (int64_t dj = -1; dj <= 1; ++dj) {
       for (int64_t di = -1; di <= 1; ++di) {
-        const uint64_t cell = cell_key(i + di, j + dj, k + dk);
-        const auto it = std::lower_bound(g.cells.begin(), g.cells.end(), cell);
-        if (it == g.cells.end() || *it != cell) continue;
-        const size_t c = size_t(it - g.cells.begin());
-        f(g.cell_begin[c], g.cell_begin[c + 1]);
+        const uint32_t c = find_cell(g, cell_key(i + di, j + dj, k + dk));
+        if (c != ~0u) f(g.cell_begin[c], g.cell_begin[c + 1]);
       }
     }
   }
 }
 
-// Calls f(item) for the items of the 27 cells around cell (i, j, k).
+// Calls f(n) for each entry n of cell_items in the 27 cells around cell (i, j, k).
 template <typename F>
 void for_neighbours(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
   for_neighbour_cells(g, i, j, k, [&](uint32_t begin, uint32_t end) {
-    for (uint32_t n = begin; n < end; ++n) f(g.cell_items[n]);
-  });
-}
-
-// The same over the items whose body is not `body`, for cells sorted by body (g.item_body): the
-// run of `body` in each cell is skipped.
-template <typename F>
-void for_other_bodies(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, uint32_t body, F&& f) {
-  for_neighbour_cells(g, i, j, k, [&](uint32_t begin, uint32_t end) {
-    const auto first = g.item_body.begin();
-    const uint32_t lo = uint32_t(std::lower_bound(first + begin, first + end, body) - first);
-    const uint32_t hi = uint32_t(std::upper_bound(first + lo, first + end, body) - first);
-    for (uint32_t n = begin; n < lo; ++n) f(g.cell_items[n]);
-    for (uint32_t n = hi; n < end; ++n) f(g.cell_items[n]);
+    for (uint32_t n = begin; n < end; ++n) f(n);
   });
 }
 
@@ -257,7 +258,8 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
     const Vec3d a = lo[i] - Vec3d::Constant(reach), b = hi[i] + Vec3d::Constant(reach);
-    for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t j) {
+    for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
+      const uint32_t j = g.cell_items[n];
       if (j <= i || body[j] == body[i]) return;
       if (pairs_tested) ++*pairs_tested;
       if ((lo[j].array() - reach > b.array()).any() || (hi[j].array() + reach < a.array()).any()) return;
@@ -299,23 +301,30 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
                                double reach, double friction, ContactSet& set, PieceContactScratch& g,
                                uint64_t* pairs_tested) {
   if (count == 0 || !(reach > 0.0)) return 0;
-  // Points in cells of size `reach`, each cell's items by body (then index), so a query skips the
-  // run of its own body with two binary searches instead of testing each of its points.
+  // Points in cells of size `reach`, each cell's items grouped by body (items are ranks in body
+  // order), with the end of each item's body run: a query jumps over its own body's points (most of
+  // a cell, where a body lies on another) instead of testing them one by one.
+  g.by_body.resize(count);
+  for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
+  std::sort(g.by_body.begin(), g.by_body.end());
   g.keys.clear();
-  for (uint32_t v = 0; v < count; ++v) {
-    const Vec3d& p = points[v].position;
+  for (uint32_t rank = 0; rank < count; ++rank) {
+    const Vec3d& p = points[uint32_t(g.by_body[rank])].position;
     const uint64_t cell = cell_key(cell_coord(p.x(), reach), cell_coord(p.y(), reach), cell_coord(p.z(), reach));
-    g.keys.push_back(cell | v);
+    g.keys.push_back(cell | rank);
   }
-  std::sort(g.keys.begin(), g.keys.end(), [&](uint64_t a, uint64_t b) {
-    const uint64_t ca = a >> 32, cb = b >> 32;
-    if (ca != cb) return ca < cb;
-    const uint32_t ba = points[uint32_t(a)].body, bb = points[uint32_t(b)].body;
-    return ba != bb ? ba < bb : uint32_t(a) < uint32_t(b);
-  });
-  build_sorted_cells(g);
-  g.item_body.resize(g.cell_items.size());
-  for (size_t n = 0; n < g.cell_items.size(); ++n) g.item_body[n] = points[g.cell_items[n]].body;
+  build_cells(g);
+  g.item_body.resize(count);
+  g.run_end.resize(count);
+  for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
+    for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
+      const uint64_t entry = g.by_body[g.cell_items[n]];
+      g.cell_items[n] = uint32_t(entry);
+      g.item_body[n] = uint32_t(entry >> 32);
+      const bool last = n + 1 == g.cell_begin[c + 1] || g.item_body[n + 1] != g.item_body[n];
+      g.run_end[n] = last ? n + 1 : g.run_end[n + 1];
+    }
+  }
   g.busy.resize(particle_count, 0);
   std::vector<float>& fresh_allowance = g.allowance;  // written after the pass: pairs read the old values
   fresh_allowance.assign(count, 0.0f);
@@ -331,17 +340,24 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     const SurfacePoint& a = points[v];
     uint32_t best = ~0u;
     double best_d = reach * reach;
-    for_other_bodies(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
-                     cell_coord(a.position.z(), reach), a.body, [&](uint32_t q) {
-                       if (pairs_tested) ++*pairs_tested;
-                       const SurfacePoint& b = points[q];
-                       if (a.normal.dot(b.normal) > kFacing) return;
-                       const double d = (b.position - a.position).squaredNorm();
-                       if (d < best_d || (d == best_d && q < best)) {
-                         best_d = d;
-                         best = q;
-                       }
-                     });
+    for_neighbour_cells(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
+                        cell_coord(a.position.z(), reach), [&](uint32_t begin, uint32_t end) {
+                          for (uint32_t n = begin; n < end; ++n) {
+                            if (g.item_body[n] == a.body) {
+                              n = g.run_end[n] - 1;
+                              continue;
+                            }
+                            if (pairs_tested) ++*pairs_tested;
+                            const uint32_t q = g.cell_items[n];
+                            const SurfacePoint& b = points[q];
+                            if (a.normal.dot(b.normal) > kFacing) continue;
+                            const double d = (b.position - a.position).squaredNorm();
+                            if (d < best_d || (d == best_d && q < best)) {
+                              best_d = d;
+                              best = q;
+                            }
+                          }
+                        });
     if (best == ~0u) {
       fresh_allowance[v] = 0.0f;  // out of contact: no overlap allowed from now on
       continue;

@@ -143,7 +143,10 @@ struct PieceContactScratch {
   std::vector<uint64_t> keys;                     // cell << 32 | item
   std::vector<uint32_t> cell_begin, cell_items;   // sorted cells
   std::vector<uint64_t> cells;                    // distinct cell keys, sorted
-  std::vector<uint32_t> item_body;                // (cell_items) body of each item (narrow phase)
+  std::vector<uint32_t> table;                    // open addressing: cell index + 1 (0: empty)
+  uint32_t table_bits = 1;
+  std::vector<uint64_t> by_body;                  // (points) body << 32 | point, sorted (narrow phase)
+  std::vector<uint32_t> item_body, run_end;       // (cell_items) body; end of its body's run in the cell
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
   std::vector<uint64_t> pairs;                    // i << 32 | j, both directions
