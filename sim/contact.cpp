@@ -8,7 +8,7 @@ namespace {
 
 // x_k += (w_k / m_k) / W * delta for each particle of the contact: moves its relative point by delta.
 void move_point(double* x, const double* inv_mass, const ContactPoint& c, double inv_w, const Vec3d& delta) {
-  for (int k = 0; k < ContactPoint::kMaxParticles; ++k) {
+  for (uint32_t k = 0; k < c.count; ++k) {
     const double s = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
     if (s == 0.0) continue;
     double* p = x + 3 * size_t(c.particles[k]);
@@ -24,6 +24,7 @@ ContactPoint plane_contact(const ContactPlane& plane, const uint32_t particles[8
   ContactPoint c;
   std::copy(particles, particles + 8, c.particles);
   std::copy(weights, weights + 8, c.weights);
+  c.count = 8;
   c.normal = plane.normal;
   c.target = plane.normal.dot(plane.point);
   c.static_friction = plane.static_friction;
@@ -79,7 +80,7 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
   // The relative point, its motion since the start of the substep, and its generalised inverse mass.
   Vec3d r = Vec3d::Zero(), moved = Vec3d::Zero();
   double w = 0.0;
-  for (int k = 0; k < ContactPoint::kMaxParticles; ++k) {
+  for (uint32_t k = 0; k < c.count; ++k) {
     const double a = c.weights[k];
     if (a == 0.0) continue;
     const size_t p = 3 * size_t(c.particles[k]);

@@ -51,6 +51,7 @@ struct ContactPoint {
   Vec3d normal = Vec3d(0.0, 1.0, 0.0);
   double target = 0.0;
   double static_friction = 0.0, kinetic_friction = 0.0;
+  uint32_t count = kMaxParticles;        // slots in use (8 against a plane: the loops stop there)
   double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
   Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
 };
