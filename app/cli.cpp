@@ -42,7 +42,8 @@ struct RawFlags {
 struct Subcommands {
   CLI::App *voxelize = nullptr, *replay = nullptr;
   CLI::App *bench_voxelize = nullptr, *bench_cut = nullptr, *bench_deform = nullptr, *bench_scaling = nullptr,
-           *bench_cut_length = nullptr, *bench_quality = nullptr, *bench_replay = nullptr, *bench_report = nullptr;
+           *bench_cut_length = nullptr, *bench_quality = nullptr, *bench_replay = nullptr, *bench_report = nullptr,
+           *bench_contact = nullptr;
 };
 
 // divvox [SCENE.json]: the window (no subcommand).
@@ -212,6 +213,20 @@ void add_bench_replay_report(CLI::App& bench, CliCommand& c, Subcommands& sub) {
   sub.bench_replay->add_option("--repeats", r.repeats, "Runs per worker count")->check(CLI::Range(1, 1000))->capture_default_str();
   sub.bench_replay->add_option("--out,-o", r.out_dir, "Output folder")->capture_default_str();
 
+  BenchContactOptions& k = c.bench_contact;
+  sub.bench_contact = bench.add_subcommand(
+      "contact", "Contact cost: deform step time (p50/p99) with and without contact on the default recording and on\n"
+                 "the liver scene cut through, and the contacts solved per step.");
+  sub.bench_contact->add_option("--recording", k.recording, "Recording (default: assets/recordings/bunny_cut.jsonl)");
+  sub.bench_contact->add_option("--liver-scene", k.liver_scene, "Liver scene (default: assets/scenes/liver.json)");
+  sub.bench_contact->add_option("--liver-resolution", k.liver_resolution, "Override the liver scene's resolution (0: keep)")
+      ->check(CLI::Range(0, kMaxResolution))->capture_default_str();
+  sub.bench_contact->add_option("--liver-cut-steps", k.liver_cut_steps, "Steps of the liver's cut")->check(CLI::Range(0, 100000))->capture_default_str();
+  sub.bench_contact->add_option("--liver-rest-steps", k.liver_rest_steps, "Steps after it (cut + rest = 0: no liver)")
+      ->check(CLI::Range(0, 100000))->capture_default_str();
+  sub.bench_contact->add_option("--workers", k.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
+  sub.bench_contact->add_option("--out,-o", k.out_dir, "Output folder")->capture_default_str();
+
   BenchReportOptions& p = c.bench_report;
   sub.bench_report = bench.add_subcommand(
       "report", "Writes REPORT.md (and SVG plots beside the results) from the JSON results of the benchmarks above\n"
@@ -228,7 +243,7 @@ void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
   // Typed for every command (the defaults are valid): only the parsed one runs.
   for (bool* progress : {&c.replay.progress, &c.bench_voxelize.progress, &c.bench_cut.progress,
                          &c.bench_deform.progress, &c.bench_scaling.progress, &c.bench_cut_length.progress,
-                         &c.bench_quality.progress, &c.bench_replay.progress}) {
+                         &c.bench_quality.progress, &c.bench_replay.progress, &c.bench_contact.progress}) {
     *progress = stderr_is_tty();
   }
   c.bench_voxelize.resolutions = parse_resolutions("--resolutions", raw.bench_voxelize_resolutions);
@@ -243,7 +258,7 @@ void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
       {sub.bench_voxelize, CliCommand::kBenchVoxelize}, {sub.bench_cut, CliCommand::kBenchCut},
       {sub.bench_deform, CliCommand::kBenchDeform},     {sub.bench_scaling, CliCommand::kBenchScaling},
       {sub.bench_cut_length, CliCommand::kBenchCutLength}, {sub.bench_quality, CliCommand::kBenchQuality},
-      {sub.bench_replay, CliCommand::kBenchReplay},     {sub.bench_report, CliCommand::kBenchReport}};
+      {sub.bench_replay, CliCommand::kBenchReplay},     {sub.bench_contact, CliCommand::kBenchContact},     {sub.bench_report, CliCommand::kBenchReport}};
   c.kind = CliCommand::kWindow;  // no subcommand
   for (const auto& [command, kind] : commands) {
     if (command->parsed()) c.kind = kind;
@@ -376,7 +391,7 @@ CliCommand parse_cli(int argc, char** argv) {
   CliCommand c;
   for (std::string* out : {&c.bench_voxelize.out_dir, &c.bench_cut.out_dir, &c.bench_deform.out_dir,
                            &c.bench_scaling.out_dir, &c.bench_cut_length.out_dir, &c.bench_quality.out_dir,
-                           &c.bench_replay.out_dir}) {
+                           &c.bench_replay.out_dir, &c.bench_contact.out_dir}) {
     *out = "out/bench";
   }
   RawFlags raw;
@@ -427,6 +442,7 @@ int run_command(const CliCommand& c) {
     case CliCommand::kBenchCutLength: return wrote(bench_cut_length(c.bench_cut_length));
     case CliCommand::kBenchQuality: return wrote(bench_quality(c.bench_quality));
     case CliCommand::kBenchReplay: return wrote(bench_replay(c.bench_replay));
+    case CliCommand::kBenchContact: return wrote(bench_contact(c.bench_contact));
     case CliCommand::kBenchReport: return wrote(bench_report(c.bench_report));
   }
   return kExitInternal;

@@ -4,6 +4,7 @@
 #pragma once
 
 #include "bench/bench.h"
+#include "bench/bench_contact.h"
 #include "engine/replay.h"
 #include "ui/app.h"
 
@@ -36,6 +37,7 @@ struct CliCommand {
     kBenchCutLength,
     kBenchQuality,
     kBenchReplay,
+    kBenchContact,
     kBenchReport,
   } kind = kExit;
   int exit_code = 0;  // with kExit
@@ -49,6 +51,7 @@ struct CliCommand {
   BenchCutLengthOptions bench_cut_length;
   BenchQualityOptions bench_quality;
   BenchReplayOptions bench_replay;
+  BenchContactOptions bench_contact;
   BenchReportOptions bench_report;
 };
 

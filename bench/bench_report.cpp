@@ -1,6 +1,7 @@
 // `divvox bench report`: REPORT.md and its plots from the JSON results of the other benchmarks
 // (and of tools/peers when it ran). Each section appears when its results exist.
 #include "bench/bench.h"
+#include "bench/bench_contact.h"
 #include "engine/errors.h"
 #include "engine/output.h"
 #include "engine/plot.h"
@@ -553,6 +554,9 @@ void cut_section(Results& in, std::ostream& md, std::ostream&) {
 // The report's sections in order. Each reads its own results (Results::read) and writes nothing when
 // they are absent; a new benchmark's section is one function above and one line here.
 using Section = void (*)(Results& in, std::ostream& md, std::ostream& head);
+
+// Contact cost (bench/bench_contact.cpp).
+void contact_section(Results& in, std::ostream& md, std::ostream& head) { report_contact(in.read("bench_contact.json"), md, head); }
 constexpr Section report_sections[] = {
     scaling_section,      // 1. bench_scaling.json
     cut_length_section,   // 2. bench_cut_length.json
@@ -563,6 +567,7 @@ constexpr Section report_sections[] = {
     vdb_section,          // 5. peers_vdb.json + bench_voxelize.json
     replay_section,       // 6. bench_replay.json
     cut_section,          //    bench_cut.json
+    contact_section,      //    bench_contact.json
 };
 
 }  // namespace

@@ -8,7 +8,7 @@ namespace {
 
 // x_k += (w_k / m_k) / W * delta for each particle of the contact: moves its relative point by delta.
 void move_point(double* x, const double* inv_mass, const ContactPoint& c, double inv_w, const Vec3d& delta) {
-  for (int k = 0; k < ContactPoint::kMaxParticles; ++k) {
+  for (uint32_t k = 0; k < c.count; ++k) {
     const double s = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
     if (s == 0.0) continue;
     double* p = x + 3 * size_t(c.particles[k]);
@@ -24,6 +24,7 @@ ContactPoint plane_contact(const ContactPlane& plane, const uint32_t particles[8
   ContactPoint c;
   std::copy(particles, particles + 8, c.particles);
   std::copy(weights, weights + 8, c.weights);
+  c.count = 8;
   c.normal = plane.normal;
   c.target = plane.normal.dot(plane.point);
   c.static_friction = plane.static_friction;
@@ -79,7 +80,7 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
   // The relative point, its motion since the start of the substep, and its generalised inverse mass.
   Vec3d r = Vec3d::Zero(), moved = Vec3d::Zero();
   double w = 0.0;
-  for (int k = 0; k < ContactPoint::kMaxParticles; ++k) {
+  for (uint32_t k = 0; k < c.count; ++k) {
     const double a = c.weights[k];
     if (a == 0.0) continue;
     const size_t p = 3 * size_t(c.particles[k]);
@@ -151,7 +152,9 @@ uint64_t cell_key(int64_t i, int64_t j, int64_t k) {
   return uint64_t(h) << 32;
 }
 
-// Sorts (cell << 32 | item) keys and indexes them: cells (distinct, sorted), their item ranges.
+// Sorts (cell << 32 | item) keys and indexes them: cells (distinct, sorted), their item ranges, and
+// an open-addressing table from a cell key to its index (a query looks up 27 cells: a table probe
+// each, not a binary search).
 void build_cells(PieceContactScratch& g) {
   std::sort(g.keys.begin(), g.keys.end());
   g.cells.clear();
@@ -166,22 +169,47 @@ void build_cells(PieceContactScratch& g) {
     g.cell_items[i] = uint32_t(g.keys[i]);
   }
   g.cell_begin.push_back(uint32_t(g.keys.size()));
+  // A power of two at least twice the cells; entries are cell index + 1 (0: empty).
+  g.table_bits = 1;
+  while ((size_t(1) << g.table_bits) < 2 * g.cells.size()) ++g.table_bits;
+  g.table.assign(size_t(1) << g.table_bits, 0);
+  const uint32_t mask = (1u << g.table_bits) - 1;
+  for (uint32_t c = 0; c < g.cells.size(); ++c) {
+    uint32_t slot = uint32_t(g.cells[c] >> 32) * 0x9E3779B1u >> (32 - g.table_bits);
+    while (g.table[slot] != 0) slot = (slot + 1) & mask;
+    g.table[slot] = c + 1;
+  }
 }
 
-// Calls f(item) for the items of the 27 cells around cell (i, j, k).
+// The index of a cell in g.cells, or ~0u when it holds nothing.
+uint32_t find_cell(const PieceContactScratch& g, uint64_t cell) {
+  const uint32_t mask = (1u << g.table_bits) - 1;
+  for (uint32_t slot = uint32_t(cell >> 32) * 0x9E3779B1u >> (32 - g.table_bits);; slot = (slot + 1) & mask) {
+    const uint32_t c = g.table[slot];
+    if (c == 0) return ~0u;
+    if (g.cells[c - 1] == cell) return c - 1;
+  }
+}
+
+// Calls f(begin, end) for the ranges (in cell_items) of the 27 cells around cell (i, j, k).
 template <typename F>
-void for_neighbours(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
+void for_neighbour_cells(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
   for (int64_t dk = -1; dk <= 1; ++dk) {
     for (int64_t dj = -1; dj <= 1; ++dj) {
       for (int64_t di = -1; di <= 1; ++di) {
-        const uint64_t cell = cell_key(i + di, j + dj, k + dk);
-        const auto it = std::lower_bound(g.cells.begin(), g.cells.end(), cell);
-        if (it == g.cells.end() || *it != cell) continue;
-        const size_t c = size_t(it - g.cells.begin());
-        for (uint32_t n = g.cell_begin[c]; n < g.cell_begin[c + 1]; ++n) f(g.cell_items[n]);
+        const uint32_t c = find_cell(g, cell_key(i + di, j + dj, k + dk));
+        if (c != ~0u) f(g.cell_begin[c], g.cell_begin[c + 1]);
       }
     }
   }
+}
+
+// Calls f(n) for each entry n of cell_items in the 27 cells around cell (i, j, k).
+template <typename F>
+void for_neighbours(const PieceContactScratch& g, int64_t i, int64_t j, int64_t k, F&& f) {
+  for_neighbour_cells(g, i, j, k, [&](uint32_t begin, uint32_t end) {
+    for (uint32_t n = begin; n < end; ++n) f(n);
+  });
 }
 
 }  // namespace
@@ -208,7 +236,7 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
 
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
                              uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
-                             PieceContactScratch& g) {
+                             PieceContactScratch& g, uint64_t* pairs_tested) {
   exposed.assign(piece_count, 0);
   // Cells at least as large as any grown piece: overlapping pieces have their low corners in
   // neighbouring cells.
@@ -227,17 +255,42 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
   }
   build_cells(g);
   uint32_t count = 0;
+  g.pairs.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
     const Vec3d a = lo[i] - Vec3d::Constant(reach), b = hi[i] + Vec3d::Constant(reach);
-    for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t j) {
+    for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
+      const uint32_t j = g.cell_items[n];
       if (j <= i || body[j] == body[i]) return;
+      if (pairs_tested) ++*pairs_tested;
       if ((lo[j].array() - reach > b.array()).any() || (hi[j].array() + reach < a.array()).any()) return;
       count += !exposed[i] + !exposed[j];
       exposed[i] = exposed[j] = 1;
+      g.pairs.push_back((uint64_t(i) << 32) | j);
+      g.pairs.push_back((uint64_t(j) << 32) | i);
     });
   }
+  // The partners of each piece, ascending.
+  std::sort(g.pairs.begin(), g.pairs.end());
+  g.partner_begin.assign(piece_count + 1, 0);
+  g.partners.resize(g.pairs.size());
+  for (size_t k = 0; k < g.pairs.size(); ++k) {
+    ++g.partner_begin[(g.pairs[k] >> 32) + 1];
+    g.partners[k] = uint32_t(g.pairs[k]);
+  }
+  for (uint32_t i = 0; i < piece_count; ++i) g.partner_begin[i + 1] += g.partner_begin[i];
   return count;
+}
+
+bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, uint32_t piece, const Vec3d& x,
+                  double reach) {
+  // A hair of slack: an embedded point may round a few ulps outside its piece's bounds.
+  const double r = reach * (1.0 + 1e-9);
+  for (uint32_t k = g.partner_begin[piece]; k < g.partner_begin[piece + 1]; ++k) {
+    const uint32_t j = g.partners[k];
+    if ((lo[j].array() - r <= x.array()).all() && (x.array() <= hi[j].array() + r).all()) return true;
+  }
+  return false;
 }
 
 // Two surface points face each other when their normals are more than ~155 degrees apart: the faces
@@ -246,16 +299,33 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
 constexpr double kFacing = -0.9;
 
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double friction, ContactSet& set, PieceContactScratch& g) {
+                               double reach, double friction, ContactSet& set, PieceContactScratch& g,
+                               uint64_t* pairs_tested) {
   if (count == 0 || !(reach > 0.0)) return 0;
-  // Points in cells of size `reach`.
+  // Points in cells of size `reach`, each cell's items grouped by body (items are ranks in body
+  // order), with the end of each item's body run: a query jumps over its own body's points (most of
+  // a cell, where a body lies on another) instead of testing them one by one.
+  g.by_body.resize(count);
+  for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
+  std::sort(g.by_body.begin(), g.by_body.end());
   g.keys.clear();
-  for (uint32_t v = 0; v < count; ++v) {
-    const Vec3d& p = points[v].position;
+  for (uint32_t rank = 0; rank < count; ++rank) {
+    const Vec3d& p = points[uint32_t(g.by_body[rank])].position;
     const uint64_t cell = cell_key(cell_coord(p.x(), reach), cell_coord(p.y(), reach), cell_coord(p.z(), reach));
-    g.keys.push_back(cell | v);
+    g.keys.push_back(cell | rank);
   }
   build_cells(g);
+  g.item_body.resize(count);
+  g.run_end.resize(count);
+  for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
+    for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
+      const uint64_t entry = g.by_body[g.cell_items[n]];
+      g.cell_items[n] = uint32_t(entry);
+      g.item_body[n] = uint32_t(entry >> 32);
+      const bool last = n + 1 == g.cell_begin[c + 1] || g.item_body[n + 1] != g.item_body[n];
+      g.run_end[n] = last ? n + 1 : g.run_end[n + 1];
+    }
+  }
   g.busy.resize(particle_count, 0);
   std::vector<float>& fresh_allowance = g.allowance;  // written after the pass: pairs read the old values
   fresh_allowance.assign(count, 0.0f);
@@ -271,16 +341,24 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     const SurfacePoint& a = points[v];
     uint32_t best = ~0u;
     double best_d = reach * reach;
-    for_neighbours(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
-                   cell_coord(a.position.z(), reach), [&](uint32_t q) {
-                     const SurfacePoint& b = points[q];
-                     if (b.body == a.body || a.normal.dot(b.normal) > kFacing) return;
-                     const double d = (b.position - a.position).squaredNorm();
-                     if (d < best_d || (d == best_d && q < best)) {
-                       best_d = d;
-                       best = q;
-                     }
-                   });
+    for_neighbour_cells(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
+                        cell_coord(a.position.z(), reach), [&](uint32_t begin, uint32_t end) {
+                          for (uint32_t n = begin; n < end; ++n) {
+                            if (g.item_body[n] == a.body) {
+                              n = g.run_end[n] - 1;
+                              continue;
+                            }
+                            if (pairs_tested) ++*pairs_tested;
+                            const uint32_t q = g.cell_items[n];
+                            const SurfacePoint& b = points[q];
+                            if (a.normal.dot(b.normal) > kFacing) continue;
+                            const double d = (b.position - a.position).squaredNorm();
+                            if (d < best_d || (d == best_d && q < best)) {
+                              best_d = d;
+                              best = q;
+                            }
+                          }
+                        });
     if (best == ~0u) {
       fresh_allowance[v] = 0.0f;  // out of contact: no overlap allowed from now on
       continue;

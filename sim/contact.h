@@ -51,6 +51,7 @@ struct ContactPoint {
   Vec3d normal = Vec3d(0.0, 1.0, 0.0);
   double target = 0.0;
   double static_friction = 0.0, kinetic_friction = 0.0;
+  uint32_t count = kMaxParticles;        // slots in use (8 against a plane: the loops stop there)
   double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
   Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
 };
@@ -143,6 +144,14 @@ struct PieceContactScratch {
   std::vector<uint64_t> keys;                     // cell << 32 | item
   std::vector<uint32_t> cell_begin, cell_items;   // sorted cells
   std::vector<uint64_t> cells;                    // distinct cell keys, sorted
+  std::vector<uint32_t> table;                    // open addressing: cell index + 1 (0: empty)
+  uint32_t table_bits = 1;
+  std::vector<uint64_t> by_body;                  // (points) body << 32 | point, sorted (narrow phase)
+  std::vector<uint32_t> item_body, run_end;       // (cell_items) body; end of its body's run in the cell
+  // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
+  // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
+  std::vector<uint64_t> pairs;                    // i << 32 | j, both directions
+  std::vector<uint32_t> partner_begin, partners;
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
   std::vector<float> allowance;                   // (points) updated allowances
@@ -160,6 +169,14 @@ struct PieceContacts {
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
   uint32_t exposed_pieces = 0;          // of the last gather (diagnostics)
+  // Cumulative counters (diagnostics, never part of the state hash): what the phases touched.
+  struct Counters {
+    uint64_t gathers = 0;       // steps that ran the narrow phase
+    uint64_t piece_pairs = 0;   // piece pairs whose grown bounds were compared (broad phase)
+    uint64_t points = 0;        // surface points offered to the narrow phase
+    uint64_t point_pairs = 0;   // point pairs whose distance was compared (narrow phase)
+    uint64_t contacts = 0;      // contacts made
+  } counters;
 };
 
 // Bodies: the connected components of the pieces under particle sharing. `corners` holds 8 particles
@@ -168,15 +185,22 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
                  std::vector<uint32_t>& body, PieceContactScratch& scratch);
 
 // Marks the pieces whose bounds (lo, hi per piece; live as above), grown by `reach`, overlap a piece of
-// another body. Returns how many.
+// another body, and lists each one's partners (scratch.partners). Returns how many.
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
                              uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
-                             PieceContactScratch& scratch);
+                             PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
+
+// Whether x lies within `reach` of the bounds of a partner of `piece` (the last find_exposed_pieces):
+// only such a surface point can be within reach of a point of another body (every embedded point lies
+// in its piece's bounds), so the others need not enter the narrow phase.
+bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, uint32_t piece,
+                  const Vec3d& x, double reach);
 
 // Adds the contacts of `points` (see above) to `set` (batch = colour, group = running contact
 // number), coloured over `particle_count` particles, and updates the points' allowances. `x` are the
 // current particle positions (double[3]). Returns how many it added.
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double friction, ContactSet& set, PieceContactScratch& scratch);
+                               double reach, double friction, ContactSet& set, PieceContactScratch& scratch,
+                               uint64_t* pairs_tested = nullptr);
 
 }  // namespace dvx

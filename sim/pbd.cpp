@@ -1184,7 +1184,7 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
   const double fine = s.sim_size / s.ratio;
   const double reach = std::min(s.sim_size, 2.0 * fine + 2.0 * (speed + s.params.gravity.norm() * s.params.dt) * s.params.dt);
   pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.live.data(), pc.body.data(), pieces, reach,
-                                          pc.exposed, pc.scratch);
+                                          pc.exposed, pc.scratch, &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
   // Surface vertices of exposed pieces, with their allowances (sim/contact.h): a vertex whose rest
   // position changed since the last step was made by a cut and is fresh.
@@ -1192,11 +1192,16 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
   pc.points.clear();
   pc.point_of_slot.assign(slots, ~0u);
   for (uint32_t slot = 0; slot < slots; ++slot) {
+    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
+    if (piece == kDeadIndex || !pc.exposed[piece]) continue;
     SurfacePoint sp;
     sp.allowance = pc.allowance[slot];
     sp.slot = slot;
-    const uint32_t piece = embedded_point(s, slot, sp.position, sp.weights);
-    if (piece == kDeadIndex || !pc.exposed[piece]) continue;
+    embedded_point(s, slot, sp.position, sp.weights);
+    if (!near_partner(pc.scratch, pc.lo.data(), pc.hi.data(), piece, sp.position, reach)) {
+      pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
+      continue;
+    }
     std::copy(s.pieces[piece].particles, s.pieces[piece].particles + 8, sp.particles);
     sp.body = pc.body[piece];
     sp.normal.setZero();
@@ -1235,8 +1240,10 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
     pc.points[kept++].normal /= length;
   }
   pc.points.resize(kept);
-  gather_piece_contacts(pc.points.data(), kept, s.position[0].data(), particles, reach, s.params.piece_friction,
-                        pc.set, pc.scratch);
+  ++pc.counters.gathers;
+  pc.counters.points += kept;
+  pc.counters.contacts += gather_piece_contacts(pc.points.data(), kept, s.position[0].data(), particles, reach,
+                                                s.params.piece_friction, pc.set, pc.scratch, &pc.counters.point_pairs);
   contacts_finish(pc.set);
   for (uint32_t slot = 0; slot < slots; ++slot) {
     if (pc.point_of_slot[slot] != ~0u) pc.allowance[slot] = 0.0f;  // dropped below (no normal): none

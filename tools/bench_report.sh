@@ -72,6 +72,7 @@ case "$mode" in
     quality=(--mesh "$armadillo" --resolutions 64,128,256 --repeats 5)
     deform=()
     replay=(--repeats 3)
+    contact=()
     vdb=(--resolutions 64,128,256,512 --repeats 3)
     bullet=(--iterations 5,10,20 --reference-iterations 100 --seconds 1)
     clip=(--repeats 5)
@@ -84,6 +85,7 @@ case "$mode" in
     quality=(--mesh "$armadillo" --resolutions 64,128 --repeats 2)
     deform=(--sim-resolutions 8,16 --iterations 2,5,10,20 --seconds 1 --target-resolution 128)
     replay=(--repeats 1)
+    contact=(--liver-cut-steps 40 --liver-rest-steps 80)
     vdb=(--resolutions 64,128,256 --repeats 1)
     bullet=(--iterations 10 --reference-iterations 50 --seconds 0.5)
     clip=(--repeats 2)
@@ -97,6 +99,7 @@ case "$mode" in
     deform=(--mesh "$bunny" --resolution 32 --sim-resolutions 4,8 --iterations 2,5 --substep-budgets 4 --seconds 0.2
             --target-mesh "$bunny" --target-resolution 32)
     replay=(--repeats 1 --recording "$here/assets/recordings/bunny_cut.jsonl")
+    contact=(--liver-resolution 32 --liver-cut-steps 10 --liver-rest-steps 10)
     ;;
 esac
 
@@ -108,6 +111,7 @@ step "scaling (Experiment 1)";             "$divvox" bench scaling "${scaling[@]
 step "cut-length (Experiment 2)";          "$divvox" bench cut-length "${length[@]}" --out "$results" >/dev/null
 step "quality (Fig. 13)";                  "$divvox" bench quality "${quality[@]}" --out "$results" >/dev/null
 step "deform (physics speed against error)"; "$divvox" bench deform "${deform[@]}" --out "$results" >/dev/null
+step "contact (step time with and without)"; "$divvox" bench contact "${contact[@]}" --out "$results" >/dev/null
 step "replay (determinism, throughput)";   "$divvox" bench replay "${replay[@]}" --out "$results" >/dev/null
 # The main job's replay (tools/run.sh: frames every 10 steps; no frames where EGL is missing): its timings plot.
 step "replay timings plot (default recording)"

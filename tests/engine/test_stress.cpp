@@ -57,11 +57,14 @@ TEST_SUITE("stress") {
     params.sim_resolution = 8;
     params.stretch_compliance = 1e-5;
     params.iterations = 5;
-    // Contact between pieces is off here: with no tray, the hundreds of random pieces fall together
-    // and pair thousands of surface vertices every iteration, which makes 20 000 steps take minutes.
-    // This test is about the stability of cutting and the PBD model; contact has its own tests
-    // (tests/sim/test_contact.cpp) and its cost is measured from replays.
-    params.piece_contact = false;
+    // Contact between pieces is off here (DIVVOX_STRESS_CONTACT=1 turns it on, to measure it): with
+    // no tray the hundreds of random pieces fall together. The contact gatherer itself is now cheap
+    // (3000 steps: 2.4 s user with it, 1.1 s without), but with it on, an 8000-step run explodes: kinetic
+    // energy 2e13 at step 3000 (bound 1.4e8), after which the blade's world-to-rest mapping over the
+    // blown-up pieces takes 78 % of the time (not yet diagnosed). This test is about the stability of
+    // cutting and the PBD model; contact has its own tests (tests/sim/test_contact.cpp) and its cost is
+    // measured by `divvox bench contact`.
+    params.piece_contact = std::getenv("DIVVOX_STRESS_CONTACT") != nullptr;
     Aabb anchor = box;  // anchored along its -x end
     anchor.min -= Vec3d::Constant(1.0);
     anchor.max.x() = box.min.x() + 0.15 * box.extent().x();
@@ -142,6 +145,9 @@ TEST_SUITE("stress") {
     MESSAGE("resident memory: " << memory_after_cutting / 1024 << " KiB when cutting stopped, " << memory_end / 1024
                                 << " KiB at the end; kinetic energy " << kinetic_energy(pbd) << ", mass "
                                 << total_mass(pbd) << " (initial " << mass << ")");
+    const PieceContacts::Counters& pcc = pbd.piece_contacts.counters;
+    MESSAGE("piece contact: " << pcc.gathers << " gathers, " << pcc.piece_pairs << " piece pairs, " << pcc.points
+                              << " points, " << pcc.point_pairs << " point pairs, " << pcc.contacts << " contacts");
     MESSAGE("after " << steps << " steps: " << cut.divided.size() << " divided voxels, " << sim_voxels_divided(pbd)
                                   << " divided simulation voxels, " << live_pieces(pbd) << " sim pieces");
   }

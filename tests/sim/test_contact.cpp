@@ -491,3 +491,29 @@ TEST_SUITE("contact") {
     CHECK(std::abs(v.x()) < 1e-3 * std::abs(v.y()));
   }
 }
+
+TEST_SUITE("contact") {
+  TEST_CASE("only the surface near another body enters the narrow phase") {
+    // A small box resting on a large one: the pieces along their touching faces are exposed, but of
+    // their surface vertices only those within reach of the other box's pieces are gathered.
+    PbdParams params;
+    params.planes.push_back(plane(Vec3d(0.0, -0.51, 0.0), Vec3d::UnitY(), 0.5));
+    Scene s;
+    make_boxes(s, {{Vec3d(0.003, -0.25, 0.002), Vec3d(0.5, 0.25, 0.5)}, {Vec3d(0.053, 0.55, 0.012), Vec3d(0.3, 0.15, 0.3)}},
+               params);
+    run(s, 40);  // it lands within 0.3 s
+    const PieceContacts& pc = s.pbd.piece_contacts;
+    REQUIRE(pc.counters.gathers > 0);
+    uint32_t live = 0;
+    for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) live += vertex_sim_piece(s.pbd, v) != kDeadIndex;
+    const double points = double(pc.counters.points) / double(pc.counters.gathers);
+    MESSAGE("points per gather " << points << " of " << live << " surface vertices; point pairs per gather "
+                                 << double(pc.counters.point_pairs) / double(pc.counters.gathers) << ", contacts "
+                                 << double(pc.counters.contacts) / double(pc.counters.gathers));
+    CHECK(pc.counters.contacts > 0);
+    CHECK(points < 0.5 * live);
+    // Each gathered point is tested against the other body's points in the cells around it, never
+    // against its own body's: far fewer pairs than all pairs of gathered points.
+    CHECK(double(pc.counters.point_pairs) / double(pc.counters.gathers) < 0.25 * points * points);
+  }
+}

@@ -1,0 +1,183 @@
+#include "bench/bench_contact.h"
+
+#include "engine/errors.h"
+#include "engine/output.h"
+#include "engine/playback.h"
+#include "engine/plot.h"
+#include "engine/session.h"
+#include "engine/stats.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <sstream>
+
+namespace dvx {
+namespace {
+
+namespace fs = std::filesystem;
+
+// One run of a case: per-step deform and total times, and the contacts solved.
+struct ContactRun {
+  std::vector<double> deform_ms, step_ms;
+  double plane_contacts = 0, piece_contacts = 0;  // summed over the steps
+  PieceContacts::Counters counters;
+};
+
+// The scene without contact: no planes, no piece contact.
+Scene without_contact(Scene scene) {
+  scene.planes.clear();
+  scene.contact.pieces = false;
+  return scene;
+}
+
+// Steps a session with `commands(step)` for `steps` steps, timing each.
+template <typename Commands>
+ContactRun run_case(const Scene& scene, double dt, int workers, uint32_t steps, Commands&& commands) {
+  Session session;
+  open_session(scene, dt, true, workers, session);
+  ContactRun run;
+  for (uint32_t step = 0; step < steps; ++step) {
+    const StepReport report = session_step(session, commands(session, step));
+    run.deform_ms.push_back(report.timings.deform_ms);
+    run.step_ms.push_back(report.timings.total_ms);
+    run.plane_contacts += double(session.pbd->contacts.points.size());
+    run.piece_contacts += double(session.pbd->piece_contacts.set.points.size());
+  }
+  run.counters = session.pbd->piece_contacts.counters;
+  return run;
+}
+
+// The liver's cut: a horizontal blade at 40 % of its height, along z across it, swept along x over
+// `cut_steps` steps (a through-cut: the lower part rests on the tray, the upper hangs on it).
+StepCommands liver_cut(const Session& session, uint32_t step, int cut_steps, Aabb& box) {
+  if (step == 0) {
+    box = Aabb{Vec3d::Constant(1e300), Vec3d::Constant(-1e300)};
+    for (size_t v = 0; v < session.cut.surface.positions.size(); ++v) {
+      if (session.cut.surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
+      box.min = box.min.cwiseMin(session.cut.surface.positions[v].cast<double>());
+      box.max = box.max.cwiseMax(session.cut.surface.positions[v].cast<double>());
+    }
+  }
+  StepCommands c;
+  if (int(step) > cut_steps) return c;
+  const Vec3d e = box.extent();
+  const double m = 0.05 * e.maxCoeff(), x = box.min.x() - m + (e.x() + 2 * m) * step / std::max(1, cut_steps);
+  const double y = box.min.y() + 0.4 * e.y();
+  c.has_blade = true;
+  c.cutting = step > 0;
+  c.blade = {Vec3d(x, y, box.min.z() - m), Vec3d(x, y, box.max.z() + m)};
+  return c;
+}
+
+}  // namespace
+
+std::string bench_contact(const BenchContactOptions& options) {
+  make_output_dir(options.out_dir);
+  const fs::path source = DIVVOX_SOURCE_DIR_DEFAULT;
+  const std::string recording =
+      options.recording.empty() ? (source / "assets/recordings/bunny_cut.jsonl").string() : options.recording;
+  const std::string liver = options.liver_scene.empty() ? (source / "assets/scenes/liver.json").string() : options.liver_scene;
+
+  std::ostringstream csv;
+  csv << "case,contact,steps,deform_p50_ms,deform_p99_ms,step_p50_ms,step_p99_ms,plane_contacts_per_step,"
+         "piece_contacts_per_step,piece_pairs,points,point_pairs\n";
+  nlohmann::json rows = nlohmann::json::array();
+  const auto add = [&](const std::string& name, bool contact, const ContactRun& run) {
+    const double steps = double(std::max<size_t>(1, run.deform_ms.size()));
+    const double p50 = quantile(run.deform_ms, 0.5), p99 = quantile(run.deform_ms, 0.99);
+    const double s50 = quantile(run.step_ms, 0.5), s99 = quantile(run.step_ms, 0.99);
+    csv << name << ',' << (contact ? "on" : "off") << ',' << run.deform_ms.size() << ',' << p50 << ',' << p99 << ','
+        << s50 << ',' << s99 << ',' << run.plane_contacts / steps << ',' << run.piece_contacts / steps << ','
+        << run.counters.piece_pairs << ',' << run.counters.points << ',' << run.counters.point_pairs << '\n';
+    rows.push_back({{"case", name},
+                    {"contact", contact},
+                    {"steps", run.deform_ms.size()},
+                    {"deform_ms", {{"p50", p50}, {"p99", p99}}},
+                    {"step_ms", {{"p50", s50}, {"p99", s99}}},
+                    {"plane_contacts_per_step", run.plane_contacts / steps},
+                    {"piece_contacts_per_step", run.piece_contacts / steps},
+                    {"piece_pairs", run.counters.piece_pairs},
+                    {"points", run.counters.points},
+                    {"point_pairs", run.counters.point_pairs}});
+  };
+
+  // The default recording, with its scene as recorded and without contact.
+  const Playback playback = load_playback(recording);
+  const std::string recording_name = fs::path(recording).filename().string();
+  for (const bool contact : {true, false}) {
+    if (options.progress) std::fprintf(stderr, "divvox bench contact: %s, contact %s\n", recording_name.c_str(), contact ? "on" : "off");
+    PlaybackCursor cursor;
+    const ContactRun run = run_case(contact ? playback.scene : without_contact(playback.scene), playback.dt, options.workers,
+                                    playback.last_step() + 1, [&](const Session&, uint32_t step) {
+                                      const PlaybackStep* recorded = next_commands(playback, cursor, step);
+                                      return recorded ? recorded->commands : StepCommands();
+                                    });
+    add(recording_name, contact, run);
+  }
+
+  // The liver scene cut through, then resting.
+  if (options.liver_cut_steps + options.liver_rest_steps > 0) {
+    Scene scene = load_scene(liver);
+    if (options.liver_resolution > 0) scene.resolution = options.liver_resolution;
+    scene.sim_resolution = std::min(scene.sim_resolution, scene.resolution);
+    const uint32_t steps = uint32_t(options.liver_cut_steps + options.liver_rest_steps);
+    const std::string name = fs::path(liver).filename().string() + " (cut)";
+    for (const bool contact : {true, false}) {
+      if (options.progress) std::fprintf(stderr, "divvox bench contact: %s, contact %s\n", name.c_str(), contact ? "on" : "off");
+      Aabb box;
+      const ContactRun run = run_case(contact ? scene : without_contact(scene), scene.solver.dt, options.workers, steps,
+                                      [&](const Session& session, uint32_t step) {
+                                        return liver_cut(session, step, options.liver_cut_steps, box);
+                                      });
+      add(name, contact, run);
+    }
+  }
+
+  const fs::path out(options.out_dir);
+  write_text_file((out / "bench_contact.csv").string(), csv.str());
+  write_json_file((out / "bench_contact.json").string(), {{"benchmark", "contact"},
+                                                          {"machine", machine_summary()},
+                                                          {"workers", options.workers},
+                                                          {"liver_cut_steps", options.liver_cut_steps},
+                                                          {"liver_rest_steps", options.liver_rest_steps},
+                                                          {"rows", rows}});
+  return (out / "bench_contact.csv").string();
+}
+
+void report_contact(const nlohmann::json& results, std::ostream& md, std::ostream& head) {
+  if (results.is_null()) return;
+  const auto fixed = [](double v) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.3g", v);
+    return std::string(text);
+  };
+  md << "## Contact: step time with and without it\n\n"
+     << "`divvox bench contact`, " << results.value("workers", 0) << " workers: the default recording with its scene "
+        "(tray + piece contact) and without contact (no planes, `\"contact\": {\"pieces\": false}`); the liver scene "
+        "cut through horizontally in " << results.value("liver_cut_steps", 0) << " steps, then "
+     << results.value("liver_rest_steps", 0) << " steps at rest. Deform = the PBD step with contact gathering and "
+        "solving; contacts = mean solved per step.\n\n"
+     << "| case | contact | steps | deform p50 ms | deform p99 ms | step p50 ms | step p99 ms | plane contacts | "
+        "piece contacts | p50 ratio |\n|---|---|---|---|---|---|---|---|---|---|\n";
+  const nlohmann::json& rows = results["rows"];
+  for (const nlohmann::json& r : rows) {
+    // The ratio of this row's deform p50 to the same case without contact.
+    double ratio = 0.0;
+    for (const nlohmann::json& o : rows) {
+      if (o["case"] == r["case"] && !o["contact"].get<bool>()) ratio = r["deform_ms"]["p50"].get<double>() / std::max(1e-9, o["deform_ms"]["p50"].get<double>());
+    }
+    md << "| " << r["case"].get<std::string>() << " | " << (r["contact"].get<bool>() ? "on" : "off") << " | " << r["steps"]
+       << " | " << fixed(r["deform_ms"]["p50"]) << " | " << fixed(r["deform_ms"]["p99"]) << " | " << fixed(r["step_ms"]["p50"])
+       << " | " << fixed(r["step_ms"]["p99"]) << " | " << fixed(r["plane_contacts_per_step"]) << " | "
+       << fixed(r["piece_contacts_per_step"]) << " | " << fixed(ratio) << "× |\n";
+    if (r["contact"].get<bool>() && r["case"] == rows[0]["case"]) {
+      head << "- **Contact** on the default recording: deform p50 " << fixed(ratio) << "× the step without contact.\n";
+    }
+  }
+  md << "\n";
+}
+
+}  // namespace dvx
