@@ -1382,14 +1382,15 @@ SurfaceMesh compact_surface(const CutSurface& s) {
   return mesh;
 }
 
-bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error) {
-  const Lattice& l = model.lattice;
-  const CutSurface& s = state.surface;
+namespace {
+// check_cut_state, part 1: the edge cuts and divided voxels are indexed and agree with the material graph.
+bool check_cut_index(const VoxelModel& model, const CutState& state, std::string& error) {
+  [[maybe_unused]] const Lattice& l = model.lattice;
+  [[maybe_unused]] const CutSurface& s = state.surface;
   const auto fail = [&](const std::string& what) {
     error = what;
     return false;
   };
-
   // Edge cuts: indexed, on edges with an inside end.
   if (state.edge_cut_of.size() != state.edge_cuts.size()) return fail("edge cut map and array differ in size");
   for (uint32_t i = 0; i < state.edge_cuts.size(); ++i) {
@@ -1420,7 +1421,17 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
       return fail("divided voxel " + std::to_string(dv.voxel) + " pieces differ from its material graph");
     }
   }
+  return true;
+}
 
+// check_cut_state, part 2: every memoised patch shape equals a fresh computation of its key.
+bool check_shape_memo(const VoxelModel& model, const CutState& state, std::string& error) {
+  [[maybe_unused]] const Lattice& l = model.lattice;
+  [[maybe_unused]] const CutSurface& s = state.surface;
+  const auto fail = [&](const std::string& what) {
+    error = what;
+    return false;
+  };
   // The memo of shapes holds each key's shape (a pure function of its key), checked for the keys of
   // the divided voxels.
   if (state.shape_of.size() != state.shapes.size()) return fail("shape memo map and array differ in size");
@@ -1444,7 +1455,17 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
                       std::equal(m.patch_piece, m.patch_piece + 12, fresh.patch_piece);
     if (!same) return fail("memoised shape of divided voxel " + std::to_string(dv.voxel) + " differs from its key's shape");
   }
+  return true;
+}
 
+// check_cut_state, part 3: every live vertex is a patch of its voxel, every patch has a vertex.
+bool check_cut_vertices(const VoxelModel& model, const CutState& state, std::string& error) {
+  [[maybe_unused]] const Lattice& l = model.lattice;
+  [[maybe_unused]] const CutSurface& s = state.surface;
+  const auto fail = [&](const std::string& what) {
+    error = what;
+    return false;
+  };
   // Every live vertex is a patch of its voxel (piece, half-edges, position), and every patch of a
   // voxel holding a vertex has one; positions finite.
   uint32_t live_vertices = 0;
@@ -1486,7 +1507,17 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
   for (uint32_t slot : s.free_vertices) {
     if (s.vertex_patch[slot] != CutSurface::kFreeKey) return fail("free list holds a live vertex");
   }
+  return true;
+}
 
+// check_cut_state, part 4: every existing half-edge has its quad, and no quad outlives one.
+bool check_cut_quads(const VoxelModel& model, const CutState& state, std::string& error) {
+  [[maybe_unused]] const Lattice& l = model.lattice;
+  [[maybe_unused]] const CutSurface& s = state.surface;
+  const auto fail = [&](const std::string& what) {
+    error = what;
+    return false;
+  };
   // Every existing half-edge has its quad joining the patches that hold it (slit quads that would
   // coincide cancel).
   uint32_t quads = 0;
@@ -1533,6 +1564,21 @@ bool check_cut_state(const VoxelModel& model, const CutState& state, std::string
   }
   for (uint32_t quad : s.free_quads) {
     if (s.quad_half_edge[quad] != CutSurface::kFreeKey) return fail("free list holds a live quad");
+  }
+  return true;
+}
+
+}  // namespace
+
+bool check_cut_state(const VoxelModel& model, const CutState& state, std::string& error) {
+  const CutSurface& s = state.surface;
+  const auto fail = [&](const std::string& what) {
+    error = what;
+    return false;
+  };
+  if (!check_cut_index(model, state, error) || !check_shape_memo(model, state, error) ||
+      !check_cut_vertices(model, state, error) || !check_cut_quads(model, state, error)) {
+    return false;
   }
 
   // The surface is a closed, consistently oriented 2-manifold.

@@ -4,6 +4,7 @@
 #include "engine/playback.h"
 #include "engine/render_snapshot.h"
 #include "engine/scene.h"
+#include "engine/stats.h"
 #include "engine/timing.h"
 #include "render/camera.h"
 #include "render/normals.h"
@@ -111,20 +112,18 @@ ThreadCpu thread_cpu() {
   return cpu;
 }
 
-// "p50 (p95)" of a sample, in ms.
-std::string percentiles(std::vector<double> v) {
+// "p50 (p95)" of a sample, in ms (the nearest-rank quantile of engine/stats.h, as every output).
+std::string percentiles(const std::vector<double>& v) {
   if (v.empty()) return "-";
-  std::sort(v.begin(), v.end());
   char text[64];
-  std::snprintf(text, sizeof text, "%.1f (%.1f)", v[v.size() / 2], v[std::min(v.size() - 1, size_t(0.95 * v.size()))]);
+  std::snprintf(text, sizeof text, "%.1f (%.1f)", quantile(v, 0.5), quantile(v, 0.95));
   return text;
 }
 
 // The frame rate at quantile q of the frames (q = 0.05: the slowest 5 % run below it).
-double fps_percentile(std::vector<double> intervals_ms, double q) {
+double fps_percentile(const std::vector<double>& intervals_ms, double q) {
   if (intervals_ms.empty()) return 0.0;
-  std::sort(intervals_ms.begin(), intervals_ms.end());
-  const double ms = intervals_ms[std::min(intervals_ms.size() - 1, size_t((1.0 - q) * double(intervals_ms.size())))];
+  const double ms = quantile(intervals_ms, 1.0 - q);
   return ms > 0 ? 1000.0 / ms : 0.0;
 }
 
@@ -161,12 +160,10 @@ struct FrameStats {
   void print(const AppState& app) const {
     if (counted_frames < 2) return;
     const double seconds = std::chrono::duration<double>(last - first).count();
-    std::vector<double> sorted = render_ms;
-    std::sort(sorted.begin(), sorted.end());
     std::printf("window: %llu frames in %.2f s (%.1f fps), render ms p50 %.2f p99 %.2f, %u steps, %s\n",
                 static_cast<unsigned long long>(counted_frames), seconds,
-                seconds > 0 ? double(counted_frames - 1) / seconds : 0.0, sorted[sorted.size() / 2],
-                sorted[std::min(sorted.size() - 1, size_t(0.99 * sorted.size()))], app.status.step, gl_renderer.c_str());
+                seconds > 0 ? double(counted_frames - 1) / seconds : 0.0, quantile(render_ms, 0.5),
+                quantile(render_ms, 0.99), app.status.step, gl_renderer.c_str());
     std::printf("window: %s phase ms p50 (p95): upload %s, normals %s, draw %s, overlays+blit %s, panels %s, swap %s; fps p50 %.1f p5 %.1f\n",
                 profiled ? "(profiled)" : "(not profiled: phases overlap on the GPU)", percentiles(phase_ms[0]).c_str(),
                 percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
