@@ -89,6 +89,54 @@ TEST_SUITE("cut") {
     CHECK(on_plane > 100);
   }
 
+  TEST_CASE("the consistency check finds one broken invariant of each kind") {
+    // A through-cut box, then copies of its state with one corruption each: the check must name it.
+    const VoxelModel model = voxelized(test_box(), 24);
+    CutState state;
+    init_cut_state(model, state);
+    sweep(model, state, z_blade(0.137, -1.0), z_blade(0.137, 1.0), 20, 20);
+    REQUIRE(!state.edge_cuts.empty());
+    REQUIRE(!state.divided.empty());
+    REQUIRE(!state.shapes.empty());
+    const auto fails_with = [&](const CutState& broken, const std::string& what) {
+      std::string error;
+      const bool ok = check_cut_state(model, broken, error);
+      CHECK_FALSE(ok);
+      CHECK_MESSAGE(error.find(what) != std::string::npos, error);
+    };
+    {
+      CutState broken = state;
+      broken.edge_cuts[0].t_lo = 2.0f;
+      fails_with(broken, "bad parameters");
+    }
+    {
+      CutState broken = state;
+      broken.divided[0].cut_edges ^= 1u;
+      fails_with(broken, "stale cut-edge mask");
+    }
+    {
+      CutState broken = state;
+      broken.shapes[0].patch_count += 1;
+      fails_with(broken, "memoised shape");
+    }
+    {
+      CutState broken = state;
+      uint32_t slot = 0;
+      while (broken.surface.vertex_patch[slot] == CutSurface::kFreeKey) ++slot;
+      broken.surface.positions[slot].x() += float(model.lattice.voxel_size);
+      fails_with(broken, "stale vertex position");
+    }
+    {
+      CutState broken = state;
+      uint32_t quad = 0;
+      while (broken.surface.quad_half_edge[quad] == CutSurface::kFreeKey) ++quad;
+      auto& t = broken.surface.triangles[2 * quad];
+      const uint32_t other = t[0] == 0 ? 1 : 0;  // a vertex of no patch of this edge (or a different one)
+      for (uint32_t& v : t) v = v == t[0] ? v : other;
+      fails_with(broken, "does not join its patches");
+    }
+  }
+
   TEST_CASE("a partial cut that stops mid-object and mid-voxel: one closed piece with both slit faces") {
     const VoxelModel model = voxelized(test_box(), 32);
     const double h = model.lattice.voxel_size;
