@@ -28,7 +28,7 @@ std::string default_scene_path(const char* scene = kDefaultScene) {
   return (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / scene).string();
 }
 
-// Flags parsed as text and turned into typed options after parsing (parse_size, parse_resolutions,
+// Flags parsed as text and turned into typed options after parsing (parse_size, parse_int_list,
 // the replay's switches).
 struct RawFlags {
   std::string window_size = "1280x720";
@@ -246,10 +246,10 @@ void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
                          &c.bench_quality.progress, &c.bench_replay.progress, &c.bench_contact.progress}) {
     *progress = stderr_is_tty();
   }
-  c.bench_voxelize.resolutions = parse_resolutions("--resolutions", raw.bench_voxelize_resolutions);
-  c.bench_cut.resolutions = parse_resolutions("--resolutions", raw.bench_cut_resolutions);
-  c.bench_scaling.resolutions = parse_resolutions("--resolutions", raw.bench_scaling_resolutions);
-  c.bench_quality.resolutions = parse_resolutions("--resolutions", raw.bench_quality_resolutions);
+  c.bench_voxelize.resolutions = parse_int_list("--resolutions", raw.bench_voxelize_resolutions, 1, kMaxResolution);
+  c.bench_cut.resolutions = parse_int_list("--resolutions", raw.bench_cut_resolutions, 1, kMaxResolution);
+  c.bench_scaling.resolutions = parse_int_list("--resolutions", raw.bench_scaling_resolutions, 1, kMaxResolution);
+  c.bench_quality.resolutions = parse_int_list("--resolutions", raw.bench_quality_resolutions, 1, kMaxResolution);
   c.replay.physics = !raw.no_physics;
   c.replay.realtime = raw.speed == "realtime";
 
@@ -366,25 +366,6 @@ void parse_size(const std::string& flag, const std::string& text, int& width, in
   }
   width = w;
   height = h;
-}
-
-std::vector<int> parse_resolutions(const std::string& flag, const std::string& text) {
-  std::vector<int> values;
-  size_t start = 0;
-  while (start <= text.size()) {
-    const size_t end = std::min(text.find(',', start), text.size());
-    const std::string item = text.substr(start, end - start);
-    try {
-      size_t used = 0;
-      const int value = std::stoi(item, &used);
-      if (used != item.size() || value < 1 || value > kMaxResolution) throw std::invalid_argument(item);
-      values.push_back(value);
-    } catch (const std::exception&) {
-      throw_input(flag, "'" + item + "' is not a resolution in [1, " + std::to_string(kMaxResolution) + "]");
-    }
-    start = end + 1;
-  }
-  return values;
 }
 
 CliCommand parse_cli(int argc, char** argv) {

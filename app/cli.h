@@ -69,8 +69,4 @@ int run_cli(int argc, char** argv);
 // A size "WxH" (also "WXH") with 16 <= W, H <= 8192; throws InputError naming `flag` otherwise.
 void parse_size(const std::string& flag, const std::string& text, int& width, int& height);
 
-// A comma-separated list of resolutions ("64,128,256"), each in [1, kMaxResolution]; throws
-// InputError naming `flag` otherwise.
-std::vector<int> parse_resolutions(const std::string& flag, const std::string& text);
-
 }  // namespace dvx

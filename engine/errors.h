@@ -4,6 +4,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace dvx {
 
@@ -20,6 +21,11 @@ std::string input_message(const std::string& file, const std::string& problem);
 [[noreturn]] inline void throw_input(const std::string& file, const std::string& problem) {
   throw InputError(input_message(file, problem));
 }
+
+// A comma-separated list of integers given to `flag` ("64,128,256"), each in [low, high]; anything
+// else throws InputError "FLAG: 'ITEM' is not an integer in [LOW, HIGH]". Shared by divvox's and
+// divvox_peers' list flags (--resolutions, --iterations).
+std::vector<int> parse_int_list(const std::string& flag, const std::string& text, int low, int high);
 
 // Inside a catch block: prints the exception being handled as one line on stderr and returns its exit
 // code — InputError "PROGRAM: error: MESSAGE", 2; out of memory "PROGRAM: error: out of memory", 1;

@@ -38,13 +38,22 @@ TEST_SUITE("cli") {
     }
   }
 
-  TEST_CASE("resolution lists: comma-separated integers in range") {
-    CHECK(parse_resolutions("--resolutions", "64,128,256") == std::vector<int>{64, 128, 256});
-    CHECK(parse_resolutions("--resolutions", "32") == std::vector<int>{32});
-    for (const char* bad : {"", "64,", "64,,128", "0", "64,abc", "5000", "12x"}) {
+  TEST_CASE("integer lists: comma-separated integers in range") {
+    CHECK(parse_int_list("--resolutions", "64,128,256", 1, kMaxResolution) == std::vector<int>{64, 128, 256});
+    CHECK(parse_int_list("--resolutions", "32", 1, kMaxResolution) == std::vector<int>{32});
+    for (const char* bad : {"", "64,", "64,,128", "0", "64,abc", "5000", "12x", "-3"}) {
       CAPTURE(bad);
-      CHECK_THROWS_AS(parse_resolutions("--resolutions", bad), InputError);
+      CHECK_THROWS_AS(parse_int_list("--resolutions", bad, 1, kMaxResolution), InputError);
     }
+    // The message names the flag and the item.
+    try {
+      parse_int_list("--iterations", "4,x", 1, 100);
+      FAIL("no error");
+    } catch (const InputError& e) {
+      CHECK(std::string(e.what()) == "--iterations: 'x' is not an integer in [1, 100]");
+    }
+    // The CLI uses it with the resolution bounds.
+    CHECK_THROWS_AS(parse({"bench", "cut", "--resolutions", "64,9000"}), InputError);
   }
 
   TEST_CASE("replay: flags become ReplayOptions") {

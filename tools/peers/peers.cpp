@@ -61,25 +61,6 @@ std::string csv_text(const std::vector<CsvRow>& rows) {
 namespace {
 
 // "64,128,256" -> integers in [low, high] (resolutions, iteration counts).
-std::vector<int> parse_list(const std::string& text, const std::string& flag, int low, int high) {
-  std::vector<int> values;
-  size_t start = 0;
-  while (start <= text.size()) {
-    const size_t end = std::min(text.find(',', start), text.size());
-    const std::string item = text.substr(start, end - start);
-    try {
-      size_t used = 0;
-      const int value = std::stoi(item, &used);
-      if (used != item.size() || value < low || value > high) throw std::invalid_argument(item);
-      values.push_back(value);
-    } catch (const std::exception&) {
-      throw_input(flag, "'" + item + "' is not an integer in [" + std::to_string(low) + ", " + std::to_string(high) + "]");
-    }
-    start = end + 1;
-  }
-  return values;
-}
-
 }  // namespace
 }  // namespace dvx::peers
 
@@ -147,10 +128,10 @@ int main(int argc, char** argv) {
     if (clip_cmd->parsed()) {
       written = run_clip(clip);
     } else if (bullet_cmd->parsed()) {
-      bullet.iterations = parse_list(bullet_iterations, "--iterations", 1, 100000);
+      bullet.iterations = parse_int_list("--iterations", bullet_iterations, 1, 100000);
       written = run_bullet(bullet);
     } else {
-      vdb.resolutions = parse_list(resolutions, "--resolutions", 1, 4096);
+      vdb.resolutions = parse_int_list("--resolutions", resolutions, 1, 4096);
       written = run_vdb(vdb);
     }
     std::printf("wrote %s\n", written.c_str());
