@@ -7,7 +7,10 @@
 
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <string>
+#include <thread>
+#include <vector>
 
 namespace dvx_test {
 
@@ -52,5 +55,22 @@ void sweep_steps(const dvx::VoxelModel& model, dvx::CutState& state, const dvx::
     after(s);
   }
 }
+
+// A task runner over std::thread (sim owns no threads; the engine has its own pool). It splits every
+// loop into `workers` chunks whatever the grain, so a test with 2 workers always runs concurrently.
+struct ThreadRunner {
+  int workers = 2;
+  static void run(void* context, uint32_t count, uint32_t /*grain*/, void (*fn)(uint32_t, uint32_t, void*), void* user) {
+    const uint32_t workers = uint32_t(std::max(1, static_cast<ThreadRunner*>(context)->workers));
+    const uint32_t chunk = std::max<uint32_t>(1, (count + workers - 1) / workers);
+    std::vector<std::thread> threads;
+    for (uint32_t begin = chunk; begin < count; begin += chunk) {
+      threads.emplace_back(fn, begin, std::min(count, begin + chunk), user);
+    }
+    fn(0, std::min(count, chunk), user);
+    for (std::thread& t : threads) t.join();
+  }
+  dvx::TaskRunner runner() { return dvx::TaskRunner{this, &ThreadRunner::run}; }
+};
 
 }  // namespace dvx_test

@@ -20,6 +20,7 @@ using namespace dvx;
 namespace {
 
 using Scene = dvx_test::PbdScene;
+using dvx_test::ThreadRunner;
 
 // A mesh voxelized at resolution 32 (over its longest axis), sim resolution 8.
 void make_scene(Scene& s, const TriMesh& mesh, PbdParams params) { dvx_test::make_pbd_scene(s, mesh, 32, 8, params); }
@@ -62,22 +63,6 @@ void run(Scene& s, int steps, const TaskRunner& tasks = {}) {
 }
 
 double fine_voxel(const Scene& s) { return s.model.lattice.voxel_size; }
-
-// A task runner over std::thread (sim owns no threads).
-struct ThreadRunner {
-  int workers = 2;
-  static void run(void* context, uint32_t count, uint32_t grain, void (*fn)(uint32_t, uint32_t, void*), void* user) {
-    const int workers = static_cast<ThreadRunner*>(context)->workers;
-    const uint32_t chunk = std::max<uint32_t>(1, std::min(grain, (count + uint32_t(workers) - 1) / uint32_t(workers)));
-    std::vector<std::thread> threads;
-    for (uint32_t begin = chunk; begin < count; begin += chunk) {
-      threads.emplace_back(fn, begin, std::min(count, begin + chunk), user);
-    }
-    fn(0, std::min(count, chunk), user);
-    for (std::thread& t : threads) t.join();
-  }
-  TaskRunner runner() { return TaskRunner{this, &ThreadRunner::run}; }
-};
 
 // Rotation about z by `angle`: maps the box's y axis onto the tilted plane's normal.
 Eigen::Matrix3d tilt(double angle) { return Eigen::AngleAxisd(angle, Vec3d::UnitZ()).toRotationMatrix(); }

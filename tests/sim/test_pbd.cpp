@@ -21,6 +21,7 @@ namespace {
 
 // A block 1 x 2 x 1 (y up), centred at the origin.
 using Scene = dvx_test::PbdScene;
+using dvx_test::ThreadRunner;
 
 void make_scene(Scene& scene, int resolution, int sim_resolution, PbdParams params, double half_y = 1.0) {
   const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, half_y, 0.5), Eigen::Matrix3d::Identity(), 1);
@@ -74,22 +75,6 @@ Vec3d centre_below(const PbdState& s, double y) {
   }
   return c / m;
 }
-
-// A task runner over std::thread (the engine has its own pool; sim owns none).
-struct ThreadRunner {
-  int workers = 2;
-  static void run(void* context, uint32_t count, uint32_t grain, void (*fn)(uint32_t, uint32_t, void*), void* user) {
-    const int workers = static_cast<ThreadRunner*>(context)->workers;
-    const uint32_t chunk = std::max<uint32_t>(grain, (count + uint32_t(workers) - 1) / uint32_t(workers));
-    std::vector<std::thread> threads;
-    for (uint32_t begin = chunk; begin < count; begin += chunk) {
-      threads.emplace_back(fn, begin, std::min(count, begin + chunk), user);
-    }
-    fn(0, std::min(count, chunk), user);
-    for (std::thread& t : threads) t.join();
-  }
-  TaskRunner runner() { return TaskRunner{this, &ThreadRunner::run}; }
-};
 
 uint64_t particle_hash(const PbdState& s) {
   Fnv1a h;
