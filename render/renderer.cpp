@@ -53,51 +53,58 @@ void main() {
 // wrapped diffuse (light bleeds past the terminator as in translucent tissue), a sharp and a broad
 // highlight and a Fresnel sheen (a wet, glossy film); the cut faces are darker, redder and wetter.
 // Two-sided: back faces flip the normal. Smooth normals come per vertex (the cut faces' own where
-// the GPU computed them: crisp rims); without them (u_flat) the face normal from screen-space
-// derivatives gives flat shading. A little dither keeps slow gradients from banding.
-// Cheap on a software rasteriser (it runs for every covered pixel on the CPU): powers by repeated
-// squaring (n.h^64 and ^16, not pow's exp2/log2), the derivatives only for flat shading.
-const char* kSurfaceFragmentShader = R"(#version 450 core
+// the GPU computed them: crisp rims); without them (FLAT) the face normal from screen-space
+// derivatives of the eye position.
+//
+// Compiled in four variants (kSurfacePreambles: the outer surface or the cut faces, smooth or flat)
+// rather than branching on uniforms: a software rasteriser runs both sides of every branch for each
+// 4x4 block of pixels, and at 128 the liver's triangles cover a few pixels each, so the shader runs
+// on several times more pixels than it lights. The highlights and the sheen take the viewer at
+// infinity along the view axis (v = +z in eye space, as fixed-function GL's default): the half
+// vector is a constant and no eye ray is rebuilt per pixel.
+const char* kSurfaceFragmentShader = R"(
 in vec3 v_eye_normal;
 in vec3 v_eye_cut_normal;
 layout(location = 2) uniform vec3 u_surface_color;
 layout(location = 3) uniform vec3 u_cut_color;
-layout(location = 4) uniform int u_flat;
 layout(location = 6) uniform int u_split;
-// Eye rays from gl_FragCoord: (2 / width, 2 / height, 1 / P[0][0], 1 / P[1][1]); eye depth from the
-// window depth: (P[2][2], P[2][3]).
+// FLAT: eye rays from gl_FragCoord: (2 / width, 2 / height, 1 / P[0][0], 1 / P[1][1]); eye depth
+// from the window depth: (P[2][2], P[2][3]).
 layout(location = 7) uniform vec4 u_unproject;
 layout(location = 8) uniform vec2 u_depth;
-layout(location = 9) uniform int u_cut;  // this pass draws the cut faces (see Renderer: pass buffers)
 out vec4 frag_color;
 void main() {
-  bool cut = u_cut != 0;
+#if CUT_PASS
+  vec3 base = u_cut_color;
+  vec3 n = u_split != 0 ? v_eye_cut_normal : v_eye_normal;
+  const float gloss = 1.3;
+#else
   // The outer surface blushes toward the cut colour right at a cut's rim: an incision line that shows
   // even while the slit is closed. Only the part of the rim vertices' triangles nearest them: the
   // whole triangle fan blushed into a saw-tooth band as wide as the (uneven) triangles.
   float near_rim = min(dot(v_eye_cut_normal, v_eye_cut_normal), 1.0);
-  float blush = smoothstep(0.55, 0.95, near_rim);
-  vec3 base = cut ? u_cut_color : mix(u_surface_color, 0.85 * u_cut_color, 0.85 * blush);
-  vec3 n = (cut && u_split != 0) ? v_eye_cut_normal : v_eye_normal;
+  vec3 base = mix(u_surface_color, 0.85 * u_cut_color, 0.85 * smoothstep(0.55, 0.95, near_rim));
+  vec3 n = v_eye_normal;
+  const float gloss = 1.0;
+#endif
+#if FLAT
   vec3 ray = vec3((gl_FragCoord.xy * u_unproject.xy - 1.0) * u_unproject.zw, -1.0);  // eye position / depth
-  vec3 v = -normalize(ray);
-  if (u_flat != 0) {
-    float z = u_depth.y / (gl_FragCoord.z * 2.0 - 1.0 + u_depth.x);  // the eye depth (positive)
-    vec3 eye_position = z * ray;
-    n = cross(dFdx(eye_position), dFdy(eye_position));  // always faces the eye
-  } else if (!gl_FrontFacing && dot(n, v) < 0.0) {
-    n = -n;  // a back face seen through a hole (not a sliver triangle folded against its neighbours)
-  }
+  float z = u_depth.y / (gl_FragCoord.z * 2.0 - 1.0 + u_depth.x);  // the eye depth (positive)
+  vec3 eye_position = z * ray;
+  n = cross(dFdx(eye_position), dFdy(eye_position));  // always faces the eye
+#else
+  if (!gl_FrontFacing && n.z < 0.0) n = -n;  // a back face seen through a hole
+#endif
   float len2 = dot(n, n);
-  n = len2 > 1e-24 ? n * inversesqrt(len2) : v;
+  n = len2 > 1e-24 ? n * inversesqrt(len2) : vec3(0.0, 0.0, 1.0);
   const vec3 key = vec3(-0.3980, 0.5970, 0.6965);   // normalize(-0.4, 0.6, 0.7)
   const vec3 fill = vec3(0.8616, -0.1231, 0.4924);  // normalize(0.7, -0.1, 0.4)
+  const vec3 half_key = vec3(-0.2161, 0.3241, 0.9210);  // normalize(key + (0, 0, 1))
   float diffuse = 0.72 * max((dot(n, key) + 0.35) * (1.0 / 1.35), 0.0) + 0.25 * max(dot(n, fill), 0.0);
-  float nh = max(dot(n, normalize(key + v)), 0.0);
+  float nh = max(dot(n, half_key), 0.0);
   float nh2 = nh * nh, nh4 = nh2 * nh2, nh16 = nh4 * nh4 * nh4 * nh4, nh64 = nh16 * nh16 * nh16 * nh16;
-  float gloss = cut ? 1.3 : 1.0;
   float specular = gloss * (0.45 * nh64 + 0.08 * nh16);
-  float rim = 1.0 - max(dot(n, v), 0.0), rim2 = rim * rim;
+  float rim = 1.0 - max(n.z, 0.0), rim2 = rim * rim;
   float fresnel = 0.12 * rim2 * rim2;
   vec3 color = base * (0.20 + diffuse) + vec3(specular + fresnel) * vec3(1.0, 0.97, 0.95);
   // Dither: +-0.5 of an 8-bit step, from a hash of the pixel.
@@ -105,6 +112,11 @@ void main() {
   frag_color = vec4(clamp(color + noise * (1.0 / 255.0), 0.0, 1.0), 1.0);
 }
 )";
+
+// The surface programs' first lines, by Renderer::surface_programs index: 2 * flat + cut.
+const char* const kSurfacePreambles[4] = {
+    "#version 450 core\n#define CUT_PASS 0\n#define FLAT 0\n", "#version 450 core\n#define CUT_PASS 1\n#define FLAT 0\n",
+    "#version 450 core\n#define CUT_PASS 0\n#define FLAT 1\n", "#version 450 core\n#define CUT_PASS 1\n#define FLAT 1\n"};
 
 // GPU normals, pass 1 (one invocation per triangle slot): the unit face normal times each
 // corner's angle, per corner (zero for dead, degenerate or non-finite triangles).
@@ -176,6 +188,9 @@ void main() {
 }
 )";
 
+// Something to draw into: the offscreen target, or framebuffer 0 in direct mode.
+bool has_target(const Renderer& r) { return r.framebuffer != 0 || r.direct; }
+
 // Deletes the offscreen target's objects.
 void destroy_target(Renderer& r) {
   if (r.resolve_framebuffer && r.resolve_framebuffer != r.framebuffer) glDeleteFramebuffers(1, &r.resolve_framebuffer);
@@ -198,6 +213,10 @@ bool create_target(Renderer& r, std::string& error) {
     return false;
   }
   r.samples = std::clamp(r.samples, 0, int(max_samples));
+  if (r.direct) {  // framebuffer 0: nothing to create
+    r.samples = 0;
+    return true;
+  }
   // Drawn-into framebuffer: RGBA8 colour + 24-bit depth, multisampled when asked.
   glCreateRenderbuffers(1, &r.color_renderbuffer);
   glCreateRenderbuffers(1, &r.depth_renderbuffer);
@@ -315,18 +334,23 @@ RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* nor
   return m;
 }
 
-bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples) {
+bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples, bool direct) {
   renderer_destroy(r);
   r.width = width;
   r.height = height;
   r.samples = samples;
+  r.direct = direct;
   if (!create_target(r, error)) return false;
 
-  r.surface_program = gl_link_program(kVertexShader, kSurfaceFragmentShader, error);
-  if (r.surface_program) r.wire_program = gl_link_program(kVertexShader, kWireFragmentShader, error);
+  bool surface_ok = true;
+  for (int k = 0; k < 4 && surface_ok; ++k) {
+    r.surface_programs[k] = gl_link_program(kVertexShader, (std::string(kSurfacePreambles[k]) + kSurfaceFragmentShader).c_str(), error);
+    surface_ok = r.surface_programs[k] != 0;
+  }
+  if (surface_ok) r.wire_program = gl_link_program(kVertexShader, kWireFragmentShader, error);
   if (r.wire_program) r.triangle_normal_program = gl_link_compute(kTriangleNormalShader, error);
   if (r.triangle_normal_program) r.vertex_normal_program = gl_link_compute(kVertexNormalShader, error);
-  if (!r.surface_program || !r.wire_program || !r.vertex_normal_program || !tray_init(r, error)) {
+  if (!r.wire_program || !r.vertex_normal_program || !tray_init(r, error)) {
     renderer_destroy(r);
     return false;
   }
@@ -362,6 +386,15 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
     return false;
   }
   return true;
+}
+
+void renderer_place(Renderer& r, int x, int y) {
+  r.origin_x = x;
+  r.origin_y = y;
+}
+
+ViewTarget renderer_target(const Renderer& r) {
+  return r.direct ? ViewTarget{0, r.origin_x, r.origin_y, r.width, r.height} : ViewTarget{r.framebuffer, 0, 0, r.width, r.height};
 }
 
 bool renderer_resize(Renderer& r, int width, int height, std::string& error) {
@@ -459,31 +492,44 @@ void renderer_update_normals(Renderer& r) {
 }
 
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
-  if (!r.framebuffer) return;  // not initialised, or a failed resize
-  glBindFramebuffer(GL_FRAMEBUFFER, r.framebuffer);
-  glViewport(0, 0, r.width, r.height);
-  glClearColor(options.background.x(), options.background.y(), options.background.z(), 1.0f);
-  glClearDepth(1.0);
-  glDepthMask(GL_TRUE);
-  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-  if (r.triangle_count == 0 || !r.surface_program) return;
+  if (!has_target(r)) return;  // not initialised, or a failed resize
+  const ViewTarget target = renderer_target(r);
+  glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
+  glViewport(target.x, target.y, target.width, target.height);
+  if (options.clear) {
+    // Direct: only the view's rectangle of the window.
+    if (r.direct) {
+      glEnable(GL_SCISSOR_TEST);
+      glScissor(target.x, target.y, target.width, target.height);
+    }
+    glClearColor(options.background.x(), options.background.y(), options.background.z(), 1.0f);
+    glClearDepth(1.0);
+    glDepthMask(GL_TRUE);
+    glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    glDisable(GL_SCISSOR_TEST);
+  }
+  if (r.triangle_count == 0 || !r.wire_program) return;
 
   // Camera and colours (the wire program uses only the view-projection and its colour).
   const Eigen::Matrix4f view = view_matrix(camera);
   const Eigen::Matrix4f view_projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect()) * view;
-  glProgramUniformMatrix4fv(r.surface_program, 0, 1, GL_FALSE, view_projection.data());
-  glProgramUniformMatrix4fv(r.surface_program, 1, 1, GL_FALSE, view.data());
-  glProgramUniformMatrix4fv(r.wire_program, 0, 1, GL_FALSE, view_projection.data());
-  glProgramUniform3fv(r.surface_program, 2, 1, options.surface_color.data());
-  glProgramUniform3fv(r.surface_program, 3, 1, options.cut_color.data());
-  glProgramUniform1i(r.surface_program, 4, r.has_normals || r.gpu_normals ? 0 : 1);
-  glProgramUniform1i(r.surface_program, 6, r.split_normals ? 1 : 0);
   const Eigen::Matrix4f projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect());
   const float unproject[4] = {2.0f / float(r.width), 2.0f / float(r.height), 1.0f / projection(0, 0), 1.0f / projection(1, 1)};
-  glProgramUniform4fv(r.surface_program, 7, 1, unproject);
-  glProgramUniform2f(r.surface_program, 8, projection(2, 2), projection(2, 3));
+  // Each variant gets only the uniforms it uses (setting an inactive one is a GL error).
+  for (int k = 0; k < 4; ++k) {
+    const uint32_t program = r.surface_programs[k];
+    const bool cut = (k & 1) != 0, flat = (k & 2) != 0;
+    glProgramUniformMatrix4fv(program, 0, 1, GL_FALSE, view_projection.data());
+    glProgramUniformMatrix4fv(program, 1, 1, GL_FALSE, view.data());
+    if (!cut) glProgramUniform3fv(program, 2, 1, options.surface_color.data());
+    glProgramUniform3fv(program, 3, 1, options.cut_color.data());
+    if (cut) glProgramUniform1i(program, 6, r.split_normals ? 1 : 0);
+    if (flat) glProgramUniform4fv(program, 7, 1, unproject);
+    if (flat) glProgramUniform2f(program, 8, projection(2, 2), projection(2, 3));
+  }
+  glProgramUniformMatrix4fv(r.wire_program, 0, 1, GL_FALSE, view_projection.data());
   renderer_update_normals(r);
-  glBindFramebuffer(GL_FRAMEBUFFER, r.framebuffer);
+  glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
   glProgramUniform3fv(r.wire_program, 5, 1, options.wire_color.data());
 
   // Both sides drawn and lit (no culling); normals only when the caller gave them.
@@ -521,13 +567,13 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   // Pass 1: the lit surface, the outer surface then the cut faces (each from its own index buffer,
   // the other class's slots degenerate there; the cut pass only over the slots that hold cut faces).
   glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
-  glUseProgram(r.surface_program);
-  glProgramUniform1i(r.surface_program, 9, 0);
+  const int flat = r.has_normals || r.gpu_normals ? 0 : 2;
+  glUseProgram(r.surface_programs[flat]);
   glVertexArrayElementBuffer(r.vertex_array, r.outer_index_buffer);
   glDrawRangeElements(GL_TRIANGLES, 0, last_index, index_count, GL_UNSIGNED_INT, nullptr);
   const uint32_t cut_end = std::min(r.cut_end, r.triangle_count);
   if (r.cut_begin < cut_end) {
-    glProgramUniform1i(r.surface_program, 9, 1);
+    glUseProgram(r.surface_programs[flat + 1]);
     glVertexArrayElementBuffer(r.vertex_array, r.cut_index_buffer);
     glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(cut_end - r.cut_begin) * 3, GL_UNSIGNED_INT,
                         reinterpret_cast<const void*>(uintptr_t(r.cut_begin) * 12));
@@ -553,7 +599,7 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
 }
 
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
-  if (!r.framebuffer) return false;
+  if (!has_target(r)) return false;
   // Resolve the multisampled image first.
   if (r.resolve_framebuffer != r.framebuffer) {
     glBlitNamedFramebuffer(r.framebuffer, r.resolve_framebuffer, 0, 0, r.width, r.height, 0, 0, r.width, r.height,
@@ -561,10 +607,12 @@ bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
   }
   const size_t row = size_t(r.width) * 4;
   rgba.resize(row * size_t(r.height));
-  glBindFramebuffer(GL_READ_FRAMEBUFFER, r.resolve_framebuffer);
-  glNamedFramebufferReadBuffer(r.resolve_framebuffer, GL_COLOR_ATTACHMENT0);
+  const ViewTarget target = renderer_target(r);
+  const GLuint read_framebuffer = r.direct ? 0 : r.resolve_framebuffer;
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, read_framebuffer);
+  glNamedFramebufferReadBuffer(read_framebuffer, r.direct ? GL_BACK : GL_COLOR_ATTACHMENT0);
   glPixelStorei(GL_PACK_ALIGNMENT, 1);
-  glReadPixels(0, 0, r.width, r.height, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
+  glReadPixels(target.x, target.y, r.width, r.height, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
   glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
   // GL's row 0 is the bottom; images start at the top.
   std::vector<uint8_t> tmp(row);
@@ -580,7 +628,7 @@ bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
 }
 
 void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height, int x, int y) {
-  if (!r.framebuffer) return;
+  if (!r.framebuffer || r.direct) return;
   // A multisampled image resolves at its own size first (a resolving blit cannot scale).
   GLuint source = r.framebuffer;
   if (r.resolve_framebuffer != r.framebuffer) {
@@ -594,7 +642,8 @@ void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int heig
 
 void renderer_destroy(Renderer& r) {
   destroy_target(r);
-  if (r.surface_program) glDeleteProgram(r.surface_program);
+  for (uint32_t program : r.surface_programs)
+    if (program) glDeleteProgram(program);
   if (r.wire_program) glDeleteProgram(r.wire_program);
   if (r.triangle_normal_program) glDeleteProgram(r.triangle_normal_program);
   if (r.vertex_normal_program) glDeleteProgram(r.vertex_normal_program);

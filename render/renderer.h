@@ -5,7 +5,9 @@
 //
 // Usage: renderer_init once, renderer_upload whenever the surface changed (only the dirty slot
 // ranges travel), renderer_draw per frame, then renderer_read_pixels (headless) or
-// renderer_blit (window), renderer_destroy with the context still current.
+// renderer_blit (window), renderer_destroy with the context still current. Without multisampling
+// the window draws straight into its back buffer instead (renderer_init's `direct`): no offscreen
+// target and no copy.
 #pragma once
 
 #include "render/camera.h"
@@ -62,6 +64,9 @@ struct TrayPlane {
 };
 
 struct DrawOptions {
+  // Clear the view first (colour and depth). False: the caller cleared it (the window clears its
+  // whole back buffer at once: on a software rasteriser a clear of a part of it draws a quad).
+  bool clear = true;
   bool wireframe = false;                         // overlay the triangle edges
   std::vector<TrayPlane> trays;                   // drawn after the surface (none: no ground)
   bool shadows = true;                            // the surface's shadow on the trays
@@ -92,12 +97,18 @@ struct DrawOptions {
 struct Renderer {
   // Offscreen target: `framebuffer` is drawn into (multisampled when samples > 0), and
   // `resolve_framebuffer` holds the single-sample image read back or blitted (== framebuffer
-  // when samples == 0).
+  // when samples == 0). `direct`: none; framebuffer 0 (the window's back buffer, which must have
+  // a depth buffer) is drawn into at (origin_x, origin_y): on a software rasteriser the copy of the
+  // image into the window cost as much as the tray.
   int width = 0, height = 0, samples = 0;
+  bool direct = false;
+  int origin_x = 0, origin_y = 0;
   uint32_t framebuffer = 0, color_renderbuffer = 0, depth_renderbuffer = 0;
   uint32_t resolve_framebuffer = 0, resolve_renderbuffer = 0;
-  // Programs: lit surface, wireframe overlay.
-  uint32_t surface_program = 0, wire_program = 0;
+  // Programs: the lit surface's variants (index 2 * flat + cut faces: see kSurfaceFragmentShader),
+  // the wireframe overlay.
+  uint32_t surface_programs[4] = {0, 0, 0, 0};
+  uint32_t wire_program = 0;
   // Trays and shadows (render/tray.cpp): the tray's quad comes from gl_VertexID (an empty vertex
   // array); the shadow re-draws the surface's index buffer, flattened onto the plane.
   uint32_t tray_program = 0, empty_vertex_array = 0, shadow_texture = 0;
@@ -142,8 +153,17 @@ struct Renderer {
 };
 
 // Creates the programs, the mesh buffers and a width x height offscreen target (RGBA8 colour,
-// 24-bit depth; `samples` > 0 multisamples it). Returns false with a one-line reason.
-bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples = 0);
+// 24-bit depth; `samples` > 0 multisamples it), or with `direct` (samples must be 0) none: it
+// draws into framebuffer 0 at renderer_place's origin. Returns false with a one-line reason.
+bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples = 0, bool direct = false);
+// Direct mode: where in framebuffer 0 the image's lower-left corner lies (GL's convention: y up).
+void renderer_place(Renderer& r, int x, int y);
+// Where the renderer draws: its framebuffer and the rectangle in it (for overlays drawn on top).
+struct ViewTarget {
+  uint32_t framebuffer = 0;
+  int x = 0, y = 0, width = 0, height = 0;
+};
+ViewTarget renderer_target(const Renderer& r);
 // Recreates the offscreen target at a new size (window resize); the mesh stays.
 bool renderer_resize(Renderer& r, int width, int height, std::string& error);
 // Sends the changed slots of `mesh` to the GPU (see RenderMesh).
@@ -172,9 +192,10 @@ void tray_shadow_grid(const Vec3f* positions, uint32_t count, const TrayPlane& t
 // from the plane so the shadow stays near the object.
 Vec3f tray_light(const Camera& camera, const Vec3f& normal);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
+// Direct mode: the back buffer's rectangle, so before the swap (and before anything drawn over it).
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
 // Copies the last image into another framebuffer (0: the window's), scaled to w x h, its lower-left
-// corner at (x, y) of the target (GL's convention: y up).
+// corner at (x, y) of the target (GL's convention: y up). Direct mode: nothing to copy.
 void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height, int x = 0, int y = 0);
 // Deletes every GL object (the context must still be current).
 void renderer_destroy(Renderer& r);

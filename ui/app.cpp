@@ -318,13 +318,7 @@ void handle_keys(AppState& app, GLFWwindow* window) {
       case GLFW_KEY_W: app.draw.wireframe = !app.draw.wireframe; break;
       case GLFW_KEY_T: app.show_trail = !app.show_trail; break;
       case GLFW_KEY_F1: app.show_help = !app.show_help; break;
-      case GLFW_KEY_F12: {
-        std::string message;
-        take_screenshot(app, default_screenshot_name(), message);
-        show_message(app, message);
-        std::printf("%s\n", message.c_str());
-        break;
-      }
+      case GLFW_KEY_F12: app.screenshot_request = default_screenshot_name(); break;
       case GLFW_KEY_ESCAPE:
         if (mods & GLFW_MOD_SHIFT) glfwSetWindowShouldClose(window, GLFW_TRUE);
         break;
@@ -694,6 +688,7 @@ int open_gl_window(const WindowOptions& options, WindowContext& w) {
   glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 4);
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 5);
   glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+  glfwWindowHint(GLFW_DEPTH_BITS, 24);  // the view is drawn straight into the back buffer (renderer: direct)
   w.window = glfwCreateWindow(options.width, options.height, "divvox", nullptr, nullptr);
   if (w.window == nullptr) {
     if (g_glfw_error_code == GLFW_VERSION_UNAVAILABLE || g_glfw_error_code == GLFW_API_UNAVAILABLE) {
@@ -731,16 +726,18 @@ bool init_graphics(AppState& app, WindowContext& w) {
   glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
   layout_view(app, std::max(fb_w, 16), std::max(fb_h, 16));
   // 4x MSAA on a GPU; none on a software rasteriser (llvmpipe), where 2x or 4x triples the
-  // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128).
+  // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128). Without it the
+  // view is drawn straight into the window's back buffer (no offscreen image to copy).
   int samples = w.software ? 0 : 4;
   if (const char* msaa = std::getenv("DIVVOX_MSAA")) samples = std::clamp(std::atoi(msaa), 0, 16);
   std::string error;
-  if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples)) {
+  if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples, samples == 0)) {
     std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
     glfwDestroyWindow(w.window);
     glfwTerminate();
     return false;
   }
+  renderer_place(w.renderer, app.view_x, 0);
   if (!overlay_init(w.overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no blade overlay)\n", error.c_str());
   if (!solid_overlay_init(w.solid_overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
   glfwSetScrollCallback(w.window, on_scroll);
@@ -801,6 +798,44 @@ double take_snapshot(AppState& app, WindowContext& w) {
   return s->normals_ms;
 }
 
+// The view's scene: in direct mode first the whole back buffer cleared at once (colour and depth:
+// on a software rasteriser a full clear is nearly free, a clear of a part draws a quad), then the
+// panel's strip in the panel's colour (so ImGui draws no background of its own: a blended quad as
+// large as the panel); the tray's shadow; the surface and the trays.
+void draw_scene(AppState& app, WindowContext& w, int fb_w, int fb_h) {
+  app.draw.clear = !w.renderer.direct;
+  app.panel_cleared = w.renderer.direct;
+  if (w.renderer.direct) {
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    glViewport(0, 0, fb_w, fb_h);
+    glDisable(GL_SCISSOR_TEST);
+    glDepthMask(GL_TRUE);
+    glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+    glClearColor(app.draw.background.x(), app.draw.background.y(), app.draw.background.z(), 1.0f);
+    glClearDepth(1.0);
+    glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    const ImVec4 panel = ImGui::GetStyleColorVec4(ImGuiCol_WindowBg);
+    glEnable(GL_SCISSOR_TEST);
+    glScissor(0, 0, std::min(app.view_x, fb_w), fb_h);
+    glClearColor(panel.x, panel.y, panel.z, 1.0f);
+    glClear(GL_COLOR_BUFFER_BIT);
+    glDisable(GL_SCISSOR_TEST);
+  }
+  if (app.current != nullptr) {
+    tray_shadow_update(w.renderer, app.current->positions.data(), uint32_t(app.current->positions.size()), app.camera,
+                       app.draw);
+  }
+  renderer_draw(w.renderer, app.camera, app.draw);
+}
+
+// The scalpel, its entry mark and trail, the grabbed point, over the scene.
+void draw_overlays(AppState& app, WindowContext& w) {
+  overlay_geometry(app, w.lines, w.solids);
+  const ViewTarget target = renderer_target(w.renderer);
+  solid_overlay_draw(w.solid_overlay, target, app.camera, w.solids);
+  overlay_draw(w.overlay, target, app.camera, w.lines);
+}
+
 // One frame: input, the snapshot, the scene (only when something it shows changed), overlays,
 // panels, swap; its phase times into the statistics.
 void run_frame(AppState& app, WindowContext& w) {
@@ -813,6 +848,7 @@ void run_frame(AppState& app, WindowContext& w) {
   if (fb_w >= 16 && fb_h >= 16) {
     const Viewport before = app.viewport;
     layout_view(app, fb_w, fb_h);
+    renderer_place(w.renderer, app.view_x, 0);
     std::string error;
     if ((app.viewport.width != w.renderer.width || app.viewport.height != w.renderer.height) &&
         !renderer_resize(w.renderer, app.viewport.width, app.viewport.height, error)) {
@@ -836,18 +872,18 @@ void run_frame(AppState& app, WindowContext& w) {
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
   if (w.profile) glFinish();
   const Clock::time_point t1n = Clock::now();
-  if (app.current != nullptr) {  // the tray's shadow (counted in the draw phase)
-    tray_shadow_update(w.renderer, app.current->positions.data(), uint32_t(app.current->positions.size()), app.camera,
-                       app.draw);
-  }
-  renderer_draw(w.renderer, app.camera, app.draw);
+  draw_scene(app, w, fb_w, fb_h);
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
-  overlay_geometry(app, w.lines, w.solids);
-  solid_overlay_draw(w.solid_overlay, w.renderer.framebuffer, w.renderer.width, w.renderer.height, app.camera, w.solids);
-  overlay_draw(w.overlay, w.renderer.framebuffer, w.renderer.width, w.renderer.height, app.camera, w.lines);
-  // The view covers the window right of the panel and the panel is opaque: no clear needed.
-  renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
+  draw_overlays(app, w);
+  renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);  // direct mode: nothing
+  if (!app.screenshot_request.empty()) {
+    std::string message;
+    take_screenshot(app, app.screenshot_request, message);
+    show_message(app, message);
+    std::printf("%s\n", message.c_str());
+    app.screenshot_request.clear();
+  }
   w.sim.frame_done();  // the next snapshot may go out now
   if (w.profile) glFinish();
   const Clock::time_point t2 = Clock::now();
@@ -880,6 +916,13 @@ void run_frame(AppState& app, WindowContext& w) {
 // After the loop: the --screenshot PNG, the statistics, the replay check; then everything closed.
 int finish_window(AppState& app, WindowContext& w, const WindowOptions& options, int exit_code) {
   if (!options.screenshot_path.empty() && exit_code == kExitOk) {
+    // Direct mode: the last frame is gone with its swap; drawn again.
+    if (w.renderer.direct) {
+      int fb_w = 0, fb_h = 0;
+      glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
+      draw_scene(app, w, fb_w, fb_h);
+      draw_overlays(app, w);
+    }
     std::string message;
     if (take_screenshot(app, options.screenshot_path, message)) {
       std::printf("%s\n", message.c_str());

@@ -37,7 +37,8 @@ struct AppState {
   Camera camera;
   Viewport viewport;  // the 3D view (not the window)
   int view_x = 0, panel_width = 0;
-  float panel_drawn_width = 0.0f;  // the panel's width as ImGui drew it (tests: it never changes)
+  float panel_drawn_width = 0.0f;
+  bool panel_cleared = false;      // the window cleared the panel's strip in its colour (ImGui draws no background)  // the panel's width as ImGui drew it (tests: it never changes)
   Aabb bounds;
   float radius = 1.0f, voxel_size = 0.1f;
   DrawOptions draw;
@@ -80,6 +81,9 @@ struct AppState {
   char record_path[512] = {};
   char play_path[512] = {};
   char screenshot_path[512] = {};
+  // A screenshot asked for (F12, the View panel's Save): taken by the next frame once the view is
+  // drawn (in direct mode the image is the back buffer, good only between the view's draw and the swap).
+  std::string screenshot_request;
   float ui_dt = 1.0f / 60.0f, ui_gravity[3] = {0, -9.81f, 0};
   int ui_iterations = 10;
 

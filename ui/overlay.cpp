@@ -100,13 +100,13 @@ bool overlay_init(LineOverlay& o, std::string& error) {
   return init_overlay(o, kVertex, kFragment, sizeof(LineVertex), sizes, offsets, 2, 256, error);
 }
 
-void overlay_draw(LineOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
+void overlay_draw(LineOverlay& o, const ViewTarget& target, const Camera& camera,
                   const std::vector<LineVertex>& vertices, float line_width) {
   if (vertices.empty() || o.program == 0) return;
   upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(LineVertex));
-  const Eigen::Matrix4f mvp = projection_matrix(camera, float(width) / float(std::max(height, 1))) * view_matrix(camera);
-  glBindFramebuffer(GL_FRAMEBUFFER, framebuffer);
-  glViewport(0, 0, width, height);
+  const Eigen::Matrix4f mvp = projection_matrix(camera, float(target.width) / float(std::max(target.height, 1))) * view_matrix(camera);
+  glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
+  glViewport(target.x, target.y, target.width, target.height);
   glDisable(GL_DEPTH_TEST);
   glDisable(GL_CULL_FACE);
   glEnable(GL_BLEND);
@@ -136,14 +136,14 @@ bool solid_overlay_init(SolidOverlay& o, std::string& error) {
   return init_overlay(o, kSolidVertex, kSolidFragment, sizeof(SolidVertex), sizes, offsets, 3, 512, error);
 }
 
-void solid_overlay_draw(SolidOverlay& o, uint32_t framebuffer, int width, int height, const Camera& camera,
+void solid_overlay_draw(SolidOverlay& o, const ViewTarget& target, const Camera& camera,
                         const std::vector<SolidVertex>& vertices, float ghost_alpha) {
   if (vertices.empty() || o.program == 0) return;
   upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(SolidVertex));
   const Eigen::Matrix4f view = view_matrix(camera);
-  const Eigen::Matrix4f mvp = projection_matrix(camera, float(width) / float(std::max(height, 1))) * view;
-  glBindFramebuffer(GL_FRAMEBUFFER, framebuffer);
-  glViewport(0, 0, width, height);
+  const Eigen::Matrix4f mvp = projection_matrix(camera, float(target.width) / float(std::max(target.height, 1))) * view;
+  glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
+  glViewport(target.x, target.y, target.width, target.height);
   glDisable(GL_CULL_FACE);
   glUseProgram(o.program);
   glUniformMatrix4fv(glGetUniformLocation(o.program, "mvp"), 1, GL_FALSE, mvp.data());

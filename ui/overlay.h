@@ -6,6 +6,7 @@
 
 #include "render/blade_mesh.h"
 #include "render/camera.h"
+#include "render/renderer.h"
 
 #include <cstdint>
 #include <string>
@@ -27,14 +28,14 @@ using LineOverlay = OverlayProgram;
 using SolidOverlay = OverlayProgram;
 
 bool overlay_init(LineOverlay& overlay, std::string& error);
-// Draws `vertices` (pairs: GL_LINES) into `framebuffer` (width x height) with the camera.
-void overlay_draw(LineOverlay& overlay, uint32_t framebuffer, int width, int height, const Camera& camera,
+// Draws `vertices` (pairs: GL_LINES) into the renderer's view (render/renderer.h: ViewTarget) with the camera.
+void overlay_draw(LineOverlay& overlay, const ViewTarget& target, const Camera& camera,
                   const std::vector<LineVertex>& vertices, float line_width = 2.0f);
 
 bool solid_overlay_init(SolidOverlay& overlay, std::string& error);
-// Draws `vertices` (GL_TRIANGLES) into `framebuffer` (which must have the scene's depth): first the
+// Draws `vertices` (GL_TRIANGLES) into the view (which must have the scene's depth): first the
 // parts behind the surface at `ghost_alpha`, then the visible parts opaque.
-void solid_overlay_draw(SolidOverlay& overlay, uint32_t framebuffer, int width, int height, const Camera& camera,
+void solid_overlay_draw(SolidOverlay& overlay, const ViewTarget& target, const Camera& camera,
                         const std::vector<SolidVertex>& vertices, float ghost_alpha = 0.35f);
 
 void overlay_destroy(OverlayProgram& overlay);

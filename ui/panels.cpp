@@ -189,9 +189,7 @@ void view_panel(AppState& app) {
   ImGui::InputText("screenshot", app.screenshot_path, sizeof app.screenshot_path);
   ImGui::SameLine();
   if (ImGui::Button("Save (F12)")) {
-    std::string message;
-    take_screenshot(app, app.screenshot_path[0] ? std::string(app.screenshot_path) : default_screenshot_name(), message);
-    show_message(app, message);
+    app.screenshot_request = app.screenshot_path[0] ? std::string(app.screenshot_path) : default_screenshot_name();
   }
 }
 
@@ -303,7 +301,7 @@ void draw_panels(AppState& app) {
   // Docked: the left strip of the window, full height; fixed, opaque, no title bar.
   ImGui::SetNextWindowPos(ImVec2(0, 0), ImGuiCond_Always);
   ImGui::SetNextWindowSize(ImVec2(float(app.panel_width), float(app.viewport.height)), ImGuiCond_Always);
-  ImGui::SetNextWindowBgAlpha(1.0f);
+  ImGui::SetNextWindowBgAlpha(app.panel_cleared ? 0.0f : 1.0f);
   const ImGuiWindowFlags flags = ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoCollapse |
                                  ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoSavedSettings |
                                  ImGuiWindowFlags_NoBringToFrontOnFocus;
