@@ -118,19 +118,24 @@ const char* const kSurfacePreambles[4] = {
     "#version 450 core\n#define CUT_PASS 0\n#define FLAT 0\n", "#version 450 core\n#define CUT_PASS 1\n#define FLAT 0\n",
     "#version 450 core\n#define CUT_PASS 0\n#define FLAT 1\n", "#version 450 core\n#define CUT_PASS 1\n#define FLAT 1\n"};
 
+// The two GPU normal passes' shared preamble: the flags, 64-wide groups, the per-corner normals
+// (written by pass 1, read by pass 2) and the slot count (triangles, then vertices).
+#define DVX_NORMAL_PASS_PREAMBLE                                          \
+  "#version 450 core\n" DVX_FLAG_LOOKUP                                   \
+  "layout(local_size_x = 64) in;\n"                                       \
+  "layout(std430, binding = 3) buffer CornerNormals { float cornern[]; };\n" \
+  "layout(location = 0) uniform uint u_count;\n"
+
 // GPU normals, pass 1 (one invocation per triangle slot): the unit face normal times each
 // corner's angle, per corner (zero for dead, degenerate or non-finite triangles).
-const char* kTriangleNormalShader = "#version 450 core\n" DVX_FLAG_LOOKUP R"(
-layout(local_size_x = 64) in;
+const char* kTriangleNormalShader = DVX_NORMAL_PASS_PREAMBLE R"(
 layout(std430, binding = 1) readonly buffer Positions { float pos[]; };
 layout(std430, binding = 2) readonly buffer Indices { uint idx[]; };
-layout(std430, binding = 3) writeonly buffer CornerNormals { float cornern[]; };
-layout(location = 0) uniform uint u_triangles;
 vec3 p_of(uint v) { return vec3(pos[3u * v], pos[3u * v + 1u], pos[3u * v + 2u]); }
 float corner(vec3 a, vec3 b) { return acos(clamp(dot(a, b) * inversesqrt(dot(a, a) * dot(b, b)), -1.0, 1.0)); }
 void main() {
   uint t = gl_GlobalInvocationID.x;
-  if (t >= u_triangles) return;
+  if (t >= u_count) return;
   uint i0 = idx[3u * t], i1 = idx[3u * t + 1u], i2 = idx[3u * t + 2u];
   vec3 p0 = p_of(i0), p1 = p_of(i1), p2 = p_of(i2);
   vec3 e01 = p1 - p0, e02 = p2 - p0, e12 = p2 - p1;
@@ -152,18 +157,15 @@ void main() {
 
 // GPU normals, pass 2 (one invocation per vertex slot): the sums over its corners, by class,
 // normalised (zero stays zero).
-const char* kVertexNormalShader = "#version 450 core\n" DVX_FLAG_LOOKUP R"(
-layout(local_size_x = 64) in;
-layout(std430, binding = 3) readonly buffer CornerNormals { float cornern[]; };
+const char* kVertexNormalShader = DVX_NORMAL_PASS_PREAMBLE R"(
 layout(std430, binding = 4) writeonly buffer SurfaceNormals { float sn[]; };
 layout(std430, binding = 5) writeonly buffer CutNormals { float cn[]; };
 layout(std430, binding = 6) readonly buffer AdjacencyOffsets { uint offsets[]; };
 layout(std430, binding = 7) readonly buffer Adjacency { uint corners[]; };
-layout(location = 0) uniform uint u_vertices;
 vec3 unit(vec3 a) { float l = dot(a, a); return l > 0.0 ? a * inversesqrt(l) : vec3(0.0); }
 void main() {
   uint v = gl_GlobalInvocationID.x;
-  if (v >= u_vertices) return;
+  if (v >= u_count) return;
   vec3 s = vec3(0.0), c = vec3(0.0);
   for (uint k = offsets[v]; k < offsets[v + 1u]; ++k) {
     uint e = corners[k];
@@ -492,6 +494,11 @@ void renderer_update_normals(Renderer& r) {
 }
 
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
+  renderer_draw_surface(r, camera, options);
+  if (has_target(r) && r.triangle_count > 0) tray_draw(r, camera, options);
+}
+
+void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions& options) {
   if (!has_target(r)) return;  // not initialised, or a failed resize
   const ViewTarget target = renderer_target(r);
   glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
@@ -570,7 +577,14 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   const int flat = r.has_normals || r.gpu_normals ? 0 : 2;
   glUseProgram(r.surface_programs[flat]);
   glVertexArrayElementBuffer(r.vertex_array, r.outer_index_buffer);
-  glDrawRangeElements(GL_TRIANGLES, 0, last_index, index_count, GL_UNSIGNED_INT, nullptr);
+  // In pieces, each handed to the rasteriser at once (see DrawOptions::surface_pieces).
+  const GLsizei pieces = GLsizei(std::clamp(options.surface_pieces, 1, 64));
+  const GLsizei piece = (index_count / 3 + pieces - 1) / pieces * 3;
+  for (GLsizei first = 0; first < index_count; first += piece) {
+    glDrawRangeElements(GL_TRIANGLES, 0, last_index, std::min(piece, index_count - first), GL_UNSIGNED_INT,
+                        reinterpret_cast<const void*>(uintptr_t(first) * 4));
+    if (pieces > 1) glFlush();
+  }
   const uint32_t cut_end = std::min(r.cut_end, r.triangle_count);
   if (r.cut_begin < cut_end) {
     glUseProgram(r.surface_programs[flat + 1]);
@@ -593,9 +607,6 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
   glUseProgram(0);
   glBindVertexArray(0);
   glDisable(GL_CULL_FACE);
-
-  // Pass 3: the trays, with the surface's shadow (tray_shadow_update).
-  tray_draw(r, camera, options);
 }
 
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {

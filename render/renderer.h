@@ -73,6 +73,11 @@ struct DrawOptions {
   // Skip back faces (the surface is closed, so none is visible from outside): on a software
   // rasteriser, where triangle setup dominates, it saves about half the draw.
   bool cull_back_faces = false;
+  // The outer surface drawn in this many pieces, each flushed to the rasteriser at once: a software
+  // rasteriser (llvmpipe) sets triangles up on the calling thread and rasterises only on a flush,
+  // so in one piece its rasteriser threads wait for the whole setup, in several they rasterise one
+  // piece while the next is set up.
+  int surface_pieces = 1;
   Vec3f surface_color = Vec3f(0.88f, 0.70f, 0.64f);  // pale organ capsule
   Vec3f cut_color = Vec3f(0.80f, 0.17f, 0.20f);      // exposed tissue on the cut faces
   Vec3f wire_color = Vec3f(0.20f, 0.12f, 0.12f);
@@ -171,10 +176,13 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh);
 // Runs the GPU normal passes when an upload made them stale (renderer_draw calls it too; calling it
 // first lets a caller time it on its own).
 void renderer_update_normals(Renderer& r);
-// Draws the uploaded surface into the offscreen target.
+// Draws the uploaded surface and the trays into the offscreen target (direct mode: the window's).
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
+// renderer_draw in two halves: the (cleared) view and the surface, then tray_draw (after
+// tray_shadow_update), so a caller can do its own work in between while the surface rasterises.
+void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions& options);
 // Trays (render/tray.cpp): creates / deletes their program and shadow texture (renderer_init /
-// renderer_destroy call them); draws options.trays into the bound offscreen target, after the surface.
+// renderer_destroy call them); draws options.trays into the renderer's target, after the surface.
 bool tray_init(Renderer& r, std::string& error);
 void tray_destroy(Renderer& r);
 void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options);

@@ -139,6 +139,9 @@ void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, con
 
 void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
   if (options.trays.empty() || !r.tray_program) return;
+  const ViewTarget target = renderer_target(r);
+  glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
+  glViewport(target.x, target.y, target.width, target.height);
   const Eigen::Matrix4f view = view_matrix(camera);
   const Eigen::Matrix4f view_projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect()) * view;
   const Eigen::Matrix3f rotation = view.topLeftCorner<3, 3>();

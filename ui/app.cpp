@@ -410,7 +410,14 @@ void grab_mouse(AppState& app, bool left, bool free_mouse, const Ray& ray) {
   }
 }
 
-void handle_mouse(AppState& app, GLFWwindow* window) {
+// The mouse's state for a frame, read before the scene is drawn (the camera moves first) and used
+// after it is handed to the rasteriser (picking and the tools: handle_tools).
+struct MouseFrame {
+  Eigen::Vector2f pixel = Eigen::Vector2f::Zero(), delta = Eigen::Vector2f::Zero();
+  bool left = false, free_mouse = false;
+};
+
+MouseFrame handle_mouse(AppState& app, GLFWwindow* window) {
   double mx = 0, my = 0;
   glfwGetCursorPos(window, &mx, &my);
   int ww = 1, wh = 1, fw = 1, fh = 1;
@@ -453,12 +460,17 @@ void handle_mouse(AppState& app, GLFWwindow* window) {
     g_events.scroll = 0.0;
   }
 
-  const Ray ray = cursor_ray(app.camera, app.viewport, pixel);
-  aim_scalpel(app, ray, delta);
+  return MouseFrame{pixel, delta, left, free_mouse};
+}
+
+// The scalpel aimed at the surface under the cursor, and the tools' commands.
+void handle_tools(AppState& app, const MouseFrame& mouse) {
+  const Ray ray = cursor_ray(app.camera, app.viewport, mouse.pixel);
+  aim_scalpel(app, ray, mouse.delta);
   if (app.status.playing && !app.status.play_done) return;  // the recording drives the tools
   if (!app.status.ready) return;
-  if (app.tool == Tool::kScalpel) scalpel_mouse(app, left, free_mouse);
-  if (app.tool == Tool::kGrab) grab_mouse(app, left, free_mouse, ray);
+  if (app.tool == Tool::kScalpel) scalpel_mouse(app, mouse.left, mouse.free_mouse);
+  if (app.tool == Tool::kGrab) grab_mouse(app, mouse.left, mouse.free_mouse, ray);
 }
 
 // A finished drag says what it cut, once its last step has run.
@@ -648,6 +660,9 @@ struct WindowContext {
   bool profile = false;      // DIVVOX_FRAME_PROFILE=1
   bool gpu_normals = false;  // normals from the GPU passes (else from the simulation thread)
   bool idle = false;         // the last frame showed nothing new and the simulation is paused
+  // What the tray's shadow was built for (draw_trays).
+  uint64_t shadow_sequence = 0;
+  float shadow_yaw = 0.0f, shadow_pitch = 0.0f;
   Eigen::Vector2f last_cursor = Eigen::Vector2f::Zero();
 };
 
@@ -765,6 +780,7 @@ bool init_graphics(AppState& app, WindowContext& w) {
   app.renderer = &w.renderer;
   app.gl_renderer = w.gl_renderer;
   app.draw.cull_back_faces = true;
+  app.draw.surface_pieces = w.software ? 4 : 1;  // DrawOptions::surface_pieces
   // DIVVOX_SHADOWS=0: start with the tray's shadow off (View panel: "shadow on the tray").
   if (const char* sh = std::getenv("DIVVOX_SHADOWS")) app.draw.shadows = std::string(sh) != "0";
   return true;
@@ -798,11 +814,12 @@ double take_snapshot(AppState& app, WindowContext& w) {
   return s->normals_ms;
 }
 
-// The view's scene: in direct mode first the whole back buffer cleared at once (colour and depth:
+// The view's surface: in direct mode first the whole back buffer cleared at once (colour and depth:
 // on a software rasteriser a full clear is nearly free, a clear of a part draws a quad), then the
 // panel's strip in the panel's colour (so ImGui draws no background of its own: a blended quad as
-// large as the panel); the tray's shadow; the surface and the trays.
-void draw_scene(AppState& app, WindowContext& w, int fb_w, int fb_h) {
+// large as the panel); then the surface, handed to the rasteriser at once (glFlush), so that on a
+// software rasteriser it rasterises while this thread picks, builds the tray's shadow and the panels.
+void draw_surface(AppState& app, WindowContext& w, int fb_w, int fb_h) {
   app.draw.clear = !w.renderer.direct;
   app.panel_cleared = w.renderer.direct;
   if (w.renderer.direct) {
@@ -821,11 +838,24 @@ void draw_scene(AppState& app, WindowContext& w, int fb_w, int fb_h) {
     glClear(GL_COLOR_BUFFER_BIT);
     glDisable(GL_SCISSOR_TEST);
   }
-  if (app.current != nullptr) {
+  renderer_draw_surface(w.renderer, app.camera, app.draw);
+  glFlush();
+}
+
+// The trays, with the surface's shadow: rebuilt only when the snapshot, the camera's orientation
+// (the light follows it) or the shadow switch changed (while cutting, most frames show the
+// snapshot of the frame before).
+void draw_trays(AppState& app, WindowContext& w) {
+  if (app.current != nullptr && app.draw.shadows &&
+      (w.shadow_sequence != app.current->sequence || w.shadow_yaw != app.camera.yaw ||
+       w.shadow_pitch != app.camera.pitch || !w.renderer.shadow_valid)) {
     tray_shadow_update(w.renderer, app.current->positions.data(), uint32_t(app.current->positions.size()), app.camera,
                        app.draw);
+    w.shadow_sequence = app.current->sequence;
+    w.shadow_yaw = app.camera.yaw;
+    w.shadow_pitch = app.camera.pitch;
   }
-  renderer_draw(w.renderer, app.camera, app.draw);
+  if (w.renderer.triangle_count > 0) tray_draw(w.renderer, app.camera, app.draw);
 }
 
 // The scalpel, its entry mark and trail, the grabbed point, over the scene.
@@ -859,7 +889,7 @@ void run_frame(AppState& app, WindowContext& w) {
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
   handle_keys(app, w.window);
-  handle_mouse(app, w.window);
+  const MouseFrame mouse = handle_mouse(app, w.window);
 
   const Clock::time_point t0 = Clock::now();
   const Eigen::Vector2f cursor_before = w.last_cursor;
@@ -872,7 +902,9 @@ void run_frame(AppState& app, WindowContext& w) {
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
   if (w.profile) glFinish();
   const Clock::time_point t1n = Clock::now();
-  draw_scene(app, w, fb_w, fb_h);
+  draw_surface(app, w, fb_w, fb_h);
+  handle_tools(app, mouse);  // picks on the snapshot shown while the surface rasterises
+  draw_trays(app, w);
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
   draw_overlays(app, w);
@@ -920,7 +952,8 @@ int finish_window(AppState& app, WindowContext& w, const WindowOptions& options,
     if (w.renderer.direct) {
       int fb_w = 0, fb_h = 0;
       glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
-      draw_scene(app, w, fb_w, fb_h);
+      draw_surface(app, w, fb_w, fb_h);
+      draw_trays(app, w);
       draw_overlays(app, w);
     }
     std::string message;
