@@ -177,6 +177,10 @@ struct FrameStats {
     std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
                 1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
                 1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
+    // The simulation's pace while the frames were counted (below 1: slower than real time).
+    const double steps_run = double(app.status.step >= step_start ? app.status.step - step_start : 0u);
+    std::printf("window: simulation x%.2f real time (%.0f steps in %.1f s)\n",
+                seconds > 0 ? steps_run * app.status.dt / seconds : 0.0, steps_run, seconds);
     if (!app.latency_frames.empty()) {
       double latency = 0.0;
       for (double l : app.latency_frames) latency += l;
@@ -868,10 +872,27 @@ void draw_overlays(AppState& app, WindowContext& w) {
 
 // One frame: input, the snapshot, the scene (only when something it shows changed), overlays,
 // panels, swap; its phase times into the statistics.
+// AppState::sim_rate from the steps run in the last half second (a new session or an undo, which
+// moves the step back, restarts the measurement).
+void update_sim_rate(AppState& app) {
+  const double now = glfwGetTime();
+  if (app.rate_time < 0.0 || app.status.step < app.rate_step || app.status.paused || !app.status.ready) {
+    app.rate_time = now;
+    app.rate_step = app.status.step;
+    if (app.status.paused || !app.status.ready) app.sim_rate = 1.0;
+    return;
+  }
+  if (now - app.rate_time < 0.5) return;
+  app.sim_rate = double(app.status.step - app.rate_step) * app.status.dt / (now - app.rate_time);
+  app.rate_time = now;
+  app.rate_step = app.status.step;
+}
+
 void run_frame(AppState& app, WindowContext& w) {
   glfwPollEvents();
   app.status = w.sim.status();
   follow_simulation(app, w.generation);
+  update_sim_rate(app);
   // Window resize: a new panel width and offscreen target.
   int fb_w = 0, fb_h = 0;
   glfwGetFramebufferSize(w.window, &fb_w, &fb_h);

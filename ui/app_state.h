@@ -94,6 +94,11 @@ struct AppState {
   std::vector<float> upload_ms, draw_ms, render_ms, fps;
   std::vector<float> normals_ms;  // per snapshot shown: its normals' time (simulation thread or GPU passes)
   std::vector<double> latency_frames;  // frames from a cutting command to the snapshot showing it
+  // Simulated time per wall-clock second over the last half second or so (1: real time; lower when
+  // a step costs more CPU than the frames leave it: the window keeps its frame rate, the simulation
+  // slows down). rate_time / rate_step: where the current measurement started.
+  double sim_rate = 1.0, rate_time = -1.0;
+  uint32_t rate_step = 0;
   uint32_t latency_probe_stamp = 0;
   uint64_t latency_probe_frame = 0;
 

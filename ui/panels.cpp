@@ -8,6 +8,7 @@
 #include <imgui.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <numeric>
 
@@ -310,7 +311,12 @@ void draw_panels(AppState& app) {
   // Status line: the last message, else what the window is doing.
   const SimStatus& s = app.status;
   const float fps = app.fps.empty() ? 0.0f : mean_of(app.fps);
-  ImGui::Text("divvox  %.0f fps  %s", fps, s.loading ? "loading..." : s.paused ? "paused" : "");
+  // The simulation's pace when it falls behind real time (the frames keep their rate).
+  char pace[48] = "";
+  if (s.ready && !s.paused && !s.loading && app.sim_rate < 0.95) {
+    std::snprintf(pace, sizeof pace, "sim x%.2f real time", app.sim_rate);
+  }
+  ImGui::Text("divvox  %.0f fps  %s", fps, s.loading ? "loading..." : s.paused ? "paused" : pace);
   if (!app.message.empty()) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1.0f, 0.85f, 0.45f, 1.0f));
     ImGui::TextWrapped("%s", app.message.c_str());
