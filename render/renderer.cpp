@@ -19,25 +19,33 @@ namespace {
 constexpr uint32_t kMinVertexCapacity = 1024;
 constexpr uint32_t kMinTriangleCapacity = 2048;
 
-// Shared vertex stage: normals to eye space (the view matrix is rigid, so its 3x3 part transforms
-// normals too). a_cut_normal: the cut-face normal where there are two (zero elsewhere: its
-// interpolated length is how near a fragment is to a cut's rim). Only the two normals are
-// interpolated: a software rasteriser sets up every varying of every triangle on the render thread,
-// so the eye position is rebuilt in the fragment shader from gl_FragCoord instead.
-const char* kVertexShader = R"(#version 450 core
+// Vertex stage, per pass (kSurfacePreambles' CUT_PASS; the wireframe uses the outer one): normals
+// to eye space (the view matrix is rigid, so its 3x3 part transforms normals too). The outer pass
+// passes its normal and, in w, 1 at a cut's rim vertices (those with a cut-face normal; 0
+// elsewhere: interpolated, it says how near a fragment is to the rim); the cut pass only the cut
+// faces' own normal. A software rasteriser sets up every varying of every triangle on the render
+// thread, so each pass interpolates only what it uses (4 and 3 values), and the eye position is
+// rebuilt in the fragment shader from gl_FragCoord where it is needed.
+const char* kVertexShader = R"(
 layout(location = 0) in vec3 a_position;
 layout(location = 1) in vec3 a_normal;
 layout(location = 2) in vec3 a_cut_normal;
 layout(location = 0) uniform mat4 u_view_projection;
 layout(location = 1) uniform mat4 u_view;
+#if CUT_PASS
+layout(location = 6) uniform int u_split;  // the cut faces have their own normals
 out vec3 v_eye_normal;
-out vec3 v_eye_cut_normal;
 void main() {
-  vec4 p = vec4(a_position, 1.0);
-  v_eye_normal = mat3(u_view) * a_normal;
-  v_eye_cut_normal = mat3(u_view) * a_cut_normal;
-  gl_Position = u_view_projection * p;
+  v_eye_normal = mat3(u_view) * (u_split != 0 ? a_cut_normal : a_normal);
+  gl_Position = u_view_projection * vec4(a_position, 1.0);
 }
+#else
+out vec4 v_eye_normal_rim;
+void main() {
+  v_eye_normal_rim = vec4(mat3(u_view) * a_normal, min(dot(a_cut_normal, a_cut_normal), 1.0));
+  gl_Position = u_view_projection * vec4(a_position, 1.0);
+}
+#endif
 )";
 
 // Per-triangle flags: one byte per triangle slot, four to a word, indexed by gl_PrimitiveID
@@ -63,11 +71,13 @@ void main() {
 // infinity along the view axis (v = +z in eye space, as fixed-function GL's default): the half
 // vector is a constant and no eye ray is rebuilt per pixel.
 const char* kSurfaceFragmentShader = R"(
+#if CUT_PASS
 in vec3 v_eye_normal;
-in vec3 v_eye_cut_normal;
+#else
+in vec4 v_eye_normal_rim;
+#endif
 layout(location = 2) uniform vec3 u_surface_color;
 layout(location = 3) uniform vec3 u_cut_color;
-layout(location = 6) uniform int u_split;
 // FLAT: eye rays from gl_FragCoord: (2 / width, 2 / height, 1 / P[0][0], 1 / P[1][1]); eye depth
 // from the window depth: (P[2][2], P[2][3]).
 layout(location = 7) uniform vec4 u_unproject;
@@ -76,15 +86,15 @@ out vec4 frag_color;
 void main() {
 #if CUT_PASS
   vec3 base = u_cut_color;
-  vec3 n = u_split != 0 ? v_eye_cut_normal : v_eye_normal;
+  vec3 n = v_eye_normal;
   const float gloss = 1.3;
 #else
   // The outer surface blushes toward the cut colour right at a cut's rim: an incision line that shows
   // even while the slit is closed. Only the part of the rim vertices' triangles nearest them: the
   // whole triangle fan blushed into a saw-tooth band as wide as the (uneven) triangles.
-  float near_rim = min(dot(v_eye_cut_normal, v_eye_cut_normal), 1.0);
+  float near_rim = v_eye_normal_rim.w * v_eye_normal_rim.w;
   vec3 base = mix(u_surface_color, 0.85 * u_cut_color, 0.85 * smoothstep(0.55, 0.95, near_rim));
-  vec3 n = v_eye_normal;
+  vec3 n = v_eye_normal_rim.xyz;
   const float gloss = 1.0;
 #endif
 #if FLAT
@@ -346,10 +356,13 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
 
   bool surface_ok = true;
   for (int k = 0; k < 4 && surface_ok; ++k) {
-    r.surface_programs[k] = gl_link_program(kVertexShader, (std::string(kSurfacePreambles[k]) + kSurfaceFragmentShader).c_str(), error);
+    const std::string preamble = kSurfacePreambles[k];
+    r.surface_programs[k] = gl_link_program((preamble + kVertexShader).c_str(), (preamble + kSurfaceFragmentShader).c_str(), error);
     surface_ok = r.surface_programs[k] != 0;
   }
-  if (surface_ok) r.wire_program = gl_link_program(kVertexShader, kWireFragmentShader, error);
+  if (surface_ok) {
+    r.wire_program = gl_link_program((std::string(kSurfacePreambles[0]) + kVertexShader).c_str(), kWireFragmentShader, error);
+  }
   if (r.wire_program) r.triangle_normal_program = gl_link_compute(kTriangleNormalShader, error);
   if (r.triangle_normal_program) r.vertex_normal_program = gl_link_compute(kVertexNormalShader, error);
   if (!r.wire_program || !r.vertex_normal_program || !tray_init(r, error)) {
