@@ -340,7 +340,7 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
   if (app.current && app.cursor_in_view) {
     const uint8_t skip = app.left_down ? kTriangleCut : 0;
     app.hover_hit = pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
-                                 app.camera.z_near, app.hover);
+                                 app.camera.z_near, app.hover, &app.pick_scratch);
   }
   if (app.hover_hit) {
     app.entry_t = app.hover.t;
@@ -384,7 +384,7 @@ void grab_mouse(AppState& app, bool left, bool free_mouse, const Ray& ray) {
     app.left_down = true;
     SurfaceHit hit;
     if (app.current && pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, 0,
-                                    app.camera.z_near, hit)) {
+                                    app.camera.z_near, hit, &app.pick_scratch)) {
       // The picked triangle's corner nearest the hit is the point highlighted while it moves.
       const Tri& t = app.current->triangles[hit.triangle];
       uint32_t best = t[0];

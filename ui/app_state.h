@@ -52,6 +52,7 @@ struct AppState {
   // The scalpel: aimed at the surface point under the cursor (`hover`), `cut_depth` into the tissue.
   bool hover_hit = false;
   SurfaceHit hover;
+  std::vector<Eigen::Vector2f> pick_scratch;  // pick_surface's per-vertex buffer, kept between frames
   float entry_t = 0.0f;      // eye distance of the blade's entry (kept while a drag leaves the object)
   float cut_depth = 1.0f;    // scene units, set live (ctrl+wheel, [ and ], the Tools slider)
   BladePose blade_pose;      // the pose under the cursor now

@@ -19,17 +19,34 @@ Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vect
 }
 
 bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
-                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit) {
+                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit,
+                  std::vector<Eigen::Vector2f>* scratch) {
   const uint32_t n = uint32_t(positions.size());
   const bool have_flags = flags.size() == triangles.size();
   float best = std::numeric_limits<float>::infinity();
   uint32_t best_tri = kDeadIndex;
   const Vec3f& o = ray.origin;
   const Vec3f& d = ray.direction;
+  // Every vertex projected onto the plane across the ray (coordinates along two axes normal to it,
+  // the ray at the origin): a triangle whose corners all lie on one side of an axis cannot be hit,
+  // which rejects nearly all of them with a few comparisons before the exact test.
+  std::vector<Eigen::Vector2f> local;
+  std::vector<Eigen::Vector2f>& plane = scratch ? *scratch : local;
+  const Vec3f u = d.unitOrthogonal(), w = d.cross(u);
+  plane.resize(n);
+  for (uint32_t v = 0; v < n; ++v) {
+    const Vec3f q = positions[v] - o;
+    plane[v] = Eigen::Vector2f(q.dot(u), q.dot(w));
+  }
   for (uint32_t k = 0; k < uint32_t(triangles.size()); ++k) {
     const Tri& t = triangles[k];
     if (t[0] >= n || t[1] >= n || t[2] >= n) continue;  // dead slot
     if (have_flags && (flags[k] & skip_flags) != 0) continue;
+    const Eigen::Vector2f &a = plane[t[0]], &b = plane[t[1]], &c = plane[t[2]];
+    if ((a.x() > 0.0f && b.x() > 0.0f && c.x() > 0.0f) || (a.x() < 0.0f && b.x() < 0.0f && c.x() < 0.0f) ||
+        (a.y() > 0.0f && b.y() > 0.0f && c.y() > 0.0f) || (a.y() < 0.0f && b.y() < 0.0f && c.y() < 0.0f)) {
+      continue;
+    }
     // Moller-Trumbore, two-sided.
     const Vec3f& p0 = positions[t[0]];
     const Vec3f e1 = positions[t[1]] - p0, e2 = positions[t[2]] - p0;

@@ -31,8 +31,10 @@ struct SurfaceHit {
   uint32_t triangle = 0;  // slot
   Vec3f point = Vec3f::Zero();
 };
+// `scratch` (optional) keeps the per-vertex buffer between calls (the window picks every frame).
 bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
-                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit);
+                  const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit,
+                  std::vector<Eigen::Vector2f>* scratch = nullptr);
 
 // The scalpel aimed at a surface point: the blade enters at `entry` (on the surface under the
 // cursor) and goes `depth` into the tissue along the cursor ray tilted by `tilt` radians toward the
