@@ -79,7 +79,7 @@ void contacts_begin_substep(ContactSet& set) {
 void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
   // The relative point, its motion since the start of the substep, and its generalised inverse mass.
   Vec3d r = Vec3d::Zero(), moved = Vec3d::Zero();
-  double w = 0.0;
+  double w = 0.0, lever = 0.0;
   for (uint32_t k = 0; k < c.count; ++k) {
     const double a = c.weights[k];
     if (a == 0.0) continue;
@@ -87,20 +87,26 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
     const Vec3d xp(x[p], x[p + 1], x[p + 2]);
     r += a * xp;
     moved += a * (xp - Vec3d(previous[p], previous[p + 1], previous[p + 2]));
-    w += a * a * inv_mass[c.particles[k]];
+    const double m = inv_mass[c.particles[k]];
+    w += a * a * m;
+    lever = std::max(lever, std::abs(a) * m);
   }
   if (!(w > 0.0)) return;
-  const double inv_w = 1.0 / w;
+  // The lever cap (sim/contact.h, kMaxLever): W_eff = max(W, max_k |w_k| / m_k / kMaxLever). A
+  // requested correction d then moves the point by gain d (gain = W / W_eff: 1 unless the point is
+  // nearly anchored, when it barely moves); the totals count what the point actually moved.
+  const bool capped = lever > kMaxLever * w;
+  const double inv_w = capped ? kMaxLever / lever : 1.0 / w, gain = capped ? w * inv_w : 1.0;
   const Vec3d& n = c.normal;
 
   // Normal: C = n . r - target >= 0, rigid (alpha = 0): dlambda = -C / W moves r by -C n. The total
   // over the substep stays >= 0 (projected Gauss-Seidel with accumulated clamping): a point pushed out
   // too far by an earlier iteration is pulled back by up to what it was pushed, never further.
-  const double depth = std::max(c.target - n.dot(r), -c.normal_total);
-  if (depth != 0.0) {
-    move_point(x, inv_mass, c, inv_w, depth * n);
-    c.normal_total += depth;
-    moved += depth * n;
+  const double request = std::max(c.target - n.dot(r), -c.normal_total / gain);
+  if (request != 0.0) {
+    move_point(x, inv_mass, c, inv_w, request * n);
+    c.normal_total += gain * request;
+    moved += (gain * request) * n;
   }
   if (c.normal_total <= 0.0) return;  // not touching in this substep: no friction
 
@@ -112,7 +118,7 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
     total *= length > 0.0 ? c.kinetic_friction * c.normal_total / length : 0.0;  // sliding
   }
   move_point(x, inv_mass, c, inv_w, total - c.friction_total);
-  c.friction_total = total;
+  c.friction_total = capped ? c.friction_total + gain * (total - c.friction_total) : total;
 }
 
 void solve_contact_group(double* x, const double* previous, const double* inv_mass, ContactSet& set, uint32_t group) {
@@ -299,7 +305,7 @@ bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi
 constexpr double kFacing = -0.9;
 
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double friction, ContactSet& set, PieceContactScratch& g,
+                               double reach, double max_push, double friction, ContactSet& set, PieceContactScratch& g,
                                uint64_t* pairs_tested) {
   if (count == 0 || !(reach > 0.0)) return 0;
   // Points in cells of size `reach`, each cell's items grouped by body (items are ranks in body
@@ -367,11 +373,13 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     ContactPoint c;
     c.normal = b.normal;  // q's tangent plane
     // The overlap now (< 0: a gap), and what the pair may keep of it: a fresh pair starts in contact
-    // where it is (overlap or gap: zero depth); otherwise never more overlap than before.
+    // at zero depth where it overlaps (a gap is no allowance: it may close, never be held open); then
+    // never more overlap than before. A deeper overlap is pushed out by at most max_push this step.
     const double overlap = -c.normal.dot(point_at(a) - point_at(b));
     const double before = std::max(a.allowance, b.allowance);
-    const double allowed = std::isinf(before) ? overlap : std::min(std::max(overlap, 0.0), before);
-    fresh_allowance[v] = float(allowed);
+    const double kept = std::isinf(before) ? std::max(overlap, 0.0) : std::min(std::max(overlap, 0.0), before);
+    const double allowed = std::max(kept, overlap - max_push);
+    fresh_allowance[v] = float(kept);
     std::copy(a.particles, a.particles + 8, c.particles);
     std::copy(b.particles, b.particles + 8, c.particles + 8);
     for (int k = 0; k < 8; ++k) {

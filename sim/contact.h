@@ -86,8 +86,21 @@ inline uint32_t contact_batches(const ContactSet& set) {
 // Zeroes the accumulated corrections (at the start of each substep, when `previous` is reset).
 void contacts_begin_substep(ContactSet& set);
 
-// One contact: normal projection (rigid, compliance 0), then static/kinetic friction against the
-// relative motion since `previous`. Particles with inverse mass 0 do not move; W = 0 is skipped.
+// The lever cap. A rigid correction d of the point moves particle k by (|w_k| / m_k / W) d: up to 1/w_k
+// times d. Where the point's mobility comes only from particles it barely depends on -- a vertex on
+// the anchored face of its piece has weights ~1e-8 on the free corners (W ~ 1e-14) -- a 0.01 overlap
+// would throw those particles 1e5 away (what blew up the 20 000-cut stress test). So no particle moves
+// more than kMaxLever times the point's correction: W_eff = max(W, max_k |w_k| / m_k / kMaxLever).
+// With kMaxLever = 1 no particle moves farther than the point itself: a point of a free piece with
+// even weights (a particle's own point, the centre of a face) is solved exactly in one projection,
+// one with uneven weights or masses a little under-relaxed (it converges over the iterations), a
+// nearly anchored one is only partly corrected, as an anchored point would be. (At 2 or 4 the
+// stress test's half-anchored pieces still jitter at ~60 m/s against the contacts.)
+constexpr double kMaxLever = 1.0;
+
+// One contact: normal projection (rigid, compliance 0, lever-capped), then static/kinetic friction
+// against the relative motion since `previous`. Particles with inverse mass 0 do not move; W = 0 is
+// skipped.
 void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& point);
 
 // The points of group `group` (an index into group_begin), in order.
@@ -116,16 +129,25 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // the contouring's precision), so some start a hair inside the other side. Pushing them out would be a
 // separating impulse; letting each step's overlap become the next step's limit would let them sink.
 // So each vertex carries an *allowance*: a vertex created or moved by a cut is fresh, and at its
-// first contact its allowance is its overlap then; from then on the allowance only shrinks (to the
-// overlap of each later step, to 0 when it is out of contact). Vertices that were never fresh have
-// none: they never enter another body. The cut faces start in contact at zero depth and resist any
-// deeper interpenetration. Surfaces farther apart than the reach (a few fine voxels) are untouched.
+// first contact its allowance is its overlap then (0 where it starts with a gap: a gap may close,
+// it is never held open); from then on the allowance only shrinks (to the overlap of each later step,
+// to 0 when it is out of contact). Vertices that were never fresh have none: they never enter another
+// body. The cut faces start in contact at zero depth and resist any deeper interpenetration. Surfaces
+// farther apart than the reach (a few fine voxels) are untouched.
+//
+// Push-out speed. An overlap deeper than the allowance (a vertex that slipped in between the other
+// body's vertices, a change of partner) is pushed out by at most max_push per step (kMaxPush fine
+// voxels): a rigid correction of the whole overlap in one step would turn it into a separating speed
+// of overlap / dt (what, with the gaps that fresh pairs once held open, pumped energy into the pieces
+// of the 20 000-cut stress test). The allowance itself does not grow: the rest is pushed out in the
+// following steps.
 //
 // Colouring: each contact is its own group; contacts are coloured greedily over their particles
 // (63 colours, a 64-bit mask per particle); a contact that finds every colour taken goes to the
 // overflow batch (kContactOverflow), which the caller solves serially.
 
 constexpr uint32_t kContactOverflow = 63;
+constexpr double kMaxPush = 0.2;  // fine voxels per step (see "Push-out speed")
 
 // A surface vertex offered to the narrow phase.
 struct SurfacePoint {
@@ -197,10 +219,11 @@ bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec
                   const Vec3d& x, double reach);
 
 // Adds the contacts of `points` (see above) to `set` (batch = colour, group = running contact
-// number), coloured over `particle_count` particles, and updates the points' allowances. `x` are the
-// current particle positions (double[3]). Returns how many it added.
+// number), coloured over `particle_count` particles, and updates the points' allowances; an overlap
+// beyond the allowance is pushed out by at most `max_push` this step. `x` are the current particle
+// positions (double[3]). Returns how many it added.
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double friction, ContactSet& set, PieceContactScratch& scratch,
+                               double reach, double max_push, double friction, ContactSet& set, PieceContactScratch& scratch,
                                uint64_t* pairs_tested = nullptr);
 
 }  // namespace dvx

@@ -1243,7 +1243,7 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
   ++pc.counters.gathers;
   pc.counters.points += kept;
   pc.counters.contacts += gather_piece_contacts(pc.points.data(), kept, s.position[0].data(), particles, reach,
-                                                s.params.piece_friction, pc.set, pc.scratch, &pc.counters.point_pairs);
+                                                kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch, &pc.counters.point_pairs);
   contacts_finish(pc.set);
   for (uint32_t slot = 0; slot < slots; ++slot) {
     if (pc.point_of_slot[slot] != ~0u) pc.allowance[slot] = 0.0f;  // dropped below (no normal): none
