@@ -378,12 +378,15 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
         if (lo_labels && hi_labels) {
           a = lo_labels[lo_base + b_hi];
           b = hi_labels[b_hi];
+        } else if (lo_labels || hi_labels) {
+          // One side keeps labels: the node is inside exactly where its label is a piece, so the
+          // undivided side's label (0 where inside) follows from it.
+          a = lo_labels ? lo_labels[lo_base + b_hi] : hi_labels[b_hi] == kNoPiece ? kNoPiece : 0;
+          b = hi_labels ? hi_labels[b_hi] : a == kNoPiece ? kNoPiece : 0;
         } else {
           node[u_axis] = loc[u_axis] * s.ratio + u;
           node[v_axis] = loc[v_axis] * s.ratio + v;
-          const bool inside = fine_inside(model, node[0], node[1], node[2]);
-          a = lo_labels ? lo_labels[lo_base + b_hi] : inside ? 0 : kNoPiece;
-          b = hi_labels ? hi_labels[b_hi] : inside ? 0 : kNoPiece;
+          a = b = fine_inside(model, node[0], node[1], node[2]) ? 0 : kNoPiece;
         }
         if (a == kNoPiece || b == kNoPiece) continue;
         const uint16_t pair = uint16_t(a << 8 | b);
