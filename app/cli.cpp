@@ -289,7 +289,7 @@ int run_voxelize_command(const VoxelizeArgs& args) {
   if (!args.scene.empty() || args.mesh.empty()) {
     const Scene scene = load_scene(args.scene.empty() ? default_scene_path() : args.scene);
     options.mesh_path = scene.mesh_path;
-    options.resolution = scene.resolution;
+    options.resolution = scene.pbd.resolution;
   }
   if (!args.mesh.empty()) options.mesh_path = args.mesh;
   if (args.resolution != 0) options.resolution = args.resolution;

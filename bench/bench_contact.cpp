@@ -28,8 +28,8 @@ struct ContactRun {
 
 // The scene without contact: no planes, no piece contact.
 Scene without_contact(Scene scene) {
-  scene.planes.clear();
-  scene.contact.pieces = false;
+  scene.pbd.planes.clear();
+  scene.pbd.piece_contact = false;
   return scene;
 }
 
@@ -121,14 +121,14 @@ std::string bench_contact(const BenchContactOptions& options) {
   // The liver scene cut through, then resting.
   if (options.liver_cut_steps + options.liver_rest_steps > 0) {
     Scene scene = load_scene(liver);
-    if (options.liver_resolution > 0) scene.resolution = options.liver_resolution;
-    scene.sim_resolution = std::min(scene.sim_resolution, scene.resolution);
+    if (options.liver_resolution > 0) scene.pbd.resolution = options.liver_resolution;
+    scene.pbd.sim_resolution = std::min(scene.pbd.sim_resolution, scene.pbd.resolution);
     const uint32_t steps = uint32_t(options.liver_cut_steps + options.liver_rest_steps);
     const std::string name = fs::path(liver).filename().string() + " (cut)";
     for (const bool contact : {true, false}) {
       if (options.progress) std::fprintf(stderr, "divvox bench contact: %s, contact %s\n", name.c_str(), contact ? "on" : "off");
       Aabb box;
-      const ContactRun run = run_case(contact ? scene : without_contact(scene), scene.solver.dt, options.workers, steps,
+      const ContactRun run = run_case(contact ? scene : without_contact(scene), scene.pbd.dt, options.workers, steps,
                                       [&](const Session& session, uint32_t step) {
                                         return liver_cut(session, step, options.liver_cut_steps, box);
                                       });

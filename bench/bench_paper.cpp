@@ -46,13 +46,13 @@ std::string csv_field(std::string text) {
 Scene scaling_scene(const std::string& mesh_path, const Aabb& box, const BenchScalingOptions& o, int resolution) {
   Scene scene;
   scene.mesh = scene.mesh_path = mesh_path;
-  scene.resolution = resolution;
-  scene.sim_resolution = std::min(o.sim_resolution, resolution);
-  scene.solver.iterations = o.iterations;
+  scene.pbd.resolution = resolution;
+  scene.pbd.sim_resolution = std::min(o.sim_resolution, resolution);
+  scene.pbd.iterations = o.iterations;
   const Vec3d e = box.extent();
-  FixedBox fixed{box.min - Vec3d::Constant(e.maxCoeff()), box.max + Vec3d::Constant(e.maxCoeff())};
+  Aabb fixed{box.min - Vec3d::Constant(e.maxCoeff()), box.max + Vec3d::Constant(e.maxCoeff())};
   fixed.max.y() = box.min.y() + 0.2 * e.y();
-  scene.fixed.push_back(fixed);
+  scene.pbd.fixed.push_back(fixed);
   return scene;
 }
 
@@ -61,7 +61,7 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
   const Aabb box = mesh_bounds(input.mesh);
   const Scene scene = scaling_scene(mesh_path, box, o, resolution);
   Session session;
-  open_session(scene, scene.solver.dt, true, o.workers, session);
+  open_session(scene, scene.pbd.dt, true, o.workers, session);
 
   // Step 0 places the blade; steps 1..n sweep it along the path, cutting. Per step: the phases'
   // times and the counters of the mapping and of the PBD model update.
@@ -95,8 +95,8 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
   const uint64_t model_bytes = session.model.memory_bytes(), cut_bytes = cut_memory_bytes(session.cut);
   return {{"mesh", file_name(mesh_path)},
           {"resolution", resolution},
-          {"sim_resolution", scene.sim_resolution},
-          {"iterations", scene.solver.iterations},
+          {"sim_resolution", scene.pbd.sim_resolution},
+          {"iterations", scene.pbd.iterations},
           {"workers", o.workers},
           {"lattice", {l.nx, l.ny, l.nz}},
           {"occupied_voxels", session.model.occupied_voxels},

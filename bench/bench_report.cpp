@@ -176,8 +176,8 @@ Plot deform_plot(const json& r) {
                     true, {}, {}};
     std::map<int, PlotSeries> by_sim;
     std::vector<double> all_x, all_y;
-    PlotSeries chosen = chosen_series("scene default (sim " + std::to_string(defaults.sim_resolution) + ", " +
-                                      std::to_string(defaults.solver.iterations) + " iterations)");
+    PlotSeries chosen = chosen_series("scene default (sim " + std::to_string(defaults.pbd.sim_resolution) + ", " +
+                                      std::to_string(defaults.pbd.iterations) + " iterations)");
     for (const json& row : r["rows"]) {
       if (row["scenario"] != scenario || get(row, "relative_error") <= 0.0) continue;  // the reference itself
       const int sim = row["sim_resolution"], iterations = row["iterations"];
@@ -192,8 +192,8 @@ Plot deform_plot(const json& r) {
                                             : std::to_string(iterations));
       all_x.push_back(s.x.back());
       all_y.push_back(s.y.back());
-      if (sim == defaults.sim_resolution && iterations == defaults.solver.iterations &&
-          substeps == defaults.solver.substeps) {
+      if (sim == defaults.pbd.sim_resolution && iterations == defaults.pbd.iterations &&
+          substeps == defaults.pbd.substeps) {
         chosen.x.push_back(s.x.back());
         chosen.y.push_back(s.y.back());
       }
@@ -323,7 +323,7 @@ void surface_section(Results& in, std::ostream& md, std::ostream&) {
         "|---|---|---|---|---|---|---|\n";
   std::map<std::string, PlotSeries> by_mesh;
   const Scene defaults;
-  PlotSeries chosen = chosen_series("scene default (resolution " + std::to_string(defaults.resolution) + ")");
+  PlotSeries chosen = chosen_series("scene default (resolution " + std::to_string(defaults.pbd.resolution) + ")");
   for (const json& r : voxelize["rows"]) {
     if (r["status"] != "ok" || !r.contains("error_voxels")) continue;
     const double ms = get(r["time_ms"], "voxelize") + get(r["time_ms"], "contour");
@@ -335,7 +335,7 @@ void surface_section(Results& in, std::ostream& md, std::ostream&) {
     s.x.push_back(ms);
     s.y.push_back(mean / get(r, "resolution"));  // voxels over voxels per longest side
     s.point_labels.push_back(std::to_string(r["resolution"].get<int>()));
-    if (r["resolution"] == defaults.resolution) {
+    if (r["resolution"] == defaults.pbd.resolution) {
       chosen.x.push_back(ms);
       chosen.y.push_back(s.y.back());
     }

@@ -150,7 +150,7 @@ void read_header(const json& h, const std::string& path, uint32_t line, Recordin
     throw_input(path, at + "header: \"dt\" must be a positive finite number");
   }
   rec.dt = h["dt"].get<double>();
-  rec.scene.solver.dt = rec.dt;
+  rec.scene.pbd.dt = rec.dt;
   // Whether the hashes were taken with the physics on (optional; absent: unknown).
   if (h.contains("physics") && h["physics"].is_boolean()) rec.physics = h["physics"].get<bool>() ? 1 : 0;
 }

@@ -67,15 +67,15 @@ bool is_power_of_two(int x) { return x > 0 && (x & (x - 1)) == 0; }
 
 // "planes": [{"point": [x,y,z], "normal": [nx,ny,nz], "friction": mu, "static_friction": mu_s}]; the
 // normal is normalised (a zero normal is an error); friction >= 0, static_friction defaults to it.
-std::vector<ScenePlane> parse_planes(const Reader& r, const json& planes) {
+std::vector<ContactPlane> parse_planes(const Reader& r, const json& planes) {
   if (!planes.is_array()) r.fail("planes", "must be an array of {\"point\": [x,y,z], \"normal\": [nx,ny,nz], \"friction\": f}");
   if (planes.size() > kMaxPlanes) r.fail("planes", "at most " + std::to_string(kMaxPlanes) + " planes");
-  std::vector<ScenePlane> out;
+  std::vector<ContactPlane> out;
   for (size_t i = 0; i < planes.size(); ++i) {
     const std::string key = "planes[" + std::to_string(i) + "]";
     const json& p = planes[i];
     r.check_keys(p, key, {"point", "normal", "friction", "static_friction"});
-    ScenePlane plane;
+    ContactPlane plane;
     if (!p.contains("point")) r.fail(key + ".point", "missing (a point on the plane)");
     if (!p.contains("normal")) r.fail(key + ".normal", "missing (the side material stays on)");
     plane.point = r.vec3(p["point"], key + ".point", 1e30);
@@ -83,8 +83,8 @@ std::vector<ScenePlane> parse_planes(const Reader& r, const json& planes) {
     const double length = normal.norm();
     if (!(length > 1e-12) || !std::isfinite(length)) r.fail(key + ".normal", "must be a non-zero vector");
     plane.normal = normal / length;
-    if (p.contains("friction")) plane.friction = r.number(p["friction"], key + ".friction", 0.0, 1e3);
-    plane.static_friction = plane.friction;
+    if (p.contains("friction")) plane.kinetic_friction = r.number(p["friction"], key + ".friction", 0.0, 1e3);
+    plane.static_friction = plane.kinetic_friction;
     if (p.contains("static_friction")) {
       plane.static_friction = r.number(p["static_friction"], key + ".static_friction", 0.0, 1e3);
     }
@@ -110,39 +110,40 @@ Scene parse_scene(const json& root, const std::string& file) {
   const std::filesystem::path base = file.empty() ? std::filesystem::path() : std::filesystem::path(file).parent_path();
   scene.mesh_path = (mesh_path.is_absolute() ? mesh_path : base / mesh_path).lexically_normal().string();
 
-  if (root.contains("resolution")) scene.resolution = r.integer(root["resolution"], "resolution", 1, kMaxResolution);
+  PbdParams& pbd = scene.pbd;
+  if (root.contains("resolution")) pbd.resolution = r.integer(root["resolution"], "resolution", 1, kMaxResolution);
   if (root.contains("sim_resolution")) {
-    scene.sim_resolution = r.integer(root["sim_resolution"], "sim_resolution", 1, kMaxResolution);
-  } else if (scene.sim_resolution > scene.resolution) {
-    scene.sim_resolution = scene.resolution;
+    pbd.sim_resolution = r.integer(root["sim_resolution"], "sim_resolution", 1, kMaxResolution);
+  } else if (pbd.sim_resolution > pbd.resolution) {
+    pbd.sim_resolution = pbd.resolution;
   }
   // Simulation voxels hold (2^l)^3 fine voxels.
-  if (scene.resolution % scene.sim_resolution != 0 || !is_power_of_two(scene.resolution / scene.sim_resolution)) {
+  if (pbd.resolution % pbd.sim_resolution != 0 || !is_power_of_two(pbd.resolution / pbd.sim_resolution)) {
     r.fail("sim_resolution", "resolution / sim_resolution must be a power of two (resolution " +
-                                 std::to_string(scene.resolution) + ", sim_resolution " +
-                                 std::to_string(scene.sim_resolution) + ")");
+                                 std::to_string(pbd.resolution) + ", sim_resolution " +
+                                 std::to_string(pbd.sim_resolution) + ")");
   }
 
   if (root.contains("material")) {
     const json& m = root["material"];
     r.check_keys(m, "material", {"density", "stretch_compliance", "shape_stiffness"});
-    if (m.contains("density")) scene.material.density = r.number(m["density"], "material.density", 1e-9, 1e9);
+    if (m.contains("density")) pbd.density = r.number(m["density"], "material.density", 1e-9, 1e9);
     if (m.contains("stretch_compliance")) {
-      scene.material.stretch_compliance = r.number(m["stretch_compliance"], "material.stretch_compliance", 0.0, 1e6);
+      pbd.stretch_compliance = r.number(m["stretch_compliance"], "material.stretch_compliance", 0.0, 1e6);
     }
     if (m.contains("shape_stiffness")) {
-      scene.material.shape_stiffness = r.number(m["shape_stiffness"], "material.shape_stiffness", 0.0, 1.0);
+      pbd.shape_stiffness = r.number(m["shape_stiffness"], "material.shape_stiffness", 0.0, 1.0);
     }
   }
   if (root.contains("solver")) {
     const json& s = root["solver"];
     r.check_keys(s, "solver", {"dt", "substeps", "iterations", "damping"});
-    if (s.contains("dt")) scene.solver.dt = r.number(s["dt"], "solver.dt", 1e-6, 1.0);
-    if (s.contains("substeps")) scene.solver.substeps = r.integer(s["substeps"], "solver.substeps", 1, 1000);
-    if (s.contains("iterations")) scene.solver.iterations = r.integer(s["iterations"], "solver.iterations", 1, 10000);
-    if (s.contains("damping")) scene.solver.damping = r.number(s["damping"], "solver.damping", 0.0, 1.0);
+    if (s.contains("dt")) pbd.dt = r.number(s["dt"], "solver.dt", 1e-6, 1.0);
+    if (s.contains("substeps")) pbd.substeps = r.integer(s["substeps"], "solver.substeps", 1, 1000);
+    if (s.contains("iterations")) pbd.iterations = r.integer(s["iterations"], "solver.iterations", 1, 10000);
+    if (s.contains("damping")) pbd.damping = r.number(s["damping"], "solver.damping", 0.0, 1.0);
   }
-  if (root.contains("gravity")) scene.gravity = r.vec3(root["gravity"], "gravity", 1e6);
+  if (root.contains("gravity")) pbd.gravity = r.vec3(root["gravity"], "gravity", 1e6);
   if (root.contains("fixed")) {
     const json& fixed = root["fixed"];
     if (!fixed.is_array()) r.fail("fixed", "must be an array of {\"box\": [[min],[max]]}");
@@ -151,9 +152,11 @@ Scene parse_scene(const json& root, const std::string& file) {
       r.check_keys(fixed[i], key, {"box"});
       const json& box = fixed[i].contains("box") ? fixed[i]["box"] : json();
       if (!box.is_array() || box.size() != 2) r.fail(key + ".box", "must be [[xmin,ymin,zmin],[xmax,ymax,zmax]]");
-      FixedBox b{r.vec3(box[0], key + ".box[0]", 1e30), r.vec3(box[1], key + ".box[1]", 1e30)};
+      Aabb b;
+      b.min = r.vec3(box[0], key + ".box[0]", 1e30);
+      b.max = r.vec3(box[1], key + ".box[1]", 1e30);
       if ((b.min.array() > b.max.array()).any()) r.fail(key + ".box", "min is greater than max");
-      scene.fixed.push_back(b);
+      pbd.fixed.push_back(b);
     }
   }
   if (root.contains("scalpel")) {
@@ -161,15 +164,15 @@ Scene parse_scene(const json& root, const std::string& file) {
     r.check_keys(s, "scalpel", {"length"});
     if (s.contains("length")) scene.scalpel.length = r.number(s["length"], "scalpel.length", 1e-9, 1e9);
   }
-  if (root.contains("planes")) scene.planes = parse_planes(r, root["planes"]);
+  if (root.contains("planes")) pbd.planes = parse_planes(r, root["planes"]);
   if (root.contains("contact")) {
     const json& c = root["contact"];
     r.check_keys(c, "contact", {"pieces", "friction"});
     if (c.contains("pieces")) {
       if (!c["pieces"].is_boolean()) r.fail("contact.pieces", "must be true or false");
-      scene.contact.pieces = c["pieces"].get<bool>();
+      pbd.piece_contact = c["pieces"].get<bool>();
     }
-    if (c.contains("friction")) scene.contact.friction = r.number(c["friction"], "contact.friction", 0.0, 1e3);
+    if (c.contains("friction")) pbd.piece_friction = r.number(c["friction"], "contact.friction", 0.0, 1e3);
   }
   return scene;
 }
@@ -190,32 +193,33 @@ Scene load_scene(const std::string& path) {
 
 json scene_to_json(const Scene& scene) {
   json fixed = json::array();
-  for (const FixedBox& b : scene.fixed) {
+  const PbdParams& pbd = scene.pbd;
+  for (const Aabb& b : pbd.fixed) {
     fixed.push_back({{"box", {{b.min.x(), b.min.y(), b.min.z()}, {b.max.x(), b.max.y(), b.max.z()}}}});
   }
   json planes = json::array();
-  for (const ScenePlane& p : scene.planes) {
+  for (const ContactPlane& p : pbd.planes) {
     planes.push_back({{"point", {p.point.x(), p.point.y(), p.point.z()}},
                       {"normal", {p.normal.x(), p.normal.y(), p.normal.z()}},
-                      {"friction", p.friction},
+                      {"friction", p.kinetic_friction},
                       {"static_friction", p.static_friction}});
   }
   json out = {{"mesh", scene.mesh},
-             {"resolution", scene.resolution},
-             {"sim_resolution", scene.sim_resolution},
+             {"resolution", pbd.resolution},
+             {"sim_resolution", pbd.sim_resolution},
              {"material",
-              {{"density", scene.material.density},
-               {"stretch_compliance", scene.material.stretch_compliance},
-               {"shape_stiffness", scene.material.shape_stiffness}}},
-             {"solver", {{"dt", scene.solver.dt}, {"substeps", scene.solver.substeps}, {"iterations", scene.solver.iterations},
-                         {"damping", scene.solver.damping}}},
-             {"gravity", {scene.gravity.x(), scene.gravity.y(), scene.gravity.z()}},
+              {{"density", pbd.density},
+               {"stretch_compliance", pbd.stretch_compliance},
+               {"shape_stiffness", pbd.shape_stiffness}}},
+             {"solver", {{"dt", pbd.dt}, {"substeps", pbd.substeps}, {"iterations", pbd.iterations},
+                         {"damping", pbd.damping}}},
+             {"gravity", {pbd.gravity.x(), pbd.gravity.y(), pbd.gravity.z()}},
              {"fixed", fixed},
              {"scalpel", {{"length", scene.scalpel.length}}}};
   // Absent when empty / default: older recordings keep their header.
-  if (!scene.planes.empty()) out["planes"] = planes;
-  if (!scene.contact.pieces || scene.contact.friction != Scene::Contact{}.friction) {
-    out["contact"] = {{"pieces", scene.contact.pieces}, {"friction", scene.contact.friction}};
+  if (!pbd.planes.empty()) out["planes"] = planes;
+  if (!pbd.piece_contact || pbd.piece_friction != PbdParams{}.piece_friction) {
+    out["contact"] = {{"pieces", pbd.piece_contact}, {"friction", pbd.piece_friction}};
   }
   return out;
 }

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "sim/mesh.h"
+#include "sim/pbd.h"
 
 #include <nlohmann/json_fwd.hpp>
 
@@ -11,45 +12,20 @@
 
 namespace dvx {
 
-struct FixedBox {
-  Vec3d min, max;  // particles inside this box are anchored
-};
-
-// A static contact plane (a tray, a table): material stays on the side the normal points to.
-struct ScenePlane {
-  Vec3d point = Vec3d::Zero();
-  Vec3d normal = Vec3d(0.0, 1.0, 0.0);  // normalised when read
-  double friction = 0.5;                // Coulomb coefficient while sliding (kinetic)
-  double static_friction = 0.5;         // while sticking; defaults to `friction`
-};
-
+// A scene: the mesh, the PBD parameters it is simulated with (sim/pbd.h's PbdParams, the one source
+// of truth: the session hands them to the model, with the recording's dt), and the scalpel. Keys of
+// the file: "resolution", "sim_resolution", "material" (density, stretch_compliance,
+// shape_stiffness), "solver" (dt, substeps, iterations, damping), "gravity", "fixed" (anchor boxes),
+// "planes" (static contact planes: point, normal, friction = kinetic, static_friction) and "contact"
+// (pieces = piece_contact, friction = piece_friction) all fill `pbd`.
 struct Scene {
   std::string file;        // the scene file ("" when built in code)
   std::string mesh;        // mesh path as written in the file (relative to the scene file)
   std::string mesh_path;   // mesh path resolved against the scene file's folder
-  int resolution = 128;    // finest voxels along the longest axis
-  int sim_resolution = 16;  // simulation voxels along the longest axis; resolution / sim_resolution = 2^l
-  struct Material {
-    double density = 1000.0;
-    double stretch_compliance = 1e-6;
-    double shape_stiffness = 1.0;
-  } material;
-  struct Solver {
-    double dt = 1.0 / 60.0;
-    int substeps = 1;
-    int iterations = 10;
-    double damping = 0.01;  // fraction of particle velocity removed per time step (whatever the substeps)
-  } solver;
-  Vec3d gravity = Vec3d(0.0, -9.81, 0.0);
-  std::vector<FixedBox> fixed;
+  PbdParams pbd;           // resolution, sim_resolution (resolution / sim_resolution = 2^l), material, solver, ...
   struct Scalpel {
     double length = 0.5;
   } scalpel;
-  std::vector<ScenePlane> planes;
-  struct Contact {
-    bool pieces = true;     // pieces not joined by material do not pass through each other
-    double friction = 0.5;  // Coulomb coefficient between pieces
-  } contact;
 };
 
 // Bounds on values a scene may hold (also used by the CLI for --resolution).

@@ -16,28 +16,8 @@ bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.
 }  // namespace
 
 PbdParams pbd_params(const Scene& scene, double dt) {
-  PbdParams p;
-  p.resolution = scene.resolution;
-  p.sim_resolution = scene.sim_resolution;
-  p.density = scene.material.density;
-  p.stretch_compliance = scene.material.stretch_compliance;
-  p.shape_stiffness = scene.material.shape_stiffness;
+  PbdParams p = scene.pbd;
   p.dt = dt;
-  p.substeps = scene.solver.substeps;
-  p.iterations = scene.solver.iterations;
-  p.damping = scene.solver.damping;
-  p.gravity = scene.gravity;
-  for (const FixedBox& b : scene.fixed) {
-    Aabb box;
-    box.grow(b.min);
-    box.grow(b.max);
-    p.fixed.push_back(box);
-  }
-  for (const ScenePlane& plane : scene.planes) {  // contact (sim/contact.h)
-    p.planes.push_back({plane.point, plane.normal, plane.static_friction, plane.friction});
-  }
-  p.piece_contact = scene.contact.pieces;
-  p.piece_friction = scene.contact.friction;
   return p;
 }
 
@@ -45,9 +25,9 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   s.scene = scene;
   s.dt = dt;
   s.input = load_mesh(scene.mesh_path, progress);
-  check_voxelize_memory(scene.mesh_path, mesh_bounds(s.input.mesh), s.input.mesh.triangles.size(), scene.resolution);
+  check_voxelize_memory(scene.mesh_path, mesh_bounds(s.input.mesh), s.input.mesh.triangles.size(), scene.pbd.resolution);
   VoxelizeParams params;
-  params.resolution = scene.resolution;
+  params.resolution = scene.pbd.resolution;
   std::string error;
   if (!voxelize(s.input.mesh, params, s.model, error)) throw_input(scene.mesh_path, error);
   const Clock::time_point t0 = Clock::now();

@@ -370,6 +370,7 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     const uint32_t lo_base = uint32_t(s.ratio) * stride[axis];
     int32_t node[3];
     node[axis] = hic[axis] * s.ratio;
+    uint16_t last = 0xFFFF;  // no pair: labels are below kNoPiece
     for (int32_t v = 0; v <= s.ratio; ++v) {
       for (int32_t u = 0; u <= s.ratio; ++u) {
         const uint32_t b_hi = uint32_t(u) * stride[u_axis] + uint32_t(v) * stride[v_axis];
@@ -377,15 +378,20 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
         if (lo_labels && hi_labels) {
           a = lo_labels[lo_base + b_hi];
           b = hi_labels[b_hi];
+        } else if (lo_labels || hi_labels) {
+          // One side keeps labels: the node is inside exactly where its label is a piece, so the
+          // undivided side's label (0 where inside) follows from it.
+          a = lo_labels ? lo_labels[lo_base + b_hi] : hi_labels[b_hi] == kNoPiece ? kNoPiece : 0;
+          b = hi_labels ? hi_labels[b_hi] : a == kNoPiece ? kNoPiece : 0;
         } else {
           node[u_axis] = loc[u_axis] * s.ratio + u;
           node[v_axis] = loc[v_axis] * s.ratio + v;
-          const bool inside = fine_inside(model, node[0], node[1], node[2]);
-          a = lo_labels ? lo_labels[lo_base + b_hi] : inside ? 0 : kNoPiece;
-          b = hi_labels ? hi_labels[b_hi] : inside ? 0 : kNoPiece;
+          a = b = fine_inside(model, node[0], node[1], node[2]) ? 0 : kNoPiece;
         }
         if (a == kNoPiece || b == kNoPiece) continue;
         const uint16_t pair = uint16_t(a << 8 | b);
+        if (pair == last) continue;  // neighbouring nodes mostly repeat the last pair
+        last = pair;
         if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) == cache.data.end()) {
           cache.data.push_back(pair);
           ++cache.data[at];
@@ -1390,24 +1396,41 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
-  // Changed divided fine voxels by simulation voxel (sim voxel << 32 | fine voxel), and the simulation
-  // voxels holding them.
+  // The simulation voxels holding changed divided fine voxels. Up to kSpanRatio a block is relabelled
+  // whole, so only the voxels are needed (consecutive fine voxels mostly share one: deduplicated on
+  // the fly, then sorted); beyond it the local search needs the changed fine voxels of each, sorted
+  // by simulation voxel (sim voxel << 32 | fine voxel).
+  const bool spans = s.ratio <= kSpanRatio;
   std::vector<uint64_t>& changed = s.scratch_changed;
+  std::vector<uint32_t>& affected = s.scratch_sim;
   changed.clear();
+  affected.clear();
   for (uint32_t voxel : cut.changed_voxels) {
     const uint32_t d = cut.divided_of.get(voxel);
     if (d == kDeadIndex) continue;
     note_cut_voxel(s, model.lattice, cut.divided[d]);
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
-    changed.push_back(uint64_t(sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio)) << 32 | voxel);
+    const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
+    if (!spans) {
+      changed.push_back(uint64_t(sv) << 32 | voxel);
+    } else if (affected.empty() || affected.back() != sv) {
+      affected.push_back(sv);
+    }
   }
-  std::sort(changed.begin(), changed.end());
-  std::vector<uint32_t>& affected = s.scratch_sim;
-  affected.clear();
-  for (uint64_t c : changed) {
-    const uint32_t sv = uint32_t(c >> 32);
-    if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
+  if (spans) {
+    sorted_unique(affected);
+    size_t kept = 0;
+    for (uint32_t sv : affected) {
+      if (has_pieces(s, sv)) affected[kept++] = sv;
+    }
+    affected.resize(kept);
+  } else {
+    std::sort(changed.begin(), changed.end());
+    for (uint64_t c : changed) {
+      const uint32_t sv = uint32_t(c >> 32);
+      if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
+    }
   }
 
   if (!affected.empty()) {
@@ -1441,17 +1464,16 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     }
     // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
     // kSpanRatio locally from their changed fine voxels, else node by node.
+    if (spans) {
+      for (uint32_t sv : affected) relabel_spans(model, cut, s, sv, stats);
+      if (stats) stats->span_relabels += uint32_t(affected.size());
+    }
     std::vector<uint32_t>& fine = s.scratch_parent;
     for (size_t i = 0; i < changed.size();) {
       const uint32_t sv = uint32_t(changed[i] >> 32);
       fine.clear();
       for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
       if (!has_pieces(s, sv)) continue;
-      if (s.ratio <= kSpanRatio) {
-        relabel_spans(model, cut, s, sv, stats);
-        if (stats) ++stats->span_relabels;
-        continue;
-      }
       const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
       if (!local) relabel_block(model, cut, s, sv);
       if (stats) {

@@ -148,6 +148,20 @@ bool piece_local(const PbdState& pbd, uint32_t piece, const Vec3d& world, const 
   return invert_trilinear(corners, world, u, 1e-7 * pbd.sim_size);
 }
 
+// Whether `world` lies within a piece's deformed corner bounds grown by `slack`. The hexahedron lies
+// in its corners' bounds (trilinear weights are a convex combination): a point farther out is not in
+// the piece, and needs no Newton inversion (which converges to within 1e-7 sim_size, below any slack
+// used here, so skipping it never changes a result).
+bool in_piece_bounds(const PbdState& pbd, uint32_t slot, const Vec3d& world, double slack) {
+  const uint32_t* particles = pbd.pieces[slot].particles;
+  Vec3d lo = pbd.position[particles[0]], hi = lo;
+  for (int c = 1; c < 8; ++c) {
+    lo = lo.cwiseMin(pbd.position[particles[c]]);
+    hi = hi.cwiseMax(pbd.position[particles[c]]);
+  }
+  return !((world.array() < lo.array() - slack).any() || (world.array() > hi.array() + slack).any());
+}
+
 }  // namespace
 
 uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
@@ -156,15 +170,7 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const Piece
   constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces
   const double slack = 1e-5 * pbd.sim_size;
   query_piece_grid(grid, world, [&](uint32_t slot) {
-    // The hexahedron lies in its corners' bounds (trilinear weights are a convex combination): a
-    // point outside them is not in the piece, and needs no Newton inversion.
-    const uint32_t* particles = pbd.pieces[slot].particles;
-    Vec3d lo = pbd.position[particles[0]], hi = lo;
-    for (int c = 1; c < 8; ++c) {
-      lo = lo.cwiseMin(pbd.position[particles[c]]);
-      hi = hi.cwiseMax(pbd.position[particles[c]]);
-    }
-    if ((world.array() < lo.array() - slack).any() || (world.array() > hi.array() + slack).any()) return;
+    if (!in_piece_bounds(pbd, slot, world, slack)) return;
     if (tests) ++*tests;
     Vec3d u;
     if (!piece_local(pbd, slot, world, Vec3d::Constant(0.5), u)) return;
@@ -369,7 +375,10 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
     }
     query_piece_grid(m.grid, m.points[k], [&](uint32_t slot) {
       Vec3d u;
-      if (m.carried_piece[i] != kDeadIndex || !piece_local(pbd, slot, m.points[k], Vec3d::Constant(0.5), u)) return;
+      if (m.carried_piece[i] != kDeadIndex || !in_piece_bounds(pbd, slot, m.points[k], 1e-5 * pbd.sim_size) ||
+          !piece_local(pbd, slot, m.points[k], Vec3d::Constant(0.5), u)) {
+        return;
+      }
       if (u.minCoeff() < 0.0 || u.maxCoeff() > 1.0) return;
       m.carried[i] = piece_rest_origin(pbd, slot) + pbd.sim_size * u;
       m.carried_piece[i] = slot;

@@ -242,7 +242,7 @@ void load_play_poses(AppState& app, const Playback& playback) {
 void set_trays(AppState& app) {
   app.draw.trays.clear();
   const Vec3d centre = 0.5 * (app.bounds.min + app.bounds.max);
-  for (const ScenePlane& p : app.status.scene.planes) {
+  for (const ContactPlane& p : app.status.scene.pbd.planes) {
     TrayPlane tray;
     tray.normal = p.normal.cast<float>();
     tray.centre = (centre - (centre - p.point).dot(p.normal) * p.normal).cast<float>();
@@ -599,7 +599,7 @@ void follow_simulation(AppState& app, uint64_t& generation) {
     app.edit = scene_edit_of(app.status.scene);
     frame_camera(app);
     set_trays(app);
-    app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.resolution, 1));
+    app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.pbd.resolution, 1));
     app.cut_depth = float(app.status.scene.scalpel.length);
     set_cut_depth(app, app.cut_depth);
     app.cut_pending = false;
@@ -1025,7 +1025,7 @@ int run_window(const WindowOptions& options) {
     std::snprintf(app.play_path, sizeof app.play_path, "%s", options.play_path.c_str());
     w.sim.play(playback);
   } else {
-    w.sim.open(scene, scene.solver.dt, options.record_path);
+    w.sim.open(scene, scene.pbd.dt, options.record_path);
   }
   std::snprintf(app.scene_path, sizeof app.scene_path, "%s", options.scene_path.c_str());
 

@@ -120,16 +120,16 @@ Vec3f drag_target(const Camera& camera, const Viewport& viewport, const Eigen::V
 SceneEdit scene_edit_of(const Scene& scene) {
   SceneEdit e;
   std::snprintf(e.mesh, sizeof e.mesh, "%s", scene.mesh.c_str());
-  e.resolution = scene.resolution;
-  e.sim_resolution = scene.sim_resolution;
-  e.density = scene.material.density;
-  e.stretch_compliance = scene.material.stretch_compliance;
-  e.shape_stiffness = scene.material.shape_stiffness;
-  e.dt = scene.solver.dt;
-  e.substeps = scene.solver.substeps;
-  e.iterations = scene.solver.iterations;
-  e.damping = scene.solver.damping;
-  for (int k = 0; k < 3; ++k) e.gravity[k] = scene.gravity[k];
+  e.resolution = scene.pbd.resolution;
+  e.sim_resolution = scene.pbd.sim_resolution;
+  e.density = scene.pbd.density;
+  e.stretch_compliance = scene.pbd.stretch_compliance;
+  e.shape_stiffness = scene.pbd.shape_stiffness;
+  e.dt = scene.pbd.dt;
+  e.substeps = scene.pbd.substeps;
+  e.iterations = scene.pbd.iterations;
+  e.damping = scene.pbd.damping;
+  for (int k = 0; k < 3; ++k) e.gravity[k] = scene.pbd.gravity[k];
   e.scalpel_length = scene.scalpel.length;
   return e;
 }

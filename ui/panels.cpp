@@ -34,7 +34,7 @@ std::vector<std::string> scene_files() {
 void open_scene_file(AppState& app, const std::string& path) {
   try {
     const Scene scene = load_scene(path);
-    app.sim->open(scene, scene.solver.dt);
+    app.sim->open(scene, scene.pbd.dt);
     app.edit_error.clear();
     show_message(app, "opening " + path, 4.0);
   } catch (const InputError& e) {
@@ -93,7 +93,7 @@ void scene_panel(AppState& app) {
     Scene scene;
     std::string error;
     if (apply_scene_edit(app.status.scene, e, scene, error)) {
-      app.sim->open(scene, scene.solver.dt);
+      app.sim->open(scene, scene.pbd.dt);
       app.edit_error.clear();
     } else {
       app.edit_error = error;
@@ -137,8 +137,8 @@ void simulation_panel(AppState& app) {
   ImGui::SameLine();
   if (ImGui::Button("From scene")) {
     app.ui_dt = float(s.dt);
-    app.ui_iterations = s.scene.solver.iterations;
-    for (int k = 0; k < 3; ++k) app.ui_gravity[k] = float(s.scene.gravity[k]);
+    app.ui_iterations = s.scene.pbd.iterations;
+    for (int k = 0; k < 3; ++k) app.ui_gravity[k] = float(s.scene.pbd.gravity[k]);
   }
   ImGui::EndDisabled();
   ImGui::TreePop();

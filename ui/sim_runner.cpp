@@ -449,9 +449,9 @@ void SimRunner::run() {
       solver_request_ = false;
       Session& s = *session_;
       s.dt = req_dt_;
-      s.scene.solver.dt = req_dt_;
-      s.scene.solver.iterations = req_iterations_;
-      s.scene.gravity = req_gravity_;
+      s.scene.pbd.dt = req_dt_;
+      s.scene.pbd.iterations = req_iterations_;
+      s.scene.pbd.gravity = req_gravity_;
       if (s.pbd) {
         s.pbd->params.dt = req_dt_;
         s.pbd->params.iterations = req_iterations_;

@@ -217,8 +217,8 @@ TEST_SUITE("pbd_recording") {
     CHECK(shared.empty());
     // It fell, and lies on the scene's tray (lowest point within half a fine voxel of the plane) in
     // front of the body (the cut slopes down to -x), not on the stump or inside the body.
-    REQUIRE(recording.scene.planes.size() == 1);
-    const double tray_y = recording.scene.planes[0].point.y();
+    REQUIRE(recording.scene.pbd.planes.size() == 1);
+    const double tray_y = recording.scene.pbd.planes[0].point.y();
     const double half_voxel = 0.5 * s.model.lattice.voxel_size;
     MESSAGE("head top: mean drop " << head_drop / double(head_vertices) << ", lowest point " << head_min_y
                                    << " (tray at " << tray_y << "), right end x " << head_max_x

@@ -31,8 +31,8 @@ std::string read_text(const std::string& path) {
 // The shipped bunny at a small resolution (seconds to voxelize), with or without the physics.
 void open_small_bunny(Session& session, bool physics) {
   Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
-  scene.resolution = 32;
-  scene.sim_resolution = 4;
+  scene.pbd.resolution = 32;
+  scene.pbd.sim_resolution = 4;
   open_session(scene, 1.0 / 60.0, physics, 1, session);
 }
 

@@ -89,10 +89,10 @@ bool contains(const std::string& haystack, const std::string& needle) {
 Scene test_scene() {
   Scene scene;
   scene.mesh = "m.obj";
-  scene.resolution = 64;
-  scene.sim_resolution = 8;
-  scene.gravity = Vec3d(0.1, -9.81, 1.0 / 3.0);
-  scene.fixed.push_back({Vec3d(-1, -1, -1), Vec3d(1.0 / 7.0, 0, 1)});
+  scene.pbd.resolution = 64;
+  scene.pbd.sim_resolution = 8;
+  scene.pbd.gravity = Vec3d(0.1, -9.81, 1.0 / 3.0);
+  scene.pbd.fixed.push_back({Vec3d(-1, -1, -1), Vec3d(1.0 / 7.0, 0, 1)});
   return scene;
 }
 
@@ -130,12 +130,12 @@ TEST_SUITE("recording") {
     CHECK(rec.file == file);
     CHECK(rec.warnings.empty());
     CHECK(bits(rec.dt) == bits(dt));
-    CHECK(bits(rec.scene.solver.dt) == bits(dt));
-    CHECK(rec.scene.resolution == 64);
-    CHECK(rec.scene.sim_resolution == 8);
-    CHECK(bits(rec.scene.gravity.z()) == bits(1.0 / 3.0));
-    REQUIRE(rec.scene.fixed.size() == 1);
-    CHECK(bits(rec.scene.fixed[0].max.x()) == bits(1.0 / 7.0));
+    CHECK(bits(rec.scene.pbd.dt) == bits(dt));
+    CHECK(rec.scene.pbd.resolution == 64);
+    CHECK(rec.scene.pbd.sim_resolution == 8);
+    CHECK(bits(rec.scene.pbd.gravity.z()) == bits(1.0 / 3.0));
+    REQUIRE(rec.scene.pbd.fixed.size() == 1);
+    CHECK(bits(rec.scene.pbd.fixed[0].max.x()) == bits(1.0 / 7.0));
     // The mesh resolves against the recording's folder.
     CHECK(fs::path(rec.scene.mesh_path) == (dir.path / "m.obj").lexically_normal());
 
@@ -202,7 +202,7 @@ TEST_SUITE("recording") {
     const Recording rec = read_recording(file);
     CHECK(fs::path(rec.scene.mesh_path) == (dir.path / "a" / "meshes" / "m.obj").lexically_normal());
     CHECK(rec.dt == 0.005);
-    CHECK(rec.scene.solver.dt == 0.005);
+    CHECK(rec.scene.pbd.dt == 0.005);
   }
 
   TEST_CASE("a truncated last line is dropped with a warning, everything before it is kept") {

@@ -52,8 +52,8 @@ ReplayOptions replay_of(const std::string& recording, const fs::path& out, bool 
 // A scripted session: a blade along z sweeping along x at height y, then a partial vertical cut.
 void write_session(const std::string& path, int resolution) {
   Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
-  scene.resolution = resolution;
-  scene.sim_resolution = resolution / 8;
+  scene.pbd.resolution = resolution;
+  scene.pbd.sim_resolution = resolution / 8;
   RecordingWriter writer(path, scene, 1.0 / 60.0);
   uint32_t step = 0;
   for (int i = 0; i <= 60; ++i, ++step) {

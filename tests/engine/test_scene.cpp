@@ -27,31 +27,31 @@ std::string parse_error(const json& j) {
 TEST_SUITE("scene") {
   TEST_CASE("the default scene loads, with its mesh resolved against the scene folder") {
     const Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
-    CHECK(scene.resolution == 128);
-    CHECK(scene.sim_resolution == 16);
+    CHECK(scene.pbd.resolution == 128);
+    CHECK(scene.pbd.sim_resolution == 16);
     CHECK(std::filesystem::exists(scene.mesh_path));
     CHECK(std::filesystem::path(scene.mesh_path).filename() == "bunny_npm.obj");
-    REQUIRE(scene.fixed.size() == 1);
-    CHECK(scene.gravity.y() == doctest::Approx(-9.81));
-    REQUIRE(scene.planes.size() == 1);  // the tray under the bunny
-    CHECK(scene.planes[0].normal.y() == 1.0);
+    REQUIRE(scene.pbd.fixed.size() == 1);
+    CHECK(scene.pbd.gravity.y() == doctest::Approx(-9.81));
+    REQUIRE(scene.pbd.planes.size() == 1);  // the tray under the bunny
+    CHECK(scene.pbd.planes[0].normal.y() == 1.0);
   }
 
   TEST_CASE("the liver scene loads: its mesh ships, its ligament region is anchored, it lies on a tray") {
     const Scene scene = load_scene(dvx_test::source_path("assets/scenes/liver.json"));
     CHECK(std::filesystem::exists(scene.mesh_path));
     CHECK(std::filesystem::path(scene.mesh_path).filename() == "liver_sofa_smooth.obj");
-    CHECK(scene.fixed.size() >= 1);
-    REQUIRE(scene.planes.size() == 1);
-    CHECK(scene.planes[0].normal.dot(-scene.gravity) > 0.0);  // a tray under it, against gravity
+    CHECK(scene.pbd.fixed.size() >= 1);
+    REQUIRE(scene.pbd.planes.size() == 1);
+    CHECK(scene.pbd.planes[0].normal.dot(-scene.pbd.gravity) > 0.0);  // a tray under it, against gravity
   }
 
   TEST_CASE("only mesh is required, defaults fill the rest") {
     const Scene scene = parse_scene(json{{"mesh", "m.obj"}}, "dir/s.json");
     CHECK(scene.mesh_path == "dir/m.obj");
-    CHECK(scene.resolution == 128);
-    CHECK(scene.solver.iterations == 10);
-    CHECK(scene.fixed.empty());
+    CHECK(scene.pbd.resolution == 128);
+    CHECK(scene.pbd.iterations == 10);
+    CHECK(scene.pbd.fixed.empty());
   }
 
   TEST_CASE("unknown keys, wrong types and bad values are errors naming the key") {
@@ -78,11 +78,11 @@ TEST_SUITE("scene") {
   TEST_CASE("contact planes: normal normalised, friction read, bad values are errors naming the key") {
     const json tray = {{"point", {0, -0.1, 0}}, {"normal", {0, 2, 0}}, {"friction", 0.7}};
     const Scene scene = parse_scene(json{{"mesh", "m.obj"}, {"planes", {tray}}}, "s.json");
-    REQUIRE(scene.planes.size() == 1);
-    CHECK(scene.planes[0].normal.isApprox(Vec3d(0, 1, 0)));
-    CHECK(scene.planes[0].point.y() == doctest::Approx(-0.1));
-    CHECK(scene.planes[0].friction == 0.7);
-    CHECK(scene.planes[0].static_friction == 0.7);  // defaults to friction
+    REQUIRE(scene.pbd.planes.size() == 1);
+    CHECK(scene.pbd.planes[0].normal.isApprox(Vec3d(0, 1, 0)));
+    CHECK(scene.pbd.planes[0].point.y() == doctest::Approx(-0.1));
+    CHECK(scene.pbd.planes[0].kinetic_friction == 0.7);
+    CHECK(scene.pbd.planes[0].static_friction == 0.7);  // defaults to friction
     const auto with_plane = [](json plane) { return json{{"mesh", "m.obj"}, {"planes", {plane}}}; };
     json bad = tray;
     bad["normal"] = {0, 0, 0};
@@ -109,8 +109,8 @@ TEST_SUITE("scene") {
     CHECK(parse_error(json{{"mesh", "m.obj"}, {"planes", {tray, 3}}}).find("planes[1]: must be an object") !=
           std::string::npos);
     // Piece-piece contact: on by default, switchable, friction >= 0.
-    CHECK(parse_scene(json{{"mesh", "m.obj"}}, "s.json").contact.pieces);
-    CHECK_FALSE(parse_scene(json{{"mesh", "m.obj"}, {"contact", {{"pieces", false}}}}, "s.json").contact.pieces);
+    CHECK(parse_scene(json{{"mesh", "m.obj"}}, "s.json").pbd.piece_contact);
+    CHECK_FALSE(parse_scene(json{{"mesh", "m.obj"}, {"contact", {{"pieces", false}}}}, "s.json").pbd.piece_contact);
     CHECK(parse_error(json{{"mesh", "m.obj"}, {"contact", {{"pieces", 1}}}}).find("contact.pieces: must be true or false") !=
           std::string::npos);
     CHECK(parse_error(json{{"mesh", "m.obj"}, {"contact", {{"friction", -1}}}}).find("contact.friction: must be in") !=
@@ -119,17 +119,17 @@ TEST_SUITE("scene") {
 
   TEST_CASE("a scene round-trips through JSON") {
     Scene scene = parse_scene(json{{"mesh", "m.obj"}, {"resolution", 64}, {"sim_resolution", 8}}, "s.json");
-    scene.fixed.push_back({Vec3d(0, 0, 0), Vec3d(1, 1, 1)});
+    scene.pbd.fixed.push_back({Vec3d(0, 0, 0), Vec3d(1, 1, 1)});
     CHECK_FALSE(scene_to_json(scene).contains("planes"));  // no planes: the key is left out
-    scene.planes.push_back({Vec3d(0, -1, 0), Vec3d(0, 0.6, 0.8), 0.3, 0.4});
+    scene.pbd.planes.push_back({Vec3d(0, -1, 0), Vec3d(0, 0.6, 0.8), /*static*/ 0.4, /*kinetic*/ 0.3});
     const Scene again = parse_scene(scene_to_json(scene), "s.json");
-    REQUIRE(again.planes.size() == 1);
-    CHECK(again.planes[0].normal.isApprox(scene.planes[0].normal));
-    CHECK(again.planes[0].friction == 0.3);
-    CHECK(again.planes[0].static_friction == 0.4);
-    CHECK(again.resolution == 64);
-    CHECK(again.sim_resolution == 8);
-    CHECK(again.fixed.size() == 1);
-    CHECK(again.solver.dt == scene.solver.dt);
+    REQUIRE(again.pbd.planes.size() == 1);
+    CHECK(again.pbd.planes[0].normal.isApprox(scene.pbd.planes[0].normal));
+    CHECK(again.pbd.planes[0].kinetic_friction == 0.3);
+    CHECK(again.pbd.planes[0].static_friction == 0.4);
+    CHECK(again.pbd.resolution == 64);
+    CHECK(again.pbd.sim_resolution == 8);
+    CHECK(again.pbd.fixed.size() == 1);
+    CHECK(again.pbd.dt == scene.pbd.dt);
   }
 }

@@ -12,8 +12,8 @@ namespace {
 
 Scene small_bunny() {
   Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
-  scene.resolution = 32;
-  scene.sim_resolution = 4;
+  scene.pbd.resolution = 32;
+  scene.pbd.sim_resolution = 4;
   return scene;
 }
 
@@ -74,9 +74,9 @@ TEST_SUITE("session") {
 
   TEST_CASE("the PBD parameters come from the scene and the time step") {
     Scene scene = small_bunny();
-    scene.material.density = 1234;
-    scene.solver.iterations = 7;
-    scene.gravity = Vec3d(0, 0, -1);
+    scene.pbd.density = 1234;
+    scene.pbd.iterations = 7;
+    scene.pbd.gravity = Vec3d(0, 0, -1);
     const PbdParams p = pbd_params(scene, 0.02);
     CHECK(p.density == 1234);
     CHECK(p.iterations == 7);
@@ -84,6 +84,6 @@ TEST_SUITE("session") {
     CHECK(p.gravity == Vec3d(0, 0, -1));
     CHECK(p.resolution == 32);
     CHECK(p.sim_resolution == 4);
-    CHECK(p.fixed.size() == scene.fixed.size());
+    CHECK(p.fixed.size() == scene.pbd.fixed.size());
   }
 }

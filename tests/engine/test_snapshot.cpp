@@ -30,7 +30,7 @@ bool same_surface(const Snapshot& a, const Snapshot& b) {
 TEST_SUITE("snapshot") {
   TEST_CASE("incremental fills equal full copies for slots skipped 0 to 10 publishes") {
     Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
-    scene.resolution = 32;
+    scene.pbd.resolution = 32;
     Session s;
     open_session(scene, 1.0 / 60.0, false, 1, s);
     // Slot k is refilled every k-th publish (k = 1 .. 10: beyond the 8 ranges kept, a full copy).

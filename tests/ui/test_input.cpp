@@ -155,10 +155,10 @@ TEST_CASE("scene panel: edits pass the scene file's validation; bad values are r
   e.iterations = 20;
   e.gravity[1] = -3.0;
   REQUIRE(apply_scene_edit(base, e, out, error));
-  CHECK(out.resolution == 64);
-  CHECK(out.sim_resolution == 8);
-  CHECK(out.solver.iterations == 20);
-  CHECK(out.gravity.y() == -3.0);
+  CHECK(out.pbd.resolution == 64);
+  CHECK(out.pbd.sim_resolution == 8);
+  CHECK(out.pbd.iterations == 20);
+  CHECK(out.pbd.gravity.y() == -3.0);
   CHECK(out.mesh_path == "/tmp/m.obj");
 
   const auto rejected = [&](auto&& change, const char* key) {

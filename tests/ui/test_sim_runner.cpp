@@ -40,7 +40,7 @@ TEST_CASE("sim runner: one snapshot per frame drawn, consecutive, of a later ste
                                   (std::filesystem::path(DIVVOX_SOURCE_DIR) / "scene.json").string());
   SimRunner sim;
   sim.set_cpu_normals(true);
-  sim.open(scene, scene.solver.dt);
+  sim.open(scene, scene.pbd.dt);
   const Snapshot* first = next_snapshot(sim);
   REQUIRE(first != nullptr);
   uint64_t sequence = first->sequence;

@@ -1,0 +1,83 @@
+// The PBD model update of a cut step allocates nothing in steady state: its scratch is kept in the
+// model, and what grows (slots, labels, colour groups) grows geometrically. Counted with a global
+// operator new of this test binary (enabled only around the calls measured).
+#include "sim/cut.h"
+#include "sim/pbd.h"
+#include "sim/shapes.h"
+
+#include "fixtures.h"
+
+#include <doctest/doctest.h>
+
+#include <cstdlib>
+#include <new>
+
+namespace {
+
+bool g_counting = false;
+uint64_t g_allocations = 0;
+
+}  // namespace
+
+void* operator new(std::size_t size) {
+  if (g_counting) ++g_allocations;
+  if (void* p = std::malloc(size ? size : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t size) { return operator new(size); }
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+
+using namespace dvx;
+
+TEST_SUITE("pbd") {
+  TEST_CASE("a long progressive cut: the PBD update allocates only when a container grows, never per step") {
+    // A block 1 x 2 x 1 at 64 with 8 simulation voxels along y (8^3 fine voxels each), cut along a
+    // slanted plane in 160 steps: every step relabels the blocks the blade crosses.
+    const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1);
+    dvx_test::PbdScene s;
+    dvx_test::make_pbd_scene(s, box, 64, 8, PbdParams{});
+    const int steps = 160;
+    BladePose previous{Vec3d(-0.7, 0.1, -2), Vec3d(-0.7, 0.1, 2)};
+    uint64_t total = 0;
+    int allocating = 0, cutting = 0;
+    for (int i = 1; i <= steps; ++i) {
+      const double x = -0.7 + 1.4 * i / steps;
+      const BladePose next{Vec3d(x, 0.1 + 0.3 * x, -2), Vec3d(x, 0.1 + 0.3 * x, 2)};
+      cut_step(s.model, s.cut, previous, next);
+      previous = next;
+      PbdCutStats stats;
+      g_allocations = 0;
+      g_counting = true;
+      pbd_apply_cut(s.model, s.cut, s.pbd, &stats);
+      g_counting = false;
+      if (stats.sim_voxels == 0) continue;
+      ++cutting;
+      total += g_allocations;
+      allocating += g_allocations > 0;
+    }
+    std::string error;
+    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd, error), error);
+    MESSAGE("steps relabelling: " << cutting << ", with an allocation: " << allocating << ", allocations: " << total);
+    REQUIRE(cutting > 100);
+    // Growth only: a per-step allocation would show in every step.
+    CHECK(allocating * 5 < cutting);
+    CHECK(total < uint64_t(cutting) * 2);
+  }
+
+  TEST_CASE("a cut step that changes no voxel leaves the PBD model alone without allocating") {
+    const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1);
+    dvx_test::PbdScene s;
+    dvx_test::make_pbd_scene(s, box, 32, 8, PbdParams{});
+    // Far outside the object: the blade crosses no material.
+    cut_step(s.model, s.cut, {Vec3d(5, 5, -1), Vec3d(5, 5, 1)}, {Vec3d(6, 5, -1), Vec3d(6, 5, 1)});
+    g_allocations = 0;
+    g_counting = true;
+    const uint32_t relabelled = pbd_apply_cut(s.model, s.cut, s.pbd);
+    g_counting = false;
+    CHECK(relabelled == 0);
+    CHECK(g_allocations == 0);
+  }
+}
