@@ -1261,17 +1261,24 @@ void plane_backstop(PbdState& s, uint32_t p) {
 
 // ---- Solver step -----------------------------------------------------------------------------
 
-// Shape-matching rest frames of the live pieces, once per step (masses change only between steps).
-void build_shape_rest(PbdState& s) {
-  s.shape_rest.resize(s.pieces.size());
-  for (const std::vector<uint32_t>& group : s.piece_groups) {
-    for (const uint32_t slot : group) {
+// Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, once per step
+// (masses change only between steps). The overflow colour's clusters may share particles: one per
+// block, solved in order.
+void build_shape_blocks(PbdState& s) {
+  for (int c = 0; c < kColourGroups; ++c) {
+    std::vector<ShapeBlock>& blocks = s.shape_blocks[c];
+    blocks.clear();
+    const int lanes = c == kOverflowColour ? 1 : kShapeLanes;
+    for (const uint32_t slot : s.piece_groups[c]) {
       const uint32_t* particles = s.pieces[slot].particles;
       double rest[24];
       for (int k = 0; k < 8; ++k) {
         for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
       }
-      shape_matching_rest(s.inv_mass.data(), particles, rest, 8, s.shape_rest[slot]);
+      ShapeRest r;
+      if (!shape_matching_rest(s.inv_mass.data(), particles, rest, 8, r)) continue;
+      if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
+      shape_block_add(blocks.back(), slot, particles, r);
     }
   }
 }
@@ -1281,7 +1288,7 @@ void build_shape_rest(PbdState& s) {
 // constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact group ~200.
 constexpr uint32_t kParticleGrain = 4096;
 constexpr uint32_t kStretchGrain = 1024;
-constexpr uint32_t kShapeGrain = 64;
+constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
 constexpr uint32_t kContactGrain = 16;
 constexpr uint32_t kSerial = ~0u;
 
@@ -1311,7 +1318,7 @@ void build_step_batches(PbdState& s, bool stretch_on) {
       add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
     }
     for (int c = 0; c < kColourGroups; ++c) {
-      add(StepBatch::kShape, uint32_t(c), uint32_t(s.piece_groups[c].size()), c == kOverflowColour ? kSerial : kShapeGrain);
+      add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : kShapeGrain);
     }
     if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) add(StepBatch::kGrab, 0, 1, kSerial);
     // Contact between pieces, then with the static planes, last so each iteration ends with the
@@ -1546,7 +1553,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   const double h = params.dt / substeps;
   double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
-  build_shape_rest(s);
+  build_shape_blocks(s);
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
@@ -1579,8 +1586,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       }
       case StepBatch::kShape:
         for (uint32_t i = begin; i < end; ++i) {
-          const uint32_t slot = s.piece_groups[b.index][i];
-          solve_shape_matching(x, s.pieces[slot].particles, s.shape_rest[slot], params.shape_stiffness, s.rotation[slot], 0);
+          solve_shape_block(x, s.shape_blocks[b.index][i], params.shape_stiffness, s.rotation.data());
         }
         break;
       case StepBatch::kGrab:

@@ -234,8 +234,9 @@ struct PbdData {
   PieceContacts piece_contacts;
   uint64_t steps = 0;
   // Per-step scratch of pbd_step (masses and rest positions change only between steps): the
-  // shape-matching rest frame of each piece slot, and each piece's corners in float for the embedding.
-  std::vector<ShapeRest> shape_rest;
+  // shape-matching clusters of each colour in blocks (their rest frames), and each piece's corners
+  // in float for the embedding.
+  std::vector<ShapeBlock> shape_blocks[kColourGroups];
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 3)
   // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;

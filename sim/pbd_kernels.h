@@ -109,4 +109,32 @@ bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const 
 void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& rest, double stiffness,
                           Eigen::Quaterniond& rotation, int rotation_iterations = kShapeRotationIterations);
 
+// Shape-matching clusters solved kShapeLanes at a time (the solver's path): structure of arrays
+// ([slot][axis][lane]), so every stage of the solve (gather, centre, A, the rotation step, goals) is a
+// short loop over the lanes that the compiler vectorises (SSE2 on any x86-64, AVX2 where the CPU has
+// it, chosen at load time). Each lane does the same IEEE operations in the same order as the scalar
+// solve_shape_matching(x, indices, rest, stiffness, rotation, 0) (no reassociation, no FMA), so
+// the results are the same bits on every machine and equal the scalar path. The lanes of a block
+// must share no particle (one colour group); a block of fewer than kShapeLanes clusters repeats its
+// first lane, computes it again and writes only its own lanes.
+constexpr int kShapeLanes = 4;
+struct ShapeBlock {
+  int lanes = 0;
+  uint32_t piece[kShapeLanes] = {};                        // rotation slot of each lane
+  uint32_t index[kShapeMaxParticles][kShapeLanes] = {};    // particle of each cluster slot
+  double mass[kShapeMaxParticles][kShapeLanes] = {};
+  double offset[kShapeMaxParticles][3][kShapeLanes] = {};  // r_i - c0
+  double inv_total[kShapeLanes] = {};
+  uint8_t moves[kShapeMaxParticles][kShapeLanes] = {};
+};
+
+// Puts cluster (indices, rest frame r with r.count > 0, rotation slot `piece`) into the next lane
+// of `block` (block.lanes < kShapeLanes); the first lane is also copied into the unused ones.
+void shape_block_add(ShapeBlock& block, uint32_t piece, const uint32_t* indices, const ShapeRest& r);
+
+// Solves the block's clusters with stiffness `stiffness`; rotations[piece] is each lane's warm start,
+// updated in place (one rotation step; extract_rotation with kShapeRotationIterations in a lane where
+// the step is not defined, as in the scalar path).
+void solve_shape_block(double* x, const ShapeBlock& block, double stiffness, Eigen::Quaterniond* rotations);
+
 }  // namespace dvx
