@@ -1284,11 +1284,26 @@ void build_shape_blocks(PbdState& s) {
   }
 }
 
+// The stretch constraints of each colour in blocks of 4 (overflow: one per block, solved in order),
+// once per step; constraint 4 i + l of a colour is lane l of its block i, so the lambdas stay
+// parallel to stretch_groups.
+void build_stretch_blocks(PbdState& s) {
+  for (int c = 0; c < kColourGroups; ++c) {
+    std::vector<StretchBlock>& blocks = s.stretch_blocks[c];
+    blocks.clear();
+    const int lanes = c == kOverflowColour ? 1 : 4;
+    for (const StretchConstraint& k : s.stretch_groups[c]) {
+      if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
+      stretch_block_add(blocks.back(), k.a, k.b, k.rest);
+    }
+  }
+}
+
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
 // constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact group ~200.
 constexpr uint32_t kParticleGrain = 4096;
-constexpr uint32_t kStretchGrain = 1024;
+constexpr uint32_t kStretchGrain = 1024 / 4;  // blocks
 constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
 constexpr uint32_t kContactGrain = 16;
 constexpr uint32_t kSerial = ~0u;
@@ -1316,7 +1331,7 @@ void build_step_batches(PbdState& s, bool stretch_on) {
   add(StepBatch::kPredict, 0, n, kParticleGrain);
   for (int it = 0; it < s.params.iterations; ++it) {
     for (int c = 0; stretch_on && c < kColourGroups; ++c) {
-      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
+      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_blocks[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
     }
     for (int c = 0; c < kColourGroups; ++c) {
       add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : kShapeGrain);
@@ -1557,6 +1572,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
   build_shape_blocks(s);
+  build_stretch_blocks(s);
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
@@ -1582,9 +1598,10 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
         }
         break;
       case StepBatch::kStretch: {
-        const StretchConstraint* k = s.stretch_groups[b.index].data();
+        const StretchBlock* k = s.stretch_blocks[b.index].data();
         double* lambda = s.stretch_lambda[b.index].data();
-        for (uint32_t i = begin; i < end; ++i) solve_distance_alpha(x, w, k[i].a, k[i].b, k[i].rest, alpha, lambda[i]);
+        const uint32_t lanes = b.index == kOverflowColour ? 1 : 4;
+        for (uint32_t i = begin; i < end; ++i) solve_distance_block(x, w, k[i], alpha, lambda + lanes * i);
         break;
       }
       case StepBatch::kShape:

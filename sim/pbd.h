@@ -237,6 +237,7 @@ struct PbdData {
   // shape-matching clusters of each colour in blocks (their rest frames), and each piece's corners
   // in float for the embedding.
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
+  std::vector<StretchBlock> stretch_blocks[kColourGroups];  // stretch_groups in blocks (4 lanes, overflow 1)
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
   // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;

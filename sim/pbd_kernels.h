@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
 namespace dvx {
 
@@ -54,19 +55,37 @@ inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, 
   if (!(w_sum > 0.0)) return;  // both anchored: nothing can move
   double* xi = x + 3 * size_t(i);
   double* xj = x + 3 * size_t(j);
-  const Eigen::Vector3d d(xi[0] - xj[0], xi[1] - xj[1], xi[2] - xj[2]);
-  const double length = d.norm();
+  const double d0 = xi[0] - xj[0], d1 = xi[1] - xj[1], d2 = xi[2] - xj[2];
+  const double length = std::sqrt(d0 * d0 + d1 * d1 + d2 * d2);
   // Coincident (or non-finite) particles: no direction to push along.
-  if (!(length > std::max(1e-12 * rest, 1e-300)) || !std::isfinite(length)) return;
-  const double c = length - rest;
-  const double dlambda = (-c - alpha * lambda) / (w_sum + alpha);
+  if (!(length > std::max(1e-12 * rest, 1e-300)) || !(length <= std::numeric_limits<double>::max())) return;
+  const double dlambda = (-(length - rest) - alpha * lambda) / (w_sum + alpha);
   lambda += dlambda;
-  for (int k = 0; k < 3; ++k) {
-    const double n = d[k] / length;
-    xi[k] += wi * dlambda * n;
-    xj[k] -= wj * dlambda * n;
-  }
+  // x_i += w_i dlambda d / |d| (one division for the three axes).
+  const double s = dlambda / length, si = wi * s, sj = wj * s;
+  xi[0] += si * d0;
+  xi[1] += si * d1;
+  xi[2] += si * d2;
+  xj[0] -= sj * d0;
+  xj[1] -= sj * d1;
+  xj[2] -= sj * d2;
 }
+
+// Distance constraints of one colour solved 4 at a time in vector lanes (the solver's path): each
+// lane does solve_distance_alpha's operations in its order (the same bits); the lanes share no
+// particle. A block of fewer lanes repeats its first lane and writes only its own.
+struct StretchBlock {
+  int lanes = 0;
+  uint32_t a[4] = {}, b[4] = {};
+  double rest[4] = {};
+};
+
+// Puts constraint (a, b, rest) into the next lane of `block` (block.lanes < 4).
+void stretch_block_add(StretchBlock& block, uint32_t a, uint32_t b, double rest);
+
+// One pass of the block's constraints with alpha~ = compliance / dt^2 (0: rigid); lambda[l] is lane
+// l's multiplier (block.lanes of them), updated in place.
+void solve_distance_block(double* x, const double* inv_mass, const StretchBlock& block, double alpha, double* lambda);
 
 // One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions
 // `rest` (double[3] per listed particle, in the same order as indices), masses from inv_mass (w = 0
