@@ -1372,6 +1372,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   }
   s = PbdState{};
   s.params = params;
+  ++s.revision;
   const Lattice& l = model.lattice;
   s.ratio = params.resolution / params.sim_resolution;
   s.sx = (l.nx + s.ratio - 1) / s.ratio;
@@ -1413,6 +1414,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
+  ++s.revision;  // the solver's blocks are rebuilt before the next step
   // Changed divided fine voxels by simulation voxel (sim voxel << 32 | fine voxel), and the simulation
   // voxels holding them.
   std::vector<uint64_t>& changed = s.scratch_changed;
@@ -1571,8 +1573,12 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   const double h = params.dt / substeps;
   double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
-  build_shape_blocks(s);
-  build_stretch_blocks(s);
+  // The constraint blocks change only with the model (a cut, or init).
+  if (s.blocks_revision != s.revision) {
+    build_shape_blocks(s);
+    build_stretch_blocks(s);
+    s.blocks_revision = s.revision;
+  }
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
