@@ -1556,11 +1556,16 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       s.deformed[slot] = cut.surface.positions[slot];
       return;
     }
-    F4 p[8];
-    std::memcpy(p, &s.piece_corners[32 * size_t(piece)], sizeof p);
+    const float* corners = &s.piece_corners[32 * size_t(piece)];
+    const auto p = [corners](int c) {  // one corner (loads straight into a register, no copy)
+      F4 r;
+      std::memcpy(&r, corners + 4 * c, sizeof r);
+      return r;
+    };
     const float u = e.local.x(), v = e.local.y(), w = e.local.z();
-    const F4 x0 = p[0] + u * (p[1] - p[0]), x1 = p[2] + u * (p[3] - p[2]);
-    const F4 x2 = p[4] + u * (p[5] - p[4]), x3 = p[6] + u * (p[7] - p[6]);
+    const F4 p0 = p(0), p2 = p(2), p4 = p(4), p6 = p(6);
+    const F4 x0 = p0 + u * (p(1) - p0), x1 = p2 + u * (p(3) - p2);
+    const F4 x2 = p4 + u * (p(5) - p4), x3 = p6 + u * (p(7) - p6);
     const F4 y0 = x0 + v * (x1 - x0), y1 = x2 + v * (x3 - x2);
     const F4 out = y0 + w * (y1 - y0);
     s.deformed[slot] = Vec3f(out[0], out[1], out[2]);

@@ -422,13 +422,15 @@ void solve_distance_block(double* x, const double* inv_mass, const StretchBlock&
     yi[e] = lane_select(ok, xi[e] + si * d[e], xi[e]);
     yj[e] = lane_select(ok, xj[e] - sj * d[e], xj[e]);
   }
-  for (int l = 0; l < k.lanes; ++l) {
-    lambda_out[l] = new_lambda[l];
+  // All four lanes' positions (an unused lane repeats the first: it writes the same values again,
+  // so the loop has a fixed count), the lambdas of the used lanes.
+  for (int l = 0; l < 4; ++l) {
     for (int e = 0; e < 3; ++e) {
       x[3 * size_t(k.a[l]) + e] = yi[e][l];
       x[3 * size_t(k.b[l]) + e] = yj[e][l];
     }
   }
+  for (int l = 0; l < k.lanes; ++l) lambda_out[l] = new_lambda[l];
 }
 
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
