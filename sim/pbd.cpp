@@ -1284,26 +1284,11 @@ void build_shape_blocks(PbdState& s) {
   }
 }
 
-// The stretch constraints of each colour in blocks of 4 (overflow: one per block, solved in order),
-// once per step; constraint 4 i + l of a colour is lane l of its block i, so the lambdas stay
-// parallel to stretch_groups.
-void build_stretch_blocks(PbdState& s) {
-  for (int c = 0; c < kColourGroups; ++c) {
-    std::vector<StretchBlock>& blocks = s.stretch_blocks[c];
-    blocks.clear();
-    const int lanes = c == kOverflowColour ? 1 : 4;
-    for (const StretchConstraint& k : s.stretch_groups[c]) {
-      if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
-      stretch_block_add(blocks.back(), k.a, k.b, k.rest);
-    }
-  }
-}
-
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
 // constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact group ~200.
 constexpr uint32_t kParticleGrain = 4096;
-constexpr uint32_t kStretchGrain = 1024 / 4;  // blocks
+constexpr uint32_t kStretchGrain = 1024;
 constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
 constexpr uint32_t kContactGrain = 16;
 constexpr uint32_t kSerial = ~0u;
@@ -1331,7 +1316,7 @@ void build_step_batches(PbdState& s, bool stretch_on) {
   add(StepBatch::kPredict, 0, n, kParticleGrain);
   for (int it = 0; it < s.params.iterations; ++it) {
     for (int c = 0; stretch_on && c < kColourGroups; ++c) {
-      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_blocks[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
+      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
     }
     for (int c = 0; c < kColourGroups; ++c) {
       add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : kShapeGrain);
@@ -1581,7 +1566,6 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   // The constraint blocks change only with the model (a cut, or init).
   if (s.blocks_revision != s.revision) {
     build_shape_blocks(s);
-    build_stretch_blocks(s);
     s.blocks_revision = s.revision;
   }
   // A soft constraint without a time step does nothing (solve_distance's rule).
@@ -1609,10 +1593,10 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
         }
         break;
       case StepBatch::kStretch: {
-        const StretchBlock* k = s.stretch_blocks[b.index].data();
+        // Scalar: in vector lanes (4 constraints, gathered) it measured 1.4-2.3x slower (bench deform).
+        const StretchConstraint* k = s.stretch_groups[b.index].data();
         double* lambda = s.stretch_lambda[b.index].data();
-        const uint32_t lanes = b.index == kOverflowColour ? 1 : 4;
-        for (uint32_t i = begin; i < end; ++i) solve_distance_block(x, w, k[i], alpha, lambda + lanes * i);
+        for (uint32_t i = begin; i < end; ++i) solve_distance_alpha(x, w, k[i].a, k[i].b, k[i].rest, alpha, lambda[i]);
         break;
       }
       case StepBatch::kShape:

@@ -211,7 +211,7 @@ struct PbdModel {
   std::vector<uint64_t> cut_rows;
 
   // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver rebuilds its constraint
-  // blocks (PbdData::shape_blocks, stretch_blocks) only when it changed.
+  // blocks (PbdData::shape_blocks) only when it changed.
   uint64_t revision = 0;
 };
 
@@ -239,11 +239,9 @@ struct PbdData {
   uint64_t steps = 0;
   // Solver scratch, rebuilt when the model changes (blocks_revision != PbdModel::revision; masses and
   // rest positions change only with it): the shape-matching clusters of each colour in blocks (their
-  // rest frames) and the stretch constraints in blocks (4 lanes, overflow 1); each step, each piece's
-  // corners in float for the embedding.
+  // rest frames); each step, each piece's corners in float for the embedding.
   uint64_t blocks_revision = ~uint64_t(0);
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
-  std::vector<StretchBlock> stretch_blocks[kColourGroups];
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
   // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;

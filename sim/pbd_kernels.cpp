@@ -384,55 +384,6 @@ Quaterniond extract_rotation_step(const Matrix3d& a, const Quaterniond& q, int f
   return Quaterniond(ql[0], ql[1], ql[2], ql[3]);
 }
 
-void stretch_block_add(StretchBlock& block, uint32_t a, uint32_t b, double rest) {
-  const int lane = block.lanes++;
-  for (int l = lane; l < (lane == 0 ? 4 : lane + 1); ++l) {
-    block.a[l] = a;
-    block.b[l] = b;
-    block.rest[l] = rest;
-  }
-}
-
-// solve_distance_alpha in V4 lanes: the early returns become a mask that keeps a lane's particles
-// and lambda.
-__attribute__((target_clones("avx2", "default")))
-void solve_distance_block(double* x, const double* inv_mass, const StretchBlock& k, double alpha, double* lambda_out) {
-  V4 wi, wj, xi[3], xj[3], lambda;
-  for (int l = 0; l < 4; ++l) {
-    lambda[l] = lambda_out[l < k.lanes ? l : 0];
-    wi[l] = inv_mass[k.a[l]];
-    wj[l] = inv_mass[k.b[l]];
-    for (int e = 0; e < 3; ++e) {
-      xi[e][l] = x[3 * size_t(k.a[l]) + e];
-      xj[e][l] = x[3 * size_t(k.b[l]) + e];
-    }
-  }
-  const V4 rest = load4(k.rest);
-  const V4 w_sum = wi + wj;
-  const V4 d[3] = {xi[0] - xj[0], xi[1] - xj[1], xi[2] - xj[2]};
-  const V4 length = lane_sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-  const V4 tiny = {1e-300, 1e-300, 1e-300, 1e-300};
-  const M4 ok = (w_sum > 0.0) & (length > lane_max(1e-12 * rest, tiny)) &
-                (length <= std::numeric_limits<double>::max());
-  const V4 dlambda = (-(length - rest) - alpha * lambda) / (w_sum + alpha);
-  const V4 s = dlambda / length, si = wi * s, sj = wj * s;
-  const V4 new_lambda = lane_select(ok, lambda + dlambda, lambda);
-  V4 yi[3], yj[3];
-  for (int e = 0; e < 3; ++e) {
-    yi[e] = lane_select(ok, xi[e] + si * d[e], xi[e]);
-    yj[e] = lane_select(ok, xj[e] - sj * d[e], xj[e]);
-  }
-  // All four lanes' positions (an unused lane repeats the first: it writes the same values again,
-  // so the loop has a fixed count), the lambdas of the used lanes.
-  for (int l = 0; l < 4; ++l) {
-    for (int e = 0; e < 3; ++e) {
-      x[3 * size_t(k.a[l]) + e] = yi[e][l];
-      x[3 * size_t(k.b[l]) + e] = yj[e][l];
-    }
-  }
-  for (int l = 0; l < k.lanes; ++l) lambda_out[l] = new_lambda[l];
-}
-
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
                     double dt, double& lambda) {
   // alpha~ = compliance / dt^2; a soft constraint without a time step does nothing.

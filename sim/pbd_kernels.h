@@ -71,22 +71,6 @@ inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, 
   xj[2] -= sj * d2;
 }
 
-// Distance constraints of one colour solved 4 at a time in vector lanes (the solver's path): each
-// lane does solve_distance_alpha's operations in its order (the same bits); the lanes share no
-// particle. A block of fewer lanes repeats its first lane and writes only its own.
-struct StretchBlock {
-  int lanes = 0;
-  uint32_t a[4] = {}, b[4] = {};
-  double rest[4] = {};
-};
-
-// Puts constraint (a, b, rest) into the next lane of `block` (block.lanes < 4).
-void stretch_block_add(StretchBlock& block, uint32_t a, uint32_t b, double rest);
-
-// One pass of the block's constraints with alpha~ = compliance / dt^2 (0: rigid); lambda[l] is lane
-// l's multiplier (block.lanes of them), updated in place.
-void solve_distance_block(double* x, const double* inv_mass, const StretchBlock& block, double alpha, double* lambda);
-
 // One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions
 // `rest` (double[3] per listed particle, in the same order as indices), masses from inv_mass (w = 0
 // particles count as heavy: use a large fixed mass for them in the centroid, e.g. weight 1e6 x the

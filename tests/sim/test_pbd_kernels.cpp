@@ -576,47 +576,6 @@ TEST_SUITE("pbd_kernels") {
     }
   }
 
-  // The solver's stretch blocks against solve_distance_alpha constraint by constraint (the same
-  // operations per lane: the same bits), with the cases it skips: both particles anchored,
-  // coincident particles, a non-finite position; blocks of 1 to 4 lanes, repeated passes.
-  TEST_CASE("solve_distance_block equals solve_distance_alpha lane by lane, skipped cases included") {
-    Rng rng(49);
-    for (int trial = 0; trial < 200; ++trial) {
-      const int lanes = 1 + trial % 4;
-      std::vector<double> x(3 * 8), w(8);
-      for (double& v : x) v = rng.uniform(-1, 1);
-      for (double& v : w) v = rng.uniform(0.1, 2.0);
-      StretchBlock block;
-      double rest[4];
-      for (int l = 0; l < lanes; ++l) {
-        rest[l] = rng.uniform(0.1, 1.5);
-        stretch_block_add(block, uint32_t(2 * l), uint32_t(2 * l + 1), rest[l]);
-      }
-      const int odd = trial % 5;  // 0: all regular
-      if (odd == 1) w[0] = w[1] = 0.0;
-      if (odd == 2) set(x, 2 * (lanes - 1) + 1, get(x, 2 * (lanes - 1)));
-      if (odd == 3) x[0] = std::numeric_limits<double>::infinity();
-      if (odd == 4) w[2 * (lanes - 1)] = 0.0;
-      const double alpha = trial % 2 ? 0.0 : rng.uniform(0.0, 0.5);
-      std::vector<double> x_scalar = x;
-      double lambda[4] = {}, lambda_scalar[4] = {};
-      for (int pass = 0; pass < 3; ++pass) {
-        solve_distance_block(x.data(), w.data(), block, alpha, lambda);
-        for (int l = 0; l < lanes; ++l)
-          solve_distance_alpha(x_scalar.data(), w.data(), uint32_t(2 * l), uint32_t(2 * l + 1), rest[l], alpha,
-                               lambda_scalar[l]);
-        for (size_t k = 0; k < x.size(); ++k) {
-          if (std::isnan(x_scalar[k])) {
-            CHECK(std::isnan(x[k]));
-          } else {
-            CHECK(x[k] == x_scalar[k]);
-          }
-        }
-        for (int l = 0; l < 4; ++l) CHECK(lambda[l] == lambda_scalar[l]);  // unused lanes stay 0
-      }
-    }
-  }
-
   // The solver's inlined stretch (alpha~ hoisted) against the XPBD formula written out.
   TEST_CASE("solve_distance_alpha equals the XPBD distance update written out") {
     Rng rng(43);
