@@ -1399,7 +1399,6 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
-  ++s.revision;  // the solver's blocks are rebuilt before the next step
   // Changed divided fine voxels by simulation voxel (sim voxel << 32 | fine voxel), and the simulation
   // voxels holding them.
   std::vector<uint64_t>& changed = s.scratch_changed;
@@ -1421,6 +1420,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   }
 
   if (!affected.empty()) {
+    ++s.revision;  // pieces, particles and masses change: the solver rebuilds its blocks
     // The voxels whose pieces may change particles: the affected ones and their neighbours.
     std::vector<uint32_t>& near = s.scratch_near;
     near.clear();
