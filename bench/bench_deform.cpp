@@ -94,6 +94,57 @@ double relative_error(const CutState& cut, const PbdState& run, const PbdState& 
   return den > 0.0 ? std::sqrt(num / den) : 0.0;
 }
 
+// The shape-matching kernel before and after issue 17 in one run, on a settled state of `pbd`:
+// passes over every cluster, colour by colour, with the scalar kernel (solve_shape_matching from a
+// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_block) from the
+// same start. Both must end on the same bits (checked: "identical"); time per cluster solve, the
+// fastest pass of `repeats`.
+nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
+  const std::vector<Vec3d> start = pbd.position;
+  const std::vector<Eigen::Quaterniond> rotations = pbd.rotation;
+  std::vector<ShapeRest> frames(pbd.pieces.size());
+  uint64_t clusters = 0;
+  for (const std::vector<uint32_t>& group : pbd.piece_groups) {
+    for (const uint32_t slot : group) {
+      double rest[24];
+      for (int k = 0; k < 8; ++k) {
+        for (int a = 0; a < 3; ++a) rest[3 * k + a] = pbd.rest[pbd.pieces[slot].particles[k]][a];
+      }
+      clusters += shape_matching_rest(pbd.inv_mass.data(), pbd.pieces[slot].particles, rest, 8, frames[slot]) ? 1 : 0;
+    }
+  }
+  // One pass over every cluster; returns its time (ms).
+  const auto pass = [&](bool blocks) {
+    double* x = pbd.position[0].data();
+    const Clock::time_point t0 = Clock::now();
+    for (int c = 0; c < kColourGroups; ++c) {
+      if (blocks) {
+        for (const ShapeBlock& b : pbd.shape_blocks[c]) solve_shape_block(x, b, 1.0, pbd.rotation.data());
+        continue;
+      }
+      for (const uint32_t slot : pbd.piece_groups[c]) {
+        if (frames[slot].count > 0) solve_shape_matching(x, pbd.pieces[slot].particles, frames[slot], 1.0, pbd.rotation[slot], 0);
+      }
+    }
+    return ms_between(t0, Clock::now());
+  };
+  double best[2] = {1e300, 1e300};
+  std::vector<Vec3d> end[2];
+  for (const bool blocks : {false, true}) {
+    pbd.position = start;
+    pbd.rotation = rotations;
+    for (int r = 0; r < repeats; ++r) best[blocks] = std::min(best[blocks], pass(blocks));
+    end[blocks] = pbd.position;
+  }
+  pbd.position = start;
+  pbd.rotation = rotations;
+  const double per = 1e6 / double(std::max<uint64_t>(1, clusters));  // ms -> ns per cluster
+  return {{"clusters", clusters},
+          {"repeats", repeats},
+          {"shape_matching", {{"scalar_ns", best[0] * per}, {"blocks_ns", best[1] * per},
+                              {"speedup", best[1] > 0.0 ? best[0] / best[1] : 0.0}, {"identical", end[0] == end[1]}}}};
+}
+
 }  // namespace
 
 std::string bench_deform(const BenchDeformOptions& options) {
@@ -108,7 +159,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
   std::ostringstream csv;
   csv << "mesh,scenario,resolution,sim_resolution,iterations,steps,step_p50_ms,step_p99_ms,relative_error,particles,"
          "shape_constraints,stretch_constraints,substeps\n";
-  nlohmann::json rows = nlohmann::json::array(), target_json;
+  nlohmann::json rows = nlohmann::json::array(), target_json, kernels_json;
   for (const bool through : {false, true}) {
     const std::string scenario = through ? "through_cut" : "anchored";
     Scenario s;
@@ -118,6 +169,8 @@ std::string bench_deform(const BenchDeformOptions& options) {
     const int most = *std::max_element(options.iterations.begin(), options.iterations.end());
     PbdState reference;
     simulate(s, anchored_params(s, options.resolution, finest, most), steps, pool, reference);
+    // The kernels before and after (issue 17), on the uncut scenario's settled reference state.
+    if (!through) kernels_json = kernel_comparison(reference, 20);
     // One run: a CSV row and a JSON row.
     const auto measure = [&](int sim, int iterations, int substeps) {
       if (options.progress) {
@@ -190,6 +243,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
                    {"error", "relative L2 distance of the surface vertices to the finest, most converged run, over the "
                              "reference's mean displacement"},
                    {"rows", rows},
+                   {"kernels", kernels_json},
                    {"target", target_json}};
   write_json_file((out / "bench_deform.json").string(), results);
   std::string error;

@@ -399,6 +399,15 @@ void deform_section(Results& in, std::ostream& md, std::ostream&) {
   md << "\n"
      << in.plot("bench_deform.svg", deform_plot(deform), "physics speed against error")
      << "\n";
+  // The shape-matching kernel before (scalar) and after (blocks, issue 17), measured in the same run.
+  const json& kernels = deform.contains("kernels") ? deform["kernels"] : json();
+  if (kernels.is_object() && kernels.contains("shape_matching")) {
+    const json& r = kernels["shape_matching"];
+    md << "Shape-matching kernel before (scalar) and after (vector blocks of 4 clusters, issue 17), same run, on "
+       << "the settled reference state (" << kernels["clusters"] << " clusters): " << num(get(r, "scalar_ns"))
+       << " → " << num(get(r, "blocks_ns")) << " ns per cluster solve (" << num(get(r, "speedup")) << "×), "
+       << (r["identical"].get<bool>() ? "the same bits" : "**results differ**") << ".\n\n";
+  }
   const json& target = deform["target"];
   if (target.is_object()) {
     md << "Speed target: " << target["mesh"].get<std::string>() << " at " << target["resolution"] << " ("

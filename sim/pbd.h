@@ -209,6 +209,10 @@ struct PbdModel {
   // block's cuts without looking up each fine voxel.
   FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 + 3 (ratio+1)^2 rows)
   std::vector<uint64_t> cut_rows;
+
+  // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver rebuilds its constraint
+  // blocks (PbdData::shape_blocks) only when it changed.
+  uint64_t revision = 0;
 };
 
 // One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
@@ -233,10 +237,12 @@ struct PbdData {
   ContactSet contacts;
   PieceContacts piece_contacts;
   uint64_t steps = 0;
-  // Per-step scratch of pbd_step (masses and rest positions change only between steps): the
-  // shape-matching rest frame of each piece slot, and each piece's corners in float for the embedding.
-  std::vector<ShapeRest> shape_rest;
-  std::vector<float> piece_corners;  // (piece slots x 8 corners x 3)
+  // Solver scratch, rebuilt when the model changes (blocks_revision != PbdModel::revision; masses and
+  // rest positions change only with it): the shape-matching clusters of each colour in blocks (their
+  // rest frames); each step, each piece's corners in float for the embedding.
+  uint64_t blocks_revision = ~uint64_t(0);
+  std::vector<ShapeBlock> shape_blocks[kColourGroups];
+  std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
   // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;

@@ -3,6 +3,8 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstring>
+#include <limits>
 
 namespace dvx {
 
@@ -84,6 +86,134 @@ inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d&
   return std::hypot(c, curvature) - curvature;
 }
 
+// Lanes: the rotation step and R(q) are written once over a lane type T: double (the scalar path)
+// or V4, four doubles in GCC's vector extension (the blocks; SSE2 pairs in the default build, AVX2
+// in the solver's avx2 clone). Per lane a V4 operation is the same IEEE operation as on a double, so
+// both give the same bits. M is the comparison result (bool, or a lane mask of 0 / -1).
+// (Internal helpers, always inlined: the warning about passing V4 without AVX does not apply.)
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef double V4 __attribute__((vector_size(32)));
+typedef int64_t M4 __attribute__((vector_size(32)));
+static_assert(kShapeLanes == 4, "V4 holds one value of each lane");
+
+inline double lane_select(bool m, double a, double b) { return m ? a : b; }
+inline V4 lane_select(M4 m, V4 a, V4 b) { return m ? a : b; }
+inline double lane_sqrt(double v) { return std::sqrt(v); }
+inline V4 lane_sqrt(V4 v) {
+  V4 r;
+  for (int l = 0; l < 4; ++l) r[l] = std::sqrt(v[l]);
+  return r;
+}
+inline double lane_abs(double v) { return std::fabs(v); }
+inline V4 lane_abs(V4 v) { return V4(M4(v) & std::numeric_limits<int64_t>::max()); }
+// std::max's rule on values: a select (std::max's references would branch).
+template <class T>
+inline T lane_max(T m, T v) {
+  return lane_select(m < v, v, m);
+}
+inline V4 load4(const double* p) {
+  V4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+// One warm-started rotation step (extract_rotation_step's usual case) per lane: a[i][j] is A, q the
+// quaternion (w, x, y, z), updated where the step moves it. Returns the lanes where the step is
+// defined (q unit, B clearly positive definite, A and the step finite); elsewhere q is unchanged and
+// the caller falls back to extract_rotation. No branches.
+//
+// The step: q <- exp(t n/|n|) q with n = B^-1 g and t = atan|n| (the exact line maximum along n, see
+// extract_rotation_step). Its half angle needs no trigonometry: cos t = 1/sqrt(1 + |n|^2),
+// cos(t/2) = sqrt((1 + cos t)/2) and sin(t/2) / |n| = cos t / (2 cos(t/2)) (no cancellation, no
+// division by |n|), so every operation is a correctly rounded IEEE one (the same bits anywhere).
+template <class T>
+__attribute__((always_inline)) inline auto rotation_step_lanes(const T (&a)[3][3], T (&q)[4]) {
+  const T qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+  const T qq = qw * qw + qx * qx + qy * qy + qz * qz;
+  const T a00 = a[0][0], a01 = a[0][1], a02 = a[0][2];
+  const T a10 = a[1][0], a11 = a[1][1], a12 = a[1][2];
+  const T a20 = a[2][0], a21 = a[2][1], a22 = a[2][2];
+  T scale = lane_abs(a00);
+  scale = lane_max(scale, lane_abs(a01));
+  scale = lane_max(scale, lane_abs(a02));
+  scale = lane_max(scale, lane_abs(a10));
+  scale = lane_max(scale, lane_abs(a11));
+  scale = lane_max(scale, lane_abs(a12));
+  scale = lane_max(scale, lane_abs(a20));
+  scale = lane_max(scale, lane_abs(a21));
+  scale = lane_max(scale, lane_abs(a22));
+  // R(q).
+  const T xx = qx * qx, yy = qy * qy, zz = qz * qz, xy = qx * qy, xz = qx * qz, yz = qy * qz;
+  const T wx = qw * qx, wy = qw * qy, wz = qw * qz;
+  const T r00 = 1.0 - 2.0 * (yy + zz), r01 = 2.0 * (xy - wz), r02 = 2.0 * (xz + wy);
+  const T r10 = 2.0 * (xy + wz), r11 = 1.0 - 2.0 * (xx + zz), r12 = 2.0 * (yz - wx);
+  const T r20 = 2.0 * (xz - wy), r21 = 2.0 * (yz + wx), r22 = 1.0 - 2.0 * (xx + yy);
+  // f = tr(R^T A), g = sum_i r_i x a_i, M = A R^T, B = f I - sym(M).
+  const T f = r00 * a00 + r10 * a10 + r20 * a20 + r01 * a01 + r11 * a11 + r21 * a21 + r02 * a02 + r12 * a12 + r22 * a22;
+  const T g0 = (r10 * a20 - r20 * a10) + (r11 * a21 - r21 * a11) + (r12 * a22 - r22 * a12);
+  const T g1 = (r20 * a00 - r00 * a20) + (r21 * a01 - r01 * a21) + (r22 * a02 - r02 * a22);
+  const T g2 = (r00 * a10 - r10 * a00) + (r01 * a11 - r11 * a01) + (r02 * a12 - r12 * a02);
+  const T m00 = a00 * r00 + a01 * r01 + a02 * r02;
+  const T m11 = a10 * r10 + a11 * r11 + a12 * r12;
+  const T m22 = a20 * r20 + a21 * r21 + a22 * r22;
+  const T m01 = a00 * r10 + a01 * r11 + a02 * r12, m10 = a10 * r00 + a11 * r01 + a12 * r02;
+  const T m02 = a00 * r20 + a01 * r21 + a02 * r22, m20 = a20 * r00 + a21 * r01 + a22 * r02;
+  const T m12 = a10 * r20 + a11 * r21 + a12 * r22, m21 = a20 * r10 + a21 * r11 + a22 * r12;
+  const T b00 = f - m00, b11 = f - m11, b22 = f - m22;
+  const T b10 = -0.5 * (m10 + m01), b20 = -0.5 * (m20 + m02), b21 = -0.5 * (m21 + m12);
+  // LDL^T of B and n = B^-1 g, pivots relative to the scale of A.
+  const T pivot_min = kPivotMin * scale;
+  const T d0 = b00;
+  const T l10 = b10 / d0, l20 = b20 / d0;
+  const T d1 = b11 - l10 * l10 * d0;
+  const T l21 = (b21 - l20 * l10 * d0) / d1;
+  const T d2 = b22 - l20 * l20 * d0 - l21 * l21 * d1;
+  const T y0 = g0, y1 = g1 - l10 * y0, y2 = g2 - l20 * y0 - l21 * y1;
+  const T n2 = y2 / d2;
+  const T n1 = y1 / d1 - l21 * n2;
+  const T n0 = y0 / d0 - l10 * n1 - l20 * n2;
+  const T length2 = n0 * n0 + n1 * n1 + n2 * n2;
+  // Defined: unit q, clear pivots, |n| finite and small enough to square (& not &&: no branches).
+  const auto defined = (lane_abs(qq - 1.0) < 1e-12) & (d0 > pivot_min) & (d1 > pivot_min) & (d2 > pivot_min) &
+                       (length2 < 1e300);
+  // Half angle, then (cos(t/2), sin(t/2) n/|n|) * q, normalised.
+  const T cos_t = 1.0 / lane_sqrt(1.0 + length2);
+  const T ch = lane_sqrt(0.5 * (1.0 + cos_t));
+  const T sn = cos_t / (2.0 * ch);
+  const T rx = sn * n0, ry = sn * n1, rz = sn * n2;
+  const T pw = ch * qw - (rx * qx + ry * qy + rz * qz);
+  const T px = ch * qx + rx * qw + (ry * qz - rz * qy);
+  const T py = ch * qy + ry * qw + (rz * qx - rx * qz);
+  const T pz = ch * qz + rz * qw + (rx * qy - ry * qx);
+  const T inv_norm = 1.0 / lane_sqrt(pw * pw + px * px + py * py + pz * pz);
+  // A step below kMinAngle (atan|n| ~ |n|) means converged: q stays.
+  const auto move = defined & (length2 > kMinAngle * kMinAngle);
+  q[0] = lane_select(move, pw * inv_norm, qw);
+  q[1] = lane_select(move, px * inv_norm, qx);
+  q[2] = lane_select(move, py * inv_norm, qy);
+  q[3] = lane_select(move, pz * inv_norm, qz);
+  return defined;
+}
+
+// R(q) per lane (Eigen's toRotationMatrix, operation for operation).
+template <class T>
+__attribute__((always_inline)) inline void rotation_matrix_lanes(const T (&q)[4], T (&r)[3][3]) {
+  const T w = q[0], x = q[1], y = q[2], z = q[3];
+  const T tx = 2.0 * x, ty = 2.0 * y, tz = 2.0 * z;
+  const T twx = tx * w, twy = ty * w, twz = tz * w;
+  const T txx = tx * x, txy = ty * x, txz = tz * x;
+  const T tyy = ty * y, tyz = tz * y, tzz = tz * z;
+  r[0][0] = 1.0 - (tyy + tzz);
+  r[0][1] = txy - twz;
+  r[0][2] = txz + twy;
+  r[1][0] = txy + twz;
+  r[1][1] = 1.0 - (txx + tzz);
+  r[1][2] = tyz - twx;
+  r[2][0] = txz - twy;
+  r[2][1] = tyz + twx;
+  r[2][2] = 1.0 - (txx + tyy);
+}
+
 // Centre and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0) need,
 // from its rest frame (shape_matching_rest), in scalar loops with the axes written out (the sums run
 // in slot order: the compiler may not reorder them under -ffp-contract=off and strict IEEE rules,
@@ -138,10 +268,8 @@ void shape_matching_frame(const double* x, const uint32_t* indices, const ShapeR
   // Warm-started every solve, so the rotation converges over the solver's iterations.
   rotation = rotation_iterations > 0 ? extract_rotation(a, rotation, rotation_iterations)
                                      : extract_rotation_step(a, rotation, kShapeRotationIterations);
-  const Matrix3d rot = rotation.toRotationMatrix();
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) f.rot[i][j] = rot(i, j);
-  }
+  const double q[4] = {rotation.w(), rotation.x(), rotation.y(), rotation.z()};
+  rotation_matrix_lanes<double>(q, f.rot);
 }
 
 // Goal of slot k: c + R q_k.
@@ -244,55 +372,16 @@ Quaterniond extract_rotation(const Matrix3d& a, const Quaterniond& q_in, int max
 }
 
 Quaterniond extract_rotation_step(const Matrix3d& a, const Quaterniond& q, int fallback_iterations) {
-  // The usual case inline: q a unit quaternion, B clearly positive definite. Then the exact line
-  // search along the Newton axis n = B^-1 g has a closed form: along n/|n|, c = n.g/|n| and
-  // b = n.Bn/|n|^2 = n.g/|n|^2, so the step is atan(c / b) = atan(|n|). No scaling of A: the axis
-  // and |n| do not depend on it, and the pivots are compared with kPivotMin x max |a_ij|.
-  const double qw = q.w(), qx = q.x(), qy = q.y(), qz = q.z();
-  const double qq = qw * qw + qx * qx + qy * qy + qz * qz;
-  if (!(std::fabs(qq - 1.0) < 1e-12)) return extract_rotation(a, q, fallback_iterations);
-  double scale = 0.0;
-  for (int k = 0; k < 9; ++k) scale = std::max(scale, std::fabs(a.data()[k]));
-  // R(q), column-major like Eigen's.
-  const double xx = qx * qx, yy = qy * qy, zz = qz * qz, xy = qx * qy, xz = qx * qz, yz = qy * qz;
-  const double wx = qw * qx, wy = qw * qy, wz = qw * qz;
-  const double r00 = 1.0 - 2.0 * (yy + zz), r01 = 2.0 * (xy - wz), r02 = 2.0 * (xz + wy);
-  const double r10 = 2.0 * (xy + wz), r11 = 1.0 - 2.0 * (xx + zz), r12 = 2.0 * (yz - wx);
-  const double r20 = 2.0 * (xz - wy), r21 = 2.0 * (yz + wx), r22 = 1.0 - 2.0 * (xx + yy);
-  // f = tr(R^T A), g = sum_i r_i x a_i, M = A R^T, B = f I - sym(M).
-  const double f = r00 * a(0, 0) + r10 * a(1, 0) + r20 * a(2, 0) + r01 * a(0, 1) + r11 * a(1, 1) + r21 * a(2, 1) +
-                   r02 * a(0, 2) + r12 * a(1, 2) + r22 * a(2, 2);
-  const double g0 = (r10 * a(2, 0) - r20 * a(1, 0)) + (r11 * a(2, 1) - r21 * a(1, 1)) + (r12 * a(2, 2) - r22 * a(1, 2));
-  const double g1 = (r20 * a(0, 0) - r00 * a(2, 0)) + (r21 * a(0, 1) - r01 * a(2, 1)) + (r22 * a(0, 2) - r02 * a(2, 2));
-  const double g2 = (r00 * a(1, 0) - r10 * a(0, 0)) + (r01 * a(1, 1) - r11 * a(0, 1)) + (r02 * a(1, 2) - r12 * a(0, 2));
-  const double m00 = a(0, 0) * r00 + a(0, 1) * r01 + a(0, 2) * r02;
-  const double m11 = a(1, 0) * r10 + a(1, 1) * r11 + a(1, 2) * r12;
-  const double m22 = a(2, 0) * r20 + a(2, 1) * r21 + a(2, 2) * r22;
-  const double m01 = a(0, 0) * r10 + a(0, 1) * r11 + a(0, 2) * r12, m10 = a(1, 0) * r00 + a(1, 1) * r01 + a(1, 2) * r02;
-  const double m02 = a(0, 0) * r20 + a(0, 1) * r21 + a(0, 2) * r22, m20 = a(2, 0) * r00 + a(2, 1) * r01 + a(2, 2) * r02;
-  const double m12 = a(1, 0) * r20 + a(1, 1) * r21 + a(1, 2) * r22, m21 = a(2, 0) * r10 + a(2, 1) * r11 + a(2, 2) * r12;
-  const double b00 = f - m00, b11 = f - m11, b22 = f - m22;
-  const double b10 = -0.5 * (m10 + m01), b20 = -0.5 * (m20 + m02), b21 = -0.5 * (m21 + m12);
-  // LDL^T of B and n = B^-1 g (newton_axis with pivots relative to the scale of A).
-  const double pivot_min = kPivotMin * scale;
-  const double d0 = b00;
-  if (!(d0 > pivot_min)) return extract_rotation(a, q, fallback_iterations);
-  const double l10 = b10 / d0, l20 = b20 / d0;
-  const double d1 = b11 - l10 * l10 * d0;
-  if (!(d1 > pivot_min)) return extract_rotation(a, q, fallback_iterations);
-  const double l21 = (b21 - l20 * l10 * d0) / d1;
-  const double d2 = b22 - l20 * l20 * d0 - l21 * l21 * d1;
-  if (!(d2 > pivot_min)) return extract_rotation(a, q, fallback_iterations);
-  const double y0 = g0, y1 = g1 - l10 * y0, y2 = g2 - l20 * y0 - l21 * y1;
-  const double n2 = y2 / d2;
-  const double n1 = y1 / d1 - l21 * n2;
-  const double n0 = y0 / d0 - l10 * n1 - l20 * n2;
-  const double length = std::sqrt(n0 * n0 + n1 * n1 + n2 * n2);
-  if (!std::isfinite(length)) return extract_rotation(a, q, fallback_iterations);
-  const double angle = length < 1e-4 ? length * (1.0 - length * length * (1.0 / 3.0 - length * length * (1.0 / 5.0)))
-                                     : std::atan(length);
-  if (!(angle > kMinAngle)) return q;  // converged
-  return rotate(q, angle, Vector3d(n0, n1, n2) / length);
+  // The usual case (q a unit quaternion, B clearly positive definite) in rotation_step_lanes: the
+  // exact line search along the Newton axis n = B^-1 g has a closed form there: along n/|n|,
+  // c = n.g/|n| and b = n.Bn/|n|^2 = n.g/|n|^2, so the step is atan(c / b) = atan(|n|). No scaling
+  // of A: the axis and |n| do not depend on it, and the pivots are compared with kPivotMin x max |a_ij|.
+  double al[3][3], ql[4] = {q.w(), q.x(), q.y(), q.z()};
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) al[i][j] = a(i, j);
+  }
+  if (!rotation_step_lanes<double>(al, ql)) return extract_rotation(a, q, fallback_iterations);
+  return Quaterniond(ql[0], ql[1], ql[2], ql[3]);
 }
 
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
@@ -358,6 +447,94 @@ void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r
     shape_goal(f, r.offset[k], goal);
     double* xi = x + 3 * size_t(indices[k]);
     for (int e = 0; e < 3; ++e) xi[e] = f.p[k][e] + stiffness * (goal[e] - f.p[k][e]);
+  }
+}
+
+void shape_block_add(ShapeBlock& b, uint32_t piece, const uint32_t* indices, const ShapeRest& r) {
+  const int lane = b.lanes++;
+  // Every lane from this one on (the unused ones repeat the first lane until they are filled).
+  for (int l = lane; l < (lane == 0 ? kShapeLanes : lane + 1); ++l) {
+    b.piece[l] = piece;
+    b.inv_total[l] = r.inv_total;
+    for (int k = 0; k < kS; ++k) {
+      b.index[k][l] = indices[k < r.count ? k : 0];
+      b.mass[k][l] = r.mass[k];
+      b.moves[k][l] = r.moves[k];
+      for (int e = 0; e < 3; ++e) b.offset[k][e][l] = r.offset[k][e];
+    }
+  }
+}
+
+// The lanes of shape_matching_frame and solve_shape_matching in V4 (the scalar path's operations in
+// its order); one clone per instruction set, picked when the program loads.
+__attribute__((target_clones("avx2", "default")))
+void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
+  // Gather the positions; the mass centre.
+  V4 p[kS][3];
+  for (int k = 0; k < kS; ++k) {
+    for (int l = 0; l < kShapeLanes; ++l) {
+      const double* xi = x + 3 * size_t(b.index[k][l]);
+      for (int e = 0; e < 3; ++e) p[k][e][l] = xi[e];
+    }
+  }
+  V4 c[3] = {};
+  for (int k = 0; k < kS; ++k) {
+    const V4 m = load4(b.mass[k]);
+    for (int e = 0; e < 3; ++e) c[e] += m * p[k][e];
+  }
+  const V4 inv_total = load4(b.inv_total);
+  for (int e = 0; e < 3; ++e) c[e] *= inv_total;
+  // A = sum_i m_i (x_i - c)(r_i - c0)^T.
+  V4 a[3][3] = {};
+  for (int k = 0; k < kS; ++k) {
+    const V4 m = load4(b.mass[k]);
+    const V4 o[3] = {load4(b.offset[k][0]), load4(b.offset[k][1]), load4(b.offset[k][2])};
+    for (int i = 0; i < 3; ++i) {
+      const V4 d = m * (p[k][i] - c[i]);
+      for (int j = 0; j < 3; ++j) a[i][j] += d * o[j];
+    }
+  }
+  // The rotation step from each lane's warm start; extract_rotation in a lane where it is not defined.
+  V4 q[4];
+  for (int l = 0; l < kShapeLanes; ++l) {
+    const Quaterniond& r = rotations[b.piece[l]];
+    q[0][l] = r.w();
+    q[1][l] = r.x();
+    q[2][l] = r.y();
+    q[3][l] = r.z();
+  }
+  const M4 defined = rotation_step_lanes<V4>(a, q);
+  for (int l = 0; l < b.lanes; ++l) {
+    Quaterniond& r = rotations[b.piece[l]];
+    if (defined[l] != 0) {
+      r = Quaterniond(q[0][l], q[1][l], q[2][l], q[3][l]);
+      continue;
+    }
+    Matrix3d al;
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) al(i, j) = a[i][j][l];
+    }
+    r = extract_rotation(al, r, kShapeRotationIterations);
+    q[0][l] = r.w();
+    q[1][l] = r.x();
+    q[2][l] = r.y();
+    q[3][l] = r.z();
+  }
+  V4 rot[3][3];
+  rotation_matrix_lanes<V4>(q, rot);
+  // Goals c + R q_k; the particles that move go `stiffness` of the way there.
+  for (int k = 0; k < kS; ++k) {
+    const V4 o[3] = {load4(b.offset[k][0]), load4(b.offset[k][1]), load4(b.offset[k][2])};
+    V4 out[3];
+    for (int e = 0; e < 3; ++e) {
+      const V4 goal = c[e] + (rot[e][0] * o[0] + rot[e][1] * o[1] + rot[e][2] * o[2]);
+      out[e] = p[k][e] + stiffness * (goal - p[k][e]);
+    }
+    for (int l = 0; l < b.lanes; ++l) {
+      if (!b.moves[k][l]) continue;
+      double* xi = x + 3 * size_t(b.index[k][l]);
+      for (int e = 0; e < 3; ++e) xi[e] = out[e][l];
+    }
   }
 }
 

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
 namespace dvx {
 
@@ -54,18 +55,20 @@ inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, 
   if (!(w_sum > 0.0)) return;  // both anchored: nothing can move
   double* xi = x + 3 * size_t(i);
   double* xj = x + 3 * size_t(j);
-  const Eigen::Vector3d d(xi[0] - xj[0], xi[1] - xj[1], xi[2] - xj[2]);
-  const double length = d.norm();
+  const double d0 = xi[0] - xj[0], d1 = xi[1] - xj[1], d2 = xi[2] - xj[2];
+  const double length = std::sqrt(d0 * d0 + d1 * d1 + d2 * d2);
   // Coincident (or non-finite) particles: no direction to push along.
-  if (!(length > std::max(1e-12 * rest, 1e-300)) || !std::isfinite(length)) return;
-  const double c = length - rest;
-  const double dlambda = (-c - alpha * lambda) / (w_sum + alpha);
+  if (!(length > std::max(1e-12 * rest, 1e-300)) || !(length <= std::numeric_limits<double>::max())) return;
+  const double dlambda = (-(length - rest) - alpha * lambda) / (w_sum + alpha);
   lambda += dlambda;
-  for (int k = 0; k < 3; ++k) {
-    const double n = d[k] / length;
-    xi[k] += wi * dlambda * n;
-    xj[k] -= wj * dlambda * n;
-  }
+  // x_i += w_i dlambda d / |d| (one division for the three axes).
+  const double s = dlambda / length, si = wi * s, sj = wj * s;
+  xi[0] += si * d0;
+  xi[1] += si * d1;
+  xi[2] += si * d2;
+  xj[0] -= sj * d0;
+  xj[1] -= sj * d1;
+  xj[2] -= sj * d2;
 }
 
 // One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions
@@ -108,5 +111,33 @@ bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const 
 // extract_rotation_step (the solver's path).
 void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& rest, double stiffness,
                           Eigen::Quaterniond& rotation, int rotation_iterations = kShapeRotationIterations);
+
+// Shape-matching clusters solved kShapeLanes at a time (the solver's path): structure of arrays
+// ([slot][axis][lane]), so every stage of the solve (gather, centre, A, the rotation step, goals) is a
+// short loop over the lanes that the compiler vectorises (SSE2 on any x86-64, AVX2 where the CPU has
+// it, chosen at load time). Each lane does the same IEEE operations in the same order as the scalar
+// solve_shape_matching(x, indices, rest, stiffness, rotation, 0) (no reassociation, no FMA), so
+// the results are the same bits on every machine and equal the scalar path. The lanes of a block
+// must share no particle (one colour group); a block of fewer than kShapeLanes clusters repeats its
+// first lane, computes it again and writes only its own lanes.
+constexpr int kShapeLanes = 4;
+struct ShapeBlock {
+  int lanes = 0;
+  uint32_t piece[kShapeLanes] = {};                        // rotation slot of each lane
+  uint32_t index[kShapeMaxParticles][kShapeLanes] = {};    // particle of each cluster slot
+  double mass[kShapeMaxParticles][kShapeLanes] = {};
+  double offset[kShapeMaxParticles][3][kShapeLanes] = {};  // r_i - c0
+  double inv_total[kShapeLanes] = {};
+  uint8_t moves[kShapeMaxParticles][kShapeLanes] = {};
+};
+
+// Puts cluster (indices, rest frame r with r.count > 0, rotation slot `piece`) into the next lane
+// of `block` (block.lanes < kShapeLanes); the first lane is also copied into the unused ones.
+void shape_block_add(ShapeBlock& block, uint32_t piece, const uint32_t* indices, const ShapeRest& r);
+
+// Solves the block's clusters with stiffness `stiffness`; rotations[piece] is each lane's warm start,
+// updated in place (one rotation step; extract_rotation with kShapeRotationIterations in a lane where
+// the step is not defined, as in the scalar path).
+void solve_shape_block(double* x, const ShapeBlock& block, double stiffness, Eigen::Quaterniond* rotations);
 
 }  // namespace dvx

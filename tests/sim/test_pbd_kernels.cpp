@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <random>
 #include <vector>
 
@@ -492,6 +493,86 @@ TEST_SUITE("pbd_kernels") {
         const Vector3d expected = cube.inv_mass[i] > 0.0 ? goal[c] : get(before, i);
         CHECK((cube.pos(c) - expected).norm() < 1e-9);
       }
+    }
+  }
+
+  // The solver's blocks (kShapeLanes clusters of one colour in vector lanes) against the scalar
+  // path, cluster by cluster: the same IEEE operations per lane, so the same bits. Clusters: mildly
+  // deformed (the rotation step's usual case), inverted, flattened, collapsed to a point, with an
+  // anchor, and warm starts that are not unit (the last four take extract_rotation's fallback);
+  // blocks of 1 to 4 lanes; repeated solves, so the warm starts evolve as in the solver.
+  TEST_CASE("solve_shape_block equals the scalar solve_shape_matching lane by lane, also on hard clusters") {
+    Rng rng(47);
+    const int kClusters = 4;
+    for (int trial = 0; trial < 120; ++trial) {
+      // kClusters cubes side by side in one particle array (no shared particle).
+      const int lanes = 1 + trial % kShapeLanes;
+      std::vector<double> x(3 * 8 * kClusters), rest(3 * 8 * kClusters), inv_mass(8 * kClusters);
+      std::array<std::array<uint32_t, 8>, kClusters> indices;
+      for (int cl = 0; cl < lanes; ++cl) {
+        const int kind = (trial + cl) % 6;
+        const Matrix3d r = rng.rotation().toRotationMatrix();
+        Matrix3d d = random_stretch(rng, 0.8, 1.2);
+        if (kind == 1) d = Vector3d(1.2, 0.9, -0.7).asDiagonal();  // inverted
+        if (kind == 2) d = Vector3d(1, 1, 0).asDiagonal();         // flat
+        if (kind == 3) d = Matrix3d::Zero();                       // collapsed to a point
+        const Vector3d shift = rng.vec(-1, 1);
+        for (int c = 0; c < 8; ++c) {
+          const uint32_t i = uint32_t(8 * cl + (c * 5) % 8);  // scattered order
+          indices[cl][c] = i;
+          const Vector3d q = 0.1 * Vector3d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+          for (int e = 0; e < 3; ++e) rest[3 * (8 * cl + c) + e] = q[e];
+          set(x, i, r * d * q + shift + (kind == 3 ? Vector3d::Zero() : rng.vec(-0.01, 0.01)));
+          inv_mass[i] = kind == 4 && c == 2 ? 0.0 : rng.uniform(0.5, 2.0);
+        }
+      }
+      std::vector<Quaterniond> rotations(kClusters, Quaterniond::Identity());
+      for (int cl = 0; cl < lanes; ++cl) {
+        if ((trial + cl) % 6 == 5) rotations[cl].coeffs() *= 1.5;  // not unit
+        if ((trial + cl) % 6 == 0) rotations[cl] = rng.rotation();
+      }
+      std::vector<double> x_scalar = x;
+      std::vector<Quaterniond> rotations_scalar = rotations;
+      ShapeBlock block;
+      std::array<ShapeRest, kClusters> frames;
+      for (int cl = 0; cl < lanes; ++cl) {
+        REQUIRE(shape_matching_rest(inv_mass.data(), indices[cl].data(), &rest[24 * cl], 8, frames[cl]));
+        shape_block_add(block, uint32_t(cl), indices[cl].data(), frames[cl]);
+      }
+      CHECK(block.lanes == lanes);
+      for (int solve = 0; solve < 4; ++solve) {
+        const double stiffness = solve % 2 ? 1.0 : 0.6;
+        solve_shape_block(x.data(), block, stiffness, rotations.data());
+        for (int cl = 0; cl < lanes; ++cl)
+          solve_shape_matching(x_scalar.data(), indices[cl].data(), frames[cl], stiffness, rotations_scalar[cl], 0);
+        for (size_t k = 0; k < x.size(); ++k) REQUIRE(x[k] == x_scalar[k]);
+        for (int cl = 0; cl < lanes; ++cl) {
+          CHECK(rotations[cl].coeffs() == rotations_scalar[cl].coeffs());
+          // A rotation: finite, unit, so its matrix is orthonormal with determinant 1.
+          REQUIRE(finite_unit(rotations[cl]));
+          const Matrix3d m = rotations[cl].toRotationMatrix();
+          CHECK((m.transpose() * m - Matrix3d::Identity()).cwiseAbs().maxCoeff() < 1e-12);
+          CHECK(std::fabs(m.determinant() - 1.0) < 1e-12);
+        }
+        // Lanes beyond `lanes` were never written: their particles are still zero.
+        for (size_t k = 24 * size_t(lanes); k < x.size(); ++k) CHECK(x[k] == 0.0);
+      }
+    }
+  }
+
+  // The rotation step against the full extract_rotation where both apply: warm-started near the
+  // answer, repeated steps land on the polar rotation (the step's half angle without trigonometry
+  // takes the same step as atan, cos and sin).
+  TEST_CASE("extract_rotation_step: repeated from a nearby warm start reaches the polar rotation") {
+    Rng rng(48);
+    for (int trial = 0; trial < 200; ++trial) {
+      const Quaterniond r = rng.rotation();
+      const Matrix3d a = r.toRotationMatrix() * random_stretch(rng, 0.5, 2.0);
+      const Vector3d axis = rng.unit();
+      Quaterniond q = Quaterniond(Eigen::AngleAxisd(rng.uniform(0.0, 0.5), axis)) * r;
+      for (int step = 0; step < 6; ++step) q = extract_rotation_step(a, q, kShapeRotationIterations);
+      CHECK(finite_unit(q));
+      CHECK(rotation_distance(q, r) < 1e-9);
     }
   }
 
