@@ -154,7 +154,7 @@ double percentile(std::vector<double> v, double q) {
 std::string run_bullet(const BulletOptions& options) {
   const Scene scene = load_scene(options.scene);
   make_output_dir(options.out_dir);
-  const double dt = scene.solver.dt;
+  const double dt = scene.pbd.dt;
   Session session;
   open_session(scene, dt, true, 1, session);
   const PbdState initial = *session.pbd;
