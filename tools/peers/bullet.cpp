@@ -75,11 +75,16 @@ double rms_distance(const PbdState& s, const std::vector<uint32_t>& live, const 
   return count ? std::sqrt(sum / double(count)) : 0.0;
 }
 
-// divvox from rest: `steps` steps at `iterations`; per-step times and the final particles.
+// divvox from rest: `steps` steps of one substep at `iterations` (the work Bullet's solver does per
+// step: the scene's own substeps would multiply it), without contact (Bullet's collisions are off);
+// per-step times and the final particles.
 Shape run_divvox(const Session& session, const PbdState& initial, int iterations, int steps,
                  std::vector<double>& step_ms, std::vector<double>& embed_ms) {
   PbdState s = initial;
   s.params.iterations = iterations;
+  s.params.substeps = 1;
+  s.params.planes.clear();
+  s.params.piece_contact = false;
   for (int i = 0; i < steps; ++i) {
     const double t0 = thread_ms();
     pbd_step(session.cut, s);
