@@ -14,6 +14,7 @@
 #include "engine/output.h"
 #include "engine/scene.h"
 #include "engine/session.h"
+#include "engine/stats.h"
 #include "sim/pbd.h"
 
 #include <BulletSoftBody/btSoftBody.h>
@@ -148,12 +149,6 @@ Shape run_bullet(const PbdState& initial, int iterations, int steps, double dt, 
   return shape;
 }
 
-double percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  return v[size_t(std::lround(q * double(v.size() - 1)))];
-}
-
 }  // namespace
 
 std::string run_bullet(const BulletOptions& options) {
@@ -183,11 +178,11 @@ std::string run_bullet(const BulletOptions& options) {
     const nlohmann::json row = {{"iterations", iterations},
                                 {"steps", steps},
                                 {"divvox_step_ms_p50", median(divvox_ms)},
-                                {"divvox_step_ms_p99", percentile(divvox_ms, 0.99)},
+                                {"divvox_step_ms_p99", quantile(divvox_ms, 0.99)},
                                 {"divvox_embed_ms_p50", embed},
                                 {"divvox_pbd_ms_p50", divvox_pbd},
                                 {"bullet_step_ms_p50", median(bullet_ms)},
-                                {"bullet_step_ms_p99", percentile(bullet_ms, 0.99)},
+                                {"bullet_step_ms_p99", quantile(bullet_ms, 0.99)},
                                 {"speedup_pbd", divvox_pbd > 0 ? median(bullet_ms) / divvox_pbd : 0.0},
                                 {"divvox_sag", mean_sag(initial, live, ours)},
                                 {"bullet_sag", mean_sag(initial, live, theirs)},
