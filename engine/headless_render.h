@@ -3,6 +3,7 @@
 #pragma once
 
 #include "engine/snapshot.h"
+#include "sim/contact.h"
 
 #include <atomic>
 #include <cstdint>
@@ -16,6 +17,7 @@ struct HeadlessRenderOptions {
   std::string frames_dir;  // "" : no PNG files
   bool wireframe = false;
   Aabb framing;            // the camera frames this box (the rest shape of the object)
+  std::vector<ContactPlane> planes;  // the scene's contact planes, drawn as trays with the surface's shadow
 };
 
 // Creates the EGL context and renderer on the calling thread (false with a one-line reason).

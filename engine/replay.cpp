@@ -133,6 +133,7 @@ void simulate_and_render(const std::function<void(SnapshotExchange*)>& simulate_
   ro.frames_dir = options.frames_every > 0 ? (std::filesystem::path(options.out_dir) / "frames").string() : "";
   ro.wireframe = options.wireframe;
   ro.framing = mesh_bounds(session.input.mesh);
+  ro.planes = session.scene.pbd.planes;
   if (!ro.frames_dir.empty()) make_output_dir(ro.frames_dir);
   SnapshotExchange exchange;
   std::thread sim_thread([&] {

@@ -63,6 +63,12 @@ struct TrayPlane {
   float half_size = 1.0f;
 };
 
+// The tray of a plane (a point on it, its unit normal) under an object's bounds: centred below the
+// bounds' centre, a little wider than the object (half size 0.8 x its largest extent). The window and
+// the headless frames draw the same trays.
+TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec3f& plane_point,
+                     const Vec3f& plane_normal);
+
 struct DrawOptions {
   // Clear the view first (colour and depth). False: the caller cleared it (the window clears its
   // whole back buffer at once: on a software rasteriser a clear of a part of it draws a quad).

@@ -9,6 +9,16 @@
 #include <cmath>
 
 namespace dvx {
+
+TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec3f& plane_point,
+                     const Vec3f& plane_normal) {
+  const Vec3f centre = 0.5f * (bounds_min + bounds_max);
+  TrayPlane tray;
+  tray.normal = plane_normal;
+  tray.centre = centre - (centre - plane_point).dot(plane_normal) * plane_normal;
+  tray.half_size = 0.8f * (bounds_max - bounds_min).maxCoeff();
+  return tray;
+}
 namespace {
 
 // The tray: a square from gl_VertexID (a 4-vertex strip), lit by the camera's key light like the

@@ -241,13 +241,9 @@ void load_play_poses(AppState& app, const Playback& playback) {
 // The scene's contact planes as trays: centred under the object, a little wider than it.
 void set_trays(AppState& app) {
   app.draw.trays.clear();
-  const Vec3d centre = 0.5 * (app.bounds.min + app.bounds.max);
   for (const ContactPlane& p : app.status.scene.pbd.planes) {
-    TrayPlane tray;
-    tray.normal = p.normal.cast<float>();
-    tray.centre = (centre - (centre - p.point).dot(p.normal) * p.normal).cast<float>();
-    tray.half_size = float(0.8 * app.bounds.extent().maxCoeff());
-    app.draw.trays.push_back(tray);
+    app.draw.trays.push_back(tray_under(app.bounds.min.cast<float>(), app.bounds.max.cast<float>(),
+                                        p.point.cast<float>(), p.normal.cast<float>()));
   }
 }
 
