@@ -210,6 +210,8 @@ void destroy_target(Renderer& r) {
   if (r.color_renderbuffer) glDeleteRenderbuffers(1, &r.color_renderbuffer);
   if (r.depth_renderbuffer) glDeleteRenderbuffers(1, &r.depth_renderbuffer);
   if (r.resolve_renderbuffer) glDeleteRenderbuffers(1, &r.resolve_renderbuffer);
+  if (r.depth_texture) glDeleteTextures(1, &r.depth_texture);
+  r.depth_texture = 0;
   r.framebuffer = r.resolve_framebuffer = 0;
   r.color_renderbuffer = r.depth_renderbuffer = r.resolve_renderbuffer = 0;
 }
@@ -231,12 +233,25 @@ bool create_target(Renderer& r, std::string& error) {
   }
   // Drawn-into framebuffer: RGBA8 colour + 24-bit depth, multisampled when asked.
   glCreateRenderbuffers(1, &r.color_renderbuffer);
-  glCreateRenderbuffers(1, &r.depth_renderbuffer);
+  if (r.samples > 0) glCreateRenderbuffers(1, &r.depth_renderbuffer);
   glNamedRenderbufferStorageMultisample(r.color_renderbuffer, r.samples, GL_RGBA8, r.width, r.height);
-  glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH_COMPONENT24, r.width, r.height);
+  // Single-sampled, the depth is a texture (ViewTarget::scene_depth: the window's overlays test
+  // against it after renderer_present, which copies only the colour).
+  if (r.samples == 0) {
+    glCreateTextures(GL_TEXTURE_2D, 1, &r.depth_texture);
+    glTextureStorage2D(r.depth_texture, 1, GL_DEPTH_COMPONENT24, r.width, r.height);
+    glTextureParameteri(r.depth_texture, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTextureParameteri(r.depth_texture, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  } else {
+    glNamedRenderbufferStorageMultisample(r.depth_renderbuffer, r.samples, GL_DEPTH_COMPONENT24, r.width, r.height);
+  }
   glCreateFramebuffers(1, &r.framebuffer);
   glNamedFramebufferRenderbuffer(r.framebuffer, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, r.color_renderbuffer);
-  glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
+  if (r.depth_texture) {
+    glNamedFramebufferTexture(r.framebuffer, GL_DEPTH_ATTACHMENT, r.depth_texture, 0);
+  } else {
+    glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
+  }
   // Single-sample copy for readback when multisampled.
   r.resolve_framebuffer = r.framebuffer;
   if (r.samples > 0) {
@@ -331,6 +346,27 @@ uint32_t grown_capacity(uint32_t current, uint32_t needed, uint32_t minimum) {
   return uint32_t(std::min<uint64_t>(grown, UINT32_MAX));
 }
 
+// The cut pass's index buffer: every live cut face, packed from 0 (rebuilt from all slots whenever
+// triangles changed: a scan of the flags, ~0.1 ms at 92 k slots). Mirroring the slots instead
+// (the other slots degenerate) made the cut pass submit every slot between the first and the last
+// cut face, which after a few cuts (freed slots are reused all over) was most of the surface
+// again: each degenerate triangle still costs llvmpipe's vertex stage and setup on the render thread.
+void upload_cut_faces(Renderer& r, const RenderMesh& mesh) {
+  std::vector<Tri>& cut = r.scratch_cut;
+  cut.clear();
+  if (mesh.triangle_flags) {
+    for (uint32_t t = 0; t < mesh.triangle_count; ++t) {
+      const Tri& tri = mesh.triangles[t];
+      if ((mesh.triangle_flags[t] & kTriangleCut) == 0) continue;
+      if (tri[0] >= mesh.vertex_count || tri[1] >= mesh.vertex_count || tri[2] >= mesh.vertex_count) continue;
+      cut.push_back(tri);
+    }
+  }
+  r.cut_count = uint32_t(cut.size());
+  if (!cut.empty()) glNamedBufferSubData(r.cut_index_buffer, 0, GLsizeiptr(cut.size()) * 12, cut.data());
+  r.last_upload_bytes += uint64_t(cut.size()) * 12;
+}
+
 }  // namespace
 
 RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* normals,
@@ -409,11 +445,13 @@ void renderer_place(Renderer& r, int x, int y) {
 }
 
 ViewTarget renderer_target(const Renderer& r) {
+  if (r.presented) return ViewTarget{0, r.origin_x, r.origin_y, r.width, r.height, r.depth_texture};
   return r.direct ? ViewTarget{0, r.origin_x, r.origin_y, r.width, r.height} : ViewTarget{r.framebuffer, 0, 0, r.width, r.height};
 }
 
 bool renderer_resize(Renderer& r, int width, int height, std::string& error) {
   destroy_target(r);
+  r.presented = false;
   r.width = width;
   r.height = height;
   return create_target(r, error);
@@ -458,9 +496,7 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
     const uint32_t n = te - tb;
     r.scratch_triangles.resize(n);
     r.scratch_outer.resize(n);
-    r.scratch_cut.resize(n);
     r.scratch_flags.resize(n);
-    if (triangles_full) r.cut_begin = r.cut_end = 0;
     for (uint32_t i = 0; i < n; ++i) {
       const Tri& t = mesh.triangles[tb + i];
       const bool dead = t[0] >= mesh.vertex_count || t[1] >= mesh.vertex_count || t[2] >= mesh.vertex_count;
@@ -468,24 +504,13 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
       const bool cut = !dead && flags != 0;
       r.scratch_triangles[i] = dead ? Tri{0, 0, 0} : t;
       r.scratch_outer[i] = dead || cut ? Tri{0, 0, 0} : t;
-      r.scratch_cut[i] = cut ? t : Tri{0, 0, 0};
       r.scratch_flags[i] = dead ? kTriangleDead : flags;
-      if (cut) {  // the cut pass draws the slots [cut_begin, cut_end) (grown, shrunk by full uploads)
-        const uint32_t slot = tb + i;
-        if (r.cut_begin >= r.cut_end) {
-          r.cut_begin = slot;
-          r.cut_end = slot + 1;
-        } else {
-          r.cut_begin = std::min(r.cut_begin, slot);
-          r.cut_end = std::max(r.cut_end, slot + 1);
-        }
-      }
     }
     glNamedBufferSubData(r.index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_triangles.data());
     glNamedBufferSubData(r.outer_index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_outer.data());
-    glNamedBufferSubData(r.cut_index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_cut.data());
     glNamedBufferSubData(r.flag_buffer, GLintptr(tb), GLsizeiptr(n), r.scratch_flags.data());
-    r.last_upload_bytes += uint64_t(n) * 37;
+    r.last_upload_bytes += uint64_t(n) * 25;
+    upload_cut_faces(r, mesh);
   }
 
   r.vertex_count = mesh.vertex_count;
@@ -513,6 +538,7 @@ void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options
 
 void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions& options) {
   if (!has_target(r)) return;  // not initialised, or a failed resize
+  r.presented = false;  // drawn into the offscreen target again
   const ViewTarget target = renderer_target(r);
   glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
   glViewport(target.x, target.y, target.width, target.height);
@@ -598,12 +624,11 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
                         reinterpret_cast<const void*>(uintptr_t(first) * 4));
     if (pieces > 1) glFlush();
   }
-  const uint32_t cut_end = std::min(r.cut_end, r.triangle_count);
-  if (r.cut_begin < cut_end) {
+  if (r.cut_count > 0) {
     glUseProgram(r.surface_programs[flat + 1]);
     glVertexArrayElementBuffer(r.vertex_array, r.cut_index_buffer);
-    glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(cut_end - r.cut_begin) * 3, GL_UNSIGNED_INT,
-                        reinterpret_cast<const void*>(uintptr_t(r.cut_begin) * 12));
+    glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(std::min<uint64_t>(r.cut_count, INT32_MAX / 3)) * 3,
+                        GL_UNSIGNED_INT, nullptr);
   }
   glVertexArrayElementBuffer(r.vertex_array, r.index_buffer);  // every live slot (wireframe, compute)
 
@@ -632,9 +657,10 @@ bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba) {
   const size_t row = size_t(r.width) * 4;
   rgba.resize(row * size_t(r.height));
   const ViewTarget target = renderer_target(r);
-  const GLuint read_framebuffer = r.direct ? 0 : r.resolve_framebuffer;
+  const bool window = r.direct || r.presented;
+  const GLuint read_framebuffer = window ? 0 : r.resolve_framebuffer;
   glBindFramebuffer(GL_READ_FRAMEBUFFER, read_framebuffer);
-  glNamedFramebufferReadBuffer(read_framebuffer, r.direct ? GL_BACK : GL_COLOR_ATTACHMENT0);
+  glNamedFramebufferReadBuffer(read_framebuffer, window ? GL_BACK : GL_COLOR_ATTACHMENT0);
   glPixelStorei(GL_PACK_ALIGNMENT, 1);
   glReadPixels(target.x, target.y, r.width, r.height, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
   glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
@@ -662,6 +688,13 @@ void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int heig
   }
   glBlitNamedFramebuffer(source, target_framebuffer, 0, 0, r.width, r.height, x, y, x + width, y + height,
                          GL_COLOR_BUFFER_BIT, (width == r.width && height == r.height) ? GL_NEAREST : GL_LINEAR);
+}
+
+void renderer_present(Renderer& r) {
+  if (!r.framebuffer || r.direct || r.samples > 0) return;
+  glBlitNamedFramebuffer(r.framebuffer, 0, 0, 0, r.width, r.height, r.origin_x, r.origin_y, r.origin_x + r.width,
+                         r.origin_y + r.height, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+  r.presented = true;
 }
 
 void renderer_destroy(Renderer& r) {

@@ -102,8 +102,8 @@ struct DrawOptions {
 // the GPU normal passes read the triangle's flags from a byte array in a shader storage buffer
 // indexed by it (an SSBO rather than a texture buffer: its guaranteed size, 128 MiB, covers any
 // surface, where a texture buffer is only guaranteed 64 Ki texels). The lit passes instead draw the
-// outer surface and the cut faces from two index buffers mirroring the same slots (the other
-// class degenerate) with the class as a uniform. Either way flat per-triangle data needs no
+// outer surface and the cut faces from two index buffers (the outer one mirroring the slots, the
+// cut faces packed) with the class as a uniform. Either way flat per-triangle data needs no
 // duplicated vertices along the rim of a cut, where a cut face and the outer surface share vertices.
 struct Renderer {
   // Offscreen target: `framebuffer` is drawn into (multisampled when samples > 0), and
@@ -114,7 +114,11 @@ struct Renderer {
   int width = 0, height = 0, samples = 0;
   bool direct = false;
   int origin_x = 0, origin_y = 0;
+  // renderer_present copied the image into framebuffer 0 at the origin: until the next draw, the
+  // view (renderer_target, renderer_read_pixels) is that rectangle of framebuffer 0.
+  bool presented = false;
   uint32_t framebuffer = 0, color_renderbuffer = 0, depth_renderbuffer = 0;
+  uint32_t depth_texture = 0;  // the depth attachment when single-sampled (instead of depth_renderbuffer)
   uint32_t resolve_framebuffer = 0, resolve_renderbuffer = 0;
   // Programs: the lit surface's variants (index 2 * flat + cut faces: see kSurfaceFragmentShader),
   // the wireframe overlay.
@@ -131,13 +135,15 @@ struct Renderer {
   uint32_t position_buffer = 0;  // (vertex_capacity x 3 floats)
   uint32_t normal_buffer = 0;    // (vertex_capacity x 3 floats)
   uint32_t index_buffer = 0;     // (triangle_capacity x 3 uint32)
-  // The same slots split by class for the lit passes: the outer surface's triangles (cut and dead
-  // ones degenerate) and the cut faces' (the others degenerate), so the fragment shader knows a
+  // The triangles split by class for the lit passes: the outer surface's (the same slots, cut and
+  // dead ones degenerate) and the cut faces' (packed, below), so the fragment shader knows a
   // triangle's class from a uniform: reading the flags by gl_PrimitiveID makes llvmpipe run its
   // primitive assembler, which grows its output one realloc per triangle (~20 % of the render
-  // thread at 128). The cut pass draws only slots [cut_begin, cut_end).
+  // thread at 128). The cut faces' buffer is not a mirror: it holds the cut_count live cut faces
+  // packed from 0 (a mirror made the cut pass submit, as degenerate triangles, every slot between
+  // the first and the last cut face: after a few cuts most of the surface).
   uint32_t outer_index_buffer = 0, cut_index_buffer = 0;
-  uint32_t cut_begin = 0, cut_end = 0;
+  uint32_t cut_count = 0;
   uint32_t flag_buffer = 0;      // (triangle_capacity bytes, rounded up to 4) SSBO binding 0
   // GPU normals, in two passes without atomics (so the sums do not depend on scheduling): per
   // triangle slot, its unit normal times each corner's angle (corner_normal_buffer, 3 corners x 3
@@ -173,6 +179,10 @@ void renderer_place(Renderer& r, int x, int y);
 struct ViewTarget {
   uint32_t framebuffer = 0;
   int x = 0, y = 0, width = 0, height = 0;
+  // Nonzero after renderer_present: the scene's depth is not in the framebuffer's depth buffer
+  // (that holds only what is drawn after the copy) but in this texture, the view's pixel (i, j) at
+  // texel (i - x, j - y); what is drawn over the scene tests against it in its fragment shader.
+  uint32_t scene_depth = 0;
 };
 ViewTarget renderer_target(const Renderer& r);
 // Recreates the offscreen target at a new size (window resize); the mesh stays.
@@ -211,6 +221,13 @@ bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
 // Copies the last image into another framebuffer (0: the window's), scaled to w x h, its lower-left
 // corner at (x, y) of the target (GL's convention: y up). Direct mode: nothing to copy.
 void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int height, int x = 0, int y = 0);
+// The window's scene cache (single-sampled offscreen target): copies the image's colour into
+// framebuffer 0 at renderer_place's origin; until the next renderer_draw_surface the view is that
+// rectangle of framebuffer 0, with the scene's depth in ViewTarget::scene_depth (a depth blit cost
+// llvmpipe as much as the colour's, and the window's depth buffer only needs to order the overlays
+// among themselves). A window redraws an unchanged scene (no new snapshot, the camera still) by
+// this copy alone: on llvmpipe a fifth of drawing the surface again.
+void renderer_present(Renderer& r);
 // Deletes every GL object (the context must still be current).
 void renderer_destroy(Renderer& r);
 

@@ -138,10 +138,12 @@ struct FrameStats {
   ThreadCpu cpu_start;
   uint32_t step_start = 0;
   uint64_t fresh_frames = 0;  // frames that showed a new snapshot
+  uint64_t scene_frames = 0;  // frames that drew the scene (the others: the scene cache's image)
+  bool scene_cache = false;
 
   // `fresh`: the frame took a new snapshot (the upload and normals phases count only those).
   void add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end,
-           bool fresh) {
+           bool fresh, bool drew_scene) {
     if (counted_frames == 0) {
       first = end;
       cpu_start = thread_cpu();
@@ -152,6 +154,7 @@ struct FrameStats {
     render_ms.push_back(render);
     if (counted_frames > 1) interval_ms.push_back(interval);
     fresh_frames += fresh ? 1 : 0;
+    scene_frames += drew_scene ? 1 : 0;
     for (int k = 0; k < 6; ++k) {
       if (fresh || k >= 2) phase_ms[k].push_back(phases[k]);
     }
@@ -169,9 +172,10 @@ struct FrameStats {
                 percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
                 percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms, 0.5),
                 fps_percentile(interval_ms, 0.05));
-    std::printf("window: %llu of %llu frames showed a new snapshot (normals: %s)\n",
+    std::printf("window: %llu of %llu frames showed a new snapshot (normals: %s), %llu drew the scene (%s)\n",
                 static_cast<unsigned long long>(fresh_frames), static_cast<unsigned long long>(counted_frames),
-                normals_where.c_str());
+                normals_where.c_str(), static_cast<unsigned long long>(scene_frames),
+                scene_cache ? "the others showed the scene cache's image" : "no scene cache");
     const ThreadCpu cpu_end = thread_cpu();
     const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
     std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
@@ -642,6 +646,33 @@ void request_undo(AppState& app, bool redo) {
 
 namespace {
 
+// What a drawn view shows (scene_key_of): equal keys, equal images.
+struct SceneKey {
+  uint64_t sequence = 0;
+  Camera camera;
+  int width = 0, height = 0, x = 0;
+  DrawOptions options;
+};
+
+bool same_trays(const std::vector<TrayPlane>& a, const std::vector<TrayPlane>& b) {
+  if (a.size() != b.size()) return false;
+  for (size_t k = 0; k < a.size(); ++k) {
+    if (a[k].centre != b[k].centre || a[k].normal != b[k].normal || a[k].half_size != b[k].half_size) return false;
+  }
+  return true;
+}
+
+bool operator==(const SceneKey& a, const SceneKey& b) {
+  const Camera &p = a.camera, &q = b.camera;
+  const DrawOptions &o = a.options, &u = b.options;
+  return a.sequence == b.sequence && a.width == b.width && a.height == b.height && a.x == b.x &&
+         p.target == q.target && p.distance == q.distance && p.yaw == q.yaw && p.pitch == q.pitch &&
+         p.fov_y == q.fov_y && p.z_near == q.z_near && p.z_far == q.z_far && o.wireframe == u.wireframe &&
+         o.shadows == u.shadows && o.cull_back_faces == u.cull_back_faces && o.surface_color == u.surface_color &&
+         o.cut_color == u.cut_color && o.wire_color == u.wire_color && o.background == u.background &&
+         o.tray_color == u.tray_color && o.shadow_alpha == u.shadow_alpha && same_trays(o.trays, u.trays);
+}
+
 // Everything the window's frame loop works with: the GLFW window, the renderer and overlays, the
 // simulation thread, the frame statistics and the per-frame scratch.
 struct WindowContext {
@@ -660,6 +691,12 @@ struct WindowContext {
   bool profile = false;      // DIVVOX_FRAME_PROFILE=1
   bool gpu_normals = false;  // normals from the GPU passes (else from the simulation thread)
   bool idle = false;         // the last frame showed nothing new and the simulation is paused
+  // Scene cache (software rasterisers): the view is drawn into the offscreen target only when what
+  // it shows changed (scene_key), and copied into the back buffer every frame (renderer_present),
+  // so a frame without a new snapshot or camera move costs the copy, the overlays and the panels.
+  bool cache_scene = false;
+  bool scene_valid = false;
+  SceneKey scene_key;
   // What the tray's shadow was built for (draw_trays).
   uint64_t shadow_sequence = 0;
   float shadow_yaw = 0.0f, shadow_pitch = 0.0f;
@@ -741,12 +778,16 @@ bool init_graphics(AppState& app, WindowContext& w) {
   glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
   layout_view(app, std::max(fb_w, 16), std::max(fb_h, 16));
   // 4x MSAA on a GPU; none on a software rasteriser (llvmpipe), where 2x or 4x triples the
-  // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128). Without it the
-  // view is drawn straight into the window's back buffer (no offscreen image to copy).
+  // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128). Without it, the
+  // scene cache (WindowContext::cache_scene; DIVVOX_SCENE_CACHE=0: off), or else the view drawn
+  // straight into the window's back buffer (no offscreen image to copy, but a full redraw per frame).
   int samples = w.software ? 0 : 4;
   if (const char* msaa = std::getenv("DIVVOX_MSAA")) samples = std::clamp(std::atoi(msaa), 0, 16);
+  const char* cache_env = std::getenv("DIVVOX_SCENE_CACHE");
+  w.cache_scene = samples == 0 && (cache_env == nullptr || std::string(cache_env) != "0");
   std::string error;
-  if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples, samples == 0)) {
+  if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples,
+                     samples == 0 && !w.cache_scene)) {
     std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
     glfwDestroyWindow(w.window);
     glfwTerminate();
@@ -769,6 +810,7 @@ bool init_graphics(AppState& app, WindowContext& w) {
   w.profile = profile_env != nullptr && std::string(profile_env) == "1";
   w.stats.profiled = w.profile;
   w.stats.gl_renderer = w.gl_renderer;
+  w.stats.scene_cache = w.cache_scene;
   // Normals on the GPU, except on a software rasteriser (there its compute passes run on the same
   // CPU cores, ~40x slower than the plain loop, which then runs on the simulation thread, once per
   // snapshot the renderer takes); DIVVOX_GPU_NORMALS=0/1 overrides.
@@ -814,32 +856,54 @@ double take_snapshot(AppState& app, WindowContext& w) {
   return s->normals_ms;
 }
 
-// The view's surface: in direct mode first the whole back buffer cleared at once (colour and depth:
-// on a software rasteriser a full clear is nearly free, a clear of a part draws a quad), then the
-// panel's strip in the panel's colour (so ImGui draws no background of its own: a blended quad as
-// large as the panel); then the surface, handed to the rasteriser at once (glFlush), so that on a
-// software rasteriser it rasterises while this thread picks, builds the tray's shadow and the panels.
-void draw_surface(AppState& app, WindowContext& w, int fb_w, int fb_h) {
-  app.draw.clear = !w.renderer.direct;
-  app.panel_cleared = w.renderer.direct;
-  if (w.renderer.direct) {
-    glBindFramebuffer(GL_FRAMEBUFFER, 0);
-    glViewport(0, 0, fb_w, fb_h);
-    glDisable(GL_SCISSOR_TEST);
-    glDepthMask(GL_TRUE);
-    glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
-    glClearColor(app.draw.background.x(), app.draw.background.y(), app.draw.background.z(), 1.0f);
-    glClearDepth(1.0);
-    glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
-    const ImVec4 panel = ImGui::GetStyleColorVec4(ImGuiCol_WindowBg);
-    glEnable(GL_SCISSOR_TEST);
-    glScissor(0, 0, std::min(app.view_x, fb_w), fb_h);
+// The window's back buffer, in direct and scene-cache modes: all of it cleared at once (colour and
+// depth: on a software rasteriser a full clear is nearly free, a clear of a part draws a quad),
+// then the panel's strip in the panel's colour (so ImGui draws no background of its own: a blended
+// quad as large as the panel). With the scene cache (`view_covered`: its copy covers the view) all
+// of it in the panel's colour at once.
+void clear_window(AppState& app, int fb_w, int fb_h, bool view_covered) {
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  glViewport(0, 0, fb_w, fb_h);
+  glDisable(GL_SCISSOR_TEST);
+  glDepthMask(GL_TRUE);
+  glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+  const ImVec4 panel = ImGui::GetStyleColorVec4(ImGuiCol_WindowBg);
+  const Vec3f& background = app.draw.background;
+  if (view_covered) {
     glClearColor(panel.x, panel.y, panel.z, 1.0f);
-    glClear(GL_COLOR_BUFFER_BIT);
-    glDisable(GL_SCISSOR_TEST);
+  } else {
+    glClearColor(background.x(), background.y(), background.z(), 1.0f);
   }
+  glClearDepth(1.0);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  if (view_covered) return;
+  glEnable(GL_SCISSOR_TEST);
+  glScissor(0, 0, std::min(app.view_x, fb_w), fb_h);
+  glClearColor(panel.x, panel.y, panel.z, 1.0f);
+  glClear(GL_COLOR_BUFFER_BIT);
+  glDisable(GL_SCISSOR_TEST);
+}
+
+// The view's surface (into the back buffer in direct mode, else into the offscreen target, which
+// the renderer clears), handed to the rasteriser at once (glFlush), so that on a software
+// rasteriser it rasterises while this thread picks, builds the tray's shadow and the panels.
+void draw_surface(AppState& app, WindowContext& w) {
+  app.draw.clear = !w.renderer.direct;
   renderer_draw_surface(w.renderer, app.camera, app.draw);
   glFlush();
+}
+
+// What the scene cache's image shows: the snapshot, the camera, the view's size and every drawing
+// option (the tray's shadow follows the snapshot and the camera).
+SceneKey scene_key_of(const AppState& app, const WindowContext& w) {
+  SceneKey k;
+  k.sequence = app.current ? app.current->sequence : 0;
+  k.camera = app.camera;
+  k.width = w.renderer.width;
+  k.height = w.renderer.height;
+  k.x = app.view_x;
+  k.options = app.draw;
+  return k;
 }
 
 // The trays, with the surface's shadow: rebuilt only when the snapshot, the camera's orientation
@@ -866,8 +930,27 @@ void draw_overlays(AppState& app, WindowContext& w) {
   overlay_draw(w.overlay, target, app.camera, w.lines);
 }
 
-// One frame: input, the snapshot, the scene (only when something it shows changed), overlays,
-// panels, swap; its phase times into the statistics.
+// The 3D view: the back buffer cleared (direct and scene-cache modes), the scene drawn unless the
+// cache holds it already, the tools aimed while it rasterises, the cached image copied into the
+// back buffer.
+// Returns whether it drew the scene.
+bool draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseFrame& mouse) {
+  const bool window = w.renderer.direct || w.cache_scene;
+  app.panel_cleared = window;
+  if (window) clear_window(app, fb_w, fb_h, w.cache_scene);
+  const SceneKey key = scene_key_of(app, w);
+  const bool draw = !w.cache_scene || !w.scene_valid || !(key == w.scene_key);
+  if (draw) draw_surface(app, w);
+  handle_tools(app, mouse);  // picks on the snapshot shown while the surface rasterises
+  if (draw) draw_trays(app, w);
+  if (w.cache_scene) {
+    renderer_present(w.renderer);
+    w.scene_valid = true;
+    w.scene_key = key;
+  }
+  return draw;
+}
+
 // AppState::sim_rate from the steps run in the last half second (a new session or an undo, which
 // moves the step back, restarts the measurement).
 void update_sim_rate(AppState& app) {
@@ -884,6 +967,8 @@ void update_sim_rate(AppState& app) {
   app.rate_step = app.status.step;
 }
 
+// One frame: input, the snapshot, the scene (only when something it shows changed), overlays,
+// panels, swap; its phase times into the statistics.
 void run_frame(AppState& app, WindowContext& w) {
   glfwPollEvents();
   app.status = w.sim.status();
@@ -919,13 +1004,12 @@ void run_frame(AppState& app, WindowContext& w) {
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
   if (w.profile) glFinish();
   const Clock::time_point t1n = Clock::now();
-  draw_surface(app, w, fb_w, fb_h);
-  handle_tools(app, mouse);  // picks on the snapshot shown while the surface rasterises
-  draw_trays(app, w);
+  const bool drew_scene = draw_view(app, w, fb_w, fb_h, mouse);
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
   draw_overlays(app, w);
-  renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);  // direct mode: nothing
+  // Multisampled (a GPU): the offscreen image, overlays included, into the window (else: nothing).
+  if (w.renderer.samples > 0) renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
   if (!app.screenshot_request.empty()) {
     std::string message;
     take_screenshot(app, app.screenshot_request, message);
@@ -958,7 +1042,7 @@ void run_frame(AppState& app, WindowContext& w) {
     if (normals_ms >= 0.0) AppState::push(app.normals_ms, normals);
     const double phases[6] = {ms_between(t0, t1), normals, ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3),
                               ms_between(t3, t4)};
-    w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0);
+    w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0, drew_scene);
   }
 }
 
@@ -966,11 +1050,15 @@ void run_frame(AppState& app, WindowContext& w) {
 int finish_window(AppState& app, WindowContext& w, const WindowOptions& options, int exit_code) {
   if (!options.screenshot_path.empty() && exit_code == kExitOk) {
     // Direct mode: the last frame is gone with its swap; drawn again.
-    if (w.renderer.direct) {
+    if (w.renderer.direct || w.cache_scene) {
       int fb_w = 0, fb_h = 0;
       glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
-      draw_surface(app, w, fb_w, fb_h);
-      draw_trays(app, w);
+      clear_window(app, fb_w, fb_h, w.cache_scene);
+      if (!w.cache_scene || !w.scene_valid) {
+        draw_surface(app, w);
+        draw_trays(app, w);
+      }
+      renderer_present(w.renderer);  // direct mode: nothing to copy
       draw_overlays(app, w);
     }
     std::string message;

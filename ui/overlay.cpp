@@ -49,8 +49,13 @@ in vec4 v_color;
 in vec3 v_normal;
 in vec3 v_eye;
 uniform float alpha;
+// The scene's depth as a texture (ViewTarget::scene_depth; scene_depth_on 0: in the depth buffer).
+uniform int scene_depth_on;
+uniform ivec2 scene_origin;
+layout(binding = 1) uniform sampler2D scene_depth;
 out vec4 frag;
 void main() {
+  if (scene_depth_on != 0 && gl_FragCoord.z > texelFetch(scene_depth, ivec2(gl_FragCoord.xy) - scene_origin, 0).r) discard;
   vec3 n = normalize(v_normal);
   vec3 v = normalize(-v_eye);
   if (dot(n, v) < 0.0) n = -n;
@@ -150,6 +155,9 @@ void solid_overlay_draw(SolidOverlay& o, const ViewTarget& target, const Camera&
   glUniformMatrix4fv(glGetUniformLocation(o.program, "view"), 1, GL_FALSE, view.data());
   glBindVertexArray(o.vertex_array);
   const GLint alpha = glGetUniformLocation(o.program, "alpha");
+  const GLint depth_on = glGetUniformLocation(o.program, "scene_depth_on");
+  glUniform1i(depth_on, 0);
+  glUniform2i(glGetUniformLocation(o.program, "scene_origin"), target.x, target.y);
   // Pass 1: the parts behind the surface, faint (no depth test, no depth writes).
   glEnable(GL_BLEND);
   glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
@@ -157,13 +165,19 @@ void solid_overlay_draw(SolidOverlay& o, const ViewTarget& target, const Camera&
   glDepthMask(GL_FALSE);
   glUniform1f(alpha, ghost_alpha);
   glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
-  // Pass 2: the visible parts, opaque, depth-tested against the surface and themselves.
+  // Pass 2: the visible parts, opaque, depth-tested against the surface and themselves (against the
+  // surface in the shader when the scene's depth is a texture).
   glDisable(GL_BLEND);
+  if (target.scene_depth != 0) {
+    glBindTextureUnit(1, target.scene_depth);
+    glUniform1i(depth_on, 1);
+  }
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LEQUAL);
   glDepthMask(GL_TRUE);
   glUniform1f(alpha, 1.0f);
   glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
+  if (target.scene_depth != 0) glBindTextureUnit(1, 0);
   glBindVertexArray(0);
   glUseProgram(0);
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
