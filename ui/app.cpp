@@ -28,6 +28,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <filesystem>
+#include <thread>
 #include <unistd.h>
 
 namespace dvx {
@@ -1113,11 +1114,23 @@ int run_window(const WindowOptions& options) {
   }
   std::snprintf(app.scene_path, sizeof app.scene_path, "%s", options.scene_path.c_str());
 
+  // Frame pacing: at most DIVVOX_MAX_FPS frames a second (default 60; 0: unpaced). Without a vsync
+  // (Xvfb) a frame that reuses the scene cache takes a few ms, and every frame shown costs this
+  // thread the copy and the panels and the X server a copy of the window: the time a faster frame
+  // rate would spend goes to the simulation thread instead.
+  double max_fps = 60.0;
+  if (const char* m = std::getenv("DIVVOX_MAX_FPS")) max_fps = std::clamp(std::atof(m), 0.0, 1000.0);
+  Clock::time_point frame_start = Clock::now();
   int exit_code = kExitOk;
   while (!glfwWindowShouldClose(w.window)) {
     // Paused with nothing new on the last frame: wait for input (up to 50 ms) instead of redrawing
     // the same image at full speed (on a software rasteriser that is two busy cores for nothing).
     if (w.idle) glfwWaitEventsTimeout(0.05);
+    if (max_fps > 0.0) {
+      const Clock::time_point next = frame_start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / max_fps));
+      if (Clock::now() < next) std::this_thread::sleep_until(next);
+    }
+    frame_start = Clock::now();
     run_frame(app, w);
     // The initial scene failed to open: nothing to show.
     if (!app.status.ready && !app.status.loading && !app.status.error.empty()) {
