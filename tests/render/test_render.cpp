@@ -10,6 +10,8 @@
 #include "sim/voxelize.h"
 #include "support.h"
 
+#include <glad/gl.h>
+
 #include <Eigen/Geometry>
 
 #include <algorithm>
@@ -280,6 +282,41 @@ TEST_CASE("renderer: lit surface fills part of the frame / PNG capture") {
   CHECK(error.find("/nonexistent-dir/x.png") != std::string::npos);
   CHECK_FALSE(write_png(path, r.width, r.height + 1, rgba, error));
   std::filesystem::remove_all(temp_dir());
+  renderer_destroy(r);
+}
+
+// The window's scene cache copies only the colour into the window; its overlays test against the
+// scene's depth texture instead (ViewTarget::scene_depth), so that texture must hold the drawn depth.
+TEST_CASE("renderer: single-sampled, the depth texture holds the surface's depth exactly where it is drawn") {
+  GlScope gl;
+  if (!gl.ok) return;
+  const Shape shape = make_shape();
+  Renderer r = make_renderer();
+  REQUIRE(r.depth_texture != 0);
+  renderer_upload(r, render_mesh_of(shape.surface, &shape.normals));
+  const DrawOptions options;
+  const Camera camera = frame_box(shape.box, Viewport{kWidth, kHeight}.aspect());
+  const std::vector<uint8_t> rgba = draw(r, camera, options);
+  CHECK(renderer_target(r).scene_depth == 0);  // not presented: the depth is the target's own
+  std::vector<float> depth(size_t(kWidth) * kHeight, -1.0f);
+  glPixelStorei(GL_PACK_ALIGNMENT, 4);
+  glGetTextureImage(r.depth_texture, 0, GL_DEPTH_COMPONENT, GL_FLOAT, GLsizei(depth.size() * 4), depth.data());
+  std::string error;
+  REQUIRE_MESSAGE(gl_check_errors(error), error);
+  // rgba's row 0 is the top, the texture's the bottom.
+  const auto bg = bytes_of(options.background);
+  size_t covered = 0, agree = 0;
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      const uint8_t* c = &rgba[(size_t(kHeight - 1 - y) * kWidth + x) * 4];
+      const bool drawn = std::abs(c[0] - bg[0]) > 2 || std::abs(c[1] - bg[1]) > 2 || std::abs(c[2] - bg[2]) > 2;
+      const float d = depth[size_t(y) * kWidth + x];
+      covered += drawn ? 1 : 0;
+      agree += (drawn == (d < 1.0f) && d >= 0.0f) ? 1 : 0;
+    }
+  }
+  CHECK(covered > depth.size() / 20);
+  CHECK(agree == depth.size());
   renderer_destroy(r);
 }
 
