@@ -6,8 +6,9 @@
 // Usage: renderer_init once, renderer_upload whenever the surface changed (only the dirty slot
 // ranges travel), renderer_draw per frame, then renderer_read_pixels (headless) or
 // renderer_blit (window), renderer_destroy with the context still current. Without multisampling
-// the window draws straight into its back buffer instead (renderer_init's `direct`): no offscreen
-// target and no copy.
+// the window either keeps the offscreen image as a scene cache, redrawn only when the scene changed
+// and copied into its back buffer every frame (renderer_present), or draws straight into its back
+// buffer (renderer_init's `direct`): no offscreen target and no copy, but a full draw per frame.
 #pragma once
 
 #include "render/camera.h"
@@ -173,7 +174,8 @@ struct Renderer {
 // 24-bit depth; `samples` > 0 multisamples it), or with `direct` (samples must be 0) none: it
 // draws into framebuffer 0 at renderer_place's origin. Returns false with a one-line reason.
 bool renderer_init(Renderer& r, int width, int height, std::string& error, int samples = 0, bool direct = false);
-// Direct mode: where in framebuffer 0 the image's lower-left corner lies (GL's convention: y up).
+// Direct mode and renderer_present: where in framebuffer 0 the image's lower-left corner lies (GL's
+// convention: y up).
 void renderer_place(Renderer& r, int x, int y);
 // Where the renderer draws: its framebuffer and the rectangle in it (for overlays drawn on top).
 struct ViewTarget {
@@ -216,7 +218,8 @@ void tray_shadow_grid(const Vec3f* positions, uint32_t count, const TrayPlane& t
 // from the plane so the shadow stays near the object.
 Vec3f tray_light(const Camera& camera, const Vec3f& normal);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
-// Direct mode: the back buffer's rectangle, so before the swap (and before anything drawn over it).
+// Direct mode (and after renderer_present): the back buffer's rectangle, so before the swap
+// (including what was drawn over it since).
 bool renderer_read_pixels(Renderer& r, std::vector<uint8_t>& rgba);
 // Copies the last image into another framebuffer (0: the window's), scaled to w x h, its lower-left
 // corner at (x, y) of the target (GL's convention: y up). Direct mode: nothing to copy.
