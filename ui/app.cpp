@@ -1009,8 +1009,9 @@ void run_frame(AppState& app, WindowContext& w) {
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
   draw_overlays(app, w);
-  // Multisampled (a GPU): the offscreen image, overlays included, into the window (else: nothing).
-  if (w.renderer.samples > 0) renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
+  // Multisampled (a GPU): the offscreen image, overlays included, into the window (direct mode and
+  // the scene cache: nothing to copy).
+  if (!w.cache_scene) renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
   if (!app.screenshot_request.empty()) {
     std::string message;
     take_screenshot(app, app.screenshot_request, message);
