@@ -113,6 +113,41 @@ ThreadCpu thread_cpu() {
   return cpu;
 }
 
+// Per-frame CPU clocks of the render thread and the GL driver's threads (Linux: a thread's CPU-time
+// clock from its id, as pthread_getcpuclockid builds it; nanoseconds, where /proc counts 10 ms ticks),
+// so the statistics can split the CPU between frames that drew the scene and frames that reused it.
+struct FrameClocks {
+  std::vector<clockid_t> driver;
+  bool found = false;
+};
+void find_driver_clocks(FrameClocks& c) {
+  c.found = true;
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator("/proc/self/task", ec)) {
+    std::FILE* f = std::fopen((entry.path() / "comm").c_str(), "r");
+    if (!f) continue;
+    char name[64] = {};
+    const bool read = std::fgets(name, sizeof name, f) != nullptr;
+    std::fclose(f);
+    const std::string n = read ? name : "";
+    if (n.rfind("llvmpipe", 0) != 0 && n.rfind("gallium", 0) != 0 && n.rfind("softpipe", 0) != 0) continue;
+    const long tid = std::atol(entry.path().filename().c_str());
+    c.driver.push_back(clockid_t((~tid) << 3 | 6));  // MAKE_THREAD_CPUCLOCK(tid, CPUCLOCK_SCHED)
+  }
+}
+double clock_ms(clockid_t id) {
+  timespec t{};
+  if (clock_gettime(id, &t) != 0) return 0.0;
+  return 1e3 * double(t.tv_sec) + 1e-6 * double(t.tv_nsec);
+}
+// (render thread, driver threads) CPU ms so far.
+std::pair<double, double> frame_clocks(FrameClocks& c) {
+  if (!c.found) find_driver_clocks(c);
+  double driver = 0.0;
+  for (clockid_t id : c.driver) driver += clock_ms(id);
+  return {clock_ms(CLOCK_THREAD_CPUTIME_ID), driver};
+}
+
 // "p50 (p95)" of a sample, in ms (the nearest-rank quantile of engine/stats.h, as every output).
 std::string percentiles(const std::vector<double>& v) {
   if (v.empty()) return "-";
@@ -141,15 +176,27 @@ struct FrameStats {
   uint64_t fresh_frames = 0;  // frames that showed a new snapshot
   uint64_t scene_frames = 0;  // frames that drew the scene (the others: the scene cache's image)
   bool scene_cache = false;
+  // CPU ms by frame kind ([0]: drew the scene, [1]: reused the cache): render thread, driver threads.
+  FrameClocks clocks;
+  std::pair<double, double> clocks_last{0.0, 0.0};
+  double kind_cpu[2][2] = {{0, 0}, {0, 0}};
+  std::vector<double> kind_interval_ms[2];
 
   // `fresh`: the frame took a new snapshot (the upload and normals phases count only those).
   void add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end,
            bool fresh, bool drew_scene) {
+    const std::pair<double, double> now_cpu = frame_clocks(clocks);
     if (counted_frames == 0) {
       first = end;
       cpu_start = thread_cpu();
       step_start = app.status.step;
+    } else {
+      const int kind = drew_scene ? 0 : 1;
+      kind_cpu[kind][0] += now_cpu.first - clocks_last.first;
+      kind_cpu[kind][1] += now_cpu.second - clocks_last.second;
+      kind_interval_ms[kind].push_back(interval);
     }
+    clocks_last = now_cpu;
     last = end;
     ++counted_frames;
     render_ms.push_back(render);
@@ -177,6 +224,15 @@ struct FrameStats {
                 static_cast<unsigned long long>(fresh_frames), static_cast<unsigned long long>(counted_frames),
                 normals_where.c_str(), static_cast<unsigned long long>(scene_frames),
                 scene_cache ? "the others showed the scene cache's image" : "no scene cache");
+    // By frame kind (the first frame excluded): CPU per frame and its fps quantiles.
+    for (int kind = 0; kind < 2; ++kind) {
+      const size_t n = kind_interval_ms[kind].size();
+      if (n == 0) continue;
+      std::printf("window: frames that %s: %zu, cpu ms per frame: render thread %.1f, GL driver threads %.1f; fps p50 %.1f p5 %.1f\n",
+                  kind == 0 ? "drew the scene" : "reused the scene cache", n, kind_cpu[kind][0] / double(n),
+                  kind_cpu[kind][1] / double(n), fps_percentile(kind_interval_ms[kind], 0.5),
+                  fps_percentile(kind_interval_ms[kind], 0.05));
+    }
     const ThreadCpu cpu_end = thread_cpu();
     const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
     std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
