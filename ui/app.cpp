@@ -245,8 +245,10 @@ struct FrameStats {
     if (!app.latency_frames.empty()) {
       double latency = 0.0;
       for (double l : app.latency_frames) latency += l;
-      std::printf("input to cut latency: %.2f frames mean over %zu cuts\n", latency / double(app.latency_frames.size()),
-                  app.latency_frames.size());
+      double ms = 0.0;
+      for (double l : app.latency_ms) ms += l;
+      std::printf("input to cut latency: %.2f frames mean over %zu cuts (%.0f ms)\n", latency / double(app.latency_frames.size()),
+                  app.latency_frames.size(), app.latency_ms.empty() ? 0.0 : ms / double(app.latency_ms.size()));
     }
   }
 };
@@ -336,6 +338,7 @@ void send_blade(AppState& app, const BladePose& pose, bool cutting) {
     if (app.latency_probe_stamp == 0) {
       app.latency_probe_stamp = stamp + 1;  // the snapshot after this step shows the cut
       app.latency_probe_frame = app.frame;
+      app.latency_probe_time = glfwGetTime();
     }
   }
 }
@@ -907,7 +910,9 @@ double take_snapshot(AppState& app, WindowContext& w) {
   for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
   if (app.latency_probe_stamp != 0 && s->step + 1 >= app.latency_probe_stamp) {
     app.latency_frames.push_back(double(app.frame - app.latency_probe_frame));
+    app.latency_ms.push_back(1e3 * (glfwGetTime() - app.latency_probe_time));
     if (app.latency_frames.size() > 120) app.latency_frames.erase(app.latency_frames.begin());
+    if (app.latency_ms.size() > 120) app.latency_ms.erase(app.latency_ms.begin());
     app.latency_probe_stamp = 0;
   }
   return s->normals_ms;

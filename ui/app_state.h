@@ -95,6 +95,8 @@ struct AppState {
   std::vector<float> upload_ms, draw_ms, render_ms, fps;
   std::vector<float> normals_ms;  // per snapshot shown: its normals' time (simulation thread or GPU passes)
   std::vector<double> latency_frames;  // frames from a cutting command to the snapshot showing it
+  std::vector<double> latency_ms;      // the same in wall-clock ms (frame rates vary: the scene cache)
+  double latency_probe_time = 0.0;     // glfwGetTime() when the probed command was sent
   // Simulated time per wall-clock second over the last half second or so (1: real time; lower when
   // a step costs more CPU than the frames leave it: the window keeps its frame rate, the simulation
   // slows down). rate_time / rate_step: where the current measurement started.

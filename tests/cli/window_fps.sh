@@ -5,7 +5,7 @@
 # forth across the object's middle for SECONDS (default 20) while holding the button, closes it and
 # prints its frame statistics: fps p50 / p5 (wall clock), phase times, CPU ms per frame by thread
 # kind (independent of other load on the machine), the X server's CPU per frame, input-to-cut
-# latency in frames; last a line
+# latency in frames and ms; last a line
 #   fps while cutting: p50 X p5 Y (scene, resolution R)
 # Usage: tests/cli/window_fps.sh DIVVOX [SCENE|-] [SECONDS] [RESOLUTION]
 #   e.g. tests/cli/window_fps.sh build/engine/divvox - 20 128; ... - 20 256
