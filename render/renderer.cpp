@@ -212,6 +212,10 @@ void destroy_target(Renderer& r) {
   if (r.resolve_renderbuffer) glDeleteRenderbuffers(1, &r.resolve_renderbuffer);
   if (r.depth_texture) glDeleteTextures(1, &r.depth_texture);
   r.depth_texture = 0;
+  if (r.shown_framebuffer) glDeleteFramebuffers(1, &r.shown_framebuffer);
+  if (r.shown_color_renderbuffer) glDeleteRenderbuffers(1, &r.shown_color_renderbuffer);
+  if (r.shown_depth_texture) glDeleteTextures(1, &r.shown_depth_texture);
+  r.shown_framebuffer = r.shown_color_renderbuffer = r.shown_depth_texture = 0;
   r.framebuffer = r.resolve_framebuffer = 0;
   r.color_renderbuffer = r.depth_renderbuffer = r.resolve_renderbuffer = 0;
 }
@@ -251,6 +255,21 @@ bool create_target(Renderer& r, std::string& error) {
     glNamedFramebufferTexture(r.framebuffer, GL_DEPTH_ATTACHMENT, r.depth_texture, 0);
   } else {
     glNamedFramebufferRenderbuffer(r.framebuffer, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, r.depth_renderbuffer);
+  }
+  // Double-buffered (single-sampled only): a second colour + depth target for the image shown.
+  if (r.double_buffered && r.samples == 0) {
+    glCreateRenderbuffers(1, &r.shown_color_renderbuffer);
+    glNamedRenderbufferStorage(r.shown_color_renderbuffer, GL_RGBA8, r.width, r.height);
+    glCreateTextures(GL_TEXTURE_2D, 1, &r.shown_depth_texture);
+    glTextureStorage2D(r.shown_depth_texture, 1, GL_DEPTH_COMPONENT24, r.width, r.height);
+    glTextureParameteri(r.shown_depth_texture, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTextureParameteri(r.shown_depth_texture, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    glCreateFramebuffers(1, &r.shown_framebuffer);
+    glNamedFramebufferRenderbuffer(r.shown_framebuffer, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, r.shown_color_renderbuffer);
+    glNamedFramebufferTexture(r.shown_framebuffer, GL_DEPTH_ATTACHMENT, r.shown_depth_texture, 0);
+    const float clear[4] = {0.0f, 0.0f, 0.0f, 1.0f};
+    glClearNamedFramebufferfv(r.shown_framebuffer, GL_COLOR, 0, clear);
+    glClearNamedFramebufferfi(r.shown_framebuffer, GL_DEPTH_STENCIL, 0, 1.0f, 0);
   }
   // Single-sample copy for readback when multisampled.
   r.resolve_framebuffer = r.framebuffer;
@@ -445,7 +464,9 @@ void renderer_place(Renderer& r, int x, int y) {
 }
 
 ViewTarget renderer_target(const Renderer& r) {
-  if (r.presented) return ViewTarget{0, r.origin_x, r.origin_y, r.width, r.height, r.depth_texture};
+  if (r.presented) {
+    return ViewTarget{0, r.origin_x, r.origin_y, r.width, r.height, r.shown_framebuffer ? r.shown_depth_texture : r.depth_texture};
+  }
   return r.direct ? ViewTarget{0, r.origin_x, r.origin_y, r.width, r.height} : ViewTarget{r.framebuffer, 0, 0, r.width, r.height};
 }
 
@@ -542,7 +563,8 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
   const ViewTarget target = renderer_target(r);
   glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
   glViewport(target.x, target.y, target.width, target.height);
-  if (options.clear) {
+  const bool last_part = options.pieces_end >= std::clamp(options.surface_pieces, 1, 64);
+  if (options.clear && options.pieces_begin <= 0) {
     // Direct: only the view's rectangle of the window.
     if (r.direct) {
       glEnable(GL_SCISSOR_TEST);
@@ -619,12 +641,13 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
   // In pieces, each handed to the rasteriser at once (see DrawOptions::surface_pieces).
   const GLsizei pieces = GLsizei(std::clamp(options.surface_pieces, 1, 64));
   const GLsizei piece = (index_count / 3 + pieces - 1) / pieces * 3;
-  for (GLsizei first = 0; first < index_count; first += piece) {
+  const GLsizei piece_end = std::min<GLsizei>(std::max(options.pieces_end, 0), pieces);
+  for (GLsizei k = std::max(options.pieces_begin, 0), first = k * piece; k < piece_end && first < index_count; ++k, first += piece) {
     glDrawRangeElements(GL_TRIANGLES, 0, last_index, std::min(piece, index_count - first), GL_UNSIGNED_INT,
                         reinterpret_cast<const void*>(uintptr_t(first) * 4));
     if (pieces > 1) glFlush();
   }
-  if (r.cut_count > 0) {
+  if (r.cut_count > 0 && last_part) {
     glUseProgram(r.surface_programs[flat + 1]);
     glVertexArrayElementBuffer(r.vertex_array, r.cut_index_buffer);
     glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(std::min<uint64_t>(r.cut_count, INT32_MAX / 3)) * 3,
@@ -633,7 +656,7 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
   glVertexArrayElementBuffer(r.vertex_array, r.index_buffer);  // every live slot (wireframe, compute)
 
   // Pass 2: edges on top, pulled toward the eye so they win the depth test against their own faces.
-  if (options.wireframe) {
+  if (options.wireframe && last_part) {
     glPolygonMode(GL_FRONT_AND_BACK, GL_LINE);
     glEnable(GL_POLYGON_OFFSET_LINE);
     glPolygonOffset(-1.0f, -1.0f);
@@ -690,9 +713,23 @@ void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int heig
                          GL_COLOR_BUFFER_BIT, (width == r.width && height == r.height) ? GL_NEAREST : GL_LINEAR);
 }
 
+bool renderer_double_buffer(Renderer& r, std::string& error) {
+  if (r.direct || r.samples > 0) return false;
+  r.double_buffered = true;
+  return renderer_resize(r, r.width, r.height, error);
+}
+
+void renderer_show_drawn(Renderer& r) {
+  if (!r.shown_framebuffer) return;
+  std::swap(r.framebuffer, r.shown_framebuffer);
+  std::swap(r.color_renderbuffer, r.shown_color_renderbuffer);
+  std::swap(r.depth_texture, r.shown_depth_texture);
+  r.resolve_framebuffer = r.framebuffer;
+}
+
 void renderer_present(Renderer& r) {
   if (!r.framebuffer || r.direct || r.samples > 0) return;
-  glBlitNamedFramebuffer(r.framebuffer, 0, 0, 0, r.width, r.height, r.origin_x, r.origin_y, r.origin_x + r.width,
+  glBlitNamedFramebuffer(r.shown_framebuffer ? r.shown_framebuffer : r.framebuffer, 0, 0, 0, r.width, r.height, r.origin_x, r.origin_y, r.origin_x + r.width,
                          r.origin_y + r.height, GL_COLOR_BUFFER_BIT, GL_NEAREST);
   r.presented = true;
 }

@@ -85,6 +85,10 @@ struct DrawOptions {
   // so in one piece its rasteriser threads wait for the whole setup, in several they rasterise one
   // piece while the next is set up.
   int surface_pieces = 1;
+  // Draw only the outer surface's pieces [pieces_begin, pieces_end): the clear with the first piece,
+  // the cut faces and the wireframe with the last. A window can so spread one image over two frames
+  // (renderer_double_buffer).
+  int pieces_begin = 0, pieces_end = 64;
   Vec3f surface_color = Vec3f(0.88f, 0.70f, 0.64f);  // pale organ capsule
   Vec3f cut_color = Vec3f(0.80f, 0.17f, 0.20f);      // exposed tissue on the cut faces
   Vec3f wire_color = Vec3f(0.20f, 0.12f, 0.12f);
@@ -118,6 +122,10 @@ struct Renderer {
   // renderer_present copied the image into framebuffer 0 at the origin: until the next draw, the
   // view (renderer_target, renderer_read_pixels) is that rectangle of framebuffer 0.
   bool presented = false;
+  // renderer_double_buffer: a second target holds the image shown (renderer_present copies it)
+  // while the next is drawn into the first; renderer_show_drawn swaps them.
+  bool double_buffered = false;
+  uint32_t shown_framebuffer = 0, shown_color_renderbuffer = 0, shown_depth_texture = 0;
   uint32_t framebuffer = 0, color_renderbuffer = 0, depth_renderbuffer = 0;
   uint32_t depth_texture = 0;  // the depth attachment when single-sampled (instead of depth_renderbuffer)
   uint32_t resolve_framebuffer = 0, resolve_renderbuffer = 0;
@@ -231,6 +239,12 @@ void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int heig
 // among themselves). A window redraws an unchanged scene (no new snapshot, the camera still) by
 // this copy alone: on llvmpipe a fifth of drawing the surface again.
 void renderer_present(Renderer& r);
+// Single-sampled offscreen mode: keeps a second target, the image shown, so an image can be drawn
+// over several frames (DrawOptions::pieces_begin / pieces_end) while the last one is presented.
+// False (nothing changed) in direct or multisampled mode, or with the resize's error.
+bool renderer_double_buffer(Renderer& r, std::string& error);
+// Double-buffered: the image just drawn becomes the one shown (renderer_present, ViewTarget::scene_depth).
+void renderer_show_drawn(Renderer& r);
 // Deletes every GL object (the context must still be current).
 void renderer_destroy(Renderer& r);
 

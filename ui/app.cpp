@@ -229,7 +229,7 @@ struct FrameStats {
       const size_t n = kind_interval_ms[kind].size();
       if (n == 0) continue;
       std::printf("window: frames that %s: %zu, cpu ms per frame: render thread %.1f, GL driver threads %.1f; fps p50 %.1f p5 %.1f\n",
-                  kind == 0 ? "drew the scene" : "reused the scene cache", n, kind_cpu[kind][0] / double(n),
+                  kind == 0 ? "drew the scene (or half of it)" : "reused the scene cache", n, kind_cpu[kind][0] / double(n),
                   kind_cpu[kind][1] / double(n), fps_percentile(kind_interval_ms[kind], 0.5),
                   fps_percentile(kind_interval_ms[kind], 0.05));
     }
@@ -757,6 +757,11 @@ struct WindowContext {
   bool cache_scene = false;
   bool scene_valid = false;
   SceneKey scene_key;
+  // Double-buffered cache (DIVVOX_SPLIT_FRAMES=0: off): a new snapshot is drawn over two frames
+  // (scene_draw_for); split_pending: the first half is drawn, for pending_key, and the frame
+  // after draws the rest before a new snapshot is taken.
+  bool split_frames = false, split_pending = false;
+  SceneKey pending_key;
   // What the tray's shadow was built for (draw_trays).
   uint64_t shadow_sequence = 0;
   float shadow_yaw = 0.0f, shadow_pitch = 0.0f;
@@ -854,6 +859,16 @@ bool init_graphics(AppState& app, WindowContext& w) {
     return false;
   }
   renderer_place(w.renderer, app.view_x, 0);
+  const char* split_env = std::getenv("DIVVOX_SPLIT_FRAMES");
+  if (w.cache_scene && w.software && (split_env == nullptr || std::string(split_env) != "0")) {
+    w.split_frames = renderer_double_buffer(w.renderer, error);
+    if (!w.split_frames && !error.empty()) {
+      std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
+      glfwDestroyWindow(w.window);
+      glfwTerminate();
+      return false;
+    }
+  }
   if (!overlay_init(w.overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no blade overlay)\n", error.c_str());
   if (!solid_overlay_init(w.solid_overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
   glfwSetScrollCallback(w.window, on_scroll);
@@ -992,25 +1007,50 @@ void draw_overlays(AppState& app, WindowContext& w) {
   overlay_draw(w.overlay, target, app.camera, w.lines);
 }
 
-// The 3D view: the back buffer cleared (direct and scene-cache modes), the scene drawn unless the
-// cache holds it already, the tools aimed while it rasterises, the cached image copied into the
-// back buffer.
-// Returns whether it drew the scene.
+// What a frame draws of the scene (draw_view).
+enum class SceneDraw { kNone, kWhole, kFirstHalf, kSecondHalf };
+
+// What this frame draws: with the scene cache, nothing while the cached image still shows the scene;
+// a new snapshot seen from the same camera (while cutting) spread over two frames when
+// double-buffered (the first half of the outer surface, then the rest, the cut faces and the trays),
+// each frame presenting the last whole image, so no single frame pays for a whole redraw; anything
+// else (a camera move, a changed option) drawn whole at once.
+SceneDraw scene_draw_for(const WindowContext& w, const SceneKey& key) {
+  if (!w.cache_scene) return SceneDraw::kWhole;
+  if (w.split_pending) return key == w.pending_key ? SceneDraw::kSecondHalf : SceneDraw::kWhole;
+  if (w.scene_valid && key == w.scene_key) return SceneDraw::kNone;
+  SceneKey same_view = key;
+  same_view.sequence = w.scene_key.sequence;
+  return w.split_frames && w.scene_valid && same_view == w.scene_key ? SceneDraw::kFirstHalf : SceneDraw::kWhole;
+}
+
+// The 3D view: the back buffer cleared (direct and scene-cache modes), the scene (or part of it:
+// scene_draw_for) drawn, the tools aimed while it rasterises, the cached image copied into the back
+// buffer. Returns whether it drew any of the scene.
 bool draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseFrame& mouse) {
   const bool window = w.renderer.direct || w.cache_scene;
   app.panel_cleared = window;
   if (window) clear_window(app, fb_w, fb_h, w.cache_scene);
   const SceneKey key = scene_key_of(app, w);
-  const bool draw = !w.cache_scene || !w.scene_valid || !(key == w.scene_key);
-  if (draw) draw_surface(app, w);
+  const SceneDraw d = scene_draw_for(w, key);
+  const int half = (app.draw.surface_pieces + 1) / 2;
+  app.draw.pieces_begin = d == SceneDraw::kSecondHalf ? half : 0;
+  app.draw.pieces_end = d == SceneDraw::kFirstHalf ? half : 64;
+  if (d != SceneDraw::kNone) draw_surface(app, w);
   handle_tools(app, mouse);  // picks on the snapshot shown while the surface rasterises
-  if (draw) draw_trays(app, w);
+  const bool complete = d == SceneDraw::kWhole || d == SceneDraw::kSecondHalf;
+  if (complete) draw_trays(app, w);
   if (w.cache_scene) {
+    if (complete) {
+      renderer_show_drawn(w.renderer);  // double-buffered: the new image is the one shown
+      w.scene_valid = true;
+      w.scene_key = key;
+    }
+    w.split_pending = d == SceneDraw::kFirstHalf;
+    if (w.split_pending) w.pending_key = key;
     renderer_present(w.renderer);
-    w.scene_valid = true;
-    w.scene_key = key;
   }
-  return draw;
+  return d != SceneDraw::kNone;
 }
 
 // AppState::sim_rate from the steps run in the last half second (a new session or an undo, which
@@ -1058,8 +1098,9 @@ void run_frame(AppState& app, WindowContext& w) {
   const Clock::time_point t0 = Clock::now();
   const Eigen::Vector2f cursor_before = w.last_cursor;
   w.last_cursor = app.cursor;
-  const double normals_ms = take_snapshot(app, w);
-  w.idle = normals_ms < 0.0 && app.status.ready && app.status.paused && !app.left_down && !app.camera_drag &&
+  // Half of a snapshot's image drawn: the same snapshot until the rest is.
+  const double normals_ms = w.split_pending ? -1.0 : take_snapshot(app, w);
+  w.idle = normals_ms < 0.0 && !w.split_pending && app.status.ready && app.status.paused && !app.left_down && !app.camera_drag &&
            cursor_before == app.cursor && app.message.empty();
   if (w.profile) glFinish();
   const Clock::time_point t1 = Clock::now();
@@ -1117,9 +1158,13 @@ int finish_window(AppState& app, WindowContext& w, const WindowOptions& options,
       int fb_w = 0, fb_h = 0;
       glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
       clear_window(app, fb_w, fb_h, w.cache_scene);
-      if (!w.cache_scene || !w.scene_valid) {
+      if (!w.cache_scene || !w.scene_valid || w.split_pending) {
+        app.draw.pieces_begin = 0;
+        app.draw.pieces_end = 64;
         draw_surface(app, w);
         draw_trays(app, w);
+        renderer_show_drawn(w.renderer);
+        w.split_pending = false;
       }
       renderer_present(w.renderer);  // direct mode: nothing to copy
       draw_overlays(app, w);
