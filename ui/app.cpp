@@ -762,6 +762,10 @@ struct WindowContext {
   // after draws the rest before a new snapshot is taken.
   bool split_frames = false, split_pending = false;
   SceneKey pending_key;
+  // The snapshot taken holds the latency probe's cut, sent at that frame and time (record_latency).
+  bool latency_hit = false;
+  uint64_t latency_hit_frame = 0;
+  double latency_hit_time = 0.0;
   // What the tray's shadow was built for (draw_trays).
   uint64_t shadow_sequence = 0;
   float shadow_yaw = 0.0f, shadow_pitch = 0.0f;
@@ -923,11 +927,11 @@ double take_snapshot(AppState& app, WindowContext& w) {
   w.last_sequence = s->sequence;
   app.triangles = 0;
   for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
+  // The probed cut is in this snapshot: counted once it shows (record_latency).
   if (app.latency_probe_stamp != 0 && s->step + 1 >= app.latency_probe_stamp) {
-    app.latency_frames.push_back(double(app.frame - app.latency_probe_frame));
-    app.latency_ms.push_back(1e3 * (glfwGetTime() - app.latency_probe_time));
-    if (app.latency_frames.size() > 120) app.latency_frames.erase(app.latency_frames.begin());
-    if (app.latency_ms.size() > 120) app.latency_ms.erase(app.latency_ms.begin());
+    w.latency_hit = true;
+    w.latency_hit_frame = app.latency_probe_frame;  // a new probe may start before it shows
+    w.latency_hit_time = app.latency_probe_time;
     app.latency_probe_stamp = 0;
   }
   return s->normals_ms;
@@ -1005,6 +1009,17 @@ void draw_overlays(AppState& app, WindowContext& w) {
   const ViewTarget target = renderer_target(w.renderer);
   solid_overlay_draw(w.solid_overlay, target, app.camera, w.solids);
   overlay_draw(w.overlay, target, app.camera, w.lines);
+}
+
+// The input-to-cut latency of a probed cut whose snapshot this frame showed (with split frames, the
+// frame that finished its image).
+void record_latency(AppState& app, WindowContext& w) {
+  if (!w.latency_hit || w.split_pending) return;
+  w.latency_hit = false;
+  app.latency_frames.push_back(double(app.frame - w.latency_hit_frame));
+  app.latency_ms.push_back(1e3 * (glfwGetTime() - w.latency_hit_time));
+  if (app.latency_frames.size() > 120) app.latency_frames.erase(app.latency_frames.begin());
+  if (app.latency_ms.size() > 120) app.latency_ms.erase(app.latency_ms.begin());
 }
 
 // What a frame draws of the scene (draw_view).
@@ -1108,6 +1123,7 @@ void run_frame(AppState& app, WindowContext& w) {
   if (w.profile) glFinish();
   const Clock::time_point t1n = Clock::now();
   const bool drew_scene = draw_view(app, w, fb_w, fb_h, mouse);
+  record_latency(app, w);
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
   draw_overlays(app, w);
