@@ -163,6 +163,12 @@ double fps_percentile(const std::vector<double>& intervals_ms, double q) {
   return ms > 0 ? 1000.0 / ms : 0.0;
 }
 
+// What a frame draws of the scene (draw_view): nothing (the scene cache's image), all of it, or a
+// half of a new snapshot's image (split frames).
+enum class SceneDraw { kNone, kWhole, kFirstHalf, kSecondHalf };
+constexpr const char* kSceneDrawNames[4] = {"reused the scene cache", "drew the whole scene",
+                                            "drew the first half of a new image", "drew its second half"};
+
 // The window's frame statistics from the first frame showing a scene, printed at exit.
 struct FrameStats {
   std::string gl_renderer, normals_where;
@@ -179,19 +185,19 @@ struct FrameStats {
   // CPU ms by frame kind ([0]: drew the scene, [1]: reused the cache): render thread, driver threads.
   FrameClocks clocks;
   std::pair<double, double> clocks_last{0.0, 0.0};
-  double kind_cpu[2][2] = {{0, 0}, {0, 0}};
-  std::vector<double> kind_interval_ms[2];
+  double kind_cpu[4][2] = {};  // by SceneDraw
+  std::vector<double> kind_interval_ms[4];
 
   // `fresh`: the frame took a new snapshot (the upload and normals phases count only those).
   void add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end,
-           bool fresh, bool drew_scene) {
+           bool fresh, SceneDraw drawn) {
     const std::pair<double, double> now_cpu = frame_clocks(clocks);
     if (counted_frames == 0) {
       first = end;
       cpu_start = thread_cpu();
       step_start = app.status.step;
     } else {
-      const int kind = drew_scene ? 0 : 1;
+      const int kind = int(drawn);
       kind_cpu[kind][0] += now_cpu.first - clocks_last.first;
       kind_cpu[kind][1] += now_cpu.second - clocks_last.second;
       kind_interval_ms[kind].push_back(interval);
@@ -202,7 +208,7 @@ struct FrameStats {
     render_ms.push_back(render);
     if (counted_frames > 1) interval_ms.push_back(interval);
     fresh_frames += fresh ? 1 : 0;
-    scene_frames += drew_scene ? 1 : 0;
+    scene_frames += drawn != SceneDraw::kNone ? 1 : 0;
     for (int k = 0; k < 6; ++k) {
       if (fresh || k >= 2) phase_ms[k].push_back(phases[k]);
     }
@@ -225,11 +231,11 @@ struct FrameStats {
                 normals_where.c_str(), static_cast<unsigned long long>(scene_frames),
                 scene_cache ? "the others showed the scene cache's image" : "no scene cache");
     // By frame kind (the first frame excluded): CPU per frame and its fps quantiles.
-    for (int kind = 0; kind < 2; ++kind) {
+    for (int kind = 0; kind < 4; ++kind) {
       const size_t n = kind_interval_ms[kind].size();
       if (n == 0) continue;
       std::printf("window: frames that %s: %zu, cpu ms per frame: render thread %.1f, GL driver threads %.1f; fps p50 %.1f p5 %.1f\n",
-                  kind == 0 ? "drew the scene (or half of it)" : "reused the scene cache", n, kind_cpu[kind][0] / double(n),
+                  kSceneDrawNames[kind], n, kind_cpu[kind][0] / double(n),
                   kind_cpu[kind][1] / double(n), fps_percentile(kind_interval_ms[kind], 0.5),
                   fps_percentile(kind_interval_ms[kind], 0.05));
     }
@@ -1022,12 +1028,9 @@ void record_latency(AppState& app, WindowContext& w) {
   if (app.latency_ms.size() > 120) app.latency_ms.erase(app.latency_ms.begin());
 }
 
-// What a frame draws of the scene (draw_view).
-enum class SceneDraw { kNone, kWhole, kFirstHalf, kSecondHalf };
-
 // What this frame draws: with the scene cache, nothing while the cached image still shows the scene;
 // a new snapshot seen from the same camera (while cutting) spread over two frames when
-// double-buffered (the first half of the outer surface, then the rest, the cut faces and the trays),
+// double-buffered (the first half of the outer surface and the trays, then the rest and the cut faces),
 // each frame presenting the last whole image, so no single frame pays for a whole redraw; anything
 // else (a camera move, a changed option) drawn whole at once.
 SceneDraw scene_draw_for(const WindowContext& w, const SceneKey& key) {
@@ -1041,8 +1044,8 @@ SceneDraw scene_draw_for(const WindowContext& w, const SceneKey& key) {
 
 // The 3D view: the back buffer cleared (direct and scene-cache modes), the scene (or part of it:
 // scene_draw_for) drawn, the tools aimed while it rasterises, the cached image copied into the back
-// buffer. Returns whether it drew any of the scene.
-bool draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseFrame& mouse) {
+// buffer. Returns what it drew.
+SceneDraw draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseFrame& mouse) {
   const bool window = w.renderer.direct || w.cache_scene;
   app.panel_cleared = window;
   if (window) clear_window(app, fb_w, fb_h, w.cache_scene);
@@ -1053,8 +1056,10 @@ bool draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseF
   app.draw.pieces_end = d == SceneDraw::kFirstHalf ? half : 64;
   if (d != SceneDraw::kNone) draw_surface(app, w);
   handle_tools(app, mouse);  // picks on the snapshot shown while the surface rasterises
+  // The trays with the first half (the halves cost alike then; behind the second half's triangles
+  // the tray is shaded and then overdrawn, a cheap shader).
   const bool complete = d == SceneDraw::kWhole || d == SceneDraw::kSecondHalf;
-  if (complete) draw_trays(app, w);
+  if (d == SceneDraw::kWhole || d == SceneDraw::kFirstHalf) draw_trays(app, w);
   if (w.cache_scene) {
     if (complete) {
       renderer_show_drawn(w.renderer);  // double-buffered: the new image is the one shown
@@ -1065,7 +1070,7 @@ bool draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseF
     if (w.split_pending) w.pending_key = key;
     renderer_present(w.renderer);
   }
-  return d != SceneDraw::kNone;
+  return d;
 }
 
 // AppState::sim_rate from the steps run in the last half second (a new session or an undo, which
@@ -1122,7 +1127,7 @@ void run_frame(AppState& app, WindowContext& w) {
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
   if (w.profile) glFinish();
   const Clock::time_point t1n = Clock::now();
-  const bool drew_scene = draw_view(app, w, fb_w, fb_h, mouse);
+  const SceneDraw drawn = draw_view(app, w, fb_w, fb_h, mouse);
   record_latency(app, w);
   if (w.profile) glFinish();
   const Clock::time_point t1d = Clock::now();
@@ -1162,7 +1167,7 @@ void run_frame(AppState& app, WindowContext& w) {
     if (normals_ms >= 0.0) AppState::push(app.normals_ms, normals);
     const double phases[6] = {ms_between(t0, t1), normals, ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3),
                               ms_between(t3, t4)};
-    w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0, drew_scene);
+    w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0, drawn);
   }
 }
 
