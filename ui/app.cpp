@@ -28,6 +28,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <filesystem>
+#include <limits>
 #include <thread>
 #include <unistd.h>
 
@@ -774,6 +775,7 @@ struct WindowContext {
   double latency_hit_time = 0.0;
   // What the tray's shadow was built for (draw_trays).
   uint64_t shadow_sequence = 0;
+  std::vector<Vec3f> shadow_positions;  // the snapshot's vertices that cast the shadow (others NaN)
   float shadow_yaw = 0.0f, shadow_pitch = 0.0f;
   Eigen::Vector2f last_cursor = Eigen::Vector2f::Zero();
 };
@@ -1000,8 +1002,15 @@ void draw_trays(AppState& app, WindowContext& w) {
   if (app.current != nullptr && app.draw.shadows &&
       (w.shadow_sequence != app.current->sequence || w.shadow_yaw != app.camera.yaw ||
        w.shadow_pitch != app.camera.pitch || !w.renderer.shadow_valid)) {
-    tray_shadow_update(w.renderer, app.current->positions.data(), uint32_t(app.current->positions.size()), app.camera,
-                       app.draw);
+    // Only the vertices of live triangles cast it (a free vertex slot may keep a stale position).
+    const Snapshot& snap = *app.current;
+    const uint32_t n = uint32_t(snap.positions.size());
+    w.shadow_positions.assign(n, Vec3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+    for (const Tri& t : snap.triangles) {
+      if (t[0] >= n || t[1] >= n || t[2] >= n) continue;
+      for (uint32_t v : t) w.shadow_positions[v] = snap.positions[v];
+    }
+    tray_shadow_update(w.renderer, w.shadow_positions.data(), n, app.camera, app.draw);
     w.shadow_sequence = app.current->sequence;
     w.shadow_yaw = app.camera.yaw;
     w.shadow_pitch = app.camera.pitch;
