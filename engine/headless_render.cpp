@@ -40,7 +40,7 @@ bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions
     draw.trays.push_back(tray_under(options.framing.min.cast<float>(), options.framing.max.cast<float>(),
                                     p.point.cast<float>(), p.normal.cast<float>()));
   }
-  std::vector<Vec3f> normals;
+  std::vector<Vec3f> normals, casters;
   std::vector<uint8_t> rgba;
   uint64_t last_sequence = 0, frame = 0;
   Clock::time_point last_frame = Clock::now();
@@ -69,7 +69,10 @@ bool run_headless_render(SnapshotExchange& exchange, const HeadlessRenderOptions
       camera = framing;
     }
     const Clock::time_point t1 = Clock::now();
-    if (!draw.trays.empty()) tray_shadow_update(renderer, s->positions.data(), uint32_t(s->positions.size()), camera, draw);
+    if (!draw.trays.empty()) {
+      shadow_casters(*s, casters);
+      tray_shadow_update(renderer, casters.data(), uint32_t(casters.size()), camera, draw);
+    }
     renderer_draw(renderer, camera, draw);
     const Clock::time_point t2 = Clock::now();
     FrameRow row{frame, s->step, ms_between(t0, t1), ms_between(t1, t2), 0.0, ms_between(last_frame, t2), false};

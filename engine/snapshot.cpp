@@ -60,4 +60,13 @@ void fill_snapshot(Snapshot& slot, uint64_t slot_sequence, const CutSurface& sur
   slot.timings = timings;
 }
 
+void shadow_casters(const Snapshot& snapshot, std::vector<Vec3f>& out) {
+  const uint32_t n = uint32_t(snapshot.positions.size());
+  out.assign(n, Vec3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+  for (const Tri& t : snapshot.triangles) {
+    if (t[0] >= n || t[1] >= n || t[2] >= n) continue;  // a free triangle slot
+    for (uint32_t v : t) out[v] = snapshot.positions[v];
+  }
+}
+
 }  // namespace dvx

@@ -121,4 +121,9 @@ struct DirtyHistory {
 void fill_snapshot(Snapshot& slot, uint64_t slot_sequence, const CutSurface& surface, const std::vector<Vec3f>* deformed,
                    DirtyHistory& history, uint32_t step, const StepTimings& timings);
 
+// The vertices that cast the tray's shadow: the snapshot's positions where a live triangle uses the
+// slot, NaN elsewhere (a vertex slot no triangle uses may keep a stale position; the shadow grid
+// skips NaN). Used by the window and the headless renderer alike.
+void shadow_casters(const Snapshot& snapshot, std::vector<Vec3f>& out);
+
 }  // namespace dvx

@@ -1002,15 +1002,8 @@ void draw_trays(AppState& app, WindowContext& w) {
   if (app.current != nullptr && app.draw.shadows &&
       (w.shadow_sequence != app.current->sequence || w.shadow_yaw != app.camera.yaw ||
        w.shadow_pitch != app.camera.pitch || !w.renderer.shadow_valid)) {
-    // Only the vertices of live triangles cast it (a free vertex slot may keep a stale position).
-    const Snapshot& snap = *app.current;
-    const uint32_t n = uint32_t(snap.positions.size());
-    w.shadow_positions.assign(n, Vec3f::Constant(std::numeric_limits<float>::quiet_NaN()));
-    for (const Tri& t : snap.triangles) {
-      if (t[0] >= n || t[1] >= n || t[2] >= n) continue;
-      for (uint32_t v : t) w.shadow_positions[v] = snap.positions[v];
-    }
-    tray_shadow_update(w.renderer, w.shadow_positions.data(), n, app.camera, app.draw);
+    shadow_casters(*app.current, w.shadow_positions);  // only vertices of live triangles
+    tray_shadow_update(w.renderer, w.shadow_positions.data(), uint32_t(w.shadow_positions.size()), app.camera, app.draw);
     w.shadow_sequence = app.current->sequence;
     w.shadow_yaw = app.camera.yaw;
     w.shadow_pitch = app.camera.pitch;

@@ -28,6 +28,19 @@ bool same_surface(const Snapshot& a, const Snapshot& b) {
 }  // namespace
 
 TEST_SUITE("snapshot") {
+  TEST_CASE("only the vertices of live triangles cast the tray's shadow") {
+    // Slot 3 keeps a stale position (no live triangle uses it), triangle slot 1 is free.
+    Snapshot snap;
+    snap.positions = {Vec3f(0, 0, 0), Vec3f(1, 0, 0), Vec3f(0, 1, 0), Vec3f(5, 5, 5), Vec3f(7, 7, 7)};
+    snap.triangles = {Tri{0, 1, 2}, Tri{kDeadIndex, kDeadIndex, kDeadIndex}};
+    std::vector<Vec3f> casters;
+    shadow_casters(snap, casters);
+    REQUIRE(casters.size() == 5);
+    for (int v = 0; v < 3; ++v) CHECK(casters[v] == snap.positions[v]);
+    CHECK(std::isnan(casters[3].x()));
+    CHECK(std::isnan(casters[4].x()));
+  }
+
   TEST_CASE("incremental fills equal full copies for slots skipped 0 to 10 publishes") {
     Scene scene = load_scene(dvx_test::source_path("assets/scenes/bunny.json"));
     scene.pbd.resolution = 32;
