@@ -49,7 +49,8 @@ struct ReplayRun {
 };
 
 // --meshes: DIR/meshes/mesh_NNNNN.ply, the deformed surface in world space with its cut faces marked.
-void write_step_mesh(const ReplayOptions& options, const Session& session, uint32_t step, ReplayRun& run) {
+void write_step_mesh(const ReplayOptions& options, Session& session, uint32_t step, ReplayRun& run) {
+  session_embed(session);
   char name[32];
   std::snprintf(name, sizeof(name), "mesh_%05u.ply", step);
   write_cut_mesh_ply((std::filesystem::path(options.out_dir) / "meshes" / name).string(), session.cut.surface,
@@ -360,6 +361,9 @@ ReplayResult run_replay(const ReplayOptions& options) {
   // The simulation of the recording's scene; the recorder of the replayed session.
   Session session;
   open_session(playback.scene, playback.dt, options.physics, options.workers, session, options.progress);
+  // Without frames the surface is read only by the --meshes files and the final outputs: embedded
+  // there, not every step.
+  session.embed_surface = options.render || options.frames_every > 0;
   ReplayRun run;
   run.initial_volume = surface_stats(compact_surface(session.cut.surface)).volume;
   make_output_dir(options.out_dir);
@@ -392,6 +396,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
     write_step_mesh(options, session, run.steps_done - 1, run);
   }
 
+  session_embed(session);  // the final surface and summary read it
   ReplayResult result;
   result.steps = run.steps_done;
   result.interrupted = run.interrupted;

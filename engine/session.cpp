@@ -90,12 +90,16 @@ StepReport session_step(Session& s, const StepCommands& commands) {
   }
   if (s.pbd) {
     const Clock::time_point t3 = Clock::now();
-    pbd_step(s.cut, *s.pbd, s.pool->runner());
+    pbd_step(s.cut, *s.pbd, s.pool->runner(), s.embed_surface);
     report.timings.deform_ms = ms_between(t3, Clock::now());
   }
   report.timings.total_ms = ms_between(t0, Clock::now());
   ++s.step;
   return report;
+}
+
+void session_embed(Session& s) {
+  if (s.pbd && !s.embed_surface) pbd_embed(s.cut, *s.pbd, s.pool->runner());
 }
 
 uint64_t session_hash(const Session& s) {

@@ -59,6 +59,10 @@ struct Session {
   double map_ms = 0.0;        // time spent mapping the blade to rest space, accumulated
   bool have_blade = false, cutting = false;
   uint32_t step = 0;  // the next step to run
+  // Whether each step embeds the deformed surface (pbd->deformed). A headless replay that draws no
+  // frames and writes no meshes turns it off (a quarter of a step's instructions on the default
+  // recording) and calls session_embed before it reads the surface.
+  bool embed_surface = true;
 };
 
 // PBD parameters of a scene at time step dt.
@@ -70,6 +74,9 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
 
 // Runs one step at the fixed dt: the blade's sweep (when cutting), the PBD update, the grab.
 StepReport session_step(Session& session, const StepCommands& commands);
+
+// Brings pbd->deformed up to date after steps that skipped the embedding (embed_surface false).
+void session_embed(Session& session);
 
 // State hash: the cut surface, and the live particles when the physics runs.
 uint64_t session_hash(const Session& session);

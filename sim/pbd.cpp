@@ -1579,7 +1579,7 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   });
 }
 
-void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
+void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool embed) {
   const PbdParams& params = s.params;
   const int substeps = std::max(1, params.substeps);
   const double h = params.dt / substeps;
@@ -1653,7 +1653,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
     run_batches(tasks, s.task_batches.data(), uint32_t(s.task_batches.size()), run);
   }
   ++s.steps;
-  pbd_embed(cut, s, tasks);
+  if (embed) pbd_embed(cut, s, tasks);
 }
 
 uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }

@@ -263,8 +263,10 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 // the number of simulation voxels relabelled.
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& state, PbdCutStats* stats = nullptr);
 
-// One time step (substeps x iterations), then the deformed surface positions.
-void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
+// One time step (substeps x iterations), then (with `embed`) the deformed surface positions. A
+// caller that reads PbdData::deformed only now and then (a headless replay: the state hash and
+// contact read the particles, not the surface) passes false and calls pbd_embed before it reads.
+void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}, bool embed = true);
 
 // Recomputes deformed positions of all live surface vertices (pbd_step calls it).
 void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
