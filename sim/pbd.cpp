@@ -1268,10 +1268,14 @@ void plane_backstop(PbdState& s, uint32_t p) {
 
 // ---- Solver step -----------------------------------------------------------------------------
 
-// Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, once per step
-// (masses change only between steps). The overflow colour's clusters may share particles: one per
-// block, solved in order.
+// Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, and the stretch
+// constraints' rows, once per model revision (masses change only with it). The overflow colour's
+// clusters may share particles: one per block, solved in order.
 void build_shape_blocks(PbdState& s) {
+  for (int c = 0; c < kColourGroups; ++c) {
+    s.stretch_rows[c].clear();
+    for (const StretchConstraint& k : s.stretch_groups[c]) s.stretch_rows[c].push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
+  }
   for (int c = 0; c < kColourGroups; ++c) {
     std::vector<ShapeBlock>& blocks = s.shape_blocks[c];
     blocks.clear();
@@ -1616,9 +1620,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       case StepBatch::kStretch: {
         // Scalar: in vector lanes (4 constraints, gathered) it measured 1.4-2.3x slower (bench deform).
-        const StretchConstraint* k = s.stretch_groups[b.index].data();
-        double* lambda = s.stretch_lambda[b.index].data();
-        for (uint32_t i = begin; i < end; ++i) solve_distance_alpha(x, w, k[i].a, k[i].b, k[i].rest, alpha, lambda[i]);
+        solve_stretch_rows(x, s.stretch_rows[b.index].data(), s.stretch_lambda[b.index].data(), begin, end, alpha);
         break;
       }
       case StepBatch::kShape:

@@ -239,9 +239,10 @@ struct PbdData {
   uint64_t steps = 0;
   // Solver scratch, rebuilt when the model changes (blocks_revision != PbdModel::revision; masses and
   // rest positions change only with it): the shape-matching clusters of each colour in blocks (their
-  // rest frames); each step, each piece's corners in float for the embedding.
+  // rest frames), the stretch constraints with their masses; each step, each piece's corners in float for the embedding.
   uint64_t blocks_revision = ~uint64_t(0);
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
+  std::vector<StretchRow> stretch_rows[kColourGroups];  // parallel to stretch_groups
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
   // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;

@@ -395,6 +395,11 @@ void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, d
   solve_distance_alpha(x, inv_mass, i, j, rest, alpha, lambda);
 }
 
+__attribute__((target_clones("avx2", "default")))
+void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha) {
+  for (uint32_t i = begin; i < end; ++i) solve_stretch_row(x, rows[i], alpha, lambda[i]);
+}
+
 bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const double* rest, int count,
                          ShapeRest& out) {
   out = ShapeRest{};

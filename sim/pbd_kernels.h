@@ -46,19 +46,16 @@ constexpr int kShapeRotationIterations = 3;
 void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double compliance,
                     double dt, double& lambda);
 
-// The same with alpha~ = compliance / dt^2 computed once by the caller (0 for a rigid constraint; the
-// caller skips a soft constraint without a time step), inlined into the solver's colour-group loop.
-inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double alpha,
-                                 double& lambda) {
-  const double wi = inv_mass[i], wj = inv_mass[j];
+// The body of solve_distance_alpha for particles i, j with their inverse masses given and the
+// least length it acts on, min_length = max(1e-12 rest, 1e-300), precomputed (StretchRow).
+inline void distance_step(double* xi, double* xj, double wi, double wj, double rest, double min_length, double alpha,
+                          double& lambda) {
   const double w_sum = wi + wj;
   if (!(w_sum > 0.0)) return;  // both anchored: nothing can move
-  double* xi = x + 3 * size_t(i);
-  double* xj = x + 3 * size_t(j);
   const double d0 = xi[0] - xj[0], d1 = xi[1] - xj[1], d2 = xi[2] - xj[2];
   const double length = std::sqrt(d0 * d0 + d1 * d1 + d2 * d2);
   // Coincident (or non-finite) particles: no direction to push along.
-  if (!(length > std::max(1e-12 * rest, 1e-300)) || !(length <= std::numeric_limits<double>::max())) return;
+  if (!(length > min_length) || !(length <= std::numeric_limits<double>::max())) return;
   const double dlambda = (-(length - rest) - alpha * lambda) / (w_sum + alpha);
   lambda += dlambda;
   // x_i += w_i dlambda d / |d| (one division for the three axes).
@@ -70,6 +67,38 @@ inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, 
   xj[1] -= sj * d1;
   xj[2] -= sj * d2;
 }
+
+inline double distance_min_length(double rest) { return std::max(1e-12 * rest, 1e-300); }
+
+// The same with alpha~ = compliance / dt^2 computed once by the caller (0 for a rigid constraint; the
+// caller skips a soft constraint without a time step).
+inline void solve_distance_alpha(double* x, const double* inv_mass, uint32_t i, uint32_t j, double rest, double alpha,
+                                 double& lambda) {
+  distance_step(x + 3 * size_t(i), x + 3 * size_t(j), inv_mass[i], inv_mass[j], rest, distance_min_length(rest),
+                alpha, lambda);
+}
+
+// A distance constraint as the solver's colour-group loop reads it: the particles' inverse masses
+// and the least length copied in once per model revision (masses change only with it), so a solve
+// reads the positions and one row in order, no other array. solve_stretch_row is
+// solve_distance_alpha operation for operation (the same bits).
+struct StretchRow {
+  uint32_t a, b;
+  double rest, min_length, wa, wb;
+};
+
+inline StretchRow stretch_row(const double* inv_mass, uint32_t a, uint32_t b, double rest) {
+  return StretchRow{a, b, rest, distance_min_length(rest), inv_mass[a], inv_mass[b]};
+}
+
+inline void solve_stretch_row(double* x, const StretchRow& k, double alpha, double& lambda) {
+  distance_step(x + 3 * size_t(k.a), x + 3 * size_t(k.b), k.wa, k.wb, k.rest, k.min_length, alpha, lambda);
+}
+
+// Rows [begin, end) of one colour group (sharing no particle) in order, with their lambdas; one
+// clone per instruction set (AVX's three-operand forms drop the register copies; the same IEEE
+// operations in the same order, so the same bits on every machine).
+void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha);
 
 // One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions
 // `rest` (double[3] per listed particle, in the same order as indices), masses from inv_mass (w = 0
