@@ -1555,31 +1555,44 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       out[4 * c + 3] = 0.0f;
     }
   }
+  // The rows of the embedded slots (labels looked up once per model, cut or slot count); the free
+  // and unembedded slots keep their rest position.
+  const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
+  if (s.embed_revision != s.revision || s.embed_cut_steps != cut.steps || s.embed_slots != count) {
+    s.embed_rows.clear();
+    for (uint32_t slot = 0; slot < count; ++slot) {
+      const VertexEmbedding& e = s.embedding[slot];
+      const uint32_t piece = embedded_piece(s, e);
+      if (piece == kDeadIndex) {
+        s.deformed[slot] = cut.surface.positions[slot];
+      } else {
+        s.embed_rows.push_back(PbdData::EmbedRow{slot, piece, e.local.x(), e.local.y(), e.local.z()});
+      }
+    }
+    s.embed_revision = s.revision;
+    s.embed_cut_steps = cut.steps;
+    s.embed_slots = count;
+  }
   // Trilinear interpolation in float by lerps along x, then y, then z, the three axes at once in a
   // 4-float vector (GCC's vector extension: SSE on any x86-64); the deformed surface is float anyway
-  // and not part of the state hash. Free slots keep their rest position.
+  // and not part of the state hash.
   typedef float F4 __attribute__((vector_size(16)));
-  const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
-  parallel(tasks, count, 4096, [&](uint32_t slot) {
-    const VertexEmbedding& e = s.embedding[slot];
-    const uint32_t piece = embedded_piece(s, e);
-    if (piece == kDeadIndex) {
-      s.deformed[slot] = cut.surface.positions[slot];
-      return;
-    }
-    const float* corners = &s.piece_corners[32 * size_t(piece)];
+  const PbdData::EmbedRow* rows = s.embed_rows.data();
+  parallel(tasks, uint32_t(s.embed_rows.size()), 4096, [&](uint32_t i) {
+    const PbdData::EmbedRow& e = rows[i];
+    const float* corners = &s.piece_corners[32 * size_t(e.piece)];
     const auto p = [corners](int c) {  // one corner (loads straight into a register, no copy)
       F4 r;
       std::memcpy(&r, corners + 4 * c, sizeof r);
       return r;
     };
-    const float u = e.local.x(), v = e.local.y(), w = e.local.z();
+    const float u = e.u, v = e.v, w = e.w;
     const F4 p0 = p(0), p2 = p(2), p4 = p(4), p6 = p(6);
     const F4 x0 = p0 + u * (p(1) - p0), x1 = p2 + u * (p(3) - p2);
     const F4 x2 = p4 + u * (p(5) - p4), x3 = p6 + u * (p(7) - p6);
     const F4 y0 = x0 + v * (x1 - x0), y1 = x2 + v * (x3 - x2);
     const F4 out = y0 + w * (y1 - y0);
-    s.deformed[slot] = Vec3f(out[0], out[1], out[2]);
+    s.deformed[e.slot] = Vec3f(out[0], out[1], out[2]);
   });
 }
 

@@ -244,6 +244,16 @@ struct PbdData {
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
   std::vector<StretchRow> stretch_rows[kColourGroups];  // parallel to stretch_groups
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
+  // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position,
+  // rebuilt when the model, the cut (CutState::steps) or the slot count changed, so a step without
+  // a cut looks up no labels. Unembedded slots are written (their rest position) at the rebuild.
+  struct EmbedRow {
+    uint32_t slot, piece;
+    float u, v, w;
+  };
+  std::vector<EmbedRow> embed_rows;
+  uint64_t embed_revision = ~uint64_t(0), embed_cut_steps = ~uint64_t(0);
+  size_t embed_slots = 0;
   // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;

@@ -259,9 +259,9 @@ TEST_SUITE("pbd") {
     CHECK(particle_hash(a.pbd) == particle_hash(b.pbd));
     CHECK(a.pbd.deformed == b.pbd.deformed);
   }
-  // The solver keeps its constraint blocks between steps and rebuilds them when a cut changes the
-  // model (PbdModel::revision): stepping through cuts with the kept blocks must equal rebuilding
-  // them before every step.
+  // The solver keeps its constraint blocks and the embedding's rows between steps and rebuilds them
+  // when a cut changes the model (PbdModel::revision) or the surface (CutState::steps): stepping
+  // through cuts with the kept ones must equal rebuilding them before every step.
   TEST_CASE("the solver's kept constraint blocks follow the model through cuts") {
     Scene a, b;
     make_scene(a, 24, 6, hanging(0.9));
@@ -272,8 +272,9 @@ TEST_SUITE("pbd") {
       horizontal_cut(b, 0.137, x[segment], x[segment + 1], 2);
       for (int i = 0; i < 10; ++i) {
         pbd_step(a.cut, a.pbd);
-        b.pbd.blocks_revision = ~uint64_t(0);  // force a rebuild
+        b.pbd.blocks_revision = b.pbd.embed_revision = ~uint64_t(0);  // force a rebuild
         pbd_step(b.cut, b.pbd);
+        CHECK(a.pbd.deformed == b.pbd.deformed);
       }
     }
     CHECK(a.pbd.revision > 1);  // the cuts changed the model
