@@ -1566,34 +1566,21 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       if (piece == kDeadIndex) {
         s.deformed[slot] = cut.surface.positions[slot];
       } else {
-        s.embed_rows.push_back(PbdData::EmbedRow{slot, piece, e.local.x(), e.local.y(), e.local.z()});
+        s.embed_rows.push_back(EmbedRow{slot, piece, e.local.x(), e.local.y(), e.local.z()});
       }
     }
     s.embed_revision = s.revision;
     s.embed_cut_steps = cut.steps;
     s.embed_slots = count;
   }
-  // Trilinear interpolation in float by lerps along x, then y, then z, the three axes at once in a
-  // 4-float vector (GCC's vector extension: SSE on any x86-64); the deformed surface is float anyway
-  // and not part of the state hash.
-  typedef float F4 __attribute__((vector_size(16)));
-  const PbdData::EmbedRow* rows = s.embed_rows.data();
-  parallel(tasks, uint32_t(s.embed_rows.size()), 4096, [&](uint32_t i) {
-    const PbdData::EmbedRow& e = rows[i];
-    const float* corners = &s.piece_corners[32 * size_t(e.piece)];
-    const auto p = [corners](int c) {  // one corner (loads straight into a register, no copy)
-      F4 r;
-      std::memcpy(&r, corners + 4 * c, sizeof r);
-      return r;
-    };
-    const float u = e.u, v = e.v, w = e.w;
-    const F4 p0 = p(0), p2 = p(2), p4 = p(4), p6 = p(6);
-    const F4 x0 = p0 + u * (p(1) - p0), x1 = p2 + u * (p(3) - p2);
-    const F4 x2 = p4 + u * (p(5) - p4), x3 = p6 + u * (p(7) - p6);
-    const F4 y0 = x0 + v * (x1 - x0), y1 = x2 + v * (x3 - x2);
-    const F4 out = y0 + w * (y1 - y0);
-    s.deformed[e.slot] = Vec3f(out[0], out[1], out[2]);
-  });
+  // The interpolation (pbd_kernels.h embed_rows); the deformed surface is float anyway and not part
+  // of the state hash.
+  static_assert(sizeof(Vec3f) == 3 * sizeof(float), "deformed positions are packed float triples");
+  const float* corners = s.piece_corners.data();
+  const EmbedRow* rows = s.embed_rows.data();
+  float* out = s.deformed.empty() ? nullptr : s.deformed[0].data();
+  const TaskBatch batch{uint32_t(s.embed_rows.size()), 4096};
+  run_batches(tasks, &batch, 1, [&](uint32_t, uint32_t begin, uint32_t end) { embed_rows(corners, rows, begin, end, out); });
 }
 
 void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool embed) {

@@ -247,10 +247,6 @@ struct PbdData {
   // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position,
   // rebuilt when the model, the cut (CutState::steps) or the slot count changed, so a step without
   // a cut looks up no labels. Unembedded slots are written (their rest position) at the rebuild.
-  struct EmbedRow {
-    uint32_t slot, piece;
-    float u, v, w;
-  };
   std::vector<EmbedRow> embed_rows;
   uint64_t embed_revision = ~uint64_t(0), embed_cut_steps = ~uint64_t(0);
   size_t embed_slots = 0;

@@ -400,6 +400,30 @@ void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint3
   for (uint32_t i = begin; i < end; ++i) solve_stretch_row(x, rows[i], alpha, lambda[i]);
 }
 
+__attribute__((target_clones("avx2", "default")))
+void embed_rows(const float* corners, const EmbedRow* rows, uint32_t begin, uint32_t end, float* out) {
+  typedef float F4 __attribute__((vector_size(16)));
+  for (uint32_t i = begin; i < end; ++i) {
+    const EmbedRow& e = rows[i];
+    const float* c = corners + 32 * size_t(e.piece);
+    const auto p = [c](int k) {  // one corner (loads straight into a register, no copy)
+      F4 r;
+      std::memcpy(&r, c + 4 * k, sizeof r);
+      return r;
+    };
+    const float u = e.u, v = e.v, w = e.w;
+    const F4 p0 = p(0), p2 = p(2), p4 = p(4), p6 = p(6);
+    const F4 x0 = p0 + u * (p(1) - p0), x1 = p2 + u * (p(3) - p2);
+    const F4 x2 = p4 + u * (p(5) - p4), x3 = p6 + u * (p(7) - p6);
+    const F4 y0 = x0 + v * (x1 - x0), y1 = x2 + v * (x3 - x2);
+    const F4 r = y0 + w * (y1 - y0);
+    float* o = out + 3 * size_t(e.slot);
+    o[0] = r[0];
+    o[1] = r[1];
+    o[2] = r[2];
+  }
+}
+
 bool shape_matching_rest(const double* inv_mass, const uint32_t* indices, const double* rest, int count,
                          ShapeRest& out) {
   out = ShapeRest{};

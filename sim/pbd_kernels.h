@@ -100,6 +100,17 @@ inline void solve_stretch_row(double* x, const StretchRow& k, double alpha, doub
 // operations in the same order, so the same bits on every machine).
 void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha);
 
+// A surface vertex embedded in a piece: its slot, the piece slot and its local position in [0,1]^3.
+struct EmbedRow {
+  uint32_t slot, piece;
+  float u, v, w;
+};
+
+// Trilinear interpolation of rows [begin, end): out[slot] from the piece's 8 corners (corners:
+// 32 floats a piece slot, corner c at 4c: x, y, z, 0), in float by lerps along x, then y, then z,
+// the three axes at once in a 4-float vector; one clone per instruction set (the same bits).
+void embed_rows(const float* corners, const EmbedRow* rows, uint32_t begin, uint32_t end, float* out);
+
 // One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions
 // `rest` (double[3] per listed particle, in the same order as indices), masses from inv_mass (w = 0
 // particles count as heavy: use a large fixed mass for them in the centroid, e.g. weight 1e6 x the
