@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace dvx {
 namespace {
@@ -46,12 +47,29 @@ void contacts_add(ContactSet& set, uint32_t batch, uint32_t group, const Contact
 }
 
 void contacts_finish(ContactSet& set) {
-  // Sort by (batch, group), stable: a group's points keep the order they were added in.
+  // Sort by (batch, group), stable: a group's points keep the order they were added in. The gathers
+  // add each batch's groups in ascending order: then a counting sort by batch is that sort, in O(n).
   const uint32_t n = uint32_t(set.staged.size());
   set.order.resize(n);
-  for (uint32_t i = 0; i < n; ++i) set.order[i] = i;
-  std::stable_sort(set.order.begin(), set.order.end(),
-                   [&](uint32_t a, uint32_t b) { return set.staged_key[a] < set.staged_key[b]; });
+  constexpr uint32_t kBatches = 64;
+  uint32_t start[kBatches + 1] = {}, last[kBatches] = {};
+  bool ascending = true;
+  for (uint32_t i = 0; i < n && ascending; ++i) {
+    const uint64_t batch = set.staged_key[i] >> 32;
+    const uint32_t group = uint32_t(set.staged_key[i]);
+    ascending = batch < kBatches && (start[batch + 1] == 0 || group >= last[batch]);
+    if (!ascending) break;
+    last[batch] = group;
+    ++start[batch + 1];
+  }
+  if (ascending) {
+    for (uint32_t b = 0; b < kBatches; ++b) start[b + 1] += start[b];
+    for (uint32_t i = 0; i < n; ++i) set.order[start[set.staged_key[i] >> 32]++] = i;
+  } else {
+    for (uint32_t i = 0; i < n; ++i) set.order[i] = i;
+    std::stable_sort(set.order.begin(), set.order.end(),
+                     [&](uint32_t a, uint32_t b) { return set.staged_key[a] < set.staged_key[b]; });
+  }
   set.points.resize(n);
   set.group_begin.clear();
   set.batch_begin.assign(1, 0);
@@ -240,6 +258,75 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
   for (uint32_t i = 0; i < piece_count; ++i) body[i] = live[i] ? find(corners[8 * i]) : ~0u;
 }
 
+namespace {
+
+// Whether two boxes, each grown by `reach`, overlap (as find_exposed_pieces tests two pieces).
+bool grown_overlap(const Vec3d& lo_a, const Vec3d& hi_a, const Vec3d& lo_b, const Vec3d& hi_b, double reach) {
+  const Vec3d a = lo_a - Vec3d::Constant(reach), b = hi_a + Vec3d::Constant(reach);
+  return !((lo_b.array() - reach > b.array()).any() || (hi_b.array() + reach < a.array()).any());
+}
+
+}  // namespace
+
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
+                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& g) {
+  g.candidate.assign(piece_count, 0);
+  if (bodies < 2) return 0;
+  // The bodies' bounds (each holds its pieces'; so a piece's test against a body's bounds is
+  // conservative: rounding is monotonic).
+  g.body_lo.assign(bodies, Vec3d::Constant(std::numeric_limits<double>::infinity()));
+  g.body_hi.assign(bodies, Vec3d::Constant(-std::numeric_limits<double>::infinity()));
+  for (uint32_t i = 0; i < piece_count; ++i) {
+    if (!live[i]) continue;
+    g.body_lo[body_index[i]] = g.body_lo[body_index[i]].cwiseMin(lo[i]);
+    g.body_hi[body_index[i]] = g.body_hi[body_index[i]].cwiseMax(hi[i]);
+  }
+  // Sweep along x: the bodies by lower bound (a non-finite bound first, so it meets every body);
+  // a pair overlaps only while the later one starts before the earlier one ends.
+  const auto start = [&](uint32_t b) { return std::isnan(g.body_lo[b].x()) ? -std::numeric_limits<double>::infinity() : g.body_lo[b].x(); };
+  g.body_order.resize(bodies);
+  for (uint32_t b = 0; b < bodies; ++b) g.body_order[b] = b;
+  std::sort(g.body_order.begin(), g.body_order.end(), [&](uint32_t a, uint32_t b) {
+    return start(a) < start(b) || (start(a) == start(b) && a < b);
+  });
+  g.body_pairs.clear();
+  for (uint32_t m = 0; m < bodies; ++m) {
+    const uint32_t a = g.body_order[m];
+    for (uint32_t k = m + 1; k < bodies; ++k) {
+      const uint32_t b = g.body_order[k];
+      if (g.body_lo[b].x() - reach > g.body_hi[a].x() + reach) break;
+      if (!grown_overlap(g.body_lo[a], g.body_hi[a], g.body_lo[b], g.body_hi[b], reach)) continue;
+      g.body_pairs.push_back((uint64_t(a) << 32) | b);
+      g.body_pairs.push_back((uint64_t(b) << 32) | a);
+    }
+  }
+  if (g.body_pairs.empty()) return 0;
+  std::sort(g.body_pairs.begin(), g.body_pairs.end());
+  g.body_partner_begin.assign(bodies + 1, 0);
+  g.body_partners.resize(g.body_pairs.size());
+  for (size_t k = 0; k < g.body_pairs.size(); ++k) {
+    ++g.body_partner_begin[(g.body_pairs[k] >> 32) + 1];
+    g.body_partners[k] = uint32_t(g.body_pairs[k]);
+  }
+  for (uint32_t b = 0; b < bodies; ++b) g.body_partner_begin[b + 1] += g.body_partner_begin[b];
+  // A piece is a candidate when it reaches the bounds of a body overlapping its own (with many such
+  // bodies, every piece of the body is).
+  constexpr uint32_t kMaxTests = 16;
+  uint32_t count = 0;
+  for (uint32_t i = 0; i < piece_count; ++i) {
+    if (!live[i]) continue;
+    const uint32_t b = body_index[i], first = g.body_partner_begin[b], last = g.body_partner_begin[b + 1];
+    bool near = last - first > kMaxTests;
+    for (uint32_t k = first; k < last && !near; ++k) {
+      const uint32_t c = g.body_partners[k];
+      near = grown_overlap(lo[i], hi[i], g.body_lo[c], g.body_hi[c], reach);
+    }
+    g.candidate[i] = near;
+    count += near;
+  }
+  return count;
+}
+
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
                              uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
                              PieceContactScratch& g, uint64_t* pairs_tested) {
@@ -310,7 +397,8 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   if (count == 0 || !(reach > 0.0)) return 0;
   // Points in cells of size `reach`, each cell's items grouped by body (items are ranks in body
   // order), with the end of each item's body run: a query jumps over its own body's points (most of
-  // a cell, where a body lies on another) instead of testing them one by one.
+  // a cell, where a body lies on another) instead of testing them one by one. The items' positions
+  // and normals are copied in cell order, so a query reads them in sequence.
   g.by_body.resize(count);
   for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
   std::sort(g.by_body.begin(), g.by_body.end());
@@ -323,15 +411,64 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   build_cells(g);
   g.item_body.resize(count);
   g.run_end.resize(count);
+  g.item_position.resize(count);
+  g.item_normal.resize(count);
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
       const uint64_t entry = g.by_body[g.cell_items[n]];
       g.cell_items[n] = uint32_t(entry);
       g.item_body[n] = uint32_t(entry >> 32);
+      g.item_position[n] = points[uint32_t(entry)].position;
+      g.item_normal[n] = points[uint32_t(entry)].normal;
       const bool last = n + 1 == g.cell_begin[c + 1] || g.item_body[n + 1] != g.item_body[n];
       g.run_end[n] = last ? n + 1 : g.run_end[n + 1];
     }
   }
+  // Each point's nearest point of another body within reach whose normal faces its own (the least
+  // (distance, index): the same whatever the order of the queries). Queries go cell by cell: the
+  // points of a cell share the ranges of the 27 cells around it (recomputed where two cells share a
+  // hash).
+  g.best.assign(count, ~0u);
+  uint64_t tested = 0;
+  for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
+    int64_t have[3] = {0, 0, 0};
+    bool ready = false;
+    for (uint32_t item = g.cell_begin[c]; item < g.cell_begin[c + 1]; ++item) {
+      const Vec3d& position = g.item_position[item];
+      const Vec3d& normal = g.item_normal[item];
+      const uint32_t body = g.item_body[item];
+      const int64_t at[3] = {cell_coord(position.x(), reach), cell_coord(position.y(), reach), cell_coord(position.z(), reach)};
+      if (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2]) {
+        g.ranges.clear();
+        for_neighbour_cells(g, at[0], at[1], at[2], [&](uint32_t begin, uint32_t end) {
+          g.ranges.push_back(begin);
+          g.ranges.push_back(end);
+        });
+        std::copy(at, at + 3, have);
+        ready = true;
+      }
+      uint32_t best = ~0u;
+      double best_d = reach * reach;
+      for (size_t r = 0; r < g.ranges.size(); r += 2) {
+        for (uint32_t n = g.ranges[r]; n < g.ranges[r + 1]; ++n) {
+          if (g.item_body[n] == body) {
+            n = g.run_end[n] - 1;
+            continue;
+          }
+          ++tested;
+          if (normal.dot(g.item_normal[n]) > kFacing) continue;
+          const double d = (g.item_position[n] - position).squaredNorm();
+          const uint32_t q = g.cell_items[n];
+          if (d < best_d || (d == best_d && q < best)) {
+            best_d = d;
+            best = q;
+          }
+        }
+      }
+      g.best[g.cell_items[item]] = best;
+    }
+  }
+  if (pairs_tested) *pairs_tested += tested;
   g.busy.resize(particle_count, 0);
   std::vector<float>& fresh_allowance = g.allowance;  // written after the pass: pairs read the old values
   fresh_allowance.assign(count, 0.0f);
@@ -343,28 +480,8 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   };
   uint32_t added = 0;
   for (uint32_t v = 0; v < count; ++v) {
-    // The nearest point of another body within reach whose normal faces v's.
     const SurfacePoint& a = points[v];
-    uint32_t best = ~0u;
-    double best_d = reach * reach;
-    for_neighbour_cells(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
-                        cell_coord(a.position.z(), reach), [&](uint32_t begin, uint32_t end) {
-                          for (uint32_t n = begin; n < end; ++n) {
-                            if (g.item_body[n] == a.body) {
-                              n = g.run_end[n] - 1;
-                              continue;
-                            }
-                            if (pairs_tested) ++*pairs_tested;
-                            const uint32_t q = g.cell_items[n];
-                            const SurfacePoint& b = points[q];
-                            if (a.normal.dot(b.normal) > kFacing) continue;
-                            const double d = (b.position - a.position).squaredNorm();
-                            if (d < best_d || (d == best_d && q < best)) {
-                              best_d = d;
-                              best = q;
-                            }
-                          }
-                        });
+    const uint32_t best = g.best[v];
     if (best == ~0u) {
       fresh_allowance[v] = 0.0f;  // out of contact: no overlap allowed from now on
       continue;

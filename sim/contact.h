@@ -177,6 +177,39 @@ struct PieceContactScratch {
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
   std::vector<float> allowance;                   // (points) updated allowances
+  // Narrow phase: the points' positions and normals in cell order (a query scans them in sequence),
+  // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
+  std::vector<Vec3d> item_position, item_normal;  // (cell_items)
+  std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
+  std::vector<uint32_t> ranges;                   // begin, end pairs
+  // Body broad phase: bounds of the bodies, the pairs of bodies whose grown bounds overlap, and each
+  // body's overlapping bodies.
+  std::vector<Vec3d> body_lo, body_hi;            // (bodies)
+  std::vector<uint32_t> body_order;               // bodies by lower x bound
+  std::vector<uint64_t> body_pairs;               // b << 32 | c, both directions
+  std::vector<uint32_t> body_partner_begin, body_partners;
+  std::vector<uint8_t> candidate;                 // (pieces) may touch another body
+};
+
+// What the contact gathers know of the PBD model's surface between its edits: the piece of each
+// surface vertex slot, the slots and triangles of each piece, the bodies. A vertex slot changes piece
+// only when a cut edits the model (PbdModel::revision) or the surface (CutState::steps), so the index
+// is rebuilt only then and the gathers visit only the pieces near something, not every slot.
+struct ContactIndex {
+  uint64_t revision = ~uint64_t(0), cut_steps = ~uint64_t(0);  // what it was built from
+  uint32_t slots = 0, triangle_count = 0, pieces = 0;
+  std::vector<uint32_t> slot_piece;   // (slots) piece slot, ~0u: not embedded
+  std::vector<uint32_t> piece_begin;  // (pieces + 1) offsets into piece_slots
+  std::vector<uint32_t> piece_slots;  // the slots of each piece, ascending
+  std::vector<uint8_t> mobile;        // (pieces) some corner particle is free (inverse mass > 0)
+  std::vector<uint32_t> body_index;   // (pieces) bodies numbered 0.. (~0u: dead slot)
+  uint32_t bodies = 0;
+  // The live triangles whose three corners are embedded, under each piece holding a corner
+  // (ascending): built on the first gather that needs normals after a rebuild.
+  bool triangles_ready = false;
+  std::vector<uint32_t> triangle_begin;  // (pieces + 1)
+  std::vector<uint32_t> piece_triangles;
+  std::vector<uint32_t> scratch;         // fill cursors; body numbers by root particle
 };
 
 // Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).
@@ -186,10 +219,13 @@ struct PieceContacts {
   std::vector<uint32_t> corners, body;  // (pieces x 8), (pieces)
   std::vector<uint8_t> live, exposed;   // (pieces)
   std::vector<Vec3d> lo, hi;            // (pieces) deformed bounds
+  ContactIndex index;                   // also read by the plane gather
   std::vector<SurfacePoint> points;
   std::vector<uint32_t> point_of_slot;  // (surface vertex slots) index in points, ~0u: none
+  std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
+  uint64_t seen_steps = 0;              // CutState::steps when last seen
   uint32_t exposed_pieces = 0;          // of the last gather (diagnostics)
   // Cumulative counters (diagnostics, never part of the state hash): what the phases touched.
   struct Counters {
@@ -205,6 +241,12 @@ struct PieceContacts {
 // per piece (live[piece] == 0: dead slot); body[piece] = the smallest particle of its component.
 void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_count, uint32_t particle_count,
                  std::vector<uint32_t>& body, PieceContactScratch& scratch);
+
+// Body broad phase: marks (candidate[piece] = 1) the live pieces whose bounds grown by `reach` overlap
+// the grown bounds of another body (body_index: bodies numbered 0 .. bodies - 1); only they can be
+// exposed. Returns how many.
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
+                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& scratch);
 
 // Marks the pieces whose bounds (lo, hi per piece; live as above), grown by `reach`, overlap a piece of
 // another body, and lists each one's partners (scratch.partners). Returns how many.
