@@ -5,22 +5,6 @@
 #include <limits>
 
 namespace dvx {
-namespace {
-
-// x_k += (w_k / m_k) / W * delta for each particle of the contact: moves its relative point by delta.
-void move_point(double* x, const double* inv_mass, const ContactPoint& c, double inv_w, const Vec3d& delta) {
-  for (uint32_t k = 0; k < c.count; ++k) {
-    const double s = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
-    if (s == 0.0) continue;
-    double* p = x + 3 * size_t(c.particles[k]);
-    p[0] += s * delta.x();
-    p[1] += s * delta.y();
-    p[2] += s * delta.z();
-  }
-}
-
-}  // namespace
-
 ContactPoint plane_contact(const ContactPlane& plane, const uint32_t particles[8], const double weights[8]) {
   ContactPoint c;
   std::copy(particles, particles + 8, c.particles);
@@ -91,52 +75,81 @@ void contacts_begin_substep(ContactSet& set) {
   for (ContactPoint& c : set.points) {
     c.normal_total = 0.0;
     c.friction_total = Vec3d::Zero();
+    c.solves = 0;
   }
 }
 
-void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
-  // The relative point, its motion since the start of the substep, and its generalised inverse mass.
-  Vec3d r = Vec3d::Zero(), moved = Vec3d::Zero();
-  double w = 0.0, lever = 0.0;
-  for (uint32_t k = 0; k < c.count; ++k) {
-    const double a = c.weights[k];
-    if (a == 0.0) continue;
-    const size_t p = 3 * size_t(c.particles[k]);
-    const Vec3d xp(x[p], x[p + 1], x[p + 2]);
-    r += a * xp;
-    moved += a * (xp - Vec3d(previous[p], previous[p + 1], previous[p + 2]));
-    const double m = inv_mass[c.particles[k]];
-    w += a * a * m;
-    lever = std::max(lever, std::abs(a) * m);
+namespace {
+
+// The lever cap (sim/contact.h, kMaxLever) and the point's start in this substep. W = sum_k w_k^2 / m_k,
+// W_eff = max(W, max_k |w_k| / m_k / kMaxLever): a requested correction d moves particle k by
+// (w_k / m_k / W_eff) d and the point by gain d (gain = W / W_eff: 1 unless the point is nearly
+// anchored, when it barely moves).
+void prepare_contact(const double* previous, const double* inv_mass, ContactPoint& c) {
+  if (!c.prepared) {
+    double w = 0.0, lever = 0.0;
+    for (uint32_t k = 0; k < c.count; ++k) {
+      const double a = c.weights[k], m = inv_mass[c.particles[k]];
+      w += a * a * m;
+      lever = std::max(lever, std::abs(a) * m);
+    }
+    const bool capped = lever > kMaxLever * w;
+    const double inv_w = !(w > 0.0) ? 0.0 : capped ? kMaxLever / lever : 1.0 / w;
+    c.gain = !(w > 0.0) ? 0.0 : capped ? w * inv_w : 1.0;
+    for (uint32_t k = 0; k < c.count; ++k) c.scale[k] = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
+    c.prepared = true;
   }
-  if (!(w > 0.0)) return;
-  // The lever cap (sim/contact.h, kMaxLever): W_eff = max(W, max_k |w_k| / m_k / kMaxLever). A
-  // requested correction d then moves the point by gain d (gain = W / W_eff: 1 unless the point is
-  // nearly anchored, when it barely moves); the totals count what the point actually moved.
-  const bool capped = lever > kMaxLever * w;
-  const double inv_w = capped ? kMaxLever / lever : 1.0 / w, gain = capped ? w * inv_w : 1.0;
+  c.start.setZero();
+  for (uint32_t k = 0; k < c.count; ++k) {
+    const double* p = previous + 3 * size_t(c.particles[k]);
+    if (c.weights[k] != 0.0) c.start += c.weights[k] * Vec3d(p[0], p[1], p[2]);
+  }
+}
+
+}  // namespace
+
+void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
+  if (c.solves++ == 0) prepare_contact(previous, inv_mass, c);
+  if (!(c.gain > 0.0)) return;  // W = 0: nothing can move it
+  // The relative point and its motion since the start of the substep.
+  Vec3d r = Vec3d::Zero();
+  for (uint32_t k = 0; k < c.count; ++k) {
+    const double* p = x + 3 * size_t(c.particles[k]);
+    if (c.weights[k] != 0.0) r += c.weights[k] * Vec3d(p[0], p[1], p[2]);
+  }
+  Vec3d moved = r - c.start;
+  const double gain = c.gain;
   const Vec3d& n = c.normal;
 
   // Normal: C = n . r - target >= 0, rigid (alpha = 0): dlambda = -C / W moves r by -C n. The total
   // over the substep stays >= 0 (projected Gauss-Seidel with accumulated clamping): a point pushed out
-  // too far by an earlier iteration is pulled back by up to what it was pushed, never further.
+  // too far by an earlier iteration is pulled back by up to what it was pushed, never further. The
+  // totals count what the point actually moved (gain x requested).
   const double request = std::max(c.target - n.dot(r), -c.normal_total / gain);
-  if (request != 0.0) {
-    move_point(x, inv_mass, c, inv_w, request * n);
-    c.normal_total += gain * request;
-    moved += (gain * request) * n;
+  Vec3d delta = request * n;  // the correction requested of the point
+  c.normal_total += gain * request;
+  moved += (gain * request) * n;
+  if (c.normal_total > 0.0) {
+    // Friction: the total correction that would stop the tangential motion, clamped by Coulomb's cone.
+    const Vec3d slide = moved - n.dot(moved) * n;
+    Vec3d total = c.friction_total - slide;
+    const double length = total.norm();
+    if (length > c.static_friction * c.normal_total) {
+      total *= length > 0.0 ? c.kinetic_friction * c.normal_total / length : 0.0;  // sliding
+    }
+    delta += total - c.friction_total;
+    c.friction_total = gain == 1.0 ? total : c.friction_total + gain * (total - c.friction_total);
   }
-  if (c.normal_total <= 0.0) return;  // not touching in this substep: no friction
-
-  // Friction: the total correction that would stop the tangential motion, clamped by Coulomb's cone.
-  const Vec3d slide = moved - n.dot(moved) * n;
-  Vec3d total = c.friction_total - slide;
-  const double length = total.norm();
-  if (length > c.static_friction * c.normal_total) {
-    total *= length > 0.0 ? c.kinetic_friction * c.normal_total / length : 0.0;  // sliding
+  // Both corrections in one pass: x_k += scale_k delta.
+  if (delta.x() == 0.0 && delta.y() == 0.0 && delta.z() == 0.0) return;
+  for (uint32_t k = 0; k < c.count; ++k) {
+    const double s = c.scale[k];
+    if (s == 0.0) continue;
+    double* p = x + 3 * size_t(c.particles[k]);
+    p[0] += s * delta.x();
+    p[1] += s * delta.y();
+    p[2] += s * delta.z();
   }
-  move_point(x, inv_mass, c, inv_w, total - c.friction_total);
-  c.friction_total = capped ? c.friction_total + gain * (total - c.friction_total) : total;
 }
 
 void solve_contact_group(double* x, const double* previous, const double* inv_mass, ContactSet& set, uint32_t group) {
@@ -424,33 +437,48 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
       g.run_end[n] = last ? n + 1 : g.run_end[n + 1];
     }
   }
-  // Each point's nearest point of another body within reach whose normal faces its own (the least
-  // (distance, index): the same whatever the order of the queries). Queries go cell by cell: the
-  // points of a cell share the ranges of the 27 cells around it (recomputed where two cells share a
-  // hash).
-  g.best.assign(count, ~0u);
+  // Each point's nearest point of another body within reach whose normal faces its own: the least
+  // (distance, index), the same whatever the order in which pairs are met. So each pair is met once
+  // and updates both points: from the earlier item of a cell to the later ones, and from a cell to
+  // the 13 cells after it (in z, y, x order) of the 26 around it. The points of a cell share those
+  // ranges (recomputed where two cells share a hash; a pair met twice through a shared hash changes
+  // nothing).
+  g.best.assign(count, ~0u);  // by item here, by point below
+  g.best_d.assign(count, reach * reach);
   uint64_t tested = 0;
+  const auto meet = [&](uint32_t n, uint32_t m, double d) {  // item n met item m at squared distance d
+    const uint32_t q = g.cell_items[m];
+    if (d < g.best_d[n] || (d == g.best_d[n] && q < g.best[n])) {
+      g.best_d[n] = d;
+      g.best[n] = q;
+    }
+  };
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
+    const uint32_t cell_end = g.cell_begin[c + 1];
     int64_t have[3] = {0, 0, 0};
     bool ready = false;
-    for (uint32_t item = g.cell_begin[c]; item < g.cell_begin[c + 1]; ++item) {
+    for (uint32_t item = g.cell_begin[c]; item < cell_end; ++item) {
       const Vec3d& position = g.item_position[item];
       const Vec3d& normal = g.item_normal[item];
       const uint32_t body = g.item_body[item];
       const int64_t at[3] = {cell_coord(position.x(), reach), cell_coord(position.y(), reach), cell_coord(position.z(), reach)};
       if (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2]) {
         g.ranges.clear();
-        for_neighbour_cells(g, at[0], at[1], at[2], [&](uint32_t begin, uint32_t end) {
-          g.ranges.push_back(begin);
-          g.ranges.push_back(end);
-        });
+        for (int64_t dk = 0; dk <= 1; ++dk) {
+          for (int64_t dj = dk == 0 ? 0 : -1; dj <= 1; ++dj) {
+            for (int64_t di = dk == 0 && dj == 0 ? 1 : -1; di <= 1; ++di) {
+              const uint32_t found = find_cell(g, cell_key(at[0] + di, at[1] + dj, at[2] + dk));
+              if (found == ~0u) continue;
+              g.ranges.push_back(g.cell_begin[found]);
+              g.ranges.push_back(g.cell_begin[found + 1]);
+            }
+          }
+        }
         std::copy(at, at + 3, have);
         ready = true;
       }
-      uint32_t best = ~0u;
-      double best_d = reach * reach;
-      for (size_t r = 0; r < g.ranges.size(); r += 2) {
-        for (uint32_t n = g.ranges[r]; n < g.ranges[r + 1]; ++n) {
+      const auto scan = [&](uint32_t begin, uint32_t end) {
+        for (uint32_t n = begin; n < end; ++n) {
           if (g.item_body[n] == body) {
             n = g.run_end[n] - 1;
             continue;
@@ -458,16 +486,18 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
           ++tested;
           if (normal.dot(g.item_normal[n]) > kFacing) continue;
           const double d = (g.item_position[n] - position).squaredNorm();
-          const uint32_t q = g.cell_items[n];
-          if (d < best_d || (d == best_d && q < best)) {
-            best_d = d;
-            best = q;
-          }
+          if (d > g.best_d[item] && d > g.best_d[n]) continue;
+          meet(item, n, d);
+          meet(n, item, d);
         }
-      }
-      g.best[g.cell_items[item]] = best;
+      };
+      scan(item + 1, cell_end);
+      for (size_t r = 0; r < g.ranges.size(); r += 2) scan(g.ranges[r], g.ranges[r + 1]);
     }
   }
+  // From items to points.
+  for (uint32_t n = 0; n < count; ++n) g.by_body[g.cell_items[n]] = g.best[n];  // scratch: by point
+  for (uint32_t v = 0; v < count; ++v) g.best[v] = uint32_t(g.by_body[v]);
   if (pairs_tested) *pairs_tested += tested;
   g.busy.resize(particle_count, 0);
   std::vector<float>& fresh_allowance = g.allowance;  // written after the pass: pairs read the old values

@@ -54,6 +54,15 @@ struct ContactPoint {
   uint32_t count = kMaxParticles;        // slots in use (8 against a plane: the loops stop there)
   double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
   Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
+  // Solver data, set by the first solve (masses do not change within a step) and the first solve of
+  // each substep: what moving the point by d moves particle k (scale[k] d), the share of a requested
+  // correction the point moves (gain, see kMaxLever; 0: it cannot move), the point at the start of
+  // the substep.
+  uint32_t solves = 0;                   // in this substep
+  bool prepared = false;
+  double gain = 0.0;
+  double scale[kMaxParticles] = {};
+  Vec3d start = Vec3d::Zero();
 };
 
 // A contact of a surface point (8 particles, trilinear weights) with a plane.
@@ -83,7 +92,8 @@ inline uint32_t contact_batches(const ContactSet& set) {
   return set.batch_begin.empty() ? 0 : uint32_t(set.batch_begin.size() - 1);
 }
 
-// Zeroes the accumulated corrections (at the start of each substep, when `previous` is reset).
+// Zeroes the accumulated corrections (at the start of each substep, when `previous` is reset: the
+// next solve takes each point's start from it).
 void contacts_begin_substep(ContactSet& set);
 
 // The lever cap. A rigid correction d of the point moves particle k by (|w_k| / m_k / W) d: up to 1/w_k
@@ -181,6 +191,7 @@ struct PieceContactScratch {
   // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
   std::vector<Vec3d> item_position, item_normal;  // (cell_items)
   std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
+  std::vector<double> best_d;                     // (items) squared distance to it
   std::vector<uint32_t> ranges;                   // begin, end pairs
   // Body broad phase: bounds of the bodies, the pairs of bodies whose grown bounds overlap, and each
   // body's overlapping bodies.
