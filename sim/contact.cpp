@@ -189,33 +189,41 @@ uint64_t cell_key(int64_t i, int64_t j, int64_t k) {
   return uint64_t(h) << 32;
 }
 
-// Sorts (cell << 32 | item) keys and indexes them: cells (distinct, sorted), their item ranges, and
-// an open-addressing table from a cell key to its index (a query looks up 27 cells: a table probe
-// each, not a binary search).
+// Groups (cell << 32 | item) keys by cell, each cell's items in the order given, in O(n) (no sort):
+// the cells (distinct, in order of first appearance), their item ranges, and an open-addressing
+// table from a cell key to its index (a query looks up 27 cells: a table probe each).
 void build_cells(PieceContactScratch& g) {
-  std::sort(g.keys.begin(), g.keys.end());
-  g.cells.clear();
-  g.cell_begin.clear();
-  g.cell_items.resize(g.keys.size());
-  for (size_t i = 0; i < g.keys.size(); ++i) {
-    const uint64_t cell = g.keys[i] >> 32 << 32;
-    if (g.cells.empty() || g.cells.back() != cell) {
-      g.cells.push_back(cell);
-      g.cell_begin.push_back(uint32_t(i));
-    }
-    g.cell_items[i] = uint32_t(g.keys[i]);
-  }
-  g.cell_begin.push_back(uint32_t(g.keys.size()));
-  // A power of two at least twice the cells; entries are cell index + 1 (0: empty).
+  const uint32_t n = uint32_t(g.keys.size());
+  // A power of two at least twice the keys (so twice the cells); entries are cell index + 1 (0: empty).
   g.table_bits = 1;
-  while ((size_t(1) << g.table_bits) < 2 * g.cells.size()) ++g.table_bits;
+  while ((size_t(1) << g.table_bits) < 2 * size_t(n)) ++g.table_bits;
   g.table.assign(size_t(1) << g.table_bits, 0);
   const uint32_t mask = (1u << g.table_bits) - 1;
-  for (uint32_t c = 0; c < g.cells.size(); ++c) {
-    uint32_t slot = uint32_t(g.cells[c] >> 32) * 0x9E3779B1u >> (32 - g.table_bits);
-    while (g.table[slot] != 0) slot = (slot + 1) & mask;
-    g.table[slot] = c + 1;
+  g.cells.clear();
+  g.cursor.clear();  // items per cell
+  g.cell_of.resize(n);
+  for (uint32_t i = 0; i < n; ++i) {
+    const uint64_t cell = g.keys[i] >> 32 << 32;
+    uint32_t slot = uint32_t(cell >> 32) * 0x9E3779B1u >> (32 - g.table_bits);
+    while (g.table[slot] != 0 && g.cells[g.table[slot] - 1] != cell) slot = (slot + 1) & mask;
+    if (g.table[slot] == 0) {
+      g.cells.push_back(cell);
+      g.cursor.push_back(0);
+      g.table[slot] = uint32_t(g.cells.size());
+    }
+    g.cell_of[i] = g.table[slot] - 1;
+    ++g.cursor[g.cell_of[i]];
   }
+  // Ranges, then the items in order.
+  const uint32_t cells = uint32_t(g.cells.size());
+  g.cell_begin.resize(cells + 1);
+  g.cell_begin[0] = 0;
+  for (uint32_t c = 0; c < cells; ++c) {
+    g.cell_begin[c + 1] = g.cell_begin[c] + g.cursor[c];
+    g.cursor[c] = g.cell_begin[c];
+  }
+  g.cell_items.resize(n);
+  for (uint32_t i = 0; i < n; ++i) g.cell_items[g.cursor[g.cell_of[i]]++] = uint32_t(g.keys[i]);
 }
 
 // The index of a cell in g.cells, or ~0u when it holds nothing.
@@ -412,9 +420,19 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   // order), with the end of each item's body run: a query jumps over its own body's points (most of
   // a cell, where a body lies on another) instead of testing them one by one. The items' positions
   // and normals are copied in cell order, so a query reads them in sequence.
+  // Body order (counting sort; bodies are small numbers), stable.
+  uint32_t bodies = 0;
+  for (uint32_t v = 0; v < count; ++v) bodies = std::max(bodies, points[v].body + 1);
   g.by_body.resize(count);
-  for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
-  std::sort(g.by_body.begin(), g.by_body.end());
+  if (bodies <= 4 * count + 1024) {
+    g.cursor.assign(bodies + 1, 0);
+    for (uint32_t v = 0; v < count; ++v) ++g.cursor[points[v].body + 1];
+    for (uint32_t b = 0; b < bodies; ++b) g.cursor[b + 1] += g.cursor[b];
+    for (uint32_t v = 0; v < count; ++v) g.by_body[g.cursor[points[v].body]++] = (uint64_t(points[v].body) << 32) | v;
+  } else {
+    for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
+    std::sort(g.by_body.begin(), g.by_body.end());
+  }
   g.keys.clear();
   for (uint32_t rank = 0; rank < count; ++rank) {
     const Vec3d& p = points[uint32_t(g.by_body[rank])].position;
@@ -508,7 +526,11 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
                                                           x[3 * size_t(s.particles[k]) + 2]);
     return r;
   };
-  uint32_t added = 0;
+  // Each paired point's allowance and the target of its contact. The two points of a mutual pair
+  // (each the other's nearest) make one contact, the earlier one's: their constraints are the same
+  // up to the normals' angle (within 25 degrees of opposite), and a fresh cut pairs its faces so.
+  g.pending.clear();
+  g.allowed.resize(count);
   for (uint32_t v = 0; v < count; ++v) {
     const SurfacePoint& a = points[v];
     const uint32_t best = g.best[v];
@@ -517,36 +539,61 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
       continue;
     }
     const SurfacePoint& b = points[best];
-    ContactPoint c;
-    c.normal = b.normal;  // q's tangent plane
-    // The overlap now (< 0: a gap), and what the pair may keep of it: a fresh pair starts in contact
-    // at zero depth where it overlaps (a gap is no allowance: it may close, never be held open); then
-    // never more overlap than before. A deeper overlap is pushed out by at most max_push this step.
-    const double overlap = -c.normal.dot(point_at(a) - point_at(b));
+    // The overlap now (< 0: a gap) against q's tangent plane, and what the pair may keep of it: a
+    // fresh pair starts in contact at zero depth where it overlaps (a gap is no allowance: it may
+    // close, never be held open); then never more overlap than before. A deeper overlap is pushed
+    // out by at most max_push this step.
+    const double overlap = -b.normal.dot(point_at(a) - point_at(b));
     const double before = std::max(a.allowance, b.allowance);
     const double kept = std::isinf(before) ? std::max(overlap, 0.0) : std::min(std::max(overlap, 0.0), before);
-    const double allowed = std::max(kept, overlap - max_push);
+    g.allowed[v] = std::max(kept, overlap - max_push);
     fresh_allowance[v] = float(kept);
-    std::copy(a.particles, a.particles + 8, c.particles);
-    std::copy(b.particles, b.particles + 8, c.particles + 8);
-    for (int k = 0; k < 8; ++k) {
-      c.weights[k] = a.weights[k];
-      c.weights[8 + k] = -b.weights[k];
-    }
-    c.target = -allowed;
-    c.static_friction = c.kinetic_friction = friction;
-    // Greedy colour over the 16 particles.
+    if (g.best[best] == v && best < v) continue;  // the mutual pair's contact is best's
+    const uint32_t lo = std::min(a.piece, b.piece), hi = std::max(a.piece, b.piece);
+    g.pending.emplace_back((uint64_t(lo) << 32) | hi, v);
+  }
+  // Contacts in groups, one per pair of pieces (in pair order; a group's contacts in point order),
+  // each group solved in order by one worker: the contacts of two pieces all share their 16
+  // particles. Groups are coloured greedily over all their contacts' particles (63 colours, a
+  // 64-bit mask per particle); a group that finds every colour taken goes to the overflow batch.
+  std::sort(g.pending.begin(), g.pending.end());
+  uint32_t added = 0, groups = 0;
+  for (size_t first = 0; first < g.pending.size();) {
+    size_t last = first;
+    while (last < g.pending.size() && g.pending[last].first == g.pending[first].first) ++last;
     uint64_t taken = 0;
-    for (uint32_t p : c.particles) taken |= g.busy[p];
-    uint32_t colour = 0;
-    while (colour < kContactOverflow && ((taken >> colour) & 1u)) ++colour;
-    if (colour < kContactOverflow) {
-      for (uint32_t p : c.particles) {
-        if (g.busy[p] == 0) g.touched.push_back(p);
-        g.busy[p] |= uint64_t(1) << colour;
-      }
+    for (size_t k = first; k < last; ++k) {
+      const SurfacePoint& a = points[g.pending[k].second];
+      const SurfacePoint& b = points[g.best[g.pending[k].second]];
+      for (int i = 0; i < 8; ++i) taken |= g.busy[a.particles[i]] | g.busy[b.particles[i]];
     }
-    contacts_add(set, colour, added++, c);
+    const uint64_t free_bits = ~taken & ((uint64_t(1) << kContactOverflow) - 1);
+    const uint32_t colour = free_bits == 0 ? kContactOverflow : uint32_t(__builtin_ctzll(free_bits));
+    for (size_t k = first; k < last; ++k) {
+      const uint32_t v = g.pending[k].second;
+      const SurfacePoint& a = points[v];
+      const SurfacePoint& b = points[g.best[v]];
+      ContactPoint c;
+      c.normal = b.normal;  // q's tangent plane
+      std::copy(a.particles, a.particles + 8, c.particles);
+      std::copy(b.particles, b.particles + 8, c.particles + 8);
+      for (int i = 0; i < 8; ++i) {
+        c.weights[i] = a.weights[i];
+        c.weights[8 + i] = -b.weights[i];
+      }
+      c.target = -g.allowed[v];
+      c.static_friction = c.kinetic_friction = friction;
+      if (colour < kContactOverflow) {
+        for (uint32_t p : c.particles) {
+          if (g.busy[p] == 0) g.touched.push_back(p);
+          g.busy[p] |= uint64_t(1) << colour;
+        }
+      }
+      contacts_add(set, colour, groups, c);
+      ++added;
+    }
+    ++groups;
+    first = last;
   }
   for (uint32_t p : g.touched) g.busy[p] = 0;
   g.touched.clear();

@@ -24,6 +24,7 @@
 #include "sim/mesh.h"
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace dvx {
@@ -127,9 +128,11 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // joined by material); only surface points of different bodies touch. A body does not collide with
 // itself (a flap folded onto its own body is a known limit).
 //
-// Broad phase: the pieces' deformed bounds, grown by the contact reach, in a uniform grid; a piece is
+// Broad phase: the bodies' bounds, grown by the contact reach, swept along x; the pieces of bodies
+// near another body, by their deformed bounds grown by the reach, in a uniform grid; a piece is
 // *exposed* when its bounds overlap a piece of another body. Narrow phase: the surface vertices of
-// exposed pieces in a hash grid of cell = reach; each vertex v pairs with its nearest vertex q of
+// exposed pieces (near a partner's bounds) in a hash grid of cell = reach, each pair of vertices met
+// once (a cell against itself and the 13 cells after it); each vertex v pairs with its nearest vertex q of
 // another body within reach whose normal faces it (n_v . n_q < -0.9: more than ~155 degrees apart, so
 // the rims where a cut face meets the old surface do not pair). The contact keeps v on the outer side
 // of q's tangent plane: C = n_q . (x_v - x_q) >= -allowance, x_v and x_q the trilinear points of their
@@ -152,9 +155,13 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // of the 20 000-cut stress test). The allowance itself does not grow: the rest is pushed out in the
 // following steps.
 //
-// Colouring: each contact is its own group; contacts are coloured greedily over their particles
-// (63 colours, a 64-bit mask per particle); a contact that finds every colour taken goes to the
-// overflow batch (kContactOverflow), which the caller solves serially.
+// Contacts. A pair of points that are each other's nearest make one contact (the same constraint,
+// the normals within 25 degrees of opposite): the two faces of a fresh cut pair up so.
+//
+// Colouring: the contacts between two pieces form one group (they share those pieces' 16
+// particles), solved in order by one worker; groups are coloured greedily over their particles (63
+// colours, a 64-bit mask per particle); a group that finds every colour taken goes to the overflow
+// batch (kContactOverflow), which the caller solves serially.
 
 constexpr uint32_t kContactOverflow = 63;
 constexpr double kMaxPush = 0.2;  // fine voxels per step (see "Push-out speed")
@@ -163,19 +170,21 @@ constexpr double kMaxPush = 0.2;  // fine voxels per step (see "Push-out speed")
 struct SurfacePoint {
   Vec3d position;  // deformed
   Vec3d normal;    // deformed, unit, outward
-  uint32_t body;   // connected component of its piece
+  uint32_t body;   // connected component of its piece (a small number: the PBD model numbers them 0..)
   uint32_t particles[8];
   double weights[8];
   float allowance;  // in: overlap it may keep (infinity: fresh); out: the updated allowance
   uint32_t slot;    // the caller's id (the PBD model: its surface vertex slot)
+  uint32_t piece = 0;  // the caller's piece: contacts between two pieces form one group
 };
 
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
 struct PieceContactScratch {
   std::vector<uint32_t> parent;                   // (particles) union-find
   std::vector<uint64_t> keys;                     // cell << 32 | item
-  std::vector<uint32_t> cell_begin, cell_items;   // sorted cells
-  std::vector<uint64_t> cells;                    // distinct cell keys, sorted
+  std::vector<uint32_t> cell_begin, cell_items;   // items grouped by cell
+  std::vector<uint64_t> cells;                    // distinct cell keys, in order of first appearance
+  std::vector<uint32_t> cell_of, cursor;          // (keys) cell index; counts and fill cursors
   std::vector<uint32_t> table;                    // open addressing: cell index + 1 (0: empty)
   uint32_t table_bits = 1;
   std::vector<uint64_t> by_body;                  // (points) body << 32 | point, sorted (narrow phase)
@@ -192,6 +201,8 @@ struct PieceContactScratch {
   std::vector<Vec3d> item_position, item_normal;  // (cell_items)
   std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
   std::vector<double> best_d;                     // (items) squared distance to it
+  std::vector<double> allowed;                    // (points) overlap its contact allows this step
+  std::vector<std::pair<uint64_t, uint32_t>> pending;  // (piece pair, point) of the contacts to make
   std::vector<uint32_t> ranges;                   // begin, end pairs
   // Body broad phase: bounds of the bodies, the pairs of bodies whose grown bounds overlap, and each
   // body's overlapping bodies.
@@ -271,8 +282,8 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
 bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, uint32_t piece,
                   const Vec3d& x, double reach);
 
-// Adds the contacts of `points` (see above) to `set` (batch = colour, group = running contact
-// number), coloured over `particle_count` particles, and updates the points' allowances; an overlap
+// Adds the contacts of `points` (see above) to `set` (batch = colour, group = pair of pieces),
+// coloured over `particle_count` particles, and updates the points' allowances; an overlap
 // beyond the allowance is pushed out by at most `max_push` this step. `x` are the current particle
 // positions (double[3]). Returns how many it added.
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,

@@ -1249,8 +1249,8 @@ void refresh_allowances(const CutState& cut, PieceContacts& pc) {
   pc.seen_steps = cut.steps;
 }
 
-// The surface vertices of the exposed pieces within reach of a partner, in slot order, with their
-// allowances and deformed normals (area-weighted sums over the live triangles using them).
+// The surface vertices of the exposed pieces within reach of a partner (by piece, then slot), with
+// their allowances and deformed normals (area-weighted sums over the live triangles using them).
 void gather_surface_points(const CutState& cut, PbdState& s, double reach) {
   PieceContacts& pc = s.piece_contacts;
   const ContactIndex& x = pc.index;
@@ -1259,7 +1259,6 @@ void gather_surface_points(const CutState& cut, PbdState& s, double reach) {
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (pc.exposed[i]) pc.gathered.insert(pc.gathered.end(), x.piece_slots.begin() + x.piece_begin[i], x.piece_slots.begin() + x.piece_begin[i + 1]);
   }
-  std::sort(pc.gathered.begin(), pc.gathered.end());
   pc.point_of_slot.resize(x.slots, ~0u);
   uint32_t kept = 0;
   for (const uint32_t slot : pc.gathered) {
@@ -1273,7 +1272,8 @@ void gather_surface_points(const CutState& cut, PbdState& s, double reach) {
       continue;
     }
     std::copy(s.pieces[piece].particles, s.pieces[piece].particles + 8, sp.particles);
-    sp.body = pc.body[piece];
+    sp.body = x.body_index[piece];
+    sp.piece = piece;
     sp.normal.setZero();
     pc.point_of_slot[slot] = uint32_t(pc.points.size());
     pc.points.push_back(sp);
@@ -1410,11 +1410,12 @@ void build_shape_blocks(PbdState& s) {
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
-// constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact group ~200.
+// constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact ~400 (its group: a
+// piece's contacts with the planes, or the contacts between two pieces, often 10 or more).
 constexpr uint32_t kParticleGrain = 4096;
 constexpr uint32_t kStretchGrain = 1024;
 constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
-constexpr uint32_t kContactGrain = 16;
+constexpr uint32_t kContactGrain = 4;
 constexpr uint32_t kSerial = ~0u;
 
 // The batches of one substep, in order: predict; per iteration the stretch colours (overflow last,
