@@ -281,6 +281,18 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
 
 namespace {
 
+// Sorts (i << 32 | j) pairs and lists each i's js, ascending: js[begin[i] .. begin[i + 1]).
+void partner_lists(std::vector<uint64_t>& pairs, uint32_t n, std::vector<uint32_t>& begin, std::vector<uint32_t>& js) {
+  std::sort(pairs.begin(), pairs.end());
+  begin.assign(n + 1, 0);
+  js.resize(pairs.size());
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    ++begin[(pairs[k] >> 32) + 1];
+    js[k] = uint32_t(pairs[k]);
+  }
+  for (uint32_t i = 0; i < n; ++i) begin[i + 1] += begin[i];
+}
+
 // Whether two boxes, each grown by `reach`, overlap (as find_exposed_pieces tests two pieces).
 bool grown_overlap(const Vec3d& lo_a, const Vec3d& hi_a, const Vec3d& lo_b, const Vec3d& hi_b, double reach) {
   const Vec3d a = lo_a - Vec3d::Constant(reach), b = hi_a + Vec3d::Constant(reach);
@@ -322,14 +334,7 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* 
     }
   }
   if (g.body_pairs.empty()) return 0;
-  std::sort(g.body_pairs.begin(), g.body_pairs.end());
-  g.body_partner_begin.assign(bodies + 1, 0);
-  g.body_partners.resize(g.body_pairs.size());
-  for (size_t k = 0; k < g.body_pairs.size(); ++k) {
-    ++g.body_partner_begin[(g.body_pairs[k] >> 32) + 1];
-    g.body_partners[k] = uint32_t(g.body_pairs[k]);
-  }
-  for (uint32_t b = 0; b < bodies; ++b) g.body_partner_begin[b + 1] += g.body_partner_begin[b];
+  partner_lists(g.body_pairs, bodies, g.body_partner_begin, g.body_partners);
   // A piece is a candidate when it reaches the bounds of a body overlapping its own (with many such
   // bodies, every piece of the body is).
   constexpr uint32_t kMaxTests = 16;
@@ -384,15 +389,7 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
       g.pairs.push_back((uint64_t(j) << 32) | i);
     });
   }
-  // The partners of each piece, ascending.
-  std::sort(g.pairs.begin(), g.pairs.end());
-  g.partner_begin.assign(piece_count + 1, 0);
-  g.partners.resize(g.pairs.size());
-  for (size_t k = 0; k < g.pairs.size(); ++k) {
-    ++g.partner_begin[(g.pairs[k] >> 32) + 1];
-    g.partners[k] = uint32_t(g.pairs[k]);
-  }
-  for (uint32_t i = 0; i < piece_count; ++i) g.partner_begin[i + 1] += g.partner_begin[i];
+  partner_lists(g.pairs, piece_count, g.partner_begin, g.partners);  // the partners of each piece, ascending
   return count;
 }
 
