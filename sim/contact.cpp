@@ -2,24 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace dvx {
-namespace {
-
-// x_k += (w_k / m_k) / W * delta for each particle of the contact: moves its relative point by delta.
-void move_point(double* x, const double* inv_mass, const ContactPoint& c, double inv_w, const Vec3d& delta) {
-  for (uint32_t k = 0; k < c.count; ++k) {
-    const double s = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
-    if (s == 0.0) continue;
-    double* p = x + 3 * size_t(c.particles[k]);
-    p[0] += s * delta.x();
-    p[1] += s * delta.y();
-    p[2] += s * delta.z();
-  }
-}
-
-}  // namespace
-
 ContactPoint plane_contact(const ContactPlane& plane, const uint32_t particles[8], const double weights[8]) {
   ContactPoint c;
   std::copy(particles, particles + 8, c.particles);
@@ -46,12 +31,29 @@ void contacts_add(ContactSet& set, uint32_t batch, uint32_t group, const Contact
 }
 
 void contacts_finish(ContactSet& set) {
-  // Sort by (batch, group), stable: a group's points keep the order they were added in.
+  // Sort by (batch, group), stable: a group's points keep the order they were added in. The gathers
+  // add each batch's groups in ascending order: then a counting sort by batch is that sort, in O(n).
   const uint32_t n = uint32_t(set.staged.size());
   set.order.resize(n);
-  for (uint32_t i = 0; i < n; ++i) set.order[i] = i;
-  std::stable_sort(set.order.begin(), set.order.end(),
-                   [&](uint32_t a, uint32_t b) { return set.staged_key[a] < set.staged_key[b]; });
+  constexpr uint32_t kBatches = 64;
+  uint32_t start[kBatches + 1] = {}, last[kBatches] = {};
+  bool ascending = true;
+  for (uint32_t i = 0; i < n && ascending; ++i) {
+    const uint64_t batch = set.staged_key[i] >> 32;
+    const uint32_t group = uint32_t(set.staged_key[i]);
+    ascending = batch < kBatches && (start[batch + 1] == 0 || group >= last[batch]);
+    if (!ascending) break;
+    last[batch] = group;
+    ++start[batch + 1];
+  }
+  if (ascending) {
+    for (uint32_t b = 0; b < kBatches; ++b) start[b + 1] += start[b];
+    for (uint32_t i = 0; i < n; ++i) set.order[start[set.staged_key[i] >> 32]++] = i;
+  } else {
+    for (uint32_t i = 0; i < n; ++i) set.order[i] = i;
+    std::stable_sort(set.order.begin(), set.order.end(),
+                     [&](uint32_t a, uint32_t b) { return set.staged_key[a] < set.staged_key[b]; });
+  }
   set.points.resize(n);
   set.group_begin.clear();
   set.batch_begin.assign(1, 0);
@@ -73,52 +75,81 @@ void contacts_begin_substep(ContactSet& set) {
   for (ContactPoint& c : set.points) {
     c.normal_total = 0.0;
     c.friction_total = Vec3d::Zero();
+    c.solves = 0;
   }
 }
 
-void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
-  // The relative point, its motion since the start of the substep, and its generalised inverse mass.
-  Vec3d r = Vec3d::Zero(), moved = Vec3d::Zero();
-  double w = 0.0, lever = 0.0;
-  for (uint32_t k = 0; k < c.count; ++k) {
-    const double a = c.weights[k];
-    if (a == 0.0) continue;
-    const size_t p = 3 * size_t(c.particles[k]);
-    const Vec3d xp(x[p], x[p + 1], x[p + 2]);
-    r += a * xp;
-    moved += a * (xp - Vec3d(previous[p], previous[p + 1], previous[p + 2]));
-    const double m = inv_mass[c.particles[k]];
-    w += a * a * m;
-    lever = std::max(lever, std::abs(a) * m);
+namespace {
+
+// The lever cap (sim/contact.h, kMaxLever) and the point's start in this substep. W = sum_k w_k^2 / m_k,
+// W_eff = max(W, max_k |w_k| / m_k / kMaxLever): a requested correction d moves particle k by
+// (w_k / m_k / W_eff) d and the point by gain d (gain = W / W_eff: 1 unless the point is nearly
+// anchored, when it barely moves).
+void prepare_contact(const double* previous, const double* inv_mass, ContactPoint& c) {
+  if (!c.prepared) {
+    double w = 0.0, lever = 0.0;
+    for (uint32_t k = 0; k < c.count; ++k) {
+      const double a = c.weights[k], m = inv_mass[c.particles[k]];
+      w += a * a * m;
+      lever = std::max(lever, std::abs(a) * m);
+    }
+    const bool capped = lever > kMaxLever * w;
+    const double inv_w = !(w > 0.0) ? 0.0 : capped ? kMaxLever / lever : 1.0 / w;
+    c.gain = !(w > 0.0) ? 0.0 : capped ? w * inv_w : 1.0;
+    for (uint32_t k = 0; k < c.count; ++k) c.scale[k] = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
+    c.prepared = true;
   }
-  if (!(w > 0.0)) return;
-  // The lever cap (sim/contact.h, kMaxLever): W_eff = max(W, max_k |w_k| / m_k / kMaxLever). A
-  // requested correction d then moves the point by gain d (gain = W / W_eff: 1 unless the point is
-  // nearly anchored, when it barely moves); the totals count what the point actually moved.
-  const bool capped = lever > kMaxLever * w;
-  const double inv_w = capped ? kMaxLever / lever : 1.0 / w, gain = capped ? w * inv_w : 1.0;
+  c.start.setZero();
+  for (uint32_t k = 0; k < c.count; ++k) {
+    const double* p = previous + 3 * size_t(c.particles[k]);
+    if (c.weights[k] != 0.0) c.start += c.weights[k] * Vec3d(p[0], p[1], p[2]);
+  }
+}
+
+}  // namespace
+
+void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
+  if (c.solves++ == 0) prepare_contact(previous, inv_mass, c);
+  if (!(c.gain > 0.0)) return;  // W = 0: nothing can move it
+  // The relative point and its motion since the start of the substep.
+  Vec3d r = Vec3d::Zero();
+  for (uint32_t k = 0; k < c.count; ++k) {
+    const double* p = x + 3 * size_t(c.particles[k]);
+    if (c.weights[k] != 0.0) r += c.weights[k] * Vec3d(p[0], p[1], p[2]);
+  }
+  Vec3d moved = r - c.start;
+  const double gain = c.gain;
   const Vec3d& n = c.normal;
 
   // Normal: C = n . r - target >= 0, rigid (alpha = 0): dlambda = -C / W moves r by -C n. The total
   // over the substep stays >= 0 (projected Gauss-Seidel with accumulated clamping): a point pushed out
-  // too far by an earlier iteration is pulled back by up to what it was pushed, never further.
+  // too far by an earlier iteration is pulled back by up to what it was pushed, never further. The
+  // totals count what the point actually moved (gain x requested).
   const double request = std::max(c.target - n.dot(r), -c.normal_total / gain);
-  if (request != 0.0) {
-    move_point(x, inv_mass, c, inv_w, request * n);
-    c.normal_total += gain * request;
-    moved += (gain * request) * n;
+  Vec3d delta = request * n;  // the correction requested of the point
+  c.normal_total += gain * request;
+  moved += (gain * request) * n;
+  if (c.normal_total > 0.0) {
+    // Friction: the total correction that would stop the tangential motion, clamped by Coulomb's cone.
+    const Vec3d slide = moved - n.dot(moved) * n;
+    Vec3d total = c.friction_total - slide;
+    const double length = total.norm();
+    if (length > c.static_friction * c.normal_total) {
+      total *= length > 0.0 ? c.kinetic_friction * c.normal_total / length : 0.0;  // sliding
+    }
+    delta += total - c.friction_total;
+    c.friction_total = gain == 1.0 ? total : c.friction_total + gain * (total - c.friction_total);
   }
-  if (c.normal_total <= 0.0) return;  // not touching in this substep: no friction
-
-  // Friction: the total correction that would stop the tangential motion, clamped by Coulomb's cone.
-  const Vec3d slide = moved - n.dot(moved) * n;
-  Vec3d total = c.friction_total - slide;
-  const double length = total.norm();
-  if (length > c.static_friction * c.normal_total) {
-    total *= length > 0.0 ? c.kinetic_friction * c.normal_total / length : 0.0;  // sliding
+  // Both corrections in one pass: x_k += scale_k delta.
+  if (delta.x() == 0.0 && delta.y() == 0.0 && delta.z() == 0.0) return;
+  for (uint32_t k = 0; k < c.count; ++k) {
+    const double s = c.scale[k];
+    if (s == 0.0) continue;
+    double* p = x + 3 * size_t(c.particles[k]);
+    p[0] += s * delta.x();
+    p[1] += s * delta.y();
+    p[2] += s * delta.z();
   }
-  move_point(x, inv_mass, c, inv_w, total - c.friction_total);
-  c.friction_total = capped ? c.friction_total + gain * (total - c.friction_total) : total;
 }
 
 void solve_contact_group(double* x, const double* previous, const double* inv_mass, ContactSet& set, uint32_t group) {
@@ -158,33 +189,41 @@ uint64_t cell_key(int64_t i, int64_t j, int64_t k) {
   return uint64_t(h) << 32;
 }
 
-// Sorts (cell << 32 | item) keys and indexes them: cells (distinct, sorted), their item ranges, and
-// an open-addressing table from a cell key to its index (a query looks up 27 cells: a table probe
-// each, not a binary search).
+// Groups (cell << 32 | item) keys by cell, each cell's items in the order given, in O(n) (no sort):
+// the cells (distinct, in order of first appearance), their item ranges, and an open-addressing
+// table from a cell key to its index (a query looks up 27 cells: a table probe each).
 void build_cells(PieceContactScratch& g) {
-  std::sort(g.keys.begin(), g.keys.end());
-  g.cells.clear();
-  g.cell_begin.clear();
-  g.cell_items.resize(g.keys.size());
-  for (size_t i = 0; i < g.keys.size(); ++i) {
-    const uint64_t cell = g.keys[i] >> 32 << 32;
-    if (g.cells.empty() || g.cells.back() != cell) {
-      g.cells.push_back(cell);
-      g.cell_begin.push_back(uint32_t(i));
-    }
-    g.cell_items[i] = uint32_t(g.keys[i]);
-  }
-  g.cell_begin.push_back(uint32_t(g.keys.size()));
-  // A power of two at least twice the cells; entries are cell index + 1 (0: empty).
+  const uint32_t n = uint32_t(g.keys.size());
+  // A power of two at least twice the keys (so twice the cells); entries are cell index + 1 (0: empty).
   g.table_bits = 1;
-  while ((size_t(1) << g.table_bits) < 2 * g.cells.size()) ++g.table_bits;
+  while ((size_t(1) << g.table_bits) < 2 * size_t(n)) ++g.table_bits;
   g.table.assign(size_t(1) << g.table_bits, 0);
   const uint32_t mask = (1u << g.table_bits) - 1;
-  for (uint32_t c = 0; c < g.cells.size(); ++c) {
-    uint32_t slot = uint32_t(g.cells[c] >> 32) * 0x9E3779B1u >> (32 - g.table_bits);
-    while (g.table[slot] != 0) slot = (slot + 1) & mask;
-    g.table[slot] = c + 1;
+  g.cells.clear();
+  g.cursor.clear();  // items per cell
+  g.cell_of.resize(n);
+  for (uint32_t i = 0; i < n; ++i) {
+    const uint64_t cell = g.keys[i] >> 32 << 32;
+    uint32_t slot = uint32_t(cell >> 32) * 0x9E3779B1u >> (32 - g.table_bits);
+    while (g.table[slot] != 0 && g.cells[g.table[slot] - 1] != cell) slot = (slot + 1) & mask;
+    if (g.table[slot] == 0) {
+      g.cells.push_back(cell);
+      g.cursor.push_back(0);
+      g.table[slot] = uint32_t(g.cells.size());
+    }
+    g.cell_of[i] = g.table[slot] - 1;
+    ++g.cursor[g.cell_of[i]];
   }
+  // Ranges, then the items in order.
+  const uint32_t cells = uint32_t(g.cells.size());
+  g.cell_begin.resize(cells + 1);
+  g.cell_begin[0] = 0;
+  for (uint32_t c = 0; c < cells; ++c) {
+    g.cell_begin[c + 1] = g.cell_begin[c] + g.cursor[c];
+    g.cursor[c] = g.cell_begin[c];
+  }
+  g.cell_items.resize(n);
+  for (uint32_t i = 0; i < n; ++i) g.cell_items[g.cursor[g.cell_of[i]]++] = uint32_t(g.keys[i]);
 }
 
 // The index of a cell in g.cells, or ~0u when it holds nothing.
@@ -240,6 +279,80 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
   for (uint32_t i = 0; i < piece_count; ++i) body[i] = live[i] ? find(corners[8 * i]) : ~0u;
 }
 
+namespace {
+
+// Sorts (i << 32 | j) pairs and lists each i's js, ascending: js[begin[i] .. begin[i + 1]).
+void partner_lists(std::vector<uint64_t>& pairs, uint32_t n, std::vector<uint32_t>& begin, std::vector<uint32_t>& js) {
+  std::sort(pairs.begin(), pairs.end());
+  begin.assign(n + 1, 0);
+  js.resize(pairs.size());
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    ++begin[(pairs[k] >> 32) + 1];
+    js[k] = uint32_t(pairs[k]);
+  }
+  for (uint32_t i = 0; i < n; ++i) begin[i + 1] += begin[i];
+}
+
+// Whether two boxes, each grown by `reach`, overlap (as find_exposed_pieces tests two pieces).
+bool grown_overlap(const Vec3d& lo_a, const Vec3d& hi_a, const Vec3d& lo_b, const Vec3d& hi_b, double reach) {
+  const Vec3d a = lo_a - Vec3d::Constant(reach), b = hi_a + Vec3d::Constant(reach);
+  return !((lo_b.array() - reach > b.array()).any() || (hi_b.array() + reach < a.array()).any());
+}
+
+}  // namespace
+
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
+                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& g) {
+  g.candidate.assign(piece_count, 0);
+  if (bodies < 2) return 0;
+  // The bodies' bounds (each holds its pieces'; so a piece's test against a body's bounds is
+  // conservative: rounding is monotonic).
+  g.body_lo.assign(bodies, Vec3d::Constant(std::numeric_limits<double>::infinity()));
+  g.body_hi.assign(bodies, Vec3d::Constant(-std::numeric_limits<double>::infinity()));
+  for (uint32_t i = 0; i < piece_count; ++i) {
+    if (!live[i]) continue;
+    g.body_lo[body_index[i]] = g.body_lo[body_index[i]].cwiseMin(lo[i]);
+    g.body_hi[body_index[i]] = g.body_hi[body_index[i]].cwiseMax(hi[i]);
+  }
+  // Sweep along x: the bodies by lower bound (a non-finite bound first, so it meets every body);
+  // a pair overlaps only while the later one starts before the earlier one ends.
+  const auto start = [&](uint32_t b) { return std::isnan(g.body_lo[b].x()) ? -std::numeric_limits<double>::infinity() : g.body_lo[b].x(); };
+  g.body_order.resize(bodies);
+  for (uint32_t b = 0; b < bodies; ++b) g.body_order[b] = b;
+  std::sort(g.body_order.begin(), g.body_order.end(), [&](uint32_t a, uint32_t b) {
+    return start(a) < start(b) || (start(a) == start(b) && a < b);
+  });
+  g.body_pairs.clear();
+  for (uint32_t m = 0; m < bodies; ++m) {
+    const uint32_t a = g.body_order[m];
+    for (uint32_t k = m + 1; k < bodies; ++k) {
+      const uint32_t b = g.body_order[k];
+      if (g.body_lo[b].x() - reach > g.body_hi[a].x() + reach) break;
+      if (!grown_overlap(g.body_lo[a], g.body_hi[a], g.body_lo[b], g.body_hi[b], reach)) continue;
+      g.body_pairs.push_back((uint64_t(a) << 32) | b);
+      g.body_pairs.push_back((uint64_t(b) << 32) | a);
+    }
+  }
+  if (g.body_pairs.empty()) return 0;
+  partner_lists(g.body_pairs, bodies, g.body_partner_begin, g.body_partners);
+  // A piece is a candidate when it reaches the bounds of a body overlapping its own (with many such
+  // bodies, every piece of the body is).
+  constexpr uint32_t kMaxTests = 16;
+  uint32_t count = 0;
+  for (uint32_t i = 0; i < piece_count; ++i) {
+    if (!live[i]) continue;
+    const uint32_t b = body_index[i], first = g.body_partner_begin[b], last = g.body_partner_begin[b + 1];
+    bool near = last - first > kMaxTests;
+    for (uint32_t k = first; k < last && !near; ++k) {
+      const uint32_t c = g.body_partners[k];
+      near = grown_overlap(lo[i], hi[i], g.body_lo[c], g.body_hi[c], reach);
+    }
+    g.candidate[i] = near;
+    count += near;
+  }
+  return count;
+}
+
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
                              uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
                              PieceContactScratch& g, uint64_t* pairs_tested) {
@@ -276,15 +389,7 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
       g.pairs.push_back((uint64_t(j) << 32) | i);
     });
   }
-  // The partners of each piece, ascending.
-  std::sort(g.pairs.begin(), g.pairs.end());
-  g.partner_begin.assign(piece_count + 1, 0);
-  g.partners.resize(g.pairs.size());
-  for (size_t k = 0; k < g.pairs.size(); ++k) {
-    ++g.partner_begin[(g.pairs[k] >> 32) + 1];
-    g.partners[k] = uint32_t(g.pairs[k]);
-  }
-  for (uint32_t i = 0; i < piece_count; ++i) g.partner_begin[i + 1] += g.partner_begin[i];
+  partner_lists(g.pairs, piece_count, g.partner_begin, g.partners);  // the partners of each piece, ascending
   return count;
 }
 
@@ -310,10 +415,21 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   if (count == 0 || !(reach > 0.0)) return 0;
   // Points in cells of size `reach`, each cell's items grouped by body (items are ranks in body
   // order), with the end of each item's body run: a query jumps over its own body's points (most of
-  // a cell, where a body lies on another) instead of testing them one by one.
+  // a cell, where a body lies on another) instead of testing them one by one. The items' positions
+  // and normals are copied in cell order, so a query reads them in sequence.
+  // Body order (counting sort; bodies are small numbers), stable.
+  uint32_t bodies = 0;
+  for (uint32_t v = 0; v < count; ++v) bodies = std::max(bodies, points[v].body + 1);
   g.by_body.resize(count);
-  for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
-  std::sort(g.by_body.begin(), g.by_body.end());
+  if (bodies <= 4 * count + 1024) {
+    g.cursor.assign(bodies + 1, 0);
+    for (uint32_t v = 0; v < count; ++v) ++g.cursor[points[v].body + 1];
+    for (uint32_t b = 0; b < bodies; ++b) g.cursor[b + 1] += g.cursor[b];
+    for (uint32_t v = 0; v < count; ++v) g.by_body[g.cursor[points[v].body]++] = (uint64_t(points[v].body) << 32) | v;
+  } else {
+    for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
+    std::sort(g.by_body.begin(), g.by_body.end());
+  }
   g.keys.clear();
   for (uint32_t rank = 0; rank < count; ++rank) {
     const Vec3d& p = points[uint32_t(g.by_body[rank])].position;
@@ -323,15 +439,81 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   build_cells(g);
   g.item_body.resize(count);
   g.run_end.resize(count);
+  g.item_position.resize(count);
+  g.item_normal.resize(count);
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
       const uint64_t entry = g.by_body[g.cell_items[n]];
       g.cell_items[n] = uint32_t(entry);
       g.item_body[n] = uint32_t(entry >> 32);
+      g.item_position[n] = points[uint32_t(entry)].position;
+      g.item_normal[n] = points[uint32_t(entry)].normal;
       const bool last = n + 1 == g.cell_begin[c + 1] || g.item_body[n + 1] != g.item_body[n];
       g.run_end[n] = last ? n + 1 : g.run_end[n + 1];
     }
   }
+  // Each point's nearest point of another body within reach whose normal faces its own: the least
+  // (distance, index), the same whatever the order in which pairs are met. So each pair is met once
+  // and updates both points: from the earlier item of a cell to the later ones, and from a cell to
+  // the 13 cells after it (in z, y, x order) of the 26 around it. The points of a cell share those
+  // ranges (recomputed where two cells share a hash; a pair met twice through a shared hash changes
+  // nothing).
+  g.best.assign(count, ~0u);  // by item here, by point below
+  g.best_d.assign(count, reach * reach);
+  uint64_t tested = 0;
+  const auto meet = [&](uint32_t n, uint32_t m, double d) {  // item n met item m at squared distance d
+    const uint32_t q = g.cell_items[m];
+    if (d < g.best_d[n] || (d == g.best_d[n] && q < g.best[n])) {
+      g.best_d[n] = d;
+      g.best[n] = q;
+    }
+  };
+  for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
+    const uint32_t cell_end = g.cell_begin[c + 1];
+    int64_t have[3] = {0, 0, 0};
+    bool ready = false;
+    for (uint32_t item = g.cell_begin[c]; item < cell_end; ++item) {
+      const Vec3d& position = g.item_position[item];
+      const Vec3d& normal = g.item_normal[item];
+      const uint32_t body = g.item_body[item];
+      const int64_t at[3] = {cell_coord(position.x(), reach), cell_coord(position.y(), reach), cell_coord(position.z(), reach)};
+      if (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2]) {
+        g.ranges.clear();
+        for (int64_t dk = 0; dk <= 1; ++dk) {
+          for (int64_t dj = dk == 0 ? 0 : -1; dj <= 1; ++dj) {
+            for (int64_t di = dk == 0 && dj == 0 ? 1 : -1; di <= 1; ++di) {
+              const uint32_t found = find_cell(g, cell_key(at[0] + di, at[1] + dj, at[2] + dk));
+              if (found == ~0u) continue;
+              g.ranges.push_back(g.cell_begin[found]);
+              g.ranges.push_back(g.cell_begin[found + 1]);
+            }
+          }
+        }
+        std::copy(at, at + 3, have);
+        ready = true;
+      }
+      const auto scan = [&](uint32_t begin, uint32_t end) {
+        for (uint32_t n = begin; n < end; ++n) {
+          if (g.item_body[n] == body) {
+            n = g.run_end[n] - 1;
+            continue;
+          }
+          ++tested;
+          if (normal.dot(g.item_normal[n]) > kFacing) continue;
+          const double d = (g.item_position[n] - position).squaredNorm();
+          if (d > g.best_d[item] && d > g.best_d[n]) continue;
+          meet(item, n, d);
+          meet(n, item, d);
+        }
+      };
+      scan(item + 1, cell_end);
+      for (size_t r = 0; r < g.ranges.size(); r += 2) scan(g.ranges[r], g.ranges[r + 1]);
+    }
+  }
+  // From items to points.
+  for (uint32_t n = 0; n < count; ++n) g.by_body[g.cell_items[n]] = g.best[n];  // scratch: by point
+  for (uint32_t v = 0; v < count; ++v) g.best[v] = uint32_t(g.by_body[v]);
+  if (pairs_tested) *pairs_tested += tested;
   g.busy.resize(particle_count, 0);
   std::vector<float>& fresh_allowance = g.allowance;  // written after the pass: pairs read the old values
   fresh_allowance.assign(count, 0.0f);
@@ -341,65 +523,74 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
                                                           x[3 * size_t(s.particles[k]) + 2]);
     return r;
   };
-  uint32_t added = 0;
+  // Each paired point's allowance and the target of its contact. The two points of a mutual pair
+  // (each the other's nearest) make one contact, the earlier one's: their constraints are the same
+  // up to the normals' angle (within 25 degrees of opposite), and a fresh cut pairs its faces so.
+  g.pending.clear();
+  g.allowed.resize(count);
   for (uint32_t v = 0; v < count; ++v) {
-    // The nearest point of another body within reach whose normal faces v's.
     const SurfacePoint& a = points[v];
-    uint32_t best = ~0u;
-    double best_d = reach * reach;
-    for_neighbour_cells(g, cell_coord(a.position.x(), reach), cell_coord(a.position.y(), reach),
-                        cell_coord(a.position.z(), reach), [&](uint32_t begin, uint32_t end) {
-                          for (uint32_t n = begin; n < end; ++n) {
-                            if (g.item_body[n] == a.body) {
-                              n = g.run_end[n] - 1;
-                              continue;
-                            }
-                            if (pairs_tested) ++*pairs_tested;
-                            const uint32_t q = g.cell_items[n];
-                            const SurfacePoint& b = points[q];
-                            if (a.normal.dot(b.normal) > kFacing) continue;
-                            const double d = (b.position - a.position).squaredNorm();
-                            if (d < best_d || (d == best_d && q < best)) {
-                              best_d = d;
-                              best = q;
-                            }
-                          }
-                        });
+    const uint32_t best = g.best[v];
     if (best == ~0u) {
       fresh_allowance[v] = 0.0f;  // out of contact: no overlap allowed from now on
       continue;
     }
     const SurfacePoint& b = points[best];
-    ContactPoint c;
-    c.normal = b.normal;  // q's tangent plane
-    // The overlap now (< 0: a gap), and what the pair may keep of it: a fresh pair starts in contact
-    // at zero depth where it overlaps (a gap is no allowance: it may close, never be held open); then
-    // never more overlap than before. A deeper overlap is pushed out by at most max_push this step.
-    const double overlap = -c.normal.dot(point_at(a) - point_at(b));
+    // The overlap now (< 0: a gap) against q's tangent plane, and what the pair may keep of it: a
+    // fresh pair starts in contact at zero depth where it overlaps (a gap is no allowance: it may
+    // close, never be held open); then never more overlap than before. A deeper overlap is pushed
+    // out by at most max_push this step.
+    const double overlap = -b.normal.dot(point_at(a) - point_at(b));
     const double before = std::max(a.allowance, b.allowance);
     const double kept = std::isinf(before) ? std::max(overlap, 0.0) : std::min(std::max(overlap, 0.0), before);
-    const double allowed = std::max(kept, overlap - max_push);
+    g.allowed[v] = std::max(kept, overlap - max_push);
     fresh_allowance[v] = float(kept);
-    std::copy(a.particles, a.particles + 8, c.particles);
-    std::copy(b.particles, b.particles + 8, c.particles + 8);
-    for (int k = 0; k < 8; ++k) {
-      c.weights[k] = a.weights[k];
-      c.weights[8 + k] = -b.weights[k];
-    }
-    c.target = -allowed;
-    c.static_friction = c.kinetic_friction = friction;
-    // Greedy colour over the 16 particles.
+    if (g.best[best] == v && best < v) continue;  // the mutual pair's contact is best's
+    const uint32_t lo = std::min(a.piece, b.piece), hi = std::max(a.piece, b.piece);
+    g.pending.emplace_back((uint64_t(lo) << 32) | hi, v);
+  }
+  // Contacts in groups, one per pair of pieces (in pair order; a group's contacts in point order),
+  // each group solved in order by one worker: the contacts of two pieces all share their 16
+  // particles. Groups are coloured greedily over all their contacts' particles (63 colours, a
+  // 64-bit mask per particle); a group that finds every colour taken goes to the overflow batch.
+  std::sort(g.pending.begin(), g.pending.end());
+  uint32_t added = 0, groups = 0;
+  for (size_t first = 0; first < g.pending.size();) {
+    size_t last = first;
+    while (last < g.pending.size() && g.pending[last].first == g.pending[first].first) ++last;
     uint64_t taken = 0;
-    for (uint32_t p : c.particles) taken |= g.busy[p];
-    uint32_t colour = 0;
-    while (colour < kContactOverflow && ((taken >> colour) & 1u)) ++colour;
-    if (colour < kContactOverflow) {
-      for (uint32_t p : c.particles) {
-        if (g.busy[p] == 0) g.touched.push_back(p);
-        g.busy[p] |= uint64_t(1) << colour;
-      }
+    for (size_t k = first; k < last; ++k) {
+      const SurfacePoint& a = points[g.pending[k].second];
+      const SurfacePoint& b = points[g.best[g.pending[k].second]];
+      for (int i = 0; i < 8; ++i) taken |= g.busy[a.particles[i]] | g.busy[b.particles[i]];
     }
-    contacts_add(set, colour, added++, c);
+    const uint64_t free_bits = ~taken & ((uint64_t(1) << kContactOverflow) - 1);
+    const uint32_t colour = free_bits == 0 ? kContactOverflow : uint32_t(__builtin_ctzll(free_bits));
+    for (size_t k = first; k < last; ++k) {
+      const uint32_t v = g.pending[k].second;
+      const SurfacePoint& a = points[v];
+      const SurfacePoint& b = points[g.best[v]];
+      ContactPoint c;
+      c.normal = b.normal;  // q's tangent plane
+      std::copy(a.particles, a.particles + 8, c.particles);
+      std::copy(b.particles, b.particles + 8, c.particles + 8);
+      for (int i = 0; i < 8; ++i) {
+        c.weights[i] = a.weights[i];
+        c.weights[8 + i] = -b.weights[i];
+      }
+      c.target = -g.allowed[v];
+      c.static_friction = c.kinetic_friction = friction;
+      if (colour < kContactOverflow) {
+        for (uint32_t p : c.particles) {
+          if (g.busy[p] == 0) g.touched.push_back(p);
+          g.busy[p] |= uint64_t(1) << colour;
+        }
+      }
+      contacts_add(set, colour, groups, c);
+      ++added;
+    }
+    ++groups;
+    first = last;
   }
   for (uint32_t p : g.touched) g.busy[p] = 0;
   g.touched.clear();

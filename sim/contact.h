@@ -24,6 +24,7 @@
 #include "sim/mesh.h"
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace dvx {
@@ -54,6 +55,15 @@ struct ContactPoint {
   uint32_t count = kMaxParticles;        // slots in use (8 against a plane: the loops stop there)
   double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
   Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
+  // Solver data, set by the first solve (masses do not change within a step) and the first solve of
+  // each substep: what moving the point by d moves particle k (scale[k] d), the share of a requested
+  // correction the point moves (gain, see kMaxLever; 0: it cannot move), the point at the start of
+  // the substep.
+  uint32_t solves = 0;                   // in this substep
+  bool prepared = false;
+  double gain = 0.0;
+  double scale[kMaxParticles] = {};
+  Vec3d start = Vec3d::Zero();
 };
 
 // A contact of a surface point (8 particles, trilinear weights) with a plane.
@@ -83,7 +93,8 @@ inline uint32_t contact_batches(const ContactSet& set) {
   return set.batch_begin.empty() ? 0 : uint32_t(set.batch_begin.size() - 1);
 }
 
-// Zeroes the accumulated corrections (at the start of each substep, when `previous` is reset).
+// Zeroes the accumulated corrections (at the start of each substep, when `previous` is reset: the
+// next solve takes each point's start from it).
 void contacts_begin_substep(ContactSet& set);
 
 // The lever cap. A rigid correction d of the point moves particle k by (|w_k| / m_k / W) d: up to 1/w_k
@@ -117,9 +128,11 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // joined by material); only surface points of different bodies touch. A body does not collide with
 // itself (a flap folded onto its own body is a known limit).
 //
-// Broad phase: the pieces' deformed bounds, grown by the contact reach, in a uniform grid; a piece is
+// Broad phase: the bodies' bounds, grown by the contact reach, swept along x; the pieces of bodies
+// near another body, by their deformed bounds grown by the reach, in a uniform grid; a piece is
 // *exposed* when its bounds overlap a piece of another body. Narrow phase: the surface vertices of
-// exposed pieces in a hash grid of cell = reach; each vertex v pairs with its nearest vertex q of
+// exposed pieces (near a partner's bounds) in a hash grid of cell = reach, each pair of vertices met
+// once (a cell against itself and the 13 cells after it); each vertex v pairs with its nearest vertex q of
 // another body within reach whose normal faces it (n_v . n_q < -0.9: more than ~155 degrees apart, so
 // the rims where a cut face meets the old surface do not pair). The contact keeps v on the outer side
 // of q's tangent plane: C = n_q . (x_v - x_q) >= -allowance, x_v and x_q the trilinear points of their
@@ -142,9 +155,13 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // of the 20 000-cut stress test). The allowance itself does not grow: the rest is pushed out in the
 // following steps.
 //
-// Colouring: each contact is its own group; contacts are coloured greedily over their particles
-// (63 colours, a 64-bit mask per particle); a contact that finds every colour taken goes to the
-// overflow batch (kContactOverflow), which the caller solves serially.
+// Contacts. A pair of points that are each other's nearest make one contact (the same constraint,
+// the normals within 25 degrees of opposite): the two faces of a fresh cut pair up so.
+//
+// Colouring: the contacts between two pieces form one group (they share those pieces' 16
+// particles), solved in order by one worker; groups are coloured greedily over their particles (63
+// colours, a 64-bit mask per particle); a group that finds every colour taken goes to the overflow
+// batch (kContactOverflow), which the caller solves serially.
 
 constexpr uint32_t kContactOverflow = 63;
 constexpr double kMaxPush = 0.2;  // fine voxels per step (see "Push-out speed")
@@ -153,19 +170,21 @@ constexpr double kMaxPush = 0.2;  // fine voxels per step (see "Push-out speed")
 struct SurfacePoint {
   Vec3d position;  // deformed
   Vec3d normal;    // deformed, unit, outward
-  uint32_t body;   // connected component of its piece
+  uint32_t body;   // connected component of its piece (a small number: the PBD model numbers them 0..)
   uint32_t particles[8];
   double weights[8];
   float allowance;  // in: overlap it may keep (infinity: fresh); out: the updated allowance
   uint32_t slot;    // the caller's id (the PBD model: its surface vertex slot)
+  uint32_t piece = 0;  // the caller's piece: contacts between two pieces form one group
 };
 
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
 struct PieceContactScratch {
   std::vector<uint32_t> parent;                   // (particles) union-find
   std::vector<uint64_t> keys;                     // cell << 32 | item
-  std::vector<uint32_t> cell_begin, cell_items;   // sorted cells
-  std::vector<uint64_t> cells;                    // distinct cell keys, sorted
+  std::vector<uint32_t> cell_begin, cell_items;   // items grouped by cell
+  std::vector<uint64_t> cells;                    // distinct cell keys, in order of first appearance
+  std::vector<uint32_t> cell_of, cursor;          // (keys) cell index; counts and fill cursors
   std::vector<uint32_t> table;                    // open addressing: cell index + 1 (0: empty)
   uint32_t table_bits = 1;
   std::vector<uint64_t> by_body;                  // (points) body << 32 | point, sorted (narrow phase)
@@ -177,6 +196,42 @@ struct PieceContactScratch {
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
   std::vector<float> allowance;                   // (points) updated allowances
+  // Narrow phase: the points' positions and normals in cell order (a query scans them in sequence),
+  // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
+  std::vector<Vec3d> item_position, item_normal;  // (cell_items)
+  std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
+  std::vector<double> best_d;                     // (items) squared distance to it
+  std::vector<double> allowed;                    // (points) overlap its contact allows this step
+  std::vector<std::pair<uint64_t, uint32_t>> pending;  // (piece pair, point) of the contacts to make
+  std::vector<uint32_t> ranges;                   // begin, end pairs
+  // Body broad phase: bounds of the bodies, the pairs of bodies whose grown bounds overlap, and each
+  // body's overlapping bodies.
+  std::vector<Vec3d> body_lo, body_hi;            // (bodies)
+  std::vector<uint32_t> body_order;               // bodies by lower x bound
+  std::vector<uint64_t> body_pairs;               // b << 32 | c, both directions
+  std::vector<uint32_t> body_partner_begin, body_partners;
+  std::vector<uint8_t> candidate;                 // (pieces) may touch another body
+};
+
+// What the contact gathers know of the PBD model's surface between its edits: the piece of each
+// surface vertex slot, the slots and triangles of each piece, the bodies. A vertex slot changes piece
+// only when a cut edits the model (PbdModel::revision) or the surface (CutState::steps), so the index
+// is rebuilt only then and the gathers visit only the pieces near something, not every slot.
+struct ContactIndex {
+  uint64_t revision = ~uint64_t(0), cut_steps = ~uint64_t(0);  // what it was built from
+  uint32_t slots = 0, triangle_count = 0, pieces = 0;
+  std::vector<uint32_t> slot_piece;   // (slots) piece slot, ~0u: not embedded
+  std::vector<uint32_t> piece_begin;  // (pieces + 1) offsets into piece_slots
+  std::vector<uint32_t> piece_slots;  // the slots of each piece, ascending
+  std::vector<uint8_t> mobile;        // (pieces) some corner particle is free (inverse mass > 0)
+  std::vector<uint32_t> body_index;   // (pieces) bodies numbered 0.. (~0u: dead slot)
+  uint32_t bodies = 0;
+  // The live triangles whose three corners are embedded, under each piece holding a corner
+  // (ascending): built on the first gather that needs normals after a rebuild.
+  bool triangles_ready = false;
+  std::vector<uint32_t> triangle_begin;  // (pieces + 1)
+  std::vector<uint32_t> piece_triangles;
+  std::vector<uint32_t> scratch;         // fill cursors; body numbers by root particle
 };
 
 // Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).
@@ -186,10 +241,13 @@ struct PieceContacts {
   std::vector<uint32_t> corners, body;  // (pieces x 8), (pieces)
   std::vector<uint8_t> live, exposed;   // (pieces)
   std::vector<Vec3d> lo, hi;            // (pieces) deformed bounds
+  ContactIndex index;                   // also read by the plane gather
   std::vector<SurfacePoint> points;
   std::vector<uint32_t> point_of_slot;  // (surface vertex slots) index in points, ~0u: none
+  std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
+  uint64_t seen_steps = 0;              // CutState::steps when last seen
   uint32_t exposed_pieces = 0;          // of the last gather (diagnostics)
   // Cumulative counters (diagnostics, never part of the state hash): what the phases touched.
   struct Counters {
@@ -206,6 +264,12 @@ struct PieceContacts {
 void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_count, uint32_t particle_count,
                  std::vector<uint32_t>& body, PieceContactScratch& scratch);
 
+// Body broad phase: marks (candidate[piece] = 1) the live pieces whose bounds grown by `reach` overlap
+// the grown bounds of another body (body_index: bodies numbered 0 .. bodies - 1); only they can be
+// exposed. Returns how many.
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
+                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& scratch);
+
 // Marks the pieces whose bounds (lo, hi per piece; live as above), grown by `reach`, overlap a piece of
 // another body, and lists each one's partners (scratch.partners). Returns how many.
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
@@ -218,8 +282,8 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
 bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, uint32_t piece,
                   const Vec3d& x, double reach);
 
-// Adds the contacts of `points` (see above) to `set` (batch = colour, group = running contact
-// number), coloured over `particle_count` particles, and updates the points' allowances; an overlap
+// Adds the contacts of `points` (see above) to `set` (batch = colour, group = pair of pieces),
+// coloured over `particle_count` particles, and updates the points' allowances; an overlap
 // beyond the allowance is pushed out by at most `max_push` this step. `x` are the current particle
 // positions (double[3]). Returns how many it added.
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,

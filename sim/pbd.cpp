@@ -1076,60 +1076,142 @@ void sorted_unique(std::vector<T>& v) {
 
 // ---- Contact hook (sim/contact.h) ----------------------------------------------------------
 
-// The deformed position of a live embedded vertex slot, its piece, and its trilinear weights.
-uint32_t embedded_point(const PbdState& s, uint32_t slot, Vec3d& point, double weights[8]) {
+// The deformed position of a live embedded vertex slot of piece `piece`, and its trilinear weights.
+void slot_point(const PbdState& s, uint32_t slot, uint32_t piece, Vec3d& point, double weights[8]) {
   const VertexEmbedding& e = s.embedding[slot];
-  const uint32_t piece = embedded_piece(s, e);
-  if (piece == kDeadIndex) return kDeadIndex;
   const double u = e.local.x(), v = e.local.y(), w = e.local.z();
   point.setZero();
   for (int c = 0; c < 8; ++c) {
     weights[c] = ((c & 1) ? u : 1.0 - u) * (((c >> 1) & 1) ? v : 1.0 - v) * (((c >> 2) & 1) ? w : 1.0 - w);
     point += weights[c] * s.position[s.pieces[piece].particles[c]];
   }
-  return piece;
+}
+
+// Rebuilds the contact index (sim/contact.h) when a cut changed the model or the surface: the piece
+// of each vertex slot, the slots of each piece, which pieces can move, the bodies.
+void refresh_index(const CutState& cut, PbdState& s) {
+  ContactIndex& x = s.piece_contacts.index;
+  PieceContacts& pc = s.piece_contacts;
+  const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
+  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
+  if (x.revision == s.revision && x.cut_steps == cut.steps && x.slots == slots && x.pieces == pieces &&
+      x.triangle_count == cut.surface.triangles.size()) {
+    return;
+  }
+  x.revision = s.revision;
+  x.cut_steps = cut.steps;
+  x.slots = slots;
+  x.pieces = pieces;
+  x.triangle_count = uint32_t(cut.surface.triangles.size());
+  x.triangles_ready = false;
+  // Slots by piece (counting sort: ascending within a piece).
+  x.slot_piece.resize(slots);
+  x.piece_begin.assign(pieces + 1, 0);
+  for (uint32_t slot = 0; slot < slots; ++slot) {
+    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
+    x.slot_piece[slot] = piece;
+    if (piece != kDeadIndex) ++x.piece_begin[piece + 1];
+  }
+  for (uint32_t i = 0; i < pieces; ++i) x.piece_begin[i + 1] += x.piece_begin[i];
+  x.piece_slots.resize(x.piece_begin[pieces]);
+  x.scratch.assign(x.piece_begin.begin(), x.piece_begin.end() - 1);
+  for (uint32_t slot = 0; slot < slots; ++slot) {
+    if (x.slot_piece[slot] != kDeadIndex) x.piece_slots[x.scratch[x.slot_piece[slot]]++] = slot;
+  }
+  // Live pieces, their corners, whether they can move (a piece pinned at every corner cannot be pushed).
+  pc.corners.resize(size_t(pieces) * 8);
+  pc.live.assign(pieces, 0);
+  x.mobile.assign(pieces, 0);
+  for (uint32_t i = 0; i < pieces; ++i) {
+    if (s.pieces[i].sim_voxel == kDeadIndex) continue;  // free slot
+    pc.live[i] = 1;
+    std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, pc.corners.begin() + 8 * size_t(i));
+    for (uint32_t p : s.pieces[i].particles) x.mobile[i] = x.mobile[i] || s.inv_mass[p] > 0.0;
+  }
+  // Bodies (only piece-piece contact needs them), numbered in order of their first piece.
+  x.bodies = 0;
+  x.body_index.assign(pieces, ~0u);
+  if (!s.params.piece_contact) return;
+  find_bodies(pc.corners.data(), pc.live.data(), pieces, particles, pc.body, pc.scratch);
+  x.scratch.assign(particles, ~0u);
+  for (uint32_t i = 0; i < pieces; ++i) {
+    if (!pc.live[i]) continue;
+    uint32_t& number = x.scratch[pc.body[i]];
+    if (number == ~0u) number = x.bodies++;
+    x.body_index[i] = number;
+  }
+}
+
+// The index's triangles under each piece (built on first need after a rebuild): the live triangles
+// whose three corners are embedded, listed under each distinct piece of their corners, ascending.
+void index_triangles(const CutState& cut, PbdState& s) {
+  ContactIndex& x = s.piece_contacts.index;
+  if (x.triangles_ready) return;
+  x.triangles_ready = true;
+  const CutSurface& surface = cut.surface;
+  const uint32_t triangles = uint32_t(surface.triangles.size());
+  // Calls f(t, piece) for each distinct piece of each such triangle.
+  const auto for_pieces_of = [&](auto&& f) {
+    for (uint32_t t = 0; t < triangles; ++t) {
+      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
+      const Tri& tri = surface.triangles[t];
+      if (tri[0] >= x.slots || tri[1] >= x.slots || tri[2] >= x.slots) continue;
+      const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
+      if (p0 == kDeadIndex || p1 == kDeadIndex || p2 == kDeadIndex) continue;
+      f(t, p0);
+      if (p1 != p0) f(t, p1);
+      if (p2 != p0 && p2 != p1) f(t, p2);
+    }
+  };
+  x.triangle_begin.assign(x.pieces + 1, 0);
+  for_pieces_of([&](uint32_t, uint32_t piece) { ++x.triangle_begin[piece + 1]; });
+  for (uint32_t i = 0; i < x.pieces; ++i) x.triangle_begin[i + 1] += x.triangle_begin[i];
+  x.piece_triangles.resize(x.triangle_begin[x.pieces]);
+  x.scratch.assign(x.triangle_begin.begin(), x.triangle_begin.end() - 1);
+  for_pieces_of([&](uint32_t t, uint32_t piece) { x.piece_triangles[x.scratch[piece]++] = t; });
+}
+
+// The fastest particle's speed (what bounds how far anything moves in a step).
+double max_speed(const PbdState& s) {
+  double speed = 0.0;
+  for (size_t p = 0; p < s.position.size(); ++p) {
+    if (s.inv_mass[p] > 0.0) speed = std::max(speed, s.velocity[p].norm());
+  }
+  return speed;
 }
 
 // Gathers this step's contact points: the surface vertices that may reach a plane within the step,
 // grouped by piece. A piece is skipped when even its lowest corner particle (every embedded point is a
 // convex combination of the corners) stays out of reach.
-void gather_plane_contacts(const CutState& cut, PbdState& s) {
+void gather_plane_contacts(PbdState& s, double speed) {
   ContactSet& set = s.contacts;
   contacts_clear(set);
   const std::vector<ContactPlane>& planes = s.params.planes;
   if (planes.empty()) return;
-  double speed = 0.0;
-  for (size_t p = 0; p < s.position.size(); ++p) {
-    if (s.inv_mass[p] > 0.0) speed = std::max(speed, s.velocity[p].norm());
-  }
+  const ContactIndex& x = s.piece_contacts.index;
   const double dt = s.params.dt;
   const double reach = 2.0 * (speed * dt + s.params.gravity.norm() * dt * dt) + 2.0 * s.sim_size / s.ratio;
   const uint32_t plane_count = uint32_t(std::min<size_t>(planes.size(), 32));
-  std::vector<uint32_t>& near = set.group_mask;  // per piece: bit k = may reach plane k
-  near.assign(s.pieces.size(), 0);
-  for (size_t i = 0; i < s.pieces.size(); ++i) {
-    if (s.pieces[i].sim_voxel == kDeadIndex) continue;  // free slot
-    bool moves = false;  // a piece pinned at every corner cannot be pushed
-    for (uint32_t p : s.pieces[i].particles) moves = moves || s.inv_mass[p] > 0.0;
-    for (uint32_t k = 0; moves && k < plane_count; ++k) {
+  for (uint32_t i = 0; i < x.pieces; ++i) {
+    if (!x.mobile[i]) continue;  // free slot, or pinned at every corner
+    uint32_t near = 0;           // bit k: may reach plane k
+    for (uint32_t k = 0; k < plane_count; ++k) {
       double lowest = 1e300;
       for (uint32_t p : s.pieces[i].particles) lowest = std::min(lowest, plane_distance(planes[k], s.position[p]));
-      if (lowest < reach) near[i] |= 1u << k;
+      if (lowest < reach) near |= 1u << k;
     }
-  }
-  const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
-  for (uint32_t slot = 0; slot < count; ++slot) {
-    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
-    if (piece == kDeadIndex || near[piece] == 0) continue;
-    const uint32_t* particles = s.pieces[piece].particles;
-    double weights[8], mobility = 0.0;
-    Vec3d point;
-    embedded_point(s, slot, point, weights);
-    for (int c = 0; c < 8; ++c) mobility += weights[c] * weights[c] * s.inv_mass[particles[c]];
-    if (mobility == 0.0) continue;  // interpolates anchored particles only
-    for (uint32_t k = 0; k < plane_count; ++k) {
-      if (((near[piece] >> k) & 1u) && plane_distance(planes[k], point) < reach) {
-        contacts_add(set, s.pieces[piece].colour, piece, plane_contact(planes[k], particles, weights));
+    if (near == 0) continue;
+    const uint32_t* particles = s.pieces[i].particles;
+    for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) {
+      double weights[8], mobility = 0.0;
+      Vec3d point;
+      slot_point(s, x.piece_slots[n], i, point, weights);
+      for (int c = 0; c < 8; ++c) mobility += weights[c] * weights[c] * s.inv_mass[particles[c]];
+      if (mobility == 0.0) continue;  // interpolates anchored particles only
+      for (uint32_t k = 0; k < plane_count; ++k) {
+        if (((near >> k) & 1u) && plane_distance(planes[k], point) < reach) {
+          contacts_add(set, s.pieces[i].colour, i, plane_contact(planes[k], particles, weights));
+        }
       }
     }
   }
@@ -1137,109 +1219,95 @@ void gather_plane_contacts(const CutState& cut, PbdState& s) {
 }
 
 // Marks the vertex slots a cut made or moved since the last step as fresh (allowance = infinity).
+// After one cut step only the slots it wrote (CutState::changed_vertices) can have moved; after none,
+// none; otherwise every slot is compared.
 void refresh_allowances(const CutState& cut, PieceContacts& pc) {
   const size_t slots = cut.surface.positions.size();
-  if (pc.seen.empty()) {  // the first step: the surface as built is not fresh
+  const bool first = pc.seen.empty();
+  if (first) {  // the first step: the surface as built is not fresh
     pc.seen = cut.surface.positions;
     pc.allowance.assign(slots, 0.0f);
   }
+  const size_t before = std::min(pc.seen.size(), slots);
   pc.allowance.resize(slots, 0.0f);
   pc.seen.resize(slots, Vec3f::Constant(std::numeric_limits<float>::quiet_NaN()));
-  for (size_t v = 0; v < slots; ++v) {
-    if (pc.seen[v] == cut.surface.positions[v]) continue;  // NaN never compares equal: new slots too
+  const auto refresh = [&](size_t v) {
+    if (pc.seen[v] == cut.surface.positions[v]) return;  // NaN never compares equal: new and freed slots too
     pc.seen[v] = cut.surface.positions[v];
     pc.allowance[v] = std::numeric_limits<float>::infinity();
+  };
+  if (!first && cut.steps == pc.seen_steps + 1) {
+    for (uint32_t v : cut.changed_vertices) {
+      if (v < slots) refresh(v);
+    }
+    for (size_t v = before; v < slots; ++v) refresh(v);
+  } else if (first || cut.steps != pc.seen_steps) {
+    for (size_t v = 0; v < slots; ++v) refresh(v);
+  } else {
+    for (size_t v = before; v < slots; ++v) refresh(v);
   }
+  pc.seen_steps = cut.steps;
 }
 
-// Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
-// vertices with deformed normals, the nearest facing vertex of another body.
-void collect_piece_contacts(const CutState& cut, PbdState& s) {
+// The surface vertices of the exposed pieces within reach of a partner (by piece, then slot), with
+// their allowances and deformed normals (area-weighted sums over the live triangles using them).
+void gather_surface_points(const CutState& cut, PbdState& s, double reach) {
   PieceContacts& pc = s.piece_contacts;
-  contacts_clear(pc.set);
-  pc.exposed_pieces = 0;
-  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
-  if (!s.params.piece_contact || pieces == 0) return;
-  refresh_allowances(cut, pc);  // every step, so a cut is fresh when its sides first touch
-  pc.corners.resize(size_t(pieces) * 8);
-  pc.live.assign(pieces, 0);
-  pc.lo.resize(pieces);
-  pc.hi.resize(pieces);
-  uint32_t first = kDeadIndex;
-  for (uint32_t i = 0; i < pieces; ++i) {
-    if (s.pieces[i].sim_voxel == kDeadIndex) continue;  // free slot
-    pc.live[i] = 1;
-    first = std::min(first, i);
-    std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, pc.corners.begin() + 8 * size_t(i));
-    pc.lo[i] = pc.hi[i] = s.position[s.pieces[i].particles[0]];
-    for (uint32_t p : s.pieces[i].particles) {
-      pc.lo[i] = pc.lo[i].cwiseMin(s.position[p]);
-      pc.hi[i] = pc.hi[i].cwiseMax(s.position[p]);
-    }
-  }
-  find_bodies(pc.corners.data(), pc.live.data(), pieces, particles, pc.body, pc.scratch);
-  if (first == kDeadIndex) return;
-  bool several = false;
-  for (uint32_t i = first + 1; i < pieces && !several; ++i) several = pc.live[i] && pc.body[i] != pc.body[first];
-  if (!several) return;  // one body: nothing to collide with
-  // Reach: two fine voxels (the two faces of a cut can sit a voxel apart at its rim), plus twice what
-  // any particle moves in a step (capped at a simulation voxel).
-  double speed = 0.0;
-  for (uint32_t p = 0; p < particles; ++p) {
-    if (s.inv_mass[p] > 0.0) speed = std::max(speed, s.velocity[p].norm());
-  }
-  const double fine = s.sim_size / s.ratio;
-  const double reach = std::min(s.sim_size, 2.0 * fine + 2.0 * (speed + s.params.gravity.norm() * s.params.dt) * s.params.dt);
-  pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.live.data(), pc.body.data(), pieces, reach,
-                                          pc.exposed, pc.scratch, &pc.counters.piece_pairs);
-  if (pc.exposed_pieces == 0) return;
-  // Surface vertices of exposed pieces, with their allowances (sim/contact.h): a vertex whose rest
-  // position changed since the last step was made by a cut and is fresh.
-  const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
+  const ContactIndex& x = pc.index;
   pc.points.clear();
-  pc.point_of_slot.assign(slots, ~0u);
-  for (uint32_t slot = 0; slot < slots; ++slot) {
-    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
-    if (piece == kDeadIndex || !pc.exposed[piece]) continue;
+  pc.gathered.clear();
+  for (uint32_t i = 0; i < x.pieces; ++i) {
+    if (pc.exposed[i]) pc.gathered.insert(pc.gathered.end(), x.piece_slots.begin() + x.piece_begin[i], x.piece_slots.begin() + x.piece_begin[i + 1]);
+  }
+  pc.point_of_slot.resize(x.slots, ~0u);
+  uint32_t kept = 0;
+  for (const uint32_t slot : pc.gathered) {
+    const uint32_t piece = x.slot_piece[slot];
     SurfacePoint sp;
     sp.allowance = pc.allowance[slot];
     sp.slot = slot;
-    embedded_point(s, slot, sp.position, sp.weights);
+    slot_point(s, slot, piece, sp.position, sp.weights);
     if (!near_partner(pc.scratch, pc.lo.data(), pc.hi.data(), piece, sp.position, reach)) {
       pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
       continue;
     }
     std::copy(s.pieces[piece].particles, s.pieces[piece].particles + 8, sp.particles);
-    sp.body = pc.body[piece];
+    sp.body = x.body_index[piece];
+    sp.piece = piece;
     sp.normal.setZero();
     pc.point_of_slot[slot] = uint32_t(pc.points.size());
     pc.points.push_back(sp);
+    pc.gathered[kept++] = slot;
   }
-  // Their deformed normals: area-weighted sums over the live triangles using them.
+  pc.gathered.resize(kept);
+  // Normals: each exposed piece's triangles add their area-weighted normal to its gathered corners (a
+  // vertex sums its triangles in ascending order).
+  index_triangles(cut, s);
   const CutSurface& surface = cut.surface;
-  for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
-    if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
-    const Tri& tri = surface.triangles[t];
-    if (tri[0] >= slots || tri[1] >= slots || tri[2] >= slots) continue;
-    if (pc.point_of_slot[tri[0]] == ~0u && pc.point_of_slot[tri[1]] == ~0u && pc.point_of_slot[tri[2]] == ~0u) continue;
-    Vec3d corner[3];
-    double unused[8];
-    bool ok = true;
-    for (int k = 0; k < 3; ++k) {
-      const uint32_t i = pc.point_of_slot[tri[k]];
-      if (i != ~0u) {
-        corner[k] = pc.points[i].position;
-      } else {
-        ok = ok && embedded_point(s, tri[k], corner[k], unused) != kDeadIndex;
+  for (uint32_t i = 0; i < x.pieces; ++i) {
+    if (!pc.exposed[i]) continue;
+    for (uint32_t n = x.triangle_begin[i]; n < x.triangle_begin[i + 1]; ++n) {
+      const Tri& tri = surface.triangles[x.piece_triangles[n]];
+      bool any = false;
+      for (int k = 0; k < 3; ++k) any = any || (x.slot_piece[tri[k]] == i && pc.point_of_slot[tri[k]] != ~0u);
+      if (!any) continue;
+      Vec3d corner[3];
+      double unused[8];
+      for (int k = 0; k < 3; ++k) {
+        const uint32_t p = pc.point_of_slot[tri[k]];
+        if (p != ~0u) {
+          corner[k] = pc.points[p].position;
+        } else {
+          slot_point(s, tri[k], x.slot_piece[tri[k]], corner[k], unused);
+        }
+      }
+      const Vec3d normal = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
+      for (int k = 0; k < 3; ++k) {
+        if (x.slot_piece[tri[k]] == i && pc.point_of_slot[tri[k]] != ~0u) pc.points[pc.point_of_slot[tri[k]]].normal += normal;
       }
     }
-    if (!ok) continue;
-    const Vec3d n = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
-    for (int k = 0; k < 3; ++k) {
-      if (pc.point_of_slot[tri[k]] != ~0u) pc.points[pc.point_of_slot[tri[k]]].normal += n;
-    }
   }
-  uint32_t kept = 0;
+  kept = 0;
   for (const SurfacePoint& sp : pc.points) {
     const double length = sp.normal.norm();
     if (!(length > 0.0)) continue;
@@ -1247,15 +1315,65 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
     pc.points[kept++].normal /= length;
   }
   pc.points.resize(kept);
+}
+
+// Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
+// vertices with deformed normals, the nearest facing vertex of another body.
+void collect_piece_contacts(const CutState& cut, PbdState& s, double speed) {
+  PieceContacts& pc = s.piece_contacts;
+  contacts_clear(pc.set);
+  pc.exposed_pieces = 0;
+  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
+  if (!s.params.piece_contact || pieces == 0) return;
+  refresh_allowances(cut, pc);  // every step, so a cut is fresh when its sides first touch
+  const ContactIndex& x = pc.index;
+  if (x.bodies < 2) return;  // one body: nothing to collide with
+  pc.lo.resize(pieces);
+  pc.hi.resize(pieces);
+  for (uint32_t i = 0; i < pieces; ++i) {
+    if (!pc.live[i]) continue;
+    pc.lo[i] = pc.hi[i] = s.position[s.pieces[i].particles[0]];
+    for (uint32_t p : s.pieces[i].particles) {
+      pc.lo[i] = pc.lo[i].cwiseMin(s.position[p]);
+      pc.hi[i] = pc.hi[i].cwiseMax(s.position[p]);
+    }
+  }
+  // Reach: two fine voxels (the two faces of a cut can sit a voxel apart at its rim), plus twice what
+  // any particle moves in a step (capped at a simulation voxel).
+  const double fine = s.sim_size / s.ratio;
+  const double reach = std::min(s.sim_size, 2.0 * fine + 2.0 * (speed + s.params.gravity.norm() * s.params.dt) * s.params.dt);
+  // Bodies near another body, then their pieces near another body's pieces.
+  if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.live.data(), x.body_index.data(), x.bodies, pieces, reach,
+                            pc.scratch) == 0) {
+    return;
+  }
+  pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
+                                          reach, pc.exposed, pc.scratch, &pc.counters.piece_pairs);
+  if (pc.exposed_pieces == 0) return;
+  gather_surface_points(cut, s, reach);
   ++pc.counters.gathers;
-  pc.counters.points += kept;
-  pc.counters.contacts += gather_piece_contacts(pc.points.data(), kept, s.position[0].data(), particles, reach,
-                                                kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch, &pc.counters.point_pairs);
+  pc.counters.points += pc.points.size();
+  pc.counters.contacts += gather_piece_contacts(pc.points.data(), uint32_t(pc.points.size()), s.position[0].data(), particles,
+                                                reach, kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch,
+                                                &pc.counters.point_pairs);
   contacts_finish(pc.set);
-  for (uint32_t slot = 0; slot < slots; ++slot) {
-    if (pc.point_of_slot[slot] != ~0u) pc.allowance[slot] = 0.0f;  // dropped below (no normal): none
+  for (const uint32_t slot : pc.gathered) {  // dropped (no normal): no allowance
+    pc.allowance[slot] = 0.0f;
+    pc.point_of_slot[slot] = ~0u;
   }
   for (const SurfacePoint& sp : pc.points) pc.allowance[sp.slot] = sp.allowance;
+}
+
+// This step's contacts with the planes and between pieces, from one index and one speed.
+void gather_contacts(const CutState& cut, PbdState& s) {
+  contacts_clear(s.contacts);
+  contacts_clear(s.piece_contacts.set);
+  s.piece_contacts.exposed_pieces = 0;
+  if (s.params.planes.empty() && !s.params.piece_contact) return;
+  refresh_index(cut, s);
+  const double speed = max_speed(s);
+  gather_plane_contacts(s, speed);
+  collect_piece_contacts(cut, s, speed);
 }
 
 // The particles' frictionless backstop one simulation voxel below the planes.
@@ -1296,11 +1414,12 @@ void build_shape_blocks(PbdState& s) {
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
-// constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact group ~200.
+// constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact ~400 (its group: a
+// piece's contacts with the planes, or the contacts between two pieces, often 10 or more).
 constexpr uint32_t kParticleGrain = 4096;
 constexpr uint32_t kStretchGrain = 1024;
 constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
-constexpr uint32_t kContactGrain = 16;
+constexpr uint32_t kContactGrain = 4;
 constexpr uint32_t kSerial = ~0u;
 
 // The batches of one substep, in order: predict; per iteration the stretch colours (overflow last,
@@ -1599,8 +1718,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
   // Damping per unit time: `damping` of the velocity goes per time step dt whatever the substeps.
   const double keep = substeps == 1 ? 1.0 - params.damping : std::pow(1.0 - params.damping, 1.0 / substeps);
-  gather_plane_contacts(cut, s);  // contact (sim/contact.h)
-  collect_piece_contacts(cut, s);
+  gather_contacts(cut, s);  // contact (sim/contact.h)
   build_step_batches(s, stretch_on);
   double grab_lambda[3] = {0, 0, 0};
   // One job per substep: the batches of build_step_batches in order (a barrier between batches).

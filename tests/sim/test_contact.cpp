@@ -600,7 +600,7 @@ struct TwoCubes {
       p.position.setZero();
       for (int c = 0; c < 8; ++c) p.position += p.weights[c] * Vec3d(x[3 * p.particles[c]], x[3 * p.particles[c] + 1], x[3 * p.particles[c] + 2]);
     }
-    REQUIRE(gather_piece_contacts(points, 2, x, 16, 0.5, max_push, 0.5, set, scratch) == 2);
+    REQUIRE(gather_piece_contacts(points, 2, x, 16, 0.5, max_push, 0.5, set, scratch) == 1);  // a mutual pair: one contact
     contacts_finish(set);
     contacts_begin_substep(set);
     std::copy(x, x + 48, previous);
@@ -643,5 +643,139 @@ TEST_SUITE("contact") {
     for (uint32_t k = 8; k < 16; ++k) fresh.x[3 * k + 1] -= 0.01;  // pressed 0.01 deeper
     fresh.step(0.05, 5);
     CHECK(fresh.gap() == doctest::Approx(-0.3));
+  }
+}
+
+namespace {
+
+// Checks the contact index (sim/contact.h ContactIndex) of `s` against the model as it is now: each
+// slot's piece, the slots of each piece, mobility, bodies, the triangles under each piece, and the
+// rest positions the allowances were refreshed from.
+void check_index(const Scene& s) {
+  const PbdState& pbd = s.pbd;
+  const PieceContacts& pc = pbd.piece_contacts;
+  const ContactIndex& x = pc.index;
+  const uint32_t slots = uint32_t(std::min(pbd.embedding.size(), s.cut.surface.positions.size()));
+  REQUIRE(x.slots == slots);
+  REQUIRE(x.pieces == pbd.pieces.size());
+  uint32_t embedded = 0;
+  for (uint32_t slot = 0; slot < slots; ++slot) {
+    CHECK(x.slot_piece[slot] == vertex_sim_piece(pbd, slot));
+    embedded += vertex_sim_piece(pbd, slot) != kDeadIndex;
+  }
+  CHECK(x.piece_slots.size() == embedded);
+  for (uint32_t i = 0; i < x.pieces; ++i) {
+    for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) {
+      CHECK(x.slot_piece[x.piece_slots[n]] == i);
+      if (n > x.piece_begin[i]) CHECK(x.piece_slots[n - 1] < x.piece_slots[n]);
+    }
+    bool mobile = false;
+    if (pbd.pieces[i].sim_voxel != kDeadIndex) {
+      for (uint32_t p : pbd.pieces[i].particles) mobile = mobile || pbd.inv_mass[p] > 0.0;
+    }
+    CHECK(bool(x.mobile[i]) == mobile);
+  }
+  // Bodies: the same partition as find_bodies' from scratch.
+  const std::vector<uint32_t> of = particle_bodies(pbd);
+  std::vector<uint32_t> first_of(pbd.position.size(), ~0u);  // body root -> the index of its first piece
+  std::vector<uint32_t> roots;
+  for (uint32_t i = 0; i < x.pieces; ++i) {
+    if (pbd.pieces[i].sim_voxel == kDeadIndex) continue;
+    const uint32_t root = of[pbd.pieces[i].particles[0]];
+    if (first_of[root] == ~0u) {
+      first_of[root] = x.body_index[i];
+      roots.push_back(root);
+    }
+    CHECK(x.body_index[i] == first_of[root]);
+  }
+  CHECK(x.bodies == roots.size());
+  // Triangles (when built): each live triangle with three embedded corners under each of their pieces.
+  if (x.triangles_ready) {
+    const CutSurface& surface = s.cut.surface;
+    std::vector<std::vector<uint32_t>> fresh(x.pieces);
+    for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
+      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
+      const Tri& tri = surface.triangles[t];
+      uint32_t p[3];
+      bool ok = true;
+      for (int k = 0; k < 3; ++k) {
+        p[k] = tri[k] < slots ? vertex_sim_piece(pbd, tri[k]) : kDeadIndex;
+        ok = ok && p[k] != kDeadIndex;
+      }
+      if (!ok) continue;
+      for (int k = 0; k < 3; ++k) {
+        if (fresh[p[k]].empty() || fresh[p[k]].back() != t) fresh[p[k]].push_back(t);
+      }
+    }
+    for (uint32_t i = 0; i < x.pieces; ++i) {
+      const std::vector<uint32_t> cached(x.piece_triangles.begin() + x.triangle_begin[i],
+                                         x.piece_triangles.begin() + x.triangle_begin[i + 1]);
+      CHECK(cached == fresh[i]);
+    }
+  }
+  // Allowances were refreshed against the surface as it is (NaN: free slots).
+  REQUIRE(pc.seen.size() == s.cut.surface.positions.size());
+  uint32_t stale = 0;
+  for (size_t v = 0; v < pc.seen.size(); ++v) {
+    const Vec3f& a = pc.seen[v];
+    const Vec3f& b = s.cut.surface.positions[v];
+    stale += !(a == b || (std::isnan(a.x()) && std::isnan(b.x())));
+  }
+  CHECK(stale == 0);
+}
+
+uint64_t position_hash(const PbdState& s) {
+  Fnv1a f;
+  for (const Vec3d& p : s.position) f.bytes(p.data(), 3 * sizeof(double));
+  return f.value;
+}
+
+}  // namespace
+
+TEST_SUITE("contact") {
+  TEST_CASE("the contact index follows every cut and gives the contacts a fresh index gives") {
+    // A block on a tray cut through horizontally (one cut step per solver step), then vertically
+    // (two cut steps per solver step). A twin steps through the same cuts with its index and
+    // allowances rebuilt from scratch every step: the two stay bit-identical.
+    PbdParams params;
+    params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
+    Scene s;
+    make_boxes(s, {{Vec3d(0.003, 0.0, 0.002), Vec3d(0.5, 0.5, 0.5)}}, params);
+    run(s, 30);
+    PbdState twin = s.pbd;
+    BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
+    const auto cut = [&](const BladePose& next) {
+      cut_step(s.model, s.cut, previous, next);
+      pbd_apply_cut(s.model, s.cut, s.pbd);
+      pbd_apply_cut(s.model, s.cut, twin);
+      previous = next;
+    };
+    const auto step = [&]() {
+      pbd_step(s.cut, s.pbd);
+      twin.piece_contacts.index.revision = ~uint64_t(0);  // rebuild
+      twin.piece_contacts.seen_steps = ~uint64_t(0);      // compare every slot
+      pbd_step(s.cut, twin);
+      check_index(s);
+      CHECK(position_hash(s.pbd) == position_hash(twin));
+    };
+    for (int i = 1; i <= 8; ++i) {
+      const double x = -1.0 + 2.0 * i / 8;
+      cut(BladePose{Vec3d(x, 0.013, -2), Vec3d(x, 0.013, 2)});
+      step();
+    }
+    for (int i = 0; i < 10; ++i) step();  // no cut: the index stays
+    previous = BladePose{Vec3d(0.21, 1.0, -2), Vec3d(0.21, 1.0, 2)};
+    for (int i = 1; i <= 12; i += 2) {
+      for (int k = i; k <= i + 1; ++k) {
+        const double y = 1.0 - 2.0 * k / 12;
+        cut(BladePose{Vec3d(0.21, y, -2), Vec3d(0.21, y, 2)});
+      }
+      step();
+    }
+    for (int i = 0; i < 20; ++i) step();
+    const std::vector<uint32_t> of = particle_bodies(s.pbd);
+    CHECK(bodies_bottom_up(s.pbd, of).size() >= 3);  // the cuts made pieces
+    CHECK(s.pbd.piece_contacts.counters.contacts > 0);  // that touched
+    CHECK(s.pbd.piece_contacts.index.triangles_ready);
   }
 }
