@@ -341,9 +341,9 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
                                                           x[3 * size_t(s.particles[k]) + 2]);
     return r;
   };
-  uint32_t added = 0;
+  // Each point's nearest point of another body within reach whose normal faces its own.
+  g.nearest.assign(count, ~0u);
   for (uint32_t v = 0; v < count; ++v) {
-    // The nearest point of another body within reach whose normal faces v's.
     const SurfacePoint& a = points[v];
     uint32_t best = ~0u;
     double best_d = reach * reach;
@@ -365,10 +365,16 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
                             }
                           }
                         });
+    g.nearest[v] = best;
+  }
+  uint32_t added = 0;
+  for (uint32_t v = 0; v < count; ++v) {
+    const uint32_t best = g.nearest[v];
     if (best == ~0u) {
       fresh_allowance[v] = 0.0f;  // out of contact: no overlap allowed from now on
       continue;
     }
+    const SurfacePoint& a = points[v];
     const SurfacePoint& b = points[best];
     ContactPoint c;
     c.normal = b.normal;  // q's tangent plane
@@ -380,6 +386,9 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     const double kept = std::isinf(before) ? std::max(overlap, 0.0) : std::min(std::max(overlap, 0.0), before);
     const double allowed = std::max(kept, overlap - max_push);
     fresh_allowance[v] = float(kept);
+    // Two points each other's nearest (the two faces of a cut, vertex on vertex) are one touching
+    // pair: its contact is made once, at the lower index (sim/contact.h, "One contact per pair").
+    if (g.nearest[best] == v && best < v) continue;
     std::copy(a.particles, a.particles + 8, c.particles);
     std::copy(b.particles, b.particles + 8, c.particles + 8);
     for (int k = 0; k < 8; ++k) {
