@@ -393,10 +393,10 @@ TEST_SUITE("contact") {
   TEST_CASE("a fresh through-cut neither pushes its sides apart nor lets them sink into each other") {
     // The block settles under its own weight first, then is cut through horizontally. What parted the
     // faces (measured per batch kind, on the mean height gap of the cut faces): not the release of a
-    // residual compression of the unconverged solve -- within each substep the stretch and shape
-    // corrections across the faces cancel what the contacts do, and the gap stays put after the first
-    // step -- but the piece contacts' resting offset (sim/contact.h, "Resting offset"): one
-    // Gauss-Seidel sweep over the faces' redundant vertex contacts (~17 per piece pair, all on the
+    // residual compression of the unconverged solve -- in the first substep the stretch and shape
+    // corrections close the faces (-0.24 g dt^2 at 5 x 2) and the contacts open them by more (+0.28),
+    // and the gap then stays where the first step put it -- but the piece contacts' resting offset
+    // (sim/contact.h, "Resting offset"): one Gauss-Seidel sweep over the faces' redundant vertex contacts (~17 per piece pair, all on the
     // same 16 particles) over-separates them, and the faces rest that far apart (0.055 g dt^2 at the
     // scenes' 5 substeps x 2 iterations, 0.25 at 1 x 10, 0.004 at 8 x 10); a fresh cut starts at zero
     // gap and reached it in its first step (faces parting at 0.058, 0.22 and 0.004 g dt). Each
