@@ -391,17 +391,17 @@ uint32_t vertices_inside(const Scene& s, const std::vector<uint32_t>& of, uint32
 
 TEST_SUITE("contact") {
   TEST_CASE("a fresh through-cut neither pushes its sides apart nor lets them sink into each other") {
-    // The block settles under its own weight first, then is cut through horizontally. What parted the
-    // faces (measured per batch kind, on the mean height gap of the cut faces): not the release of a
-    // residual compression of the unconverged solve -- in the first substep the stretch and shape
-    // corrections close the faces (-0.24 g dt^2 at 5 x 2) and the contacts open them by more (+0.28),
-    // and the gap then stays where the first step put it -- but the piece contacts' resting offset
-    // (sim/contact.h, "Resting offset"): one Gauss-Seidel sweep over the faces' redundant vertex contacts (~17 per piece pair, all on the
-    // same 16 particles) over-separates them, and the faces rest that far apart (0.055 g dt^2 at the
-    // scenes' 5 substeps x 2 iterations, 0.25 at 1 x 10, 0.004 at 8 x 10); a fresh cut starts at zero
-    // gap and reached it in its first step (faces parting at 0.058, 0.22 and 0.004 g dt). Each
-    // substep now ends with two sweeps of the piece contacts alone, and a vertex-on-vertex pair is
-    // one contact, not two: |speed| < 0.001 g dt at all three.
+    // The block settles under its own weight first, then is cut through horizontally. What parted the faces
+    // (measured per batch kind, on the mean height gap of the cut faces): not the release of a residual
+    // compression of the unconverged solve -- in the first substep the stretch and shape corrections close
+    // the faces (-0.24 g dt^2 at 5 x 2) and the contacts open them by more (+0.28), and the gap then stays
+    // where the first step put it -- but the piece contacts' resting offset (sim/contact.h, "Resting
+    // offset"): one Gauss-Seidel sweep over the faces' redundant vertex contacts (~17 per piece pair, all on
+    // the same 16 particles) over-separates them, and the faces rest that far apart (0.055 g dt^2 at the
+    // scenes' 5 substeps x 2 iterations, 0.25 at 1 x 10, 0.004 at 8 x 10); a fresh cut starts at zero gap and
+    // reached it in its first step (faces parting at 0.058, 0.22 and 0.004 g dt). Each substep now ends with
+    // two sweeps of the piece contacts alone, and a vertex-on-vertex pair is one contact, not two: |speed| <
+    // 0.001 g dt at all three.
     const auto separation = [](bool piece_contact, int substeps, int iterations, double& worst) {
       PbdParams params;
       params.piece_contact = piece_contact;
