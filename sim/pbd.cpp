@@ -1424,7 +1424,8 @@ constexpr uint32_t kSerial = ~0u;
 
 // The batches of one substep, in order: predict; per iteration the stretch colours (overflow last,
 // serially), the shape-matching colours, the grab, the contact batches between pieces and with the
-// planes; velocities. One TaskRunner job runs them all (sim/colouring.h run_batches).
+// planes; kFinalContactSweeps more sweeps of the piece contacts and one of the planes; velocities.
+// One TaskRunner job runs them all (sim/colouring.h run_batches).
 void build_step_batches(PbdState& s, bool stretch_on) {
   std::vector<StepBatch>& steps = s.step_batches;
   std::vector<TaskBatch>& batches = s.task_batches;
@@ -1455,6 +1456,12 @@ void build_step_batches(PbdState& s, bool stretch_on) {
     // surface above them.
     static_assert(kContactOverflow == kOverflowColour, "one overflow batch for both contact sets");
     add_contacts(StepBatch::kPieceContact, s.piece_contacts.set);
+    add_contacts(StepBatch::kPlaneContact, s.contacts);
+  }
+  // The piece contacts' own sweeps (sim/contact.h, "Resting offset"), then the planes again so the
+  // substep still ends with the surface above them.
+  if (!s.piece_contacts.set.points.empty()) {
+    for (int sweep = 0; sweep < kFinalContactSweeps; ++sweep) add_contacts(StepBatch::kPieceContact, s.piece_contacts.set);
     add_contacts(StepBatch::kPlaneContact, s.contacts);
   }
   add(StepBatch::kVelocity, 0, n, kParticleGrain);
