@@ -1025,9 +1025,13 @@ void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   // Labels: written span by span when the block keeps labels.
   const uint32_t d = count > 1 ? ensure_divided(s, sv) : s.voxel_divided[sv];
   uint8_t* labels = d == kDeadIndex ? nullptr : s.labels.data() + s.divided[d].first_label;
+  uint64_t wy[kSpanRatio + 1], wz[kSpanRatio + 1];  // voxels around a node along y and z
+  for (int32_t t = 0; t < n; ++t) {
+    wy[t] = around(t, c[1] * r, l.ny);
+    wz[t] = around(t, c[2] * r, l.nz);
+  }
   for (uint32_t row = 0; row < rows; ++row) {
-    const int32_t y = int32_t(row % uint32_t(n)), z = int32_t(row / uint32_t(n));
-    const uint64_t wyz = around(y, c[1] * r, l.ny) * around(z, c[2] * r, l.nz);
+    const uint64_t wyz = wy[row % uint32_t(n)] * wz[row / uint32_t(n)];
     if (labels) std::fill(labels + row * uint32_t(n), labels + (row + 1) * uint32_t(n), kNoPiece);
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
       const int x0 = __builtin_ctzll(w.mask[i]), x1 = 63 - __builtin_clzll(w.mask[i]);
