@@ -226,6 +226,26 @@ struct Results {
   }
 };
 
+// Issue 12's bounds on the cut step with the physics model update (the `cut` column): p99 at 256 and
+// 512 against 1 and 2 ms, and per mesh bench scaling's p99 ratio of its highest resolution to 128
+// against 2 (flat in resolution).
+std::string scaling_flatness(const json& scaling) {
+  if (!scaling.contains("cut_p99_flatness")) return "";
+  std::ostringstream out;
+  for (const json& f : scaling["cut_p99_flatness"]) {
+    out << (out.tellp() == 0 ? "\n" : "") << "- " << f["mesh"].get<std::string>()
+        << ": cut step with the physics model update, p99 at " << f["to"] << " / p99 at " << f["from"] << " = "
+        << num(get(f, "cut_p99_ratio")) << " (issue 12: ≤ 2 from 128 to 512)";
+    for (const json& r : scaling["rows"]) {
+      const int res = r["resolution"];
+      if (r["mesh"] != f["mesh"] || r["status"] != "ok" || (res != 256 && res != 512)) continue;
+      out << "; p99 at " << res << ": " << num(get(r["step_ms"]["cut"], "p99")) << " ms (≤ " << (res == 256 ? 1 : 2) << ")";
+    }
+    out << ".\n";
+  }
+  return out.str();
+}
+
 // Experiment 1 (paper Table 1, Fig. 8): time per cutting step with the physics, memory, plot.
 void scaling_section(Results& in, std::ostream& md, std::ostream& head) {
   const json& scaling = in.read("bench_scaling.json");
@@ -272,6 +292,7 @@ void scaling_section(Results& in, std::ostream& md, std::ostream& head) {
            << num(get(r, "bytes_per_occupied_voxel")) << " B per occupied voxel.\n";
     }
   }
+  md << scaling_flatness(scaling);
   Plot plot = log_log_plot("Experiment 1: time per cutting step (cut + surface + deform, p50) against model size",
                            measured_on(scaling, "points labelled with the resolution, physics on"), "occupied voxels",
                            "ms per cutting step (p50)");

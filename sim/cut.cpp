@@ -1287,6 +1287,12 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state.surface.vertex_half_edges.reserve(vertices + vertices / 2 + 1024);
   state.surface.quad_half_edge.reserve(quads + quads / 2 + 1024);
   state.surface.triangles.reserve(2 * (quads + quads / 2 + 1024));
+  // The cut's maps start at about a cross-section of the model (1/32 of its surface vertices): a
+  // rehash inside a cut step copies the whole map (a p99 spike).
+  const uint32_t cut_expected = vertices / 32 + 1024;
+  state.edge_cut_of.reserve(cut_expected);
+  state.divided_of.reserve(cut_expected);
+  state.front_of.reserve(cut_expected);
 
   CutStepStats stats;
   refresh_voxels(model, state, voxels, stats);

@@ -476,6 +476,26 @@ void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, i
   }
 }
 
+// The face pairs of a face follow from the labels of its two simulation voxels alone, so the cache
+// outlives a cut step: only the 6 faces of each relabelled voxel are forgotten. Their old pairs stay
+// in the data until it is cleared whole (rarely: it grows by the faces a step recomputes).
+void forget_faces(PbdModel& s, const std::vector<uint32_t>& relabelled) {
+  FaceCache& cache = s.face_cache;
+  if (cache.data.size() > (size_t(1) << 16)) {
+    cache.clear();
+    return;
+  }
+  const uint32_t stride[3] = {1, uint32_t(s.sx), uint32_t(s.sx) * uint32_t(s.sy)};
+  for (uint32_t sv : relabelled) {
+    int32_t c[3];
+    sim_voxel_coords(s, sv, c);
+    for (int axis = 0; axis < 3; ++axis) {
+      cache.offset.erase(uint64_t(sv) * 3 + uint64_t(axis));  // the face above sv
+      if (c[axis] > 0) cache.offset.erase(uint64_t(sv - stride[axis]) * 3 + uint64_t(axis));  // below
+    }
+  }
+}
+
 // ---- Relabelling ---------------------------------------------------------------------------
 
 // Gives the count labels of simulation voxel sv their piece slots: the first label whose first node
@@ -514,15 +534,29 @@ void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eight
   if (count == 0 || d != kDeadIndex) s.voxel_piece[sv] = kDeadIndex;
 }
 
+// Appends one block of `count` elements to a per-simulation-voxel array; returns its offset. The
+// first growth reserves a block for every simulation voxel (up to 64 MiB: address space, its pages
+// are touched only as blocks are used), so a cut step does not copy the whole array (a p99 spike).
+template <typename T>
+uint32_t append_block(const PbdModel& s, std::vector<T>& v, size_t count, T fill) {
+  if (v.size() + count > v.capacity()) {
+    const size_t all = count * s.voxel_piece.size(), cap = (size_t(64) << 20) / sizeof(T);
+    v.reserve(std::max({v.size() + count, 2 * v.capacity(), std::min(all, cap)}));
+  }
+  const uint32_t at = uint32_t(v.size());
+  v.resize(v.size() + count, fill);
+  return at;
+}
+
 // Label storage for simulation voxel sv (a divided voxel's labels and slots), created on first use.
 uint32_t ensure_divided(PbdState& s, uint32_t sv) {
   uint32_t d = s.voxel_divided[sv];
   if (d != kDeadIndex) return d;
   d = uint32_t(s.divided.size());
   s.voxel_divided[sv] = d;
-  s.divided.push_back({sv, uint32_t(s.labels.size()), uint32_t(s.label_slots.size()), 0});
-  s.labels.resize(s.labels.size() + block_nodes(s), kNoPiece);
-  s.label_slots.resize(s.label_slots.size() + kLabelSlots, kDeadIndex);
+  const uint32_t first_label = append_block(s, s.labels, block_nodes(s), kNoPiece);
+  const uint32_t first_slot = append_block(s, s.label_slots, kLabelSlots, kDeadIndex);
+  s.divided.push_back({sv, first_label, first_slot, 0});
   return d;
 }
 
@@ -578,11 +612,8 @@ void fine_pieces(const VoxelModel& model, const CutState& cut, int32_t i, int32_
 // Gives an undivided simulation voxel explicit labels (all inside nodes: its one piece).
 void materialise_labels(const VoxelModel& model, PbdState& s, uint32_t sv) {
   if (s.voxel_divided[sv] != kDeadIndex) return;
-  const uint32_t d = uint32_t(s.divided.size());
-  s.voxel_divided[sv] = d;
-  s.divided.push_back({sv, uint32_t(s.labels.size()), uint32_t(s.label_slots.size()), s.pieces_in_voxel[sv]});
-  s.labels.resize(s.labels.size() + block_nodes(s), kNoPiece);
-  s.label_slots.resize(s.label_slots.size() + kLabelSlots, kDeadIndex);
+  const uint32_t d = ensure_divided(s, sv);
+  s.divided[d].piece_count = s.pieces_in_voxel[sv];
   s.label_slots[s.divided[d].first_slot] = s.voxel_piece[sv];
   s.voxel_piece[sv] = kDeadIndex;
   int32_t c[3];
@@ -780,9 +811,8 @@ void note_cut_voxel(PbdModel& s, const Lattice& l, const DividedVoxel& dv) {
   const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
   uint32_t at = s.cut_rows_of.get(sv);
   if (at == kDeadIndex) {
-    at = uint32_t(s.cut_rows.size());
+    at = append_block(s, s.cut_rows, size_t(r * r + 3 * n * n), uint64_t(0));
     s.cut_rows_of.set(sv, at);
-    s.cut_rows.resize(s.cut_rows.size() + size_t(r * r + 3 * n * n), 0);
   }
   uint64_t* rows = s.cut_rows.data() + at;
   const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
@@ -834,7 +864,6 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   const int32_t gx = c[0] * r, gy = c[1] * r, gz = c[2] * r;
   const uint32_t rows = uint32_t(n * n), vrows = uint32_t(r * r);
   w.inside.assign(rows, 0);
-  w.simple.assign(vrows, 0);
   w.explicit_.assign(vrows, 0);
   // Inside nodes per node row (the lattice's last node is nx; outside the lattice nothing is inside).
   const int32_t xnodes = std::min(r, l.nx - gx) + 1, xvoxels = std::min(r, l.nx - gx);
@@ -843,7 +872,8 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       w.inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
     }
   }
-  // Voxel rows: the voxels of the block (w.simple), and those that join corners diagonally (w.explicit_).
+  // Voxel rows: those that join corners diagonally (w.explicit_). Every voxel of a voxel row in the
+  // lattice is in the block (vmask); ry, rz: voxel rows in the lattice along y and z.
   const uint64_t* cuts = cut_rows(s, sv);
   const auto cut_edges = [&](int axis, uint32_t row) {
     return cuts ? cuts[uint32_t(r * r + axis * n * n) + row] : uint64_t(0);
@@ -856,7 +886,6 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
       const uint32_t v = uint32_t(vy + r * vz);
       const uint64_t divided = cuts ? cuts[v] : 0;
-      w.simple[v] = vmask;
       uint64_t odd = 0;
       for (uint64_t m = any & ~all & ~divided; m != 0; m &= m - 1) {
         const int x = __builtin_ctzll(m);
@@ -867,9 +896,7 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       w.explicit_[v] = (divided & any & ~all) | odd;
     }
   }
-  const auto uncut_at = [&](int32_t vy, int32_t vz) {
-    return vy < 0 || vz < 0 || vy >= r || vz >= r ? uint64_t(0) : w.simple[uint32_t(vy + r * vz)];
-  };
+  const int32_t ry = std::min(r, l.ny - gy), rz = std::min(r, l.nz - gz);
   // Spans per node row, in x order.
   w.row_begin.resize(rows + 1);
   w.mask.clear();
@@ -879,8 +906,8 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
       const uint32_t row = uint32_t(y + n * z);
       w.row_begin[row] = uint32_t(w.mask.size());
       const uint64_t in = w.inside[row];
-      const uint64_t joins = in & (in >> 1) & ~cut_edges(0, row) &
-                             (uncut_at(y - 1, z - 1) | uncut_at(y, z - 1) | uncut_at(y - 1, z) | uncut_at(y, z));
+      // An x edge of node row (y, z) lies in voxel rows y-1 and y by z-1 and z: one in the lattice.
+      const uint64_t joins = y <= ry && z <= rz ? in & (in >> 1) & ~cut_edges(0, row) & vmask : 0;
       for (uint64_t m = in; m != 0;) {
         const int x0 = __builtin_ctzll(m);
         const int run = __builtin_ctzll(~(joins >> x0));  // joined edges x0, x0+1, ...: nodes x0 .. x0+run
@@ -916,8 +943,8 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   for (int32_t z = 0; z < n; ++z) {
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
-      if (y < r) unite_rows(row, row + 1, uncut_at(y, z - 1) | uncut_at(y, z), cut_edges(1, row));
-      if (z < r) unite_rows(row, row + uint32_t(n), uncut_at(y - 1, z) | uncut_at(y, z), cut_edges(2, row));
+      if (y < ry && z <= rz) unite_rows(row, row + 1, vmask, cut_edges(1, row));
+      if (z < rz && y <= ry) unite_rows(row, row + uint32_t(n), vmask, cut_edges(2, row));
     }
   }
   // The diagonal voxels: each unites its pieces' corners.
@@ -998,9 +1025,13 @@ void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   // Labels: written span by span when the block keeps labels.
   const uint32_t d = count > 1 ? ensure_divided(s, sv) : s.voxel_divided[sv];
   uint8_t* labels = d == kDeadIndex ? nullptr : s.labels.data() + s.divided[d].first_label;
+  uint64_t wy[kSpanRatio + 1], wz[kSpanRatio + 1];  // voxels around a node along y and z
+  for (int32_t t = 0; t < n; ++t) {
+    wy[t] = around(t, c[1] * r, l.ny);
+    wz[t] = around(t, c[2] * r, l.nz);
+  }
   for (uint32_t row = 0; row < rows; ++row) {
-    const int32_t y = int32_t(row % uint32_t(n)), z = int32_t(row / uint32_t(n));
-    const uint64_t wyz = around(y, c[1] * r, l.ny) * around(z, c[2] * r, l.nz);
+    const uint64_t wyz = wy[row % uint32_t(n)] * wz[row / uint32_t(n)];
     if (labels) std::fill(labels + row * uint32_t(n), labels + (row + 1) * uint32_t(n), kNoPiece);
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
       const int x0 = __builtin_ctzll(w.mask[i]), x1 = 63 - __builtin_clzll(w.mask[i]);
@@ -1050,8 +1081,14 @@ uint32_t embedded_piece(const PbdModel& s, const VertexEmbedding& e) {
   return label == kNoPiece ? kDeadIndex : s.label_slots[s.divided[d].first_slot + label];
 }
 
+// Grows the embedding with the surface's vertex slots. Capacity follows the surface's own (it keeps
+// headroom for cuts): growing past a capacity copies every slot, a p99 spike of the cut step.
 void grow_embedding(const CutState& cut, PbdState& s) {
   if (s.embedding.size() < cut.surface.positions.size()) {
+    if (s.embedding.capacity() < cut.surface.positions.capacity()) {
+      s.embedding.reserve(cut.surface.positions.capacity());
+      s.deformed.reserve(cut.surface.positions.capacity());
+    }
     s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
     s.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
   }
@@ -1630,7 +1667,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
       for (int q = 0; q < 8; ++q) corners.push_back(corner_id(s, c[0] + (q & 1), c[1] + ((q >> 1) & 1), c[2] + ((q >> 2) & 1)));
     }
     sorted_unique(corners);
-    s.face_cache.clear();  // faces of relabelled voxels changed
+    forget_faces(s, affected);
     CornerMembers members;
     for (uint64_t id : corners) {
       int32_t I, J, K;

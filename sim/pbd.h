@@ -135,7 +135,6 @@ struct LocalSearch {
 // ("spans", one 64-bit mask per node row), united across rows where material joins them.
 struct SpanScratch {
   std::vector<uint64_t> inside;     // (node rows) inside nodes
-  std::vector<uint64_t> simple;     // (voxel rows) voxels of the block (in the lattice)
   std::vector<uint64_t> explicit_;  // (voxel rows) voxels joining corners diagonally: their own pieces join
   std::vector<uint32_t> row_begin;  // (node rows + 1) first span of each row
   std::vector<uint64_t> mask;       // (spans) nodes of the span

@@ -23,16 +23,19 @@ Vec3d trilinear(const Vec3d corners[8], const Vec3d& u) {
 bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, double tolerance, int max_iterations) {
   for (int it = 0; it <= max_iterations; ++it) {
     // The map and its Jacobian at u.
+    // Weights per axis (1 - u, u); a derivative's weight is the product of the other two axes'
+    // weights, negated on the lower side (exactly the product with -1).
     Vec3d x = Vec3d::Zero();
     Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
+    const double wx[2] = {1.0 - u.x(), u.x()}, wy[2] = {1.0 - u.y(), u.y()}, wz[2] = {1.0 - u.z(), u.z()};
     for (int c = 0; c < 8; ++c) {
-      const double f[3] = {(c & 1) ? u.x() : 1.0 - u.x(), ((c >> 1) & 1) ? u.y() : 1.0 - u.y(),
-                           ((c >> 2) & 1) ? u.z() : 1.0 - u.z()};
-      const double d[3] = {(c & 1) ? 1.0 : -1.0, ((c >> 1) & 1) ? 1.0 : -1.0, ((c >> 2) & 1) ? 1.0 : -1.0};
-      x += f[0] * f[1] * f[2] * corners[c];
-      jacobian.col(0) += d[0] * f[1] * f[2] * corners[c];
-      jacobian.col(1) += f[0] * d[1] * f[2] * corners[c];
-      jacobian.col(2) += f[0] * f[1] * d[2] * corners[c];
+      const int ix = c & 1, iy = (c >> 1) & 1, iz = (c >> 2) & 1;
+      const double f0 = wx[ix], f1 = wy[iy], f2 = wz[iz];
+      const double g0 = f1 * f2, g1 = f0 * f2, g2 = f0 * f1;
+      x += g2 * f2 * corners[c];
+      jacobian.col(0) += (ix ? g0 : -g0) * corners[c];
+      jacobian.col(1) += (iy ? g1 : -g1) * corners[c];
+      jacobian.col(2) += (iz ? g2 : -g2) * corners[c];
     }
     const Vec3d residual = target - x;
     if (!residual.allFinite()) return false;
@@ -66,6 +69,8 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
   Vec3d lo_all = Vec3d::Constant(std::numeric_limits<double>::infinity()), hi_all = -lo_all;
   grid.box_lo.clear();
   grid.box_hi.clear();
+  grid.piece_lo.resize(pbd.pieces.size());
+  grid.piece_hi.resize(pbd.pieces.size());
   for (uint32_t slot = 0; slot < pbd.pieces.size(); ++slot) {
     if (pbd.pieces[slot].sim_voxel == kDeadIndex) continue;
     Vec3d lo = pbd.position[pbd.pieces[slot].particles[0]], hi = lo;
@@ -73,6 +78,8 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
       lo = lo.cwiseMin(pbd.position[pbd.pieces[slot].particles[c]]);
       hi = hi.cwiseMax(pbd.position[pbd.pieces[slot].particles[c]]);
     }
+    grid.piece_lo[slot] = lo;
+    grid.piece_hi[slot] = hi;
     lo.array() -= margin;
     hi.array() += margin;
     if ((hi.array() < lo_region.array()).any() || (lo.array() > hi_region.array()).any() || !lo.allFinite() ||
@@ -152,13 +159,11 @@ bool piece_local(const PbdState& pbd, uint32_t piece, const Vec3d& world, const 
 // in its corners' bounds (trilinear weights are a convex combination): a point farther out is not in
 // the piece, and needs no Newton inversion (which converges to within 1e-7 sim_size, below any slack
 // used here, so skipping it never changes a result).
-bool in_piece_bounds(const PbdState& pbd, uint32_t slot, const Vec3d& world, double slack) {
-  const uint32_t* particles = pbd.pieces[slot].particles;
-  Vec3d lo = pbd.position[particles[0]], hi = lo;
-  for (int c = 1; c < 8; ++c) {
-    lo = lo.cwiseMin(pbd.position[particles[c]]);
-    hi = hi.cwiseMax(pbd.position[particles[c]]);
-  }
+// The bounds are the grid's (build_piece_grid keeps them for its candidates, the only slots a query
+// returns).
+bool in_piece_bounds(const PieceGrid& grid, uint32_t slot, const Vec3d& world, double slack) {
+  const Vec3d& lo = grid.piece_lo[slot];
+  const Vec3d& hi = grid.piece_hi[slot];
   return !((world.array() < lo.array() - slack).any() || (world.array() > hi.array() + slack).any());
 }
 
@@ -170,7 +175,7 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const Piece
   constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces
   const double slack = 1e-5 * pbd.sim_size;
   query_piece_grid(grid, world, [&](uint32_t slot) {
-    if (!in_piece_bounds(pbd, slot, world, slack)) return;
+    if (!in_piece_bounds(grid, slot, world, slack)) return;
     if (tests) ++*tests;
     Vec3d u;
     if (!piece_local(pbd, slot, world, Vec3d::Constant(0.5), u)) return;
@@ -375,7 +380,7 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
     }
     query_piece_grid(m.grid, m.points[k], [&](uint32_t slot) {
       Vec3d u;
-      if (m.carried_piece[i] != kDeadIndex || !in_piece_bounds(pbd, slot, m.points[k], 1e-5 * pbd.sim_size) ||
+      if (m.carried_piece[i] != kDeadIndex || !in_piece_bounds(m.grid, slot, m.points[k], 1e-5 * pbd.sim_size) ||
           !piece_local(pbd, slot, m.points[k], Vec3d::Constant(0.5), u)) {
         return;
       }

@@ -43,6 +43,7 @@ struct PieceGrid {
   std::vector<uint32_t> cell_begin;  // (cells + 1) offsets into items
   std::vector<uint32_t> items;       // piece slots per cell
   std::vector<uint32_t> everywhere;  // pieces too large for the grid: tested by every query
+  std::vector<Vec3d> piece_lo, piece_hi;  // (piece slots) deformed corner bounds, valid for the candidates
   // Scratch.
   std::vector<uint32_t> candidates;
   std::vector<int32_t> ranges;  // (candidates x 6) cell ranges
