@@ -65,8 +65,10 @@ struct TrayPlane {
 };
 
 // The tray of a plane (a point on it, its unit normal) under an object's bounds: centred below the
-// bounds' centre, a little wider than the object (half size 0.8 x its largest extent). The window and
-// the headless frames draw the same trays.
+// bounds' centre, three times as wide as the object (half size 1.5 x its largest extent): a piece cut
+// off and fallen from the object lands within that (the default recording's severed head top comes to
+// rest 11 units from the centre of the 9.9-unit bunny; at 0.8 x it lay half off the tray). The window
+// and the headless frames draw the same trays.
 TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec3f& plane_point,
                      const Vec3f& plane_normal);
 

@@ -16,7 +16,7 @@ TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec
   TrayPlane tray;
   tray.normal = plane_normal;
   tray.centre = centre - (centre - plane_point).dot(plane_normal) * plane_normal;
-  tray.half_size = 0.8f * (bounds_max - bounds_min).maxCoeff();
+  tray.half_size = 1.5f * (bounds_max - bounds_min).maxCoeff();  // see renderer.h
   return tray;
 }
 namespace {
