@@ -1413,14 +1413,6 @@ void gather_contacts(const CutState& cut, PbdState& s) {
   collect_piece_contacts(cut, s, speed);
 }
 
-// The particles' frictionless backstop one simulation voxel below the planes.
-void plane_backstop(PbdState& s, uint32_t p) {
-  if (!s.params.planes.empty()) {
-    project_particles_to_planes(s.position[0].data(), s.inv_mass.data(), p, p + 1, s.params.planes.data(),
-                                uint32_t(s.params.planes.size()), s.sim_size);
-  }
-}
-
 // ---- Solver step -----------------------------------------------------------------------------
 
 // Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, and the stretch
@@ -1451,19 +1443,24 @@ void build_shape_blocks(PbdState& s) {
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
-// constraint costs ~40 instructions, a shape-matching solve ~1 000, a contact ~400 (its group: a
-// piece's contacts with the planes, or the contacts between two pieces, often 10 or more).
-constexpr uint32_t kParticleGrain = 4096;
-constexpr uint32_t kStretchGrain = 1024;
+// constraint costs ~60 instructions, a shape-matching solve ~400 (a block of 4 ~1 600), a particle's
+// velocity + predict ~30, a contact ~400 (its group: a piece's contacts with the planes, or the
+// contacts between two pieces, often 10 or more). A barrier between two chunks costs about as much as
+// 100-200 stretch constraints (one cache-line round trip per particle line the other thread wrote),
+// so a stretch colour of a few hundred constraints is still split (A/B in bench contact, 2 workers).
+constexpr uint32_t kParticleGrain = 512;
+constexpr uint32_t kStretchGrain = 128;
 constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
 constexpr uint32_t kContactGrain = 4;
 constexpr uint32_t kSerial = ~0u;
 
-// The batches of one substep, in order: predict; per iteration the stretch colours (overflow last,
-// serially), the shape-matching colours, the grab, the contact batches between pieces and with the
-// planes; kFinalContactSweeps more sweeps of the piece contacts and one of the planes; velocities.
-// One TaskRunner job runs them all (sim/colouring.h run_batches).
-void build_step_batches(PbdState& s, bool stretch_on) {
+// The batches of a whole step (all substeps: one TaskRunner job, one wake-up of the workers), in
+// order: predict; per iteration the stretch colours (overflow last, serially), the shape-matching
+// colours, the grab, the contact batches between pieces and with the planes; kFinalContactSweeps
+// more sweeps of the piece contacts and one of the planes; then the velocities fused with the next
+// substep's predict (index 1; one pass over the particles, both per particle), or alone after the
+// last substep (index 0). The first chunk of each predict batch resets the substep's multipliers.
+void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
   std::vector<StepBatch>& steps = s.step_batches;
   std::vector<TaskBatch>& batches = s.task_batches;
   steps.clear();
@@ -1480,6 +1477,8 @@ void build_step_batches(PbdState& s, bool stretch_on) {
     }
   };
   const uint32_t n = uint32_t(s.position.size());
+  if (n == 0) return;
+  // The first substep: its predict, then the rest of its batches (the body).
   add(StepBatch::kPredict, 0, n, kParticleGrain);
   for (int it = 0; it < s.params.iterations; ++it) {
     for (int c = 0; stretch_on && c < kColourGroups; ++c) {
@@ -1500,6 +1499,17 @@ void build_step_batches(PbdState& s, bool stretch_on) {
   if (!s.piece_contacts.set.points.empty()) {
     for (int sweep = 0; sweep < kFinalContactSweeps; ++sweep) add_contacts(StepBatch::kPieceContact, s.piece_contacts.set);
     add_contacts(StepBatch::kPlaneContact, s.contacts);
+  }
+  // The other substeps: velocities fused with the next predict, then the body again.
+  const size_t body = steps.size() - 1;
+  for (int sub = 1; sub < substeps; ++sub) {
+    add(StepBatch::kVelocity, 1, n, kParticleGrain);
+    for (size_t i = 1; i <= body; ++i) {
+      const StepBatch step = steps[i];
+      const TaskBatch batch = batches[i];
+      steps.push_back(step);
+      batches.push_back(batch);
+    }
   }
   add(StepBatch::kVelocity, 0, n, kParticleGrain);
 }
@@ -1763,22 +1773,47 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   // Damping per unit time: `damping` of the velocity goes per time step dt whatever the substeps.
   const double keep = substeps == 1 ? 1.0 - params.damping : std::pow(1.0 - params.damping, 1.0 / substeps);
   gather_contacts(cut, s);  // contact (sim/contact.h)
-  build_step_batches(s, stretch_on);
+  build_step_batches(s, stretch_on, substeps);
   double grab_lambda[3] = {0, 0, 0};
-  // One job per substep: the batches of build_step_batches in order (a barrier between batches).
+  // A substep starts with zero multipliers (the first chunk of its predict pass resets them; nothing
+  // else reads them then).
+  const auto begin_substep = [&] {
+    for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    contacts_begin_substep(s.contacts);
+    contacts_begin_substep(s.piece_contacts.set);
+    for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
+  };
+  // Per particle: the end of a substep (the planes' backstop, velocities), the start of the next
+  // (previous positions, gravity, prediction); anchored particles stay and keep no velocity.
+  const Vec3d gravity_h = h * params.gravity;
+  const double keep_h = keep / h;
+  const auto velocities = [&](uint32_t begin, uint32_t end) {
+    if (!params.planes.empty()) {
+      project_particles_to_planes(x, w, begin, end, params.planes.data(), uint32_t(params.planes.size()), s.sim_size);
+    }
+    for (uint32_t p = begin; p < end; ++p) {
+      if (s.inv_mass[p] == 0.0) continue;
+      s.velocity[p] = (s.position[p] - s.previous[p]) * keep_h;
+    }
+  };
+  const auto predict = [&](uint32_t begin, uint32_t end) {
+    for (uint32_t p = begin; p < end; ++p) {
+      s.previous[p] = s.position[p];
+      if (s.inv_mass[p] == 0.0) {
+        s.velocity[p].setZero();
+        continue;
+      }
+      s.velocity[p] += gravity_h;
+      s.position[p] += h * s.velocity[p];
+    }
+  };
+  // One job for the whole step: the batches of build_step_batches in order (a barrier between batches).
   const auto run = [&](uint32_t batch, uint32_t begin, uint32_t end) {
     const StepBatch& b = s.step_batches[batch];
     switch (b.kind) {
       case StepBatch::kPredict:
-        for (uint32_t p = begin; p < end; ++p) {
-          s.previous[p] = s.position[p];
-          if (s.inv_mass[p] == 0.0) {
-            s.velocity[p].setZero();
-            continue;
-          }
-          s.velocity[p] += h * params.gravity;
-          s.position[p] += h * s.velocity[p];
-        }
+        if (begin == 0) begin_substep();
+        predict(begin, end);
         break;
       case StepBatch::kStretch: {
         // Scalar: in vector lanes (4 constraints, gathered) it measured 1.4-2.3x slower (bench deform).
@@ -1801,21 +1836,14 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       }
       case StepBatch::kVelocity:
-        for (uint32_t p = begin; p < end; ++p) {
-          if (s.inv_mass[p] == 0.0) continue;
-          plane_backstop(s, p);
-          s.velocity[p] = (s.position[p] - s.previous[p]) * (keep / h);
-        }
+        velocities(begin, end);
+        if (b.index == 0) break;
+        if (begin == 0) begin_substep();
+        predict(begin, end);
         break;
     }
   };
-  for (int sub = 0; sub < substeps; ++sub) {
-    for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
-    contacts_begin_substep(s.contacts);
-    contacts_begin_substep(s.piece_contacts.set);
-    for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
-    run_batches(tasks, s.task_batches.data(), uint32_t(s.task_batches.size()), run);
-  }
+  run_batches(tasks, s.task_batches.data(), uint32_t(s.task_batches.size()), run);
   ++s.steps;
   if (embed) pbd_embed(cut, s, tasks);
 }
