@@ -95,10 +95,12 @@ inline void solve_stretch_row(double* x, const StretchRow& k, double alpha, doub
   distance_step(x + 3 * size_t(k.a), x + 3 * size_t(k.b), k.wa, k.wb, k.rest, k.min_length, alpha, lambda);
 }
 
-// Rows [begin, end) of one colour group (sharing no particle) in order, with their lambdas; one
-// clone per instruction set (AVX's three-operand forms drop the register copies; the same IEEE
-// operations in the same order, so the same bits on every machine).
-void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha);
+// Rows [begin, end) in order, with their lambdas. `disjoint`: no two rows share a particle (one colour
+// group), so on a CPU with AVX2 four rows are solved at once (gathered into one vector per axis);
+// otherwise (the overflow group, or no AVX2) one by one. Each row does solve_stretch_row's IEEE
+// operations in its order either way, so the results are the same bits on every machine.
+void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha,
+                        bool disjoint = false);
 
 // A surface vertex embedded in a piece: its slot, the piece slot and its local position in [0,1]^3.
 struct EmbedRow {
