@@ -588,17 +588,50 @@ void shape_block_add(ShapeBlock& b, uint32_t piece, const uint32_t* indices, con
   }
 }
 
+namespace {
+
+// Four particles' positions as one vector per axis: (x, y) pairs joined and interleaved, z apart
+// (GCC's vector shuffles: unpck / insertf128 with AVX, their SSE2 pairs otherwise); and back.
+typedef double V2 __attribute__((vector_size(16)));
+inline V2 load2(const double* p) {
+  V2 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+__attribute__((always_inline)) inline void gather_lanes(double* const* at, V4 (&out)[3]) {
+  const V4 e = __builtin_shufflevector(load2(at[0]), load2(at[2]), 0, 1, 2, 3);  // x0 y0 x2 y2
+  const V4 o = __builtin_shufflevector(load2(at[1]), load2(at[3]), 0, 1, 2, 3);  // x1 y1 x3 y3
+  out[0] = __builtin_shufflevector(e, o, 0, 4, 2, 6);
+  out[1] = __builtin_shufflevector(e, o, 1, 5, 3, 7);
+  const V2 z01 = {at[0][2], at[1][2]}, z23 = {at[2][2], at[3][2]};
+  out[2] = __builtin_shufflevector(z01, z23, 0, 1, 2, 3);
+}
+__attribute__((always_inline)) inline void scatter_lanes(double* const* at, const V4 (&v)[3]) {
+  const V4 e = __builtin_shufflevector(v[0], v[1], 0, 4, 2, 6);  // x0 y0 x2 y2
+  const V4 o = __builtin_shufflevector(v[0], v[1], 1, 5, 3, 7);  // x1 y1 x3 y3
+  const V2 p0 = __builtin_shufflevector(e, e, 0, 1), p2 = __builtin_shufflevector(e, e, 2, 3);
+  const V2 p1 = __builtin_shufflevector(o, o, 0, 1), p3 = __builtin_shufflevector(o, o, 2, 3);
+  std::memcpy(at[0], &p0, sizeof p0);
+  std::memcpy(at[1], &p1, sizeof p1);
+  std::memcpy(at[2], &p2, sizeof p2);
+  std::memcpy(at[3], &p3, sizeof p3);
+  for (int l = 0; l < 4; ++l) at[l][2] = v[2][l];
+}
+
+}  // namespace
+
 // The lanes of shape_matching_frame and solve_shape_matching in V4 (the scalar path's operations in
-// its order); one clone per instruction set, picked when the program loads.
+// its order); one clone per instruction set, picked when the program loads. The positions are
+// gathered and scattered as (x, y) pairs and z, and a full block whose particles all move is
+// written without a test per slot and lane.
 __attribute__((target_clones("avx2", "default")))
 void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
   // Gather the positions; the mass centre.
   V4 p[kS][3];
   for (int k = 0; k < kS; ++k) {
-    for (int l = 0; l < kShapeLanes; ++l) {
-      const double* xi = x + 3 * size_t(b.index[k][l]);
-      for (int e = 0; e < 3; ++e) p[k][e][l] = xi[e];
-    }
+    double* const at[4] = {x + 3 * size_t(b.index[k][0]), x + 3 * size_t(b.index[k][1]),
+                           x + 3 * size_t(b.index[k][2]), x + 3 * size_t(b.index[k][3])};
+    gather_lanes(at, p[k]);
   }
   V4 c[3] = {};
   for (int k = 0; k < kS; ++k) {
@@ -646,12 +679,23 @@ void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quatern
   V4 rot[3][3];
   rotation_matrix_lanes<V4>(q, rot);
   // Goals c + R q_k; the particles that move go `stiffness` of the way there.
+  // Every lane a cluster of its own and every particle moving: no test per slot and lane.
+  bool all_move = b.lanes == kShapeLanes;
+  uint64_t moves[kS * kShapeLanes / 8];
+  std::memcpy(moves, b.moves, sizeof moves);
+  for (const uint64_t m : moves) all_move = all_move && m == 0x0101010101010101ull;
   for (int k = 0; k < kS; ++k) {
     const V4 o[3] = {load4(b.offset[k][0]), load4(b.offset[k][1]), load4(b.offset[k][2])};
     V4 out[3];
     for (int e = 0; e < 3; ++e) {
       const V4 goal = c[e] + (rot[e][0] * o[0] + rot[e][1] * o[1] + rot[e][2] * o[2]);
       out[e] = p[k][e] + stiffness * (goal - p[k][e]);
+    }
+    if (all_move) {
+      double* const at[4] = {x + 3 * size_t(b.index[k][0]), x + 3 * size_t(b.index[k][1]),
+                             x + 3 * size_t(b.index[k][2]), x + 3 * size_t(b.index[k][3])};
+      scatter_lanes(at, out);
+      continue;
     }
     for (int l = 0; l < b.lanes; ++l) {
       if (!b.moves[k][l]) continue;
