@@ -1783,28 +1783,41 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
     contacts_begin_substep(s.piece_contacts.set);
     for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
   };
-  // Per particle: the end of a substep (the planes' backstop, velocities), the start of the next
-  // (previous positions, gravity, prediction); anchored particles stay and keep no velocity.
-  const Vec3d gravity_h = h * params.gravity;
+  // Per particle: the end of a substep (the planes' backstop, velocities), then the start of the next
+  // (previous positions, gravity, prediction), in one pass over the particles (raw arrays: Eigen's
+  // packet stores may alias anything, so its loops reload every array pointer per particle);
+  // anchored particles stay and keep no velocity. The same operations as Eigen's per axis.
+  const double gravity_h[3] = {h * params.gravity.x(), h * params.gravity.y(), h * params.gravity.z()};
   const double keep_h = keep / h;
-  const auto velocities = [&](uint32_t begin, uint32_t end) {
-    if (!params.planes.empty()) {
+  double* __restrict xp = x;
+  double* __restrict vp = s.velocity.empty() ? nullptr : s.velocity[0].data();
+  double* __restrict pp = s.previous.empty() ? nullptr : s.previous[0].data();
+  const auto advance = [&](uint32_t begin, uint32_t end, bool velocity, bool predict) {
+    if (velocity && !params.planes.empty()) {
       project_particles_to_planes(x, w, begin, end, params.planes.data(), uint32_t(params.planes.size()), s.sim_size);
     }
     for (uint32_t p = begin; p < end; ++p) {
-      if (s.inv_mass[p] == 0.0) continue;
-      s.velocity[p] = (s.position[p] - s.previous[p]) * keep_h;
-    }
-  };
-  const auto predict = [&](uint32_t begin, uint32_t end) {
-    for (uint32_t p = begin; p < end; ++p) {
-      s.previous[p] = s.position[p];
-      if (s.inv_mass[p] == 0.0) {
-        s.velocity[p].setZero();
+      double* xi = xp + 3 * size_t(p);
+      double* vi = vp + 3 * size_t(p);
+      double* pi = pp + 3 * size_t(p);
+      if (w[p] == 0.0) {
+        if (!predict) continue;
+        for (int e = 0; e < 3; ++e) {
+          pi[e] = xi[e];
+          vi[e] = 0.0;
+        }
         continue;
       }
-      s.velocity[p] += gravity_h;
-      s.position[p] += h * s.velocity[p];
+      for (int e = 0; e < 3; ++e) {
+        double v = vi[e];
+        if (velocity) v = (xi[e] - pi[e]) * keep_h;
+        if (predict) {
+          pi[e] = xi[e];
+          v += gravity_h[e];
+          xi[e] += h * v;
+        }
+        vi[e] = v;
+      }
     }
   };
   // One job for the whole step: the batches of build_step_batches in order (a barrier between batches).
@@ -1813,7 +1826,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
     switch (b.kind) {
       case StepBatch::kPredict:
         if (begin == 0) begin_substep();
-        predict(begin, end);
+        advance(begin, end, false, true);
         break;
       case StepBatch::kStretch: {
         // Four at a time where a colour shares no particle (pbd_kernels.h); the overflow group in order.
@@ -1837,10 +1850,8 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       }
       case StepBatch::kVelocity:
-        velocities(begin, end);
-        if (b.index == 0) break;
-        if (begin == 0) begin_substep();
-        predict(begin, end);
+        if (b.index != 0 && begin == 0) begin_substep();
+        advance(begin, end, true, b.index != 0);
         break;
     }
   };
