@@ -117,6 +117,7 @@ void TaskPool::run(const TaskBatch* batches, uint32_t batch_count, BatchFn fn, v
   const bool wake = !threads_.empty() && parallel;  // else everything on the caller, no wake-up
   if (wake) {
     ++generation_;
+    published_.store(generation_, std::memory_order_relaxed);
     wakeups_.fetch_add(1, std::memory_order_relaxed);
   }
   lock.unlock();
@@ -130,6 +131,14 @@ void TaskPool::work_loop() {
   uint64_t seen = 0;
   std::unique_lock<std::mutex> lock(mutex_);
   while (true) {
+    // A job often follows within microseconds (the surface embedding after a solver step): watch
+    // for it a little before sleeping (a condition-variable wake-up costs tens of microseconds).
+    // Only a hint: the job is taken under the mutex as below.
+    if (generation_ == seen && !stopping_) {
+      lock.unlock();
+      for (int spin = 0; spin < kWakeSpins && published_.load(std::memory_order_relaxed) == seen; ++spin) cpu_relax();
+      lock.lock();
+    }
     wake_.wait(lock, [&] { return stopping_ || generation_ != seen; });
     if (stopping_) return;
     seen = generation_;

@@ -55,6 +55,8 @@ class TaskPool {
   std::mutex mutex_;
   std::condition_variable wake_, idle_;
   uint64_t generation_ = 0;  // bumped for every job that wakes the workers (guarded by mutex_)
+  std::atomic<uint64_t> published_{0};  // generation_, readable without the mutex (a spinning worker's hint)
+  static constexpr int kWakeSpins = 2000;  // pauses a worker watches for the next job before sleeping
   bool stopping_ = false;
   int busy_workers_ = 0;     // workers inside the current job (guarded by mutex_)
   std::atomic<uint64_t> wakeups_{0};
