@@ -429,6 +429,14 @@ void deform_section(Results& in, std::ostream& md, std::ostream&) {
        << " → " << num(get(r, "blocks_ns")) << " ns per cluster solve (" << num(get(r, "speedup")) << "×), "
        << (r["identical"].get<bool>() ? "the same bits" : "**results differ**") << ".\n\n";
   }
+  if (kernels.is_object() && kernels.contains("stretch")) {
+    const json& r = kernels["stretch"];
+    md << "Stretch constraints before (rows one by one) and after (four rows of a colour at a time, AVX2), same "
+       << "run, same state (" << kernels["stretch_constraints"] << " constraints, every colour once): "
+       << num(get(r, "rows_ns")) << " → " << num(get(r, "rows4_ns")) << " ns per constraint ("
+       << num(get(r, "speedup")) << "×), " << (r["identical"].get<bool>() ? "the same bits" : "**results differ**")
+       << ".\n\n";
+  }
   const json& target = deform["target"];
   if (target.is_object()) {
     md << "Speed target: " << target["mesh"].get<std::string>() << " at " << target["resolution"] << " ("

@@ -35,9 +35,9 @@
 // the dynamic state (positions, velocities, lambdas, rotations' warm starts, grab, deformed surface).
 // Cuts edit the model between steps; a step reads the model and writes the data.
 //
-// Threads. Each substep is one TaskRunner job (run_batches: predict, per iteration the colour groups
-// of each constraint type and the contact batches, velocities; a barrier between batches) that the
-// caller's runner executes (sim/ owns no threads); constraints of one colour share no particle, so
+// Threads. Each step is one TaskRunner job (run_batches: per substep predict, per iteration the colour
+// groups of each constraint type and the contact batches, velocities fused with the next substep's
+// predict; a barrier between batches) that the caller's runner executes (sim/ owns no threads); constraints of one colour share no particle, so
 // results are bit-identical for any number of workers.
 #pragma once
 
@@ -218,7 +218,7 @@ struct PbdModel {
 struct StepBatch {
   enum Kind : uint8_t { kPredict, kStretch, kShape, kGrab, kPieceContact, kPlaneContact, kVelocity };
   uint8_t kind;
-  uint32_t index;  // colour group, or contact batch
+  uint32_t index;  // colour group, or contact batch; kVelocity: 1 when the next substep's predict follows in the pass
 };
 
 // The dynamic state: what a step writes.
@@ -249,7 +249,7 @@ struct PbdData {
   std::vector<EmbedRow> embed_rows;
   uint64_t embed_revision = ~uint64_t(0), embed_cut_steps = ~uint64_t(0);
   size_t embed_slots = 0;
-  // The batches of one substep (parallel arrays), rebuilt every step: constraints change between steps.
+  // The batches of one step (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;
 };
