@@ -130,11 +130,23 @@ void sorted_unique(std::vector<uint32_t>& v) {
 }
 
 // The same for a vector whose first `sorted` elements are sorted and unique already (the pending
-// voxels of earlier cut_divide calls in a step): sorts the tail and merges, O(n + tail log tail).
+// voxels of earlier cut_divide calls in a step, one call per rest quad): the tail is sorted, its
+// repeats and the values the prefix holds already (binary search) dropped, and only a tail left
+// non-empty is merged: O(tail log n), plus O(n) when the tail brings new values. Mostly it brings
+// none (a rest quad's voxels are pending from its neighbours), so the step's many calls stay cheap.
 void merge_sorted_unique(std::vector<uint32_t>& v, size_t sorted) {
-  std::sort(v.begin() + std::ptrdiff_t(sorted), v.end());
+  if (v.size() == sorted) return;
+  const auto prefix_end = v.begin() + std::ptrdiff_t(sorted);
+  std::sort(prefix_end, v.end());
+  size_t kept = sorted;
+  for (size_t i = sorted; i < v.size(); ++i) {
+    const uint32_t x = v[i];
+    if ((kept > sorted && v[kept - 1] == x) || std::binary_search(v.begin(), prefix_end, x)) continue;
+    v[kept++] = x;
+  }
+  v.resize(kept);
+  if (kept == sorted || sorted == 0 || v[sorted - 1] < v[sorted]) return;
   std::inplace_merge(v.begin(), v.begin() + std::ptrdiff_t(sorted), v.end());
-  v.erase(std::unique(v.begin(), v.end()), v.end());
 }
 
 const EdgeCut* find_cut(const CutState& state, uint32_t edge) {

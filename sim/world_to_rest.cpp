@@ -25,22 +25,26 @@ bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, dou
     // The map and its Jacobian at u.
     // Weights per axis (1 - u, u); a derivative's weight is the product of the other two axes'
     // weights, negated on the lower side (exactly the product with -1).
+    // The map first: the last evaluation (converged, or out of iterations) needs no Jacobian.
     Vec3d x = Vec3d::Zero();
-    Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
     const double wx[2] = {1.0 - u.x(), u.x()}, wy[2] = {1.0 - u.y(), u.y()}, wz[2] = {1.0 - u.z(), u.z()};
     for (int c = 0; c < 8; ++c) {
-      const int ix = c & 1, iy = (c >> 1) & 1, iz = (c >> 2) & 1;
-      const double f0 = wx[ix], f1 = wy[iy], f2 = wz[iz];
-      const double g0 = f1 * f2, g1 = f0 * f2, g2 = f0 * f1;
-      x += g2 * f2 * corners[c];
-      jacobian.col(0) += (ix ? g0 : -g0) * corners[c];
-      jacobian.col(1) += (iy ? g1 : -g1) * corners[c];
-      jacobian.col(2) += (iz ? g2 : -g2) * corners[c];
+      const double g2 = wx[c & 1] * wy[(c >> 1) & 1];
+      x += g2 * wz[(c >> 2) & 1] * corners[c];
     }
     const Vec3d residual = target - x;
     if (!residual.allFinite()) return false;
     if (residual.norm() <= tolerance) return true;
     if (it == max_iterations) break;
+    Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
+    for (int c = 0; c < 8; ++c) {
+      const int ix = c & 1, iy = (c >> 1) & 1, iz = (c >> 2) & 1;
+      const double f0 = wx[ix], f1 = wy[iy], f2 = wz[iz];
+      const double g0 = f1 * f2, g1 = f0 * f2, g2 = f0 * f1;
+      jacobian.col(0) += (ix ? g0 : -g0) * corners[c];
+      jacobian.col(1) += (iy ? g1 : -g1) * corners[c];
+      jacobian.col(2) += (iz ? g2 : -g2) * corners[c];
+    }
     // Newton step, damped to at most one cell per axis; a flat or inverted map stops it.
     const double scale = jacobian.cwiseAbs().maxCoeff();
     const double det = jacobian.determinant();
