@@ -174,15 +174,22 @@ bool in_piece_bounds(const PieceGrid& grid, uint32_t slot, const Vec3d& world, d
 }  // namespace
 
 uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
-                       std::vector<RestHit>& out, uint32_t* tests) {
+                       std::vector<RestHit>& out, uint32_t* tests, uint32_t near_begin, uint32_t near_end) {
   const size_t before = out.size();
   constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces
   const double slack = 1e-5 * pbd.sim_size;
   query_piece_grid(grid, world, [&](uint32_t slot) {
     if (!in_piece_bounds(grid, slot, world, slack)) return;
     if (tests) ++*tests;
+    // A neighbour's hit in this piece is a close start (about one Newton step fewer than the centre).
+    Vec3d start = Vec3d::Constant(0.5);
+    for (uint32_t h = near_begin; h < near_end; ++h) {
+      if (out[h].piece != slot) continue;
+      start = (out[h].rest - piece_rest_origin(pbd, slot)) / pbd.sim_size;
+      break;
+    }
     Vec3d u;
-    if (!piece_local(pbd, slot, world, Vec3d::Constant(0.5), u)) return;
+    if (!piece_local(pbd, slot, world, start, u)) return;
     if (u.minCoeff() < -kInside || u.maxCoeff() > 1.0 + kInside) return;
     if (!piece_holds(model, pbd, slot, u)) return;
     out.push_back({slot, piece_rest_origin(pbd, slot) + pbd.sim_size * u});
@@ -248,33 +255,81 @@ bool rest_through(const PbdState& pbd, const SweepMapper& m, uint32_t k, uint32_
   return true;
 }
 
-// Appends a cell's quad, merged into the previous one when it continues the same straight strip.
-void emit_quad(const RestQuad& q, double h, bool may_merge, std::vector<RestQuad>& quads, uint32_t& strip_begin,
-               std::vector<Vec3d>& strip_points) {
+// Appends a cell's quad, merged into a quad of the previous cell of its row (quads[prev_first,
+// prev_last) of m.cell_quads) that it continues: the same blade motion edge (joined within 1e-6 h)
+// and the merged quad's blade edges still straight (every junction within 0.02 h). Cells through
+// several pieces (a piece boundary along the sweep) continue their own strips, each piece's.
+// Returns the quad it went to.
+uint32_t emit_quad(const RestQuad& q, double h, SweepMapper& m, size_t prev_first, size_t prev_last) {
   const double join = 1e-6 * h, straight = 0.02 * h;
-  if (may_merge && !quads.empty()) {
-    RestQuad& last = quads.back();
-    if (near_point(last.from.b, q.from.a, join) && near_point(last.to.b, q.to.a, join)) {
-      // Every junction of the strip must stay on the merged strip's edges.
-      bool ok = true;
-      for (size_t i = strip_begin; i + 1 < strip_points.size() && ok; i += 2) {
-        ok = segment_distance(strip_points[i], last.from.a, q.from.b) <= straight &&
-             segment_distance(strip_points[i + 1], last.to.a, q.to.b) <= straight;
-      }
-      ok = ok && segment_distance(q.from.a, last.from.a, q.from.b) <= straight &&
-           segment_distance(q.to.a, last.to.a, q.to.b) <= straight;
-      if (ok) {
-        strip_points.push_back(q.from.a);
-        strip_points.push_back(q.to.a);
-        last.from.b = q.from.b;
-        last.to.b = q.to.b;
-        return;
-      }
+  for (size_t c = prev_first; c < prev_last; ++c) {
+    const uint32_t o = m.cell_quads[c];
+    RestQuad& last = m.quads[o];
+    if (!near_point(last.from.b, q.from.a, join) || !near_point(last.to.b, q.to.a, join)) continue;
+    // Every junction of the strip must stay on the merged strip's edges.
+    bool ok = segment_distance(q.from.a, last.from.a, q.from.b) <= straight &&
+              segment_distance(q.to.a, last.to.a, q.to.b) <= straight;
+    for (uint32_t x = m.joint_head[o]; x != kDeadIndex && ok; x = m.joints[x].next) {
+      ok = segment_distance(m.joints[x].a, last.from.a, q.from.b) <= straight &&
+           segment_distance(m.joints[x].b, last.to.a, q.to.b) <= straight;
     }
+    if (!ok) continue;
+    m.joints.push_back({q.from.a, q.to.a, m.joint_head[o]});
+    m.joint_head[o] = uint32_t(m.joints.size() - 1);
+    last.from.b = q.from.b;
+    last.to.b = q.to.b;
+    return o;
   }
-  quads.push_back(q);
-  strip_points.clear();
-  strip_begin = 0;
+  m.quads.push_back(q);
+  m.joint_head.push_back(kDeadIndex);
+  return uint32_t(m.quads.size() - 1);
+}
+
+// Merges the quads of the row that begins at quads[row_first] into the quads of the row before it
+// (m.open) that they continue: the same blade segment (joined within 1e-6 h), and the merged quad
+// still flat and straight (every rung, the inner row edges, within 0.02 h of its sides; its corners
+// within 0.02 h of one plane), so the two triangles cut_divide sweeps cover the rows' quads. A
+// rigidly moved or gently bent piece then gives one quad per strip of the sweep, not one per row: the
+// divide and the front run once per quad.
+void merge_rows(SweepMapper& m, size_t row_first, double h) {
+  const double join = 1e-6 * h, straight = 0.02 * h;
+  m.next_open.clear();
+  m.merged_away.resize(m.quads.size(), 0);
+  m.joint_head.resize(m.quads.size(), kDeadIndex);
+  for (size_t x = row_first; x < m.quads.size(); ++x) {
+    const RestQuad& q = m.quads[x];
+    uint32_t into = kDeadIndex;
+    for (uint32_t& o : m.open) {
+      if (o == kDeadIndex) continue;
+      const RestQuad& p = m.quads[o];
+      if (!near_point(p.to.a, q.from.a, join) || !near_point(p.to.b, q.from.b, join)) continue;
+      const Vec3d& a0 = p.from.a;
+      const Vec3d& b0 = p.from.b;
+      bool ok = segment_distance(q.from.a, a0, q.to.a) <= straight && segment_distance(q.from.b, b0, q.to.b) <= straight;
+      for (size_t r = 0; r < m.rungs.size() && ok; ++r) {
+        if (m.rungs[r].quad != o) continue;
+        ok = segment_distance(m.rungs[r].a, a0, q.to.a) <= straight && segment_distance(m.rungs[r].b, b0, q.to.b) <= straight;
+      }
+      if (ok) {
+        const Vec3d n = (b0 - a0).cross(q.to.b - a0);
+        const double len = n.norm();
+        ok = len > 0.0 && std::abs(n.dot(q.to.a - a0)) <= straight * len;
+      }
+      if (!ok) continue;
+      into = o;
+      o = kDeadIndex;  // continued once
+      break;
+    }
+    if (into == kDeadIndex) {
+      m.next_open.push_back(uint32_t(x));
+      continue;
+    }
+    m.rungs.push_back({into, q.from.a, q.from.b});
+    m.quads[into].to = q.to;
+    m.merged_away[x] = 1;
+    m.next_open.push_back(into);
+  }
+  m.open.swap(m.next_open);
 }
 
 }  // namespace
@@ -316,18 +371,24 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
       const uint32_t k = j * row + i;
       m.points[k] = m.from_world[i] + t * (m.to_world[i] - m.from_world[i]);
       m.hit_begin[k] = uint32_t(m.hits.size());
-      world_to_rest(model, pbd, m.grid, m.points[k], m.hits, &tests);
+      // Newton starts from the previous sample along the blade, else the one of the previous row.
+      const uint32_t near = i > 0 ? k - 1 : j > 0 ? k - row : k;
+      world_to_rest(model, pbd, m.grid, m.points[k], m.hits, &tests, m.hit_begin[near], near == k ? m.hit_begin[k] : m.hit_begin[near + 1]);
     }
   }
   m.hit_begin[count] = uint32_t(m.hits.size());
 
   // Cells: one rest quad per piece holding one of the cell's corners.
-  std::vector<Vec3d>& strip_points = m.strip_points;
-  strip_points.clear();
-  uint32_t strip_begin = 0;
+  m.open.clear();
+  m.rungs.clear();
+  m.merged_away.clear();
+  m.joint_head.clear();
   if (motion > 1e-9 * h) {
     for (uint32_t j = 0; j < nv; ++j) {
-      uint32_t previous_piece = kDeadIndex;
+      const size_t row_first = m.quads.size();
+      m.cell_quads.clear();
+      m.joints.clear();
+      size_t prev_first = 0, prev_last = 0;
       for (uint32_t i = 0; i < nu; ++i) {
         const uint32_t k[4] = {j * row + i, j * row + i + 1, (j + 1) * row + i, (j + 1) * row + i + 1};
         // Distinct pieces of the corners' hits, ascending.
@@ -348,7 +409,9 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
             std::swap(starts[b - 1], starts[b]);
           }
         }
-        const size_t cell_first = m.quads.size();
+        const size_t cell_first = m.cell_quads.size();
+        Vec3d own[32][4];  // this cell's quads before merging (corners r[]; left uninitialised)
+        int own_count = 0;
         for (int p = 0; p < piece_count; ++p) {
           Vec3d r[4];
           bool ok = true;
@@ -357,18 +420,27 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
           const RestQuad q{{r[0], r[1]}, {r[2], r[3]}};
           // A neighbour piece sharing the cell's corners maps it the same way: cut it once.
           bool same = false;
-          for (size_t x = cell_first; x < m.quads.size() && !same; ++x) {
-            const RestQuad& o = m.quads[x];
-            same = near_point(o.to.b, q.to.b, 1e-3 * h) && near_point(o.to.a, q.to.a, 1e-3 * h) &&
-                   near_point(o.from.b, q.from.b, 1e-3 * h) && near_point(o.from.a, q.from.a, 1e-3 * h);
+          for (int x = 0; x < own_count && !same; ++x) {
+            const Vec3d* o = own[x];
+            same = near_point(o[3], r[3], 1e-3 * h) && near_point(o[2], r[2], 1e-3 * h) &&
+                   near_point(o[1], r[1], 1e-3 * h) && near_point(o[0], r[0], 1e-3 * h);
           }
           if (same) continue;
-          emit_quad(q, h, piece_count == 1 && previous_piece != kDeadIndex && m.quads.size() == cell_first,
-                    m.quads, strip_begin, strip_points);
+          std::copy(r, r + 4, own[own_count++]);
+          m.cell_quads.push_back(emit_quad(q, h, m, prev_first, prev_last));
         }
-        previous_piece = piece_count == 1 ? pieces[0] : kDeadIndex;
+        prev_first = cell_first;
+        prev_last = m.cell_quads.size();
       }
+      merge_rows(m, row_first, h);
     }
+    // The quads merged into an earlier row's are dropped (the others keep their order).
+    m.merged_away.resize(m.quads.size(), 0);
+    size_t kept = 0;
+    for (size_t x = 0; x < m.quads.size(); ++x) {
+      if (!m.merged_away[x]) m.quads[kept++] = m.quads[x];
+    }
+    m.quads.resize(kept);
   }
   // The samples of `to` that are in material, carried to the next step.
   // In a slit or a gap (inside a piece's hexahedron, outside its material) a sample is carried with

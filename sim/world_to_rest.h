@@ -76,9 +76,10 @@ struct RestHit {
   uint32_t piece;
   Vec3d rest;
 };
-// `tests` (optional) counts the Newton inversions.
+// `tests` (optional) counts the Newton inversions. out[near_begin, near_end) (optional): hits of a
+// neighbouring point; Newton starts from their local coordinates in the same piece (else the centre).
 uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
-                       std::vector<RestHit>& out, uint32_t* tests = nullptr);
+                       std::vector<RestHit>& out, uint32_t* tests = nullptr, uint32_t near_begin = 0, uint32_t near_end = 0);
 
 // A rest-space quad to cut: the sweep from one blade segment to another.
 struct RestQuad {
@@ -92,10 +93,27 @@ struct SweepMapper {
   std::vector<Vec3d> carried;
   std::vector<uint32_t> carried_piece;
   PieceGrid grid;
-  std::vector<Vec3d> from_world, to_world, points, strip_points;
+  std::vector<Vec3d> from_world, to_world, points;
   std::vector<uint32_t> hit_begin;
   std::vector<RestHit> hits;
   std::vector<RestQuad> quads;
+  // Scratch of the merge across rows of the sweep: the quads the next row may continue, the rungs
+  // (inner row edges) of each merged quad, and the quads merged away.
+  struct Rung {
+    uint32_t quad;
+    Vec3d a, b;
+  };
+  // Along the blade: the quads each cell went to (cells of a row in order) and the junctions of
+  // each quad merged along the blade (a list per quad through joint_head / next).
+  struct Joint {
+    Vec3d a, b;
+    uint32_t next;
+  };
+  std::vector<uint32_t> cell_quads, joint_head;
+  std::vector<Joint> joints;
+  std::vector<uint32_t> open, next_open;
+  std::vector<Rung> rungs;
+  std::vector<uint8_t> merged_away;
 };
 
 // What one mapping did.
