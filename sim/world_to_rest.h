@@ -16,7 +16,9 @@
 // deformation), so a still blade cuts tissue moving into it, and a blade moving with the tissue cuts
 // nothing new. Each cell of the sampled sweep becomes one rest-space quad per piece that holds one of
 // its corners (the other corners mapped through the same piece, extrapolating its map a little);
-// consecutive cells whose rest images continue one straight strip are merged before cutting.
+// the quads that continue one flat, straight strip are merged before cutting — along the blade (each
+// piece's strip, also where a piece boundary runs along the sweep) and across the sweep's rows — so
+// the divide and the cut front run once per strip, not once per cell row.
 #pragma once
 
 #include "sim/cut.h"
