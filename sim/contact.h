@@ -246,6 +246,7 @@ struct ContactIndex {
   uint64_t edits = ~uint64_t(0), updates = 0;
   bool rebuilt = true;
   std::vector<uint32_t> revisited;
+  uint64_t revisited_since = ~uint64_t(0);  // cut steps the last update started from
   uint64_t bodies_updates = ~uint64_t(0);  // `updates` when mobile, bodies and the corners were built
   std::vector<uint32_t> slot_piece;   // (slots) piece slot, ~0u: not embedded
   std::vector<uint32_t> piece_begin;  // (pieces + 1) offsets into piece_slots

@@ -1345,6 +1345,7 @@ void refresh_slots(const CutState& cut, PbdState& s) {
   } else {
     update_slots(s, slots, pieces);
   }
+  x.revisited_since = x.cut_steps;
   x.revision = s.revision;
   x.cut_steps = cut.steps;
   x.edits = s.edits.count();
@@ -1483,7 +1484,16 @@ void refresh_allowances(const CutState& cut, PieceContacts& pc) {
     pc.seen[v] = cut.surface.positions[v];
     pc.allowance[v] = std::numeric_limits<float>::infinity();
   };
-  if (!first && cut.steps == pc.seen_steps + 1) {
+  const ContactIndex& x = pc.index;
+  if (!first && cut.steps != pc.seen_steps && !x.rebuilt && x.cut_steps == cut.steps && x.revisited_since == pc.seen_steps) {
+    // The index's last update followed the cuts since: the slots it revisited hold every slot they
+    // re-embedded (one cut step may run several cut_divide calls, so CutState::steps moves by more
+    // than one).
+    for (uint32_t v : x.revisited) {
+      if (v < slots) refresh(v);
+    }
+    for (size_t v = before; v < slots; ++v) refresh(v);
+  } else if (!first && cut.steps == pc.seen_steps + 1) {
     for (uint32_t v : cut.changed_vertices) {
       if (v < slots) refresh(v);
     }
@@ -2201,6 +2211,7 @@ void pbd_forget_caches(PbdState& s) {
   s.blocks_revision = s.blocks_edits = ~uint64_t(0);
   s.embed_revision = kNoRows;
   s.piece_contacts.index.revision = s.piece_contacts.index.edits = ~uint64_t(0);
+  s.piece_contacts.seen_steps = ~uint64_t(0);  // the allowances compare every slot
 }
 
 uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }

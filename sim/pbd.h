@@ -306,7 +306,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
 void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}, bool embed = true);
 
 // Makes the caches derived from the model (the solver's blocks, the contact index, the embedding's
-// rows) rebuild from scratch at their next use instead of following the recorded cuts (tests
+// rows, the contact allowances' fresh slots) rebuild from scratch at their next use instead of following the recorded cuts (tests
 // compare the two).
 void pbd_forget_caches(PbdState& state);
 

@@ -84,6 +84,12 @@ void check_caches_equal(const PbdState& a, const PbdState& b) {
     CHECK(x.body_index == y.body_index);
     CHECK(x.bodies == y.bodies);
   }
+  // The contact allowances (fresh slots found from the index's revisited ones, or by comparing all).
+  const PieceContacts& pa = a.piece_contacts;
+  const PieceContacts& pb = b.piece_contacts;
+  REQUIRE(pa.seen.size() == pb.seen.size());
+  CHECK(std::memcmp(pa.seen.data(), pb.seen.data(), pa.seen.size() * sizeof(Vec3f)) == 0);
+  CHECK(pa.allowance == pb.allowance);
   uint32_t oa = 0, ob = 0;
   CHECK(lanes_by_piece(a, oa) == lanes_by_piece(b, ob));
   CHECK(oa == ob);  // the overflow colour in its group's order
