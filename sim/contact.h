@@ -240,6 +240,14 @@ struct PieceContactScratch {
 struct ContactIndex {
   uint64_t revision = ~uint64_t(0), cut_steps = ~uint64_t(0);  // what it was built from
   uint32_t slots = 0, triangle_count = 0, pieces = 0;
+  // Updated incrementally after a cut (the caller's record of what it changed): `edits` records
+  // seen; `updates` counts the updates, `revisited` lists the slots the last one looked up again
+  // (all slots when `rebuilt`), so another cache of the slots' pieces can follow it.
+  uint64_t edits = ~uint64_t(0), updates = 0;
+  bool rebuilt = true;
+  std::vector<uint32_t> revisited;
+  uint64_t revisited_since = ~uint64_t(0);  // cut steps the last update started from
+  uint64_t bodies_updates = ~uint64_t(0);  // `updates` when mobile, bodies and the corners were built
   std::vector<uint32_t> slot_piece;   // (slots) piece slot, ~0u: not embedded
   std::vector<uint32_t> piece_begin;  // (pieces + 1) offsets into piece_slots
   std::vector<uint32_t> piece_slots;  // the slots of each piece, ascending
@@ -252,6 +260,9 @@ struct ContactIndex {
   std::vector<uint32_t> triangle_begin;  // (pieces + 1)
   std::vector<uint32_t> piece_triangles;
   std::vector<uint32_t> scratch;         // fill cursors; body numbers by root particle
+  std::vector<uint32_t> next_begin, next_slots;  // the incremental update's new piece_begin, piece_slots
+  std::vector<uint64_t> arrivals;        // (piece << 32 | slot) of the slots that changed piece
+  std::vector<uint32_t> changed;         // pieces whose slots changed
 };
 
 // Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).

@@ -1111,6 +1111,98 @@ void sorted_unique(std::vector<T>& v) {
   v.erase(std::unique(v.begin(), v.end()), v.end());
 }
 
+// ---- Edits (PbdModel::edits) --------------------------------------------------------------
+
+constexpr uint64_t kNoRows = ~uint64_t(0);  // PbdData::embed_revision of rows to build from scratch
+// Bounds of the edit records kept for a cache that is not read every step (reserved at init, so a
+// cut step does not allocate for them).
+constexpr size_t kEditRecords = 64, kEditEntries = 8192;
+
+void reserve_edits(PbdEdits& e) {
+  e.records.reserve(kEditRecords + 1);
+  e.slots.reserve(2 * kEditEntries);
+  e.voxels.reserve(kEditEntries / 8);
+  e.particles.reserve(2 * kEditEntries);
+}
+
+// The state (revision, cut steps) after record number n (n == edits.first: the base).
+void edit_state(const PbdEdits& e, uint64_t n, uint64_t& revision, uint64_t& cut_steps) {
+  if (n == e.first) {
+    revision = e.base_revision;
+    cut_steps = e.base_cut_steps;
+  } else {
+    revision = e.records[n - e.first - 1].revision;
+    cut_steps = e.records[n - e.first - 1].cut_steps;
+  }
+}
+
+// Whether a cache built at (revision, cut_steps) that has seen `seen` records can replay the rest to
+// be current: the records it missed are kept, it matches the state after the last it saw, and
+// nothing changed the model (or, with `surface`, the cut) since the last record.
+bool edits_replayable(const PbdState& s, const CutState& cut, uint64_t seen, uint64_t revision, uint64_t cut_steps,
+                      bool surface) {
+  const PbdEdits& e = s.edits;
+  if (seen < e.first || seen > e.count()) return false;
+  uint64_t r, c, now_r, now_c;
+  edit_state(e, seen, r, c);
+  edit_state(e, e.count(), now_r, now_c);
+  if (r != revision || now_r != s.revision) return false;
+  return !surface || (c == cut_steps && now_c == cut.steps);
+}
+
+// Offsets into the edit lists where the records after `seen` begin.
+struct EditRange {
+  uint32_t slots = 0, voxels = 0, particles = 0;
+};
+EditRange edits_after(const PbdEdits& e, uint64_t seen) {
+  if (seen == e.first) return {};
+  const PbdEdits::Record& r = e.records[seen - e.first - 1];
+  return {r.slots_end, r.voxels_end, r.particles_end};
+}
+
+// Drops the first n records.
+void drop_edits(PbdEdits& e, uint64_t n) {
+  if (n == 0) return;
+  const PbdEdits::Record last = e.records[n - 1];
+  e.base_revision = last.revision;
+  e.base_cut_steps = last.cut_steps;
+  e.slots.erase(e.slots.begin(), e.slots.begin() + last.slots_end);
+  e.voxels.erase(e.voxels.begin(), e.voxels.begin() + last.voxels_end);
+  e.particles.erase(e.particles.begin(), e.particles.begin() + last.particles_end);
+  e.records.erase(e.records.begin(), e.records.begin() + ptrdiff_t(n));
+  for (PbdEdits::Record& r : e.records) {
+    r.slots_end -= last.slots_end;
+    r.voxels_end -= last.voxels_end;
+    r.particles_end -= last.particles_end;
+  }
+  e.first += n;
+}
+
+// Records what a pbd_apply_cut changed: the re-embedded slots, the relabelled voxels, the particles
+// whose pieces or masses changed (sorted). Records every cache has seen are dropped first; all of
+// them when they outgrow a bound (a cache not read every step then rebuilds once).
+void record_edits(const CutState& cut, PbdState& s, const std::vector<uint32_t>& voxels,
+                  const std::vector<uint64_t>* particles) {
+  PbdEdits& e = s.edits;
+  uint64_t seen = e.count();
+  for (const uint64_t c : {s.piece_contacts.index.edits, s.blocks_edits}) {
+    if (c >= e.first && c < seen) seen = c;
+  }
+  drop_edits(e, seen - e.first);
+  if (e.records.size() >= kEditRecords || e.slots.size() > kEditEntries || e.particles.size() > kEditEntries) {
+    drop_edits(e, e.records.size());
+  }
+  for (uint32_t slot : cut.changed_vertices) {
+    if (slot < s.embedding.size()) e.slots.push_back(slot);
+  }
+  e.voxels.insert(e.voxels.end(), voxels.begin(), voxels.end());
+  if (particles) {
+    for (uint64_t p : *particles) e.particles.push_back(uint32_t(p));
+  }
+  e.records.push_back({s.revision, cut.steps, uint32_t(e.slots.size()), uint32_t(e.voxels.size()),
+                       uint32_t(e.particles.size())});
+}
+
 // ---- Contact hook (sim/contact.h) ----------------------------------------------------------
 
 // The deformed position of a live embedded vertex slot of piece `piece`, and its trilinear weights.
@@ -1124,24 +1216,9 @@ void slot_point(const PbdState& s, uint32_t slot, uint32_t piece, Vec3d& point, 
   }
 }
 
-// Rebuilds the contact index (sim/contact.h) when a cut changed the model or the surface: the piece
-// of each vertex slot, the slots of each piece, which pieces can move, the bodies.
-void refresh_index(const CutState& cut, PbdState& s) {
+// The slots of each piece from scratch (counting sort: ascending within a piece).
+void build_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
   ContactIndex& x = s.piece_contacts.index;
-  PieceContacts& pc = s.piece_contacts;
-  const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
-  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
-  if (x.revision == s.revision && x.cut_steps == cut.steps && x.slots == slots && x.pieces == pieces &&
-      x.triangle_count == cut.surface.triangles.size()) {
-    return;
-  }
-  x.revision = s.revision;
-  x.cut_steps = cut.steps;
-  x.slots = slots;
-  x.pieces = pieces;
-  x.triangle_count = uint32_t(cut.surface.triangles.size());
-  x.triangles_ready = false;
-  // Slots by piece (counting sort: ascending within a piece).
   x.slot_piece.resize(slots);
   x.piece_begin.assign(pieces + 1, 0);
   for (uint32_t slot = 0; slot < slots; ++slot) {
@@ -1155,6 +1232,140 @@ void refresh_index(const CutState& cut, PbdState& s) {
   for (uint32_t slot = 0; slot < slots; ++slot) {
     if (x.slot_piece[slot] != kDeadIndex) x.piece_slots[x.scratch[x.slot_piece[slot]]++] = slot;
   }
+}
+
+// The slots whose piece the recorded cuts may have changed: the re-embedded ones, the new ones, and
+// those of the relabelled voxels' pieces -- before (a vertex keeps its node, whose label may now name
+// another piece slot) and after. Their pieces before are the current pieces of the voxels relabelled
+// since (a piece slot is made only by a relabel) and the slots freed since.
+void collect_revisited(const PbdState& s, uint32_t slots, ContactIndex& x) {
+  const PbdEdits& e = s.edits;
+  const EditRange from = edits_after(e, x.edits);
+  std::vector<uint32_t>& out = x.revisited;
+  out.clear();
+  out.insert(out.end(), e.slots.begin() + from.slots, e.slots.end());
+  for (uint32_t slot = x.slots; slot < slots; ++slot) out.push_back(slot);
+  const auto add_piece = [&](uint32_t piece) {
+    if (piece < x.pieces) out.insert(out.end(), x.piece_slots.begin() + x.piece_begin[piece], x.piece_slots.begin() + x.piece_begin[piece + 1]);
+  };
+  for (size_t v = from.voxels; v < e.voxels.size(); ++v) {
+    const uint32_t sv = e.voxels[v];
+    if (v > from.voxels && e.voxels[v - 1] == sv) continue;
+    for_pieces(s, sv, add_piece);
+  }
+  if (from.voxels != e.voxels.size()) {
+    for (uint32_t i = 0; i < x.pieces; ++i) {
+      if (s.pieces[i].sim_voxel == kDeadIndex) add_piece(i);
+    }
+  }
+  sorted_unique(out);
+}
+
+// Brings the slots of each piece up to date from the recorded cuts: looks up the revisited slots'
+// pieces, then copies the piece lists that did not change and merges the others (the same arrays a
+// build from scratch makes).
+void update_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
+  ContactIndex& x = s.piece_contacts.index;
+  collect_revisited(s, slots, x);
+  x.slot_piece.resize(slots, kDeadIndex);
+  x.arrivals.clear();
+  x.changed.clear();
+  x.scratch.assign(pieces, 0);  // new count minus old count, wrapping
+  for (uint32_t slot : x.revisited) {
+    const uint32_t now = embedded_piece(s, s.embedding[slot]), was = x.slot_piece[slot];
+    if (now == was) continue;
+    x.slot_piece[slot] = now;
+    if (was != kDeadIndex) {
+      --x.scratch[was];
+      x.changed.push_back(was);
+    }
+    if (now != kDeadIndex) {
+      ++x.scratch[now];
+      x.changed.push_back(now);
+      x.arrivals.push_back(uint64_t(now) << 32 | slot);
+    }
+  }
+  sorted_unique(x.changed);
+  std::sort(x.arrivals.begin(), x.arrivals.end());
+  // New offsets.
+  const auto old_count = [&](uint32_t i) { return i < x.pieces ? x.piece_begin[i + 1] - x.piece_begin[i] : 0u; };
+  x.next_begin.resize(pieces + 1);
+  x.next_begin[0] = 0;
+  for (uint32_t i = 0; i < pieces; ++i) x.next_begin[i + 1] = x.next_begin[i] + old_count(i) + x.scratch[i];
+  x.next_slots.resize(x.next_begin[pieces]);
+  // Unchanged pieces between changed ones: one copy per run; changed ones: old slots still there
+  // merged with the arrivals (both ascending).
+  uint32_t next = 0;  // first piece not yet written
+  size_t a = 0;
+  const auto copy_run = [&](uint32_t end) {
+    const uint32_t stop = std::min(end, x.pieces);
+    if (next < stop) {
+      std::copy(x.piece_slots.begin() + x.piece_begin[next], x.piece_slots.begin() + x.piece_begin[stop],
+                x.next_slots.begin() + x.next_begin[next]);
+    }
+  };
+  for (uint32_t i : x.changed) {
+    copy_run(i);
+    uint32_t* out = x.next_slots.data() + x.next_begin[i];
+    const uint32_t* old = i < x.pieces ? x.piece_slots.data() + x.piece_begin[i] : nullptr;
+    const uint32_t* old_end = old ? x.piece_slots.data() + x.piece_begin[i + 1] : nullptr;
+    while (a < x.arrivals.size() && uint32_t(x.arrivals[a] >> 32) == i) {
+      const uint32_t slot = uint32_t(x.arrivals[a]);
+      for (; old != old_end && *old < slot; ++old) {
+        if (x.slot_piece[*old] == i) *out++ = *old;
+      }
+      *out++ = slot;
+      ++a;
+    }
+    for (; old != old_end; ++old) {
+      if (x.slot_piece[*old] == i) *out++ = *old;
+    }
+    next = i + 1;
+  }
+  copy_run(pieces);
+  x.piece_begin.swap(x.next_begin);
+  x.piece_slots.swap(x.next_slots);
+}
+
+// Brings the slots of each piece (ContactIndex: slot_piece, piece_begin, piece_slots) up to date
+// with the model and the surface: from the recorded cuts when it can, else from scratch.
+void refresh_slots(const CutState& cut, PbdState& s) {
+  ContactIndex& x = s.piece_contacts.index;
+  const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
+  const uint32_t pieces = uint32_t(s.pieces.size());
+  if (x.revision == s.revision && x.cut_steps == cut.steps && x.slots == slots && x.pieces == pieces &&
+      x.triangle_count == cut.surface.triangles.size()) {
+    x.edits = s.edits.count();  // records without a change (a cut step that cut nothing)
+    return;
+  }
+  x.rebuilt = !(edits_replayable(s, cut, x.edits, x.revision, x.cut_steps, true) && slots >= x.slots && pieces >= x.pieces);
+  if (x.rebuilt) {
+    x.revisited.clear();
+    build_slots(s, slots, pieces);
+  } else {
+    update_slots(s, slots, pieces);
+  }
+  x.revisited_since = x.cut_steps;
+  x.revision = s.revision;
+  x.cut_steps = cut.steps;
+  x.edits = s.edits.count();
+  x.slots = slots;
+  x.pieces = pieces;
+  x.triangle_count = uint32_t(cut.surface.triangles.size());
+  x.triangles_ready = false;
+  ++x.updates;
+}
+
+// Brings the contact index (sim/contact.h) up to date when a cut changed the model or the surface:
+// the piece of each vertex slot and the slots of each piece (refresh_slots), which pieces can move,
+// the bodies (O(pieces), from scratch).
+void refresh_index(const CutState& cut, PbdState& s) {
+  refresh_slots(cut, s);
+  ContactIndex& x = s.piece_contacts.index;
+  PieceContacts& pc = s.piece_contacts;
+  if (x.bodies_updates == x.updates) return;
+  x.bodies_updates = x.updates;
+  const uint32_t pieces = x.pieces, particles = uint32_t(s.position.size());
   // Live pieces, their corners, whether they can move (a piece pinned at every corner cannot be pushed).
   pc.corners.resize(size_t(pieces) * 8);
   pc.live.assign(pieces, 0);
@@ -1273,7 +1484,16 @@ void refresh_allowances(const CutState& cut, PieceContacts& pc) {
     pc.seen[v] = cut.surface.positions[v];
     pc.allowance[v] = std::numeric_limits<float>::infinity();
   };
-  if (!first && cut.steps == pc.seen_steps + 1) {
+  const ContactIndex& x = pc.index;
+  if (!first && cut.steps != pc.seen_steps && !x.rebuilt && x.cut_steps == cut.steps && x.revisited_since == pc.seen_steps) {
+    // The index's last update followed the cuts since: the slots it revisited hold every slot they
+    // re-embedded (one cut step may run several cut_divide calls, so CutState::steps moves by more
+    // than one).
+    for (uint32_t v : x.revisited) {
+      if (v < slots) refresh(v);
+    }
+    for (size_t v = before; v < slots; ++v) refresh(v);
+  } else if (!first && cut.steps == pc.seen_steps + 1) {
     for (uint32_t v : cut.changed_vertices) {
       if (v < slots) refresh(v);
     }
@@ -1413,32 +1633,175 @@ void gather_contacts(const CutState& cut, PbdState& s) {
   collect_piece_contacts(cut, s, speed);
 }
 
-// ---- Solver step -----------------------------------------------------------------------------
+// ---- Embedding rows ---------------------------------------------------------------------------
 
-// Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, and the stretch
-// constraints' rows, once per model revision (masses change only with it). The overflow colour's
-// clusters may share particles: one per block, solved in order.
-void build_shape_blocks(PbdState& s) {
-  for (int c = 0; c < kColourGroups; ++c) {
-    s.stretch_rows[c].clear();
-    for (const StretchConstraint& k : s.stretch_groups[c]) s.stretch_rows[c].push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
+// Sets the row of a vertex slot from its piece in the contact index (none: the slot keeps its rest
+// position), swapping the last row into a removed one.
+void set_embed_row(const CutState& cut, PbdState& s, uint32_t slot) {
+  const uint32_t piece = s.piece_contacts.index.slot_piece[slot];
+  uint32_t& row = s.embed_row_of[slot];
+  if (piece != kDeadIndex) {
+    const VertexEmbedding& e = s.embedding[slot];
+    const EmbedRow r{slot, piece, e.local.x(), e.local.y(), e.local.z()};
+    if (row == kDeadIndex) {
+      row = uint32_t(s.embed_rows.size());
+      s.embed_rows.push_back(r);
+    } else {
+      s.embed_rows[row] = r;
+    }
+    return;
   }
-  for (int c = 0; c < kColourGroups; ++c) {
-    std::vector<ShapeBlock>& blocks = s.shape_blocks[c];
-    blocks.clear();
-    const int lanes = c == kOverflowColour ? 1 : kShapeLanes;
-    for (const uint32_t slot : s.piece_groups[c]) {
-      const uint32_t* particles = s.pieces[slot].particles;
-      double rest[24];
-      for (int k = 0; k < 8; ++k) {
-        for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
-      }
-      ShapeRest r;
-      if (!shape_matching_rest(s.inv_mass.data(), particles, rest, 8, r)) continue;
-      if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
-      shape_block_add(blocks.back(), slot, particles, r);
+  s.deformed[slot] = cut.surface.positions[slot];
+  if (row == kDeadIndex) return;
+  const EmbedRow last = s.embed_rows.back();
+  s.embed_rows[row] = last;
+  s.embed_row_of[last.slot] = row;
+  s.embed_rows.pop_back();
+  row = kDeadIndex;
+}
+
+// The rows of the embedded slots, following the contact index's slot pieces (labels are looked up
+// once per model, cut or slot count, by refresh_slots): after one update of the index only the
+// slots it revisited, else all (grouped by piece, so the interpolation reads each piece's corners
+// in a run).
+void refresh_embed_rows(const CutState& cut, PbdState& s) {
+  refresh_slots(cut, s);
+  const ContactIndex& x = s.piece_contacts.index;
+  const bool valid = s.embed_revision != kNoRows;
+  if (valid && s.embed_updates == x.updates) return;
+  s.embed_row_of.resize(x.slots, kDeadIndex);
+  if (valid && s.embed_updates + 1 == x.updates && !x.rebuilt) {
+    for (uint32_t slot : x.revisited) set_embed_row(cut, s, slot);
+  } else {
+    s.embed_rows.clear();
+    std::fill(s.embed_row_of.begin(), s.embed_row_of.end(), kDeadIndex);
+    for (uint32_t i = 0; i < x.pieces; ++i) {
+      for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) set_embed_row(cut, s, x.piece_slots[n]);
+    }
+    for (uint32_t slot = 0; slot < x.slots; ++slot) {
+      if (x.slot_piece[slot] == kDeadIndex) s.deformed[slot] = cut.surface.positions[slot];
     }
   }
+  s.embed_revision = s.revision;
+  s.embed_updates = x.updates;
+}
+
+// ---- Solver step -----------------------------------------------------------------------------
+
+// ---- Solver blocks ----------------------------------------------------------------------------
+
+// Where a piece's cluster sits in the shape blocks (PbdData::shape_lane).
+uint32_t lane_code(uint32_t colour, size_t block, int lane) { return colour << 26 | uint32_t(block) << 2 | uint32_t(lane); }
+
+// Copies lane `from` of block `src` into lane `to` of block `dst`.
+void copy_lane(ShapeBlock& dst, int to, const ShapeBlock& src, int from) {
+  dst.piece[to] = src.piece[from];
+  dst.inv_total[to] = src.inv_total[from];
+  for (int k = 0; k < kShapeMaxParticles; ++k) {
+    dst.index[k][to] = src.index[k][from];
+    dst.mass[k][to] = src.mass[k][from];
+    dst.moves[k][to] = src.moves[k][from];
+    for (int e = 0; e < 3; ++e) dst.offset[k][e][to] = src.offset[k][e][from];
+  }
+}
+
+// Adds a live piece's cluster (its rest frame from the particles' rest positions and masses) at the
+// end of its colour's blocks; the overflow colour's clusters may share particles: one per block,
+// solved in order. A cluster without a rest frame (no mass) joins no block.
+void add_cluster(PbdState& s, uint32_t slot) {
+  const SimPiece& piece = s.pieces[slot];
+  const uint32_t* particles = piece.particles;
+  double rest[24];
+  for (int k = 0; k < 8; ++k) {
+    for (int a = 0; a < 3; ++a) rest[3 * k + a] = s.rest[particles[k]][a];
+  }
+  ShapeRest r;
+  if (!shape_matching_rest(s.inv_mass.data(), particles, rest, 8, r)) return;
+  std::vector<ShapeBlock>& blocks = s.shape_blocks[piece.colour];
+  const int lanes = piece.colour == kOverflowColour ? 1 : kShapeLanes;
+  if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
+  s.shape_lane[slot] = lane_code(piece.colour, blocks.size() - 1, blocks.back().lanes);
+  shape_block_add(blocks.back(), slot, particles, r);
+}
+
+// Takes a piece's cluster out of its block: the colour's last lane moves into its place (the unused
+// lanes of the last block repeat its first, as shape_block_add leaves them).
+void remove_cluster(PbdState& s, uint32_t slot) {
+  const uint32_t code = s.shape_lane[slot];
+  const uint32_t colour = code >> 26, block = (code >> 2) & 0xFFFFFFu;
+  const int lane = int(code & 3u);
+  std::vector<ShapeBlock>& blocks = s.shape_blocks[colour];
+  ShapeBlock& last = blocks.back();
+  const int last_lane = last.lanes - 1;
+  if (block + 1 != blocks.size() || lane != last_lane) {
+    copy_lane(blocks[block], lane, last, last_lane);
+    s.shape_lane[blocks[block].piece[lane]] = code;
+  }
+  if (--last.lanes == 0) {
+    blocks.pop_back();
+  } else {
+    for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, 0);
+  }
+  s.shape_lane[slot] = kDeadIndex;
+}
+
+// Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, from scratch
+// (in their colour groups' order).
+void build_shape_blocks(PbdState& s) {
+  s.shape_lane.assign(s.pieces.size(), kDeadIndex);
+  for (int c = 0; c < kColourGroups; ++c) {
+    s.shape_blocks[c].clear();
+    for (const uint32_t slot : s.piece_groups[c]) add_cluster(s, slot);
+  }
+}
+
+// The same from the recorded cuts: the clusters of the pieces freed or using a changed particle
+// (rest position, mass, or the piece's particles and colour) leave their blocks and the live ones
+// join again at the end of their colour; the overflow colour is rebuilt in its group's order.
+void update_shape_blocks(PbdState& s) {
+  const PbdEdits& e = s.edits;
+  const EditRange from = edits_after(e, s.blocks_edits);
+  std::vector<uint8_t>& mark = s.blocks_mark;
+  mark.resize(s.position.size(), 0);
+  for (size_t i = from.particles; i < e.particles.size(); ++i) mark[e.particles[i]] = 1;
+  s.shape_lane.resize(s.pieces.size(), kDeadIndex);
+  for (const ShapeBlock& b : s.shape_blocks[kOverflowColour]) {
+    for (int l = 0; l < b.lanes; ++l) s.shape_lane[b.piece[l]] = kDeadIndex;
+  }
+  s.shape_blocks[kOverflowColour].clear();
+  std::vector<uint32_t>& dirty = s.blocks_dirty;
+  dirty.clear();
+  for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
+    const SimPiece& piece = s.pieces[slot];
+    const bool live = piece.sim_voxel != kDeadIndex;
+    bool changed = !live;
+    for (int k = 0; live && k < 8 && !changed; ++k) changed = mark[piece.particles[k]] != 0;
+    if (!changed) continue;
+    if (s.shape_lane[slot] != kDeadIndex) remove_cluster(s, slot);
+    if (live && piece.colour != kOverflowColour) dirty.push_back(slot);
+  }
+  for (const uint32_t slot : dirty) add_cluster(s, slot);
+  for (const uint32_t slot : s.piece_groups[kOverflowColour]) add_cluster(s, slot);
+  for (size_t i = from.particles; i < e.particles.size(); ++i) mark[e.particles[i]] = 0;
+}
+
+// The solver's blocks, when the model changed: the shape-matching blocks from the recorded cuts when
+// they can follow them, else from scratch; the stretch constraints' rows (parallel to their groups,
+// with the particles' masses: O(constraints), a copy each).
+void refresh_blocks(const CutState& cut, PbdState& s) {
+  if (s.blocks_revision != s.revision) {
+    if (edits_replayable(s, cut, s.blocks_edits, s.blocks_revision, 0, false) && s.shape_lane.size() <= s.pieces.size()) {
+      update_shape_blocks(s);
+    } else {
+      build_shape_blocks(s);
+    }
+    for (int c = 0; c < kColourGroups; ++c) {
+      s.stretch_rows[c].clear();
+      for (const StretchConstraint& k : s.stretch_groups[c]) s.stretch_rows[c].push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
+    }
+    s.blocks_revision = s.revision;
+  }
+  s.blocks_edits = s.edits.count();
 }
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
@@ -1577,6 +1940,9 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   // The embedding of every live vertex.
   grow_embedding(cut, s);
   for (uint32_t slot = 0; slot < cut.surface.positions.size(); ++slot) embed_vertex(model, cut, s, slot);
+  reserve_edits(s.edits);
+  s.edits.base_revision = s.revision;  // the caches follow the cuts from here
+  s.edits.base_cut_steps = cut.steps;
   pbd_embed(cut, s);
   return true;
 }
@@ -1711,6 +2077,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   for (uint32_t slot : cut.changed_vertices) {
     if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
+  record_edits(cut, s, affected, affected.empty() ? nullptr : &s.scratch_corners);  // for the caches
   if (stats) stats->sim_voxels += uint32_t(affected.size());
   return uint32_t(affected.size());
 }
@@ -1728,24 +2095,7 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
       out[4 * c + 3] = 0.0f;
     }
   }
-  // The rows of the embedded slots (labels looked up once per model, cut or slot count); the free
-  // and unembedded slots keep their rest position.
-  const uint32_t count = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
-  if (s.embed_revision != s.revision || s.embed_cut_steps != cut.steps || s.embed_slots != count) {
-    s.embed_rows.clear();
-    for (uint32_t slot = 0; slot < count; ++slot) {
-      const VertexEmbedding& e = s.embedding[slot];
-      const uint32_t piece = embedded_piece(s, e);
-      if (piece == kDeadIndex) {
-        s.deformed[slot] = cut.surface.positions[slot];
-      } else {
-        s.embed_rows.push_back(EmbedRow{slot, piece, e.local.x(), e.local.y(), e.local.z()});
-      }
-    }
-    s.embed_revision = s.revision;
-    s.embed_cut_steps = cut.steps;
-    s.embed_slots = count;
-  }
+  refresh_embed_rows(cut, s);
   // The interpolation (pbd_kernels.h embed_rows); the deformed surface is float anyway and not part
   // of the state hash.
   static_assert(sizeof(Vec3f) == 3 * sizeof(float), "deformed positions are packed float triples");
@@ -1763,10 +2113,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   double* x = s.position.empty() ? nullptr : s.position[0].data();
   const double* w = s.inv_mass.data();
   // The constraint blocks change only with the model (a cut, or init).
-  if (s.blocks_revision != s.revision) {
-    build_shape_blocks(s);
-    s.blocks_revision = s.revision;
-  }
+  refresh_blocks(cut, s);
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
@@ -1858,6 +2205,13 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   run_batches(tasks, s.task_batches.data(), uint32_t(s.task_batches.size()), run);
   ++s.steps;
   if (embed) pbd_embed(cut, s, tasks);
+}
+
+void pbd_forget_caches(PbdState& s) {
+  s.blocks_revision = s.blocks_edits = ~uint64_t(0);
+  s.embed_revision = kNoRows;
+  s.piece_contacts.index.revision = s.piece_contacts.index.edits = ~uint64_t(0);
+  s.piece_contacts.seen_steps = ~uint64_t(0);  // the allowances compare every slot
 }
 
 uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }

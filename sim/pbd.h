@@ -155,6 +155,27 @@ struct PbdCutStats {
   uint32_t corners = 0;          // coarse corners re-assigned
 };
 
+// What the cut steps since init changed, for the caches derived from the model (the embedding rows,
+// the contact index, the solver's blocks): pbd_apply_cut appends one record each, so a cache brings
+// itself up to date by revisiting only what the cuts touched. A cache remembers how many records it
+// has seen; records every cache has seen are dropped, and so are all of them when they grow past a
+// bound (a cache that is not read every step, like the embedding of a headless replay): a cache
+// that fell behind the records kept rebuilds from scratch, as does one whose model or surface
+// changed otherwise (its revision or cut steps do not match the record it saw last).
+struct PbdEdits {
+  struct Record {
+    uint64_t revision, cut_steps;                   // PbdModel::revision and CutState::steps after it
+    uint32_t slots_end, voxels_end, particles_end;  // ends of its entries in the lists below
+  };
+  uint64_t first = 0;                      // records dropped; the first kept is number first + 1
+  uint64_t base_revision = 0, base_cut_steps = 0;  // state after record `first` (or init)
+  std::vector<Record> records;
+  std::vector<uint32_t> slots;      // vertex slots re-embedded (CutState::changed_vertices)
+  std::vector<uint32_t> voxels;     // simulation voxels relabelled (their label slots changed)
+  std::vector<uint32_t> particles;  // particles whose pieces, rest position or mass changed
+  uint64_t count() const { return first + records.size(); }
+};
+
 // The topology: what cuts edit.
 struct PbdModel {
   // Simulation grid.
@@ -209,9 +230,10 @@ struct PbdModel {
   FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 + 3 (ratio+1)^2 rows)
   std::vector<uint64_t> cut_rows;
 
-  // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver rebuilds its constraint
+  // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver updates its constraint
   // blocks (PbdData::shape_blocks) only when it changed.
   uint64_t revision = 0;
+  PbdEdits edits;
 };
 
 // One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
@@ -239,16 +261,25 @@ struct PbdData {
   // Solver scratch, rebuilt when the model changes (blocks_revision != PbdModel::revision; masses and
   // rest positions change only with it): the shape-matching clusters of each colour in blocks (their
   // rest frames), the stretch constraints with their masses; each step, each piece's corners in float for the embedding.
-  uint64_t blocks_revision = ~uint64_t(0);
+  // Updated from PbdModel::edits (the pieces using a changed particle leave their block, by moving
+  // the colour's last lane into their place, and join at the end: within a colour other than the
+  // overflow clusters share no particle and each lane is solved alone, so their order does not
+  // change the bits; the overflow colour is rebuilt in its group's order).
+  uint64_t blocks_revision = ~uint64_t(0), blocks_edits = ~uint64_t(0);
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
+  std::vector<uint32_t> shape_lane;  // (piece slots) colour << 26 | block << 2 | lane, ~0u: in no block
+  std::vector<uint8_t> blocks_mark;    // (particles) scratch: changed by the recorded cuts
+  std::vector<uint32_t> blocks_dirty;  // scratch: pieces whose clusters join again
   std::vector<StretchRow> stretch_rows[kColourGroups];  // parallel to stretch_groups
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
-  // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position,
-  // rebuilt when the model, the cut (CutState::steps) or the slot count changed, so a step without
-  // a cut looks up no labels. Unembedded slots are written (their rest position) at the rebuild.
+  // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position, in
+  // no particular order (each row writes its own slot), so a step without a cut looks up no labels.
+  // Kept in step with the contact index's slot pieces (ContactIndex::updates): after its update
+  // only the slots it revisited are, else rebuilt. Unembedded slots are written (their rest
+  // position) when they are revisited or rebuilt.
   std::vector<EmbedRow> embed_rows;
-  uint64_t embed_revision = ~uint64_t(0), embed_cut_steps = ~uint64_t(0);
-  size_t embed_slots = 0;
+  std::vector<uint32_t> embed_row_of;  // (surface vertex slots) index in embed_rows, ~0u: none
+  uint64_t embed_revision = ~uint64_t(0), embed_updates = ~uint64_t(0);
   // The batches of one step (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;
@@ -273,6 +304,11 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
 // caller that reads PbdData::deformed only now and then (a headless replay: the state hash and
 // contact read the particles, not the surface) passes false and calls pbd_embed before it reads.
 void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}, bool embed = true);
+
+// Makes the caches derived from the model (the solver's blocks, the contact index, the embedding's
+// rows, the contact allowances' fresh slots) rebuild from scratch at their next use instead of following the recorded cuts (tests
+// compare the two).
+void pbd_forget_caches(PbdState& state);
 
 // Recomputes deformed positions of all live surface vertices (pbd_step calls it).
 void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
