@@ -23,6 +23,7 @@
 
 #include "sim/mesh.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <utility>
 #include <vector>
@@ -196,6 +197,7 @@ struct SurfacePoint {
   float allowance;  // in: overlap it may keep (infinity: fresh); out: the updated allowance
   uint32_t slot;    // the caller's id (the PBD model: its surface vertex slot)
   uint32_t piece = 0;  // the caller's piece: contacts between two pieces form one group
+  float reach = 0.0f;  // its piece's contact reach: a pair within the larger of its points' reaches may touch
 };
 
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
@@ -219,6 +221,7 @@ struct PieceContactScratch {
   // Narrow phase: the points' positions and normals in cell order (a query scans them in sequence),
   // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
   std::vector<Vec3d> item_position, item_normal;  // (cell_items)
+  std::vector<double> item_reach;                 // (cell_items) squared reach
   std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
   std::vector<double> best_d;                     // (items) squared distance to it
   std::vector<double> allowed;                    // (points) overlap its contact allows this step
@@ -227,6 +230,7 @@ struct PieceContactScratch {
   // Body broad phase: bounds of the bodies, the pairs of bodies whose grown bounds overlap, and each
   // body's overlapping bodies.
   std::vector<Vec3d> body_lo, body_hi;            // (bodies)
+  std::vector<double> body_reach;                 // (bodies) the largest reach of its pieces
   std::vector<uint32_t> body_order;               // bodies by lower x bound
   std::vector<uint64_t> body_pairs;               // b << 32 | c, both directions
   std::vector<uint32_t> body_partner_begin, body_partners;
@@ -254,6 +258,19 @@ struct ContactIndex {
   std::vector<uint32_t> scratch;         // fill cursors; body numbers by root particle
 };
 
+// A contact point of a piece: a representative surface vertex slot (see "Contact points") and its
+// unit outward normal at rest (the deformed normal is its image under the piece's deformation).
+struct ContactRep {
+  uint32_t slot;
+  float normal[3];
+};
+
+// Contact cells per simulation voxel edge (see "Contact points"): kContactCells, fewer where a cell
+// would be smaller than kMinContactCell fine voxels.
+constexpr int kContactCells = 4;
+constexpr int kMinContactCell = 2;
+inline int contact_cells(int ratio) { return std::max(1, std::min(kContactCells, ratio / kMinContactCell)); }
+
 // Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).
 struct PieceContacts {
   ContactSet set;               // batch = colour (kContactOverflow: serial)
@@ -261,9 +278,17 @@ struct PieceContacts {
   std::vector<uint32_t> corners, body;  // (pieces x 8), (pieces)
   std::vector<uint8_t> live, exposed;   // (pieces)
   std::vector<Vec3d> lo, hi;            // (pieces) deformed bounds
+  std::vector<double> motion, reach;    // (pieces) how far it may move this step; its contact reach
   ContactIndex index;                   // also read by the plane gather
   std::vector<SurfacePoint> points;
-  std::vector<uint32_t> point_of_slot;  // (surface vertex slots) index in points, ~0u: none
+  // Contact points (see "Contact points"): each piece's representative surface vertices, built on a
+  // piece's first need after the index changed (what it was built from: `rep_key`).
+  uint64_t rep_key[5] = {~uint64_t(0), 0, 0, 0, 0};  // the index's revision, cut steps, slots, pieces, triangles
+  std::vector<uint32_t> rep_begin;      // (pieces) offset into reps, ~0u: not built yet
+  std::vector<uint16_t> rep_count;      // (pieces)
+  std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
+  std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
+  std::vector<Vec3d> rep_normal;        // (the piece's slots) rest normals, scratch
   std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
@@ -284,30 +309,32 @@ struct PieceContacts {
 void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_count, uint32_t particle_count,
                  std::vector<uint32_t>& body, PieceContactScratch& scratch);
 
-// Body broad phase: marks (candidate[piece] = 1) the live pieces whose bounds grown by `reach` overlap
-// the grown bounds of another body (body_index: bodies numbered 0 .. bodies - 1); only they can be
-// exposed. Returns how many.
-uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
-                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& scratch);
+// Body broad phase: marks (candidate[piece] = 1) the live pieces whose bounds grown by their reach
+// (reach[piece]) overlap the bounds of another body grown by its largest reach (body_index: bodies
+// numbered 0 .. bodies - 1); only they can be exposed. Returns how many.
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                               const uint32_t* body_index, uint32_t bodies, uint32_t piece_count, PieceContactScratch& scratch);
 
-// Marks the pieces whose bounds (lo, hi per piece; live as above), grown by `reach`, overlap a piece of
-// another body, and lists each one's partners (scratch.partners). Returns how many.
-uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
-                             uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
+// Marks the pieces whose bounds (lo, hi per piece; live as above), grown by their reach, overlap a
+// piece of another body grown by its own, and lists each one's partners (scratch.partners). Returns
+// how many.
+uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
 
-// Whether x lies within `reach` of the bounds of a partner of `piece` (the last find_exposed_pieces):
-// only such a surface point can be within reach of a point of another body (every embedded point lies
-// in its piece's bounds), so the others need not enter the narrow phase.
-bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, uint32_t piece,
-                  const Vec3d& x, double reach);
+// Whether x lies within the pair's reach (the larger of the two pieces') of the bounds of a partner
+// of `piece` (the last find_exposed_pieces): only such a surface point can be within reach of a point
+// of another body (every embedded point lies in its piece's bounds), so the others need not enter
+// the narrow phase.
+bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, const double* reach,
+                  uint32_t piece, const Vec3d& x);
 
-// Adds the contacts of `points` (see above) to `set` (batch = colour, group = pair of pieces),
-// coloured over `particle_count` particles, and updates the points' allowances; an overlap
-// beyond the allowance is pushed out by at most `max_push` this step. `x` are the current particle
-// positions (double[3]). Returns how many it added.
+// Adds the contacts of `points` (see above; each pair within the larger of its points' reaches) to
+// `set` (batch = colour, group = pair of pieces), coloured over `particle_count` particles, and
+// updates the points' allowances; an overlap beyond the allowance is pushed out by at most
+// `max_push` this step. `x` are the current particle positions (double[3]). Returns how many it added.
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double max_push, double friction, ContactSet& set, PieceContactScratch& scratch,
+                               double max_push, double friction, ContactSet& set, PieceContactScratch& scratch,
                                uint64_t* pairs_tested = nullptr);
 
 }  // namespace dvx
