@@ -6,11 +6,13 @@
 // What touches the plane. The visible surface interpolates the simulation particles (trilinear weights
 // in its simulation piece), and a piece's corner particles lie up to one simulation voxel outside its
 // material. Keeping the *particles* on the positive side would hold the surface up to a simulation
-// voxel above the tray; so the constraint acts on *contact points of the embedded surface*: surface
-// vertices near a plane, each the weighted sum of its piece's 8 particles (C = n . (sum_i w_i x_i - p)
-// >= 0, gradient w_i n on particle i, generalised inverse mass W = sum_i w_i^2 / m_i). The surface
-// then rests on the plane, and particles may sit below it. Particles get only a frictionless backstop
-// one simulation voxel below the plane, so a piece whose surface was not gathered cannot fall through.
+// voxel above the tray; so the constraint acts on *contact points of the embedded surface*: a piece's
+// contact points (a fixed subset of its surface vertices, see "Contact points" below) near a plane,
+// each the weighted sum of its piece's 8 particles (C = n . (sum_i w_i x_i - p) >= 0, gradient w_i n
+// on particle i, generalised inverse mass W = sum_i w_i^2 / m_i). The surface then rests on the plane,
+// and particles may sit below it. A piece is gathered when it may reach the plane within the step
+// (2 fine voxels + twice its own motion, see "Reach"). Particles get only a frictionless backstop one
+// simulation voxel below the plane, so a piece whose surface was not gathered cannot fall through.
 //
 // Friction (position level: Macklin et al. 2014 "Unified particle physics", 2019 "Small steps";
 // Müller et al. 2020 "Detailed rigid body simulation with XPBD"). Each contact point accumulates,
@@ -129,15 +131,37 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // joined by material); only surface points of different bodies touch. A body does not collide with
 // itself (a flap folded onto its own body is a known limit).
 //
-// Broad phase: the bodies' bounds, grown by the contact reach, swept along x; the pieces of bodies
-// near another body, by their deformed bounds grown by the reach, in a uniform grid; a piece is
-// *exposed* when its bounds overlap a piece of another body. Narrow phase: the surface vertices of
-// exposed pieces (near a partner's bounds) in a hash grid of cell = reach, each pair of vertices met
-// once (a cell against itself and the 13 cells after it); each vertex v pairs with its nearest vertex q of
-// another body within reach whose normal faces it (n_v . n_q < -0.9: more than ~155 degrees apart, so
-// the rims where a cut face meets the old surface do not pair). The contact keeps v on the outer side
-// of q's tangent plane: C = n_q . (x_v - x_q) >= -allowance, x_v and x_q the trilinear points of their
-// pieces (16 particles, q's weights negated).
+// Contact points. A piece's surface interpolates its 8 particles, so contacts at all its vertices are
+// strongly redundant (at 128 / sim 16, ~17 vertex contacts per pair of simulation pieces, all on the
+// same 16 particles), and their number grows with the square of the fine voxels per simulation voxel
+// (every surface vertex of an exposed piece near a partner was one: at 256 the step after a sever
+// cost 35 ms). So contact acts on a fixed subset of each piece's surface vertices, its *contact
+// points*: its simulation voxel (rest frame) is divided into contact_cells(ratio)^3 cells
+// (kContactCells = 4 per edge, fewer where a cell would be smaller than kMinContactCell = 2 fine
+// voxels), and in each cell and each of six normal directions (the dominant axis of the vertex's rest
+// normal and its sign, so a cut face and the old surface meeting at a rim keep a point each) the
+// vertex nearest the cell's centre is a contact point (ties: the lowest slot). The choice depends on
+// the rest surface only: made per piece on first need after each cut, it never flickers between
+// steps. A flat face of a piece has at most 16 contact points whatever the fine resolution; the plane
+// contacts and both sides of the narrow phase use only them. Between contact points the surface
+// interpolates the same particles (on a flat face, exactly: it stays on the side they hold it on); a
+// face curved with radius R dips up to d^2 / 8R between two points d apart. A contact point's deformed
+// normal is its rest normal under the piece's trilinear map (the cofactor of its Jacobian there).
+//
+// Reach. Each piece's own: max(2 fine voxels, a contact cell) plus twice what its fastest corner moves
+// in a step ((|v| + g dt) dt), capped at a simulation voxel; a pair of pieces, or of points, may touch
+// within the larger of its two reaches. (With the fastest particle's speed for everyone, a piece
+// falling at 3 m/s widened the reach of every piece at rest to ~6 fine voxels.)
+//
+// Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
+// bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
+// is *exposed* when its grown bounds overlap those of a piece of another body. Narrow phase: the
+// contact points of exposed pieces (near a partner's bounds) in a hash grid of cell = the largest
+// reach, each pair of points met once (a cell against itself and the 13 cells after it); each point
+// v pairs with its nearest point q of another body within the pair's reach whose normal faces it
+// (n_v . n_q < -0.9: more than ~155 degrees apart, so the rims where a cut face meets the old surface
+// do not pair). The contact keeps v on the outer side of q's tangent plane: C = n_q . (x_v - x_q) >=
+// -allowance, x_v and x_q the trilinear points of their pieces (16 particles, q's weights negated).
 //
 // Fresh cuts. The two faces of a fresh cut coincide (their vertices sit on the blade's plane to within
 // the contouring's precision), so some start a hair inside the other side. Pushing them out would be a
@@ -159,11 +183,11 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // Contacts. A pair of points that are each other's nearest make one contact (the same constraint,
 // the normals within 25 degrees of opposite): the two faces of a fresh cut pair up so.
 //
-// Resting offset. The contacts of one face pair are strongly redundant: ~17 vertex pairs per pair of
-// simulation pieces, all on the same 16 particles, each projected fully in turn (projected
-// Gauss-Seidel). A projection lifts its neighbours too (they share its particles), and a neighbour
-// lifted past its target cannot pull back unless it pushed itself, so one sweep over-separates the
-// faces by a fraction of what it corrected. In each iteration the stretch and shape constraints
+// Resting offset. The contacts of one face pair are redundant: several per pair of simulation pieces
+// (~17 vertex pairs before the contact points, when this was measured), all on the same 16
+// particles, each projected fully in turn (projected Gauss-Seidel). A projection lifts its neighbours
+// too (they share its particles), and a neighbour lifted past its target cannot pull back unless it
+// pushed itself, so one sweep over-separates the faces by a fraction of what it corrected. In each iteration the stretch and shape constraints
 // close the faces again (the load they pass between the sides), and each sweep over-separates them
 // again: the faces rest that far apart (measured on a block cut through horizontally on a tray,
 // tests/sim/test_contact.cpp: the mean gap of the cut faces settles at 0.055 g dt^2 with 5 substeps
@@ -176,7 +200,9 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // ends with the surface above them. (Not the released strain of an unconverged solve, as once
 // guessed: in the first substep after the cut at 5 x 2 the stretch and shape corrections close the
 // faces, -0.24 g dt^2 on their mean gap, and the contacts open them by more, +0.28; measured per
-// batch kind, the contacts alone part them.)
+// batch kind, the contacts alone part them.) With the contact points (4 per face pair of a piece in
+// that test) the sweeps are still needed: without them the faces part at 0.047 g dt at 5 x 2, 0.18 at
+// 1 x 10.
 //
 // Colouring: the contacts between two pieces form one group (they share those pieces' 16
 // particles), solved in order by one worker; groups are coloured greedily over their particles (63
@@ -301,6 +327,7 @@ struct PieceContacts {
     uint64_t points = 0;        // surface points offered to the narrow phase
     uint64_t point_pairs = 0;   // point pairs whose distance was compared (narrow phase)
     uint64_t contacts = 0;      // contacts made
+    uint64_t contact_pairs = 0; // pairs of pieces with contacts (their groups)
   } counters;
 };
 

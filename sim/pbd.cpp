@@ -1461,6 +1461,7 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
                                                 kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch,
                                                 &pc.counters.point_pairs);
   contacts_finish(pc.set);
+  pc.counters.contact_pairs += pc.set.group_begin.size() - 1;
   for (const uint32_t slot : pc.gathered) pc.allowance[slot] = 0.0f;  // dropped (no normal): no allowance
   for (const SurfacePoint& sp : pc.points) pc.allowance[sp.slot] = sp.allowance;
 }
