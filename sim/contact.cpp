@@ -293,30 +293,35 @@ void partner_lists(std::vector<uint64_t>& pairs, uint32_t n, std::vector<uint32_
   for (uint32_t i = 0; i < n; ++i) begin[i + 1] += begin[i];
 }
 
-// Whether two boxes, each grown by `reach`, overlap (as find_exposed_pieces tests two pieces).
-bool grown_overlap(const Vec3d& lo_a, const Vec3d& hi_a, const Vec3d& lo_b, const Vec3d& hi_b, double reach) {
-  const Vec3d a = lo_a - Vec3d::Constant(reach), b = hi_a + Vec3d::Constant(reach);
-  return !((lo_b.array() - reach > b.array()).any() || (hi_b.array() + reach < a.array()).any());
+// Whether two boxes, grown by reach_a and reach_b, overlap (as find_exposed_pieces tests two pieces).
+bool grown_overlap(const Vec3d& lo_a, const Vec3d& hi_a, double reach_a, const Vec3d& lo_b, const Vec3d& hi_b, double reach_b) {
+  const Vec3d a = lo_a - Vec3d::Constant(reach_a), b = hi_a + Vec3d::Constant(reach_a);
+  return !((lo_b.array() - reach_b > b.array()).any() || (hi_b.array() + reach_b < a.array()).any());
 }
 
 }  // namespace
 
-uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
-                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& g) {
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                               const uint32_t* body_index, uint32_t bodies, uint32_t piece_count, PieceContactScratch& g) {
   g.candidate.assign(piece_count, 0);
   if (bodies < 2) return 0;
   // The bodies' bounds (each holds its pieces'; so a piece's test against a body's bounds is
   // conservative: rounding is monotonic).
   g.body_lo.assign(bodies, Vec3d::Constant(std::numeric_limits<double>::infinity()));
   g.body_hi.assign(bodies, Vec3d::Constant(-std::numeric_limits<double>::infinity()));
+  g.body_reach.assign(bodies, 0.0);
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
     g.body_lo[body_index[i]] = g.body_lo[body_index[i]].cwiseMin(lo[i]);
     g.body_hi[body_index[i]] = g.body_hi[body_index[i]].cwiseMax(hi[i]);
+    g.body_reach[body_index[i]] = std::max(g.body_reach[body_index[i]], reach[i]);
   }
-  // Sweep along x: the bodies by lower bound (a non-finite bound first, so it meets every body);
-  // a pair overlaps only while the later one starts before the earlier one ends.
-  const auto start = [&](uint32_t b) { return std::isnan(g.body_lo[b].x()) ? -std::numeric_limits<double>::infinity() : g.body_lo[b].x(); };
+  const std::vector<double>& r = g.body_reach;
+  // Sweep along x: the bodies by grown lower bound (a non-finite bound first, so it meets every
+  // body); a pair overlaps only while the later one starts before the earlier one ends.
+  const auto start = [&](uint32_t b) {
+    return std::isnan(g.body_lo[b].x()) ? -std::numeric_limits<double>::infinity() : g.body_lo[b].x() - r[b];
+  };
   g.body_order.resize(bodies);
   for (uint32_t b = 0; b < bodies; ++b) g.body_order[b] = b;
   std::sort(g.body_order.begin(), g.body_order.end(), [&](uint32_t a, uint32_t b) {
@@ -327,8 +332,8 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* 
     const uint32_t a = g.body_order[m];
     for (uint32_t k = m + 1; k < bodies; ++k) {
       const uint32_t b = g.body_order[k];
-      if (g.body_lo[b].x() - reach > g.body_hi[a].x() + reach) break;
-      if (!grown_overlap(g.body_lo[a], g.body_hi[a], g.body_lo[b], g.body_hi[b], reach)) continue;
+      if (start(b) > g.body_hi[a].x() + r[a]) break;
+      if (!grown_overlap(g.body_lo[a], g.body_hi[a], r[a], g.body_lo[b], g.body_hi[b], r[b])) continue;
       g.body_pairs.push_back((uint64_t(a) << 32) | b);
       g.body_pairs.push_back((uint64_t(b) << 32) | a);
     }
@@ -345,7 +350,7 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* 
     bool near = last - first > kMaxTests;
     for (uint32_t k = first; k < last && !near; ++k) {
       const uint32_t c = g.body_partners[k];
-      near = grown_overlap(lo[i], hi[i], g.body_lo[c], g.body_hi[c], reach);
+      near = grown_overlap(lo[i], hi[i], reach[i], g.body_lo[c], g.body_hi[c], r[c]);
     }
     g.candidate[i] = near;
     count += near;
@@ -353,23 +358,22 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* 
   return count;
 }
 
-uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
-                             uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
+uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& g, uint64_t* pairs_tested) {
   exposed.assign(piece_count, 0);
-  // Cells at least as large as any grown piece: overlapping pieces have their low corners in
+  // Cells at least as large as any grown piece: overlapping pieces have their grown low corners in
   // neighbouring cells.
   double size = 0.0;
   for (uint32_t i = 0; i < piece_count; ++i) {
-    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff());
+    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff() + 2.0 * reach[i]);
   }
-  size += 2.0 * reach;
   if (!(size > 0.0) || !std::isfinite(size)) return 0;
   g.keys.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    const uint64_t cell = cell_key(cell_coord(lo[i].x() - reach, size), cell_coord(lo[i].y() - reach, size),
-                                   cell_coord(lo[i].z() - reach, size));
+    const uint64_t cell = cell_key(cell_coord(lo[i].x() - reach[i], size), cell_coord(lo[i].y() - reach[i], size),
+                                   cell_coord(lo[i].z() - reach[i], size));
     g.keys.push_back(cell | i);
   }
   build_cells(g);
@@ -377,12 +381,12 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
   g.pairs.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    const Vec3d a = lo[i] - Vec3d::Constant(reach), b = hi[i] + Vec3d::Constant(reach);
+    const Vec3d a = lo[i] - Vec3d::Constant(reach[i]);
     for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
       const uint32_t j = g.cell_items[n];
       if (j <= i || body[j] == body[i]) return;
       if (pairs_tested) ++*pairs_tested;
-      if ((lo[j].array() - reach > b.array()).any() || (hi[j].array() + reach < a.array()).any()) return;
+      if (!grown_overlap(lo[i], hi[i], reach[i], lo[j], hi[j], reach[j])) return;
       count += !exposed[i] + !exposed[j];
       exposed[i] = exposed[j] = 1;
       g.pairs.push_back((uint64_t(i) << 32) | j);
@@ -393,12 +397,12 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* li
   return count;
 }
 
-bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, uint32_t piece, const Vec3d& x,
-                  double reach) {
-  // A hair of slack: an embedded point may round a few ulps outside its piece's bounds.
-  const double r = reach * (1.0 + 1e-9);
+bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
+                  const Vec3d& x) {
   for (uint32_t k = g.partner_begin[piece]; k < g.partner_begin[piece + 1]; ++k) {
     const uint32_t j = g.partners[k];
+    // The pair's reach; a hair of slack: an embedded point may round a few ulps outside its piece's bounds.
+    const double r = std::max(reach[piece], reach[j]) * (1.0 + 1e-9);
     if ((lo[j].array() - r <= x.array()).all() && (x.array() <= hi[j].array() + r).all()) return true;
   }
   return false;
@@ -410,9 +414,13 @@ bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi
 constexpr double kFacing = -0.9;
 
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double max_push, double friction, ContactSet& set, PieceContactScratch& g,
+                               double max_push, double friction, ContactSet& set, PieceContactScratch& g,
                                uint64_t* pairs_tested) {
-  if (count == 0 || !(reach > 0.0)) return 0;
+  // Cells of the largest reach: a pair within its reach (the larger of its points') lies in
+  // neighbouring cells.
+  double reach = 0.0;
+  for (uint32_t v = 0; v < count; ++v) reach = std::max(reach, double(points[v].reach));
+  if (count == 0 || !(reach > 0.0) || !std::isfinite(reach)) return 0;
   // Points in cells of size `reach`, each cell's items grouped by body (items are ranks in body
   // order), with the end of each item's body run: a query jumps over its own body's points (most of
   // a cell, where a body lies on another) instead of testing them one by one. The items' positions
@@ -441,6 +449,7 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   g.run_end.resize(count);
   g.item_position.resize(count);
   g.item_normal.resize(count);
+  g.item_reach.resize(count);
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
       const uint64_t entry = g.by_body[g.cell_items[n]];
@@ -448,6 +457,7 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
       g.item_body[n] = uint32_t(entry >> 32);
       g.item_position[n] = points[uint32_t(entry)].position;
       g.item_normal[n] = points[uint32_t(entry)].normal;
+      g.item_reach[n] = double(points[uint32_t(entry)].reach) * double(points[uint32_t(entry)].reach);
       const bool last = n + 1 == g.cell_begin[c + 1] || g.item_body[n + 1] != g.item_body[n];
       g.run_end[n] = last ? n + 1 : g.run_end[n + 1];
     }
@@ -475,6 +485,7 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     for (uint32_t item = g.cell_begin[c]; item < cell_end; ++item) {
       const Vec3d& position = g.item_position[item];
       const Vec3d& normal = g.item_normal[item];
+      const double reach2 = g.item_reach[item];
       const uint32_t body = g.item_body[item];
       const int64_t at[3] = {cell_coord(position.x(), reach), cell_coord(position.y(), reach), cell_coord(position.z(), reach)};
       if (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2]) {
@@ -501,7 +512,7 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
           ++tested;
           if (normal.dot(g.item_normal[n]) > kFacing) continue;
           const double d = (g.item_position[n] - position).squaredNorm();
-          if (d > g.best_d[item] && d > g.best_d[n]) continue;
+          if ((d > g.best_d[item] && d > g.best_d[n]) || (d > reach2 && d > g.item_reach[n])) continue;
           meet(item, n, d);
           meet(n, item, d);
         }

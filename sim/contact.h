@@ -6,11 +6,13 @@
 // What touches the plane. The visible surface interpolates the simulation particles (trilinear weights
 // in its simulation piece), and a piece's corner particles lie up to one simulation voxel outside its
 // material. Keeping the *particles* on the positive side would hold the surface up to a simulation
-// voxel above the tray; so the constraint acts on *contact points of the embedded surface*: surface
-// vertices near a plane, each the weighted sum of its piece's 8 particles (C = n . (sum_i w_i x_i - p)
-// >= 0, gradient w_i n on particle i, generalised inverse mass W = sum_i w_i^2 / m_i). The surface
-// then rests on the plane, and particles may sit below it. Particles get only a frictionless backstop
-// one simulation voxel below the plane, so a piece whose surface was not gathered cannot fall through.
+// voxel above the tray; so the constraint acts on *contact points of the embedded surface*: a piece's
+// contact points (a fixed subset of its surface vertices, see "Contact points" below) near a plane,
+// each the weighted sum of its piece's 8 particles (C = n . (sum_i w_i x_i - p) >= 0, gradient w_i n
+// on particle i, generalised inverse mass W = sum_i w_i^2 / m_i). The surface then rests on the plane,
+// and particles may sit below it. A piece is gathered when it may reach the plane within the step
+// (2 fine voxels + twice its own motion, see "Reach"). Particles get only a frictionless backstop one
+// simulation voxel below the plane, so a piece whose surface was not gathered cannot fall through.
 //
 // Friction (position level: Macklin et al. 2014 "Unified particle physics", 2019 "Small steps";
 // Müller et al. 2020 "Detailed rigid body simulation with XPBD"). Each contact point accumulates,
@@ -23,6 +25,7 @@
 
 #include "sim/mesh.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <utility>
 #include <vector>
@@ -128,15 +131,37 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // joined by material); only surface points of different bodies touch. A body does not collide with
 // itself (a flap folded onto its own body is a known limit).
 //
-// Broad phase: the bodies' bounds, grown by the contact reach, swept along x; the pieces of bodies
-// near another body, by their deformed bounds grown by the reach, in a uniform grid; a piece is
-// *exposed* when its bounds overlap a piece of another body. Narrow phase: the surface vertices of
-// exposed pieces (near a partner's bounds) in a hash grid of cell = reach, each pair of vertices met
-// once (a cell against itself and the 13 cells after it); each vertex v pairs with its nearest vertex q of
-// another body within reach whose normal faces it (n_v . n_q < -0.9: more than ~155 degrees apart, so
-// the rims where a cut face meets the old surface do not pair). The contact keeps v on the outer side
-// of q's tangent plane: C = n_q . (x_v - x_q) >= -allowance, x_v and x_q the trilinear points of their
-// pieces (16 particles, q's weights negated).
+// Contact points. A piece's surface interpolates its 8 particles, so contacts at all its vertices are
+// strongly redundant (at 128 / sim 16, ~17 vertex contacts per pair of simulation pieces, all on the
+// same 16 particles), and their number grows with the square of the fine voxels per simulation voxel
+// (every surface vertex of an exposed piece near a partner was one: at 256 the step after a sever
+// cost 35 ms). So contact acts on a fixed subset of each piece's surface vertices, its *contact
+// points*: its simulation voxel (rest frame) is divided into contact_cells(ratio)^3 cells
+// (kContactCells = 4 per edge, fewer where a cell would be smaller than kMinContactCell = 2 fine
+// voxels), and in each cell and each of six normal directions (the dominant axis of the vertex's rest
+// normal and its sign, so a cut face and the old surface meeting at a rim keep a point each) the
+// vertex nearest the cell's centre is a contact point (ties: the lowest slot). The choice depends on
+// the rest surface only: made per piece on first need after each cut, it never flickers between
+// steps. A flat face of a piece has at most 16 contact points whatever the fine resolution; the plane
+// contacts and both sides of the narrow phase use only them. Between contact points the surface
+// interpolates the same particles (on a flat face, exactly: it stays on the side they hold it on); a
+// face curved with radius R dips up to d^2 / 8R between two points d apart. A contact point's deformed
+// normal is its rest normal under the piece's trilinear map (the cofactor of its Jacobian there).
+//
+// Reach. Each piece's own: max(2 fine voxels, a contact cell) plus twice what its fastest corner moves
+// in a step ((|v| + g dt) dt), capped at a simulation voxel; a pair of pieces, or of points, may touch
+// within the larger of its two reaches. (With the fastest particle's speed for everyone, a piece
+// falling at 3 m/s widened the reach of every piece at rest to ~6 fine voxels.)
+//
+// Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
+// bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
+// is *exposed* when its grown bounds overlap those of a piece of another body. Narrow phase: the
+// contact points of exposed pieces (near a partner's bounds) in a hash grid of cell = the largest
+// reach, each pair of points met once (a cell against itself and the 13 cells after it); each point
+// v pairs with its nearest point q of another body within the pair's reach whose normal faces it
+// (n_v . n_q < -0.9: more than ~155 degrees apart, so the rims where a cut face meets the old surface
+// do not pair). The contact keeps v on the outer side of q's tangent plane: C = n_q . (x_v - x_q) >=
+// -allowance, x_v and x_q the trilinear points of their pieces (16 particles, q's weights negated).
 //
 // Fresh cuts. The two faces of a fresh cut coincide (their vertices sit on the blade's plane to within
 // the contouring's precision), so some start a hair inside the other side. Pushing them out would be a
@@ -158,11 +183,11 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // Contacts. A pair of points that are each other's nearest make one contact (the same constraint,
 // the normals within 25 degrees of opposite): the two faces of a fresh cut pair up so.
 //
-// Resting offset. The contacts of one face pair are strongly redundant: ~17 vertex pairs per pair of
-// simulation pieces, all on the same 16 particles, each projected fully in turn (projected
-// Gauss-Seidel). A projection lifts its neighbours too (they share its particles), and a neighbour
-// lifted past its target cannot pull back unless it pushed itself, so one sweep over-separates the
-// faces by a fraction of what it corrected. In each iteration the stretch and shape constraints
+// Resting offset. The contacts of one face pair are redundant: several per pair of simulation pieces
+// (~17 vertex pairs before the contact points, when this was measured), all on the same 16
+// particles, each projected fully in turn (projected Gauss-Seidel). A projection lifts its neighbours
+// too (they share its particles), and a neighbour lifted past its target cannot pull back unless it
+// pushed itself, so one sweep over-separates the faces by a fraction of what it corrected. In each iteration the stretch and shape constraints
 // close the faces again (the load they pass between the sides), and each sweep over-separates them
 // again: the faces rest that far apart (measured on a block cut through horizontally on a tray,
 // tests/sim/test_contact.cpp: the mean gap of the cut faces settles at 0.055 g dt^2 with 5 substeps
@@ -175,7 +200,9 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // ends with the surface above them. (Not the released strain of an unconverged solve, as once
 // guessed: in the first substep after the cut at 5 x 2 the stretch and shape corrections close the
 // faces, -0.24 g dt^2 on their mean gap, and the contacts open them by more, +0.28; measured per
-// batch kind, the contacts alone part them.)
+// batch kind, the contacts alone part them.) With the contact points (4 per face pair of a piece in
+// that test) the sweeps are still needed: without them the faces part at 0.047 g dt at 5 x 2, 0.18 at
+// 1 x 10.
 //
 // Colouring: the contacts between two pieces form one group (they share those pieces' 16
 // particles), solved in order by one worker; groups are coloured greedily over their particles (63
@@ -196,6 +223,7 @@ struct SurfacePoint {
   float allowance;  // in: overlap it may keep (infinity: fresh); out: the updated allowance
   uint32_t slot;    // the caller's id (the PBD model: its surface vertex slot)
   uint32_t piece = 0;  // the caller's piece: contacts between two pieces form one group
+  float reach = 0.0f;  // its piece's contact reach: a pair within the larger of its points' reaches may touch
 };
 
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
@@ -219,6 +247,7 @@ struct PieceContactScratch {
   // Narrow phase: the points' positions and normals in cell order (a query scans them in sequence),
   // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
   std::vector<Vec3d> item_position, item_normal;  // (cell_items)
+  std::vector<double> item_reach;                 // (cell_items) squared reach
   std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
   std::vector<double> best_d;                     // (items) squared distance to it
   std::vector<double> allowed;                    // (points) overlap its contact allows this step
@@ -227,6 +256,7 @@ struct PieceContactScratch {
   // Body broad phase: bounds of the bodies, the pairs of bodies whose grown bounds overlap, and each
   // body's overlapping bodies.
   std::vector<Vec3d> body_lo, body_hi;            // (bodies)
+  std::vector<double> body_reach;                 // (bodies) the largest reach of its pieces
   std::vector<uint32_t> body_order;               // bodies by lower x bound
   std::vector<uint64_t> body_pairs;               // b << 32 | c, both directions
   std::vector<uint32_t> body_partner_begin, body_partners;
@@ -265,6 +295,19 @@ struct ContactIndex {
   std::vector<uint32_t> changed;         // pieces whose slots changed
 };
 
+// A contact point of a piece: a representative surface vertex slot (see "Contact points") and its
+// unit outward normal at rest (the deformed normal is its image under the piece's deformation).
+struct ContactRep {
+  uint32_t slot;
+  float normal[3];
+};
+
+// Contact cells per simulation voxel edge (see "Contact points"): kContactCells, fewer where a cell
+// would be smaller than kMinContactCell fine voxels.
+constexpr int kContactCells = 4;
+constexpr int kMinContactCell = 2;
+inline int contact_cells(int ratio) { return std::max(1, std::min(kContactCells, ratio / kMinContactCell)); }
+
 // Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).
 struct PieceContacts {
   ContactSet set;               // batch = colour (kContactOverflow: serial)
@@ -272,9 +315,17 @@ struct PieceContacts {
   std::vector<uint32_t> corners, body;  // (pieces x 8), (pieces)
   std::vector<uint8_t> live, exposed;   // (pieces)
   std::vector<Vec3d> lo, hi;            // (pieces) deformed bounds
+  std::vector<double> motion, reach;    // (pieces) how far it may move this step; its contact reach
   ContactIndex index;                   // also read by the plane gather
   std::vector<SurfacePoint> points;
-  std::vector<uint32_t> point_of_slot;  // (surface vertex slots) index in points, ~0u: none
+  // Contact points (see "Contact points"): each piece's representative surface vertices, built on a
+  // piece's first need after the index changed (what it was built from: `rep_key`).
+  uint64_t rep_key[5] = {~uint64_t(0), 0, 0, 0, 0};  // the index's revision, cut steps, slots, pieces, triangles
+  std::vector<uint32_t> rep_begin;      // (pieces) offset into reps, ~0u: not built yet
+  std::vector<uint16_t> rep_count;      // (pieces)
+  std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
+  std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
+  std::vector<Vec3d> rep_normal;        // (the piece's slots) rest normals, scratch
   std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
@@ -287,6 +338,7 @@ struct PieceContacts {
     uint64_t points = 0;        // surface points offered to the narrow phase
     uint64_t point_pairs = 0;   // point pairs whose distance was compared (narrow phase)
     uint64_t contacts = 0;      // contacts made
+    uint64_t contact_pairs = 0; // pairs of pieces with contacts (their groups)
   } counters;
 };
 
@@ -295,30 +347,32 @@ struct PieceContacts {
 void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_count, uint32_t particle_count,
                  std::vector<uint32_t>& body, PieceContactScratch& scratch);
 
-// Body broad phase: marks (candidate[piece] = 1) the live pieces whose bounds grown by `reach` overlap
-// the grown bounds of another body (body_index: bodies numbered 0 .. bodies - 1); only they can be
-// exposed. Returns how many.
-uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body_index,
-                               uint32_t bodies, uint32_t piece_count, double reach, PieceContactScratch& scratch);
+// Body broad phase: marks (candidate[piece] = 1) the live pieces whose bounds grown by their reach
+// (reach[piece]) overlap the bounds of another body grown by its largest reach (body_index: bodies
+// numbered 0 .. bodies - 1); only they can be exposed. Returns how many.
+uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                               const uint32_t* body_index, uint32_t bodies, uint32_t piece_count, PieceContactScratch& scratch);
 
-// Marks the pieces whose bounds (lo, hi per piece; live as above), grown by `reach`, overlap a piece of
-// another body, and lists each one's partners (scratch.partners). Returns how many.
-uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const uint8_t* live, const uint32_t* body,
-                             uint32_t piece_count, double reach, std::vector<uint8_t>& exposed,
+// Marks the pieces whose bounds (lo, hi per piece; live as above), grown by their reach, overlap a
+// piece of another body grown by its own, and lists each one's partners (scratch.partners). Returns
+// how many.
+uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
 
-// Whether x lies within `reach` of the bounds of a partner of `piece` (the last find_exposed_pieces):
-// only such a surface point can be within reach of a point of another body (every embedded point lies
-// in its piece's bounds), so the others need not enter the narrow phase.
-bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, uint32_t piece,
-                  const Vec3d& x, double reach);
+// Whether x lies within the pair's reach (the larger of the two pieces') of the bounds of a partner
+// of `piece` (the last find_exposed_pieces): only such a surface point can be within reach of a point
+// of another body (every embedded point lies in its piece's bounds), so the others need not enter
+// the narrow phase.
+bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, const double* reach,
+                  uint32_t piece, const Vec3d& x);
 
-// Adds the contacts of `points` (see above) to `set` (batch = colour, group = pair of pieces),
-// coloured over `particle_count` particles, and updates the points' allowances; an overlap
-// beyond the allowance is pushed out by at most `max_push` this step. `x` are the current particle
-// positions (double[3]). Returns how many it added.
+// Adds the contacts of `points` (see above; each pair within the larger of its points' reaches) to
+// `set` (batch = colour, group = pair of pieces), coloured over `particle_count` particles, and
+// updates the points' allowances; an overlap beyond the allowance is pushed out by at most
+// `max_push` this step. `x` are the current particle positions (double[3]). Returns how many it added.
 uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const double* x, uint32_t particle_count,
-                               double reach, double max_push, double friction, ContactSet& set, PieceContactScratch& scratch,
+                               double max_push, double friction, ContactSet& set, PieceContactScratch& scratch,
                                uint64_t* pairs_tested = nullptr);
 
 }  // namespace dvx

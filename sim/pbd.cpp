@@ -1419,29 +1419,126 @@ void index_triangles(const CutState& cut, PbdState& s) {
   for_pieces_of([&](uint32_t t, uint32_t piece) { x.piece_triangles[x.scratch[piece]++] = t; });
 }
 
-// The fastest particle's speed (what bounds how far anything moves in a step).
-double max_speed(const PbdState& s) {
-  double speed = 0.0;
-  for (size_t p = 0; p < s.position.size(); ++p) {
-    if (s.inv_mass[p] > 0.0) speed = std::max(speed, s.velocity[p].norm());
+// How far each live piece may move in this step: (its fastest corner's speed + g dt) dt (what bounds
+// its contact reach: a piece's own, so a falling piece does not widen everyone's).
+void piece_motions(PbdState& s) {
+  PieceContacts& pc = s.piece_contacts;
+  const double dt = s.params.dt, fall = s.params.gravity.norm() * dt;
+  pc.motion.assign(s.pieces.size(), 0.0);
+  for (uint32_t i = 0; i < s.pieces.size(); ++i) {
+    if (s.pieces[i].sim_voxel == kDeadIndex) continue;
+    double speed2 = 0.0;
+    for (uint32_t p : s.pieces[i].particles) {
+      if (s.inv_mass[p] > 0.0) speed2 = std::max(speed2, s.velocity[p].squaredNorm());
+    }
+    pc.motion[i] = (std::sqrt(speed2) + fall) * dt;
   }
-  return speed;
+}
+
+// The contact points of piece `piece` (sim/contact.h "Contact points"): of its surface vertex slots,
+// in each cell of a grid of contact_cells(ratio)^3 cells over its simulation voxel (in its rest frame)
+// and each of six normal directions (the dominant axis of the rest normal and its sign), the slot
+// nearest the cell's centre (ties: the lowest). Built on the piece's first need after the contact
+// index changed (a cut), so the choice never flickers between steps.
+std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState& s, uint32_t piece) {
+  PieceContacts& pc = s.piece_contacts;
+  const ContactIndex& x = pc.index;
+  const uint64_t key[5] = {x.revision, x.cut_steps, x.slots, x.pieces, x.triangle_count};
+  if (!std::equal(key, key + 5, pc.rep_key)) {
+    std::copy(key, key + 5, pc.rep_key);
+    pc.rep_begin.assign(x.pieces, ~0u);
+    pc.rep_count.assign(x.pieces, 0);
+    pc.reps.clear();
+    pc.rep_scratch.assign(x.slots, ~0u);
+  }
+  if (pc.rep_begin[piece] != ~0u) return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
+  index_triangles(cut, s);
+  // Rest normals of the piece's slots: area-weighted sums over the live triangles using them.
+  const CutSurface& surface = cut.surface;
+  const uint32_t first = x.piece_begin[piece], count = x.piece_begin[piece + 1] - first;
+  std::vector<Vec3d>& normal = pc.rep_normal;
+  normal.assign(count, Vec3d::Zero());
+  for (uint32_t n = 0; n < count; ++n) pc.rep_scratch[x.piece_slots[first + n]] = n;
+  for (uint32_t n = x.triangle_begin[piece]; n < x.triangle_begin[piece + 1]; ++n) {
+    const Tri& tri = surface.triangles[x.piece_triangles[n]];
+    const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
+                c = surface.positions[tri[2]].cast<double>();
+    const Vec3d area = (b - a).cross(c - a);
+    for (int k = 0; k < 3; ++k) {
+      if (x.slot_piece[tri[k]] == piece) normal[pc.rep_scratch[tri[k]]] += area;
+    }
+  }
+  // The best slot of each (cell, direction): kContactCells^3 x 6 entries at most.
+  const int cells = contact_cells(s.ratio);
+  constexpr int kEntries = kContactCells * kContactCells * kContactCells * 6;
+  uint32_t best[kEntries];
+  double best_d[kEntries];
+  std::fill(best, best + kEntries, ~0u);
+  for (uint32_t n = 0; n < count; ++n) {
+    const uint32_t slot = x.piece_slots[first + n];
+    pc.rep_scratch[slot] = ~0u;
+    const double length = normal[n].norm();
+    if (!(length > 0.0)) continue;  // on no live triangle: no normal
+    const Vec3f& local = s.embedding[slot].local;
+    int entry = 0;
+    double d = 0.0;
+    for (int a = 2; a >= 0; --a) {
+      const int c = std::max(0, std::min(cells - 1, int(std::floor(double(local[a]) * cells))));
+      entry = entry * cells + c;
+      const double off = double(local[a]) * cells - (c + 0.5);
+      d += off * off;
+    }
+    int axis = 0;
+    normal[n].cwiseAbs().maxCoeff(&axis);
+    entry = entry * 6 + 2 * axis + (normal[n][axis] < 0.0);
+    if (best[entry] == ~0u || d < best_d[entry]) {  // slots ascending: ties keep the lowest
+      best[entry] = n;
+      best_d[entry] = d;
+    }
+  }
+  pc.rep_begin[piece] = uint32_t(pc.reps.size());
+  std::sort(best, best + kEntries);  // by slot (ascending within the piece); unused entries last
+  for (int e = 0; e < kEntries && best[e] != ~0u; ++e) {
+    const Vec3d n = normal[best[e]].normalized();
+    pc.reps.push_back(ContactRep{x.piece_slots[first + best[e]], {float(n.x()), float(n.y()), float(n.z())}});
+  }
+  pc.rep_count[piece] = uint16_t(pc.reps.size() - pc.rep_begin[piece]);
+  return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
+}
+
+// The deformed normal of a contact point of piece `piece`: its rest normal under the piece's
+// trilinear map at the point (cofactor of the map's Jacobian J = [a b c]: (b x c, c x a, a x b) n).
+Vec3d deformed_normal(const PbdState& s, uint32_t piece, const Vec3f& local, const float rest[3]) {
+  const double u[3] = {local.x(), local.y(), local.z()};
+  Vec3d column[3] = {Vec3d::Zero(), Vec3d::Zero(), Vec3d::Zero()};
+  for (int c = 0; c < 8; ++c) {
+    const Vec3d& p = s.position[s.pieces[piece].particles[c]];
+    for (int a = 0; a < 3; ++a) {
+      double w = 1.0;
+      for (int b = 0; b < 3; ++b) {
+        const bool high = (c >> b) & 1;
+        w *= b == a ? (high ? 1.0 : -1.0) : (high ? u[b] : 1.0 - u[b]);
+      }
+      column[a] += w * p;
+    }
+  }
+  return column[1].cross(column[2]) * double(rest[0]) + column[2].cross(column[0]) * double(rest[1]) +
+         column[0].cross(column[1]) * double(rest[2]);
 }
 
 // Gathers this step's contact points: the surface vertices that may reach a plane within the step,
 // grouped by piece. A piece is skipped when even its lowest corner particle (every embedded point is a
 // convex combination of the corners) stays out of reach.
-void gather_plane_contacts(PbdState& s, double speed) {
+void gather_plane_contacts(const CutState& cut, PbdState& s) {
   ContactSet& set = s.contacts;
   contacts_clear(set);
   const std::vector<ContactPlane>& planes = s.params.planes;
   if (planes.empty()) return;
   const ContactIndex& x = s.piece_contacts.index;
-  const double dt = s.params.dt;
-  const double reach = 2.0 * (speed * dt + s.params.gravity.norm() * dt * dt) + 2.0 * s.sim_size / s.ratio;
   const uint32_t plane_count = uint32_t(std::min<size_t>(planes.size(), 32));
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!x.mobile[i]) continue;  // free slot, or pinned at every corner
+    const double reach = 2.0 * s.piece_contacts.motion[i] + 2.0 * s.sim_size / s.ratio;
     uint32_t near = 0;           // bit k: may reach plane k
     for (uint32_t k = 0; k < plane_count; ++k) {
       double lowest = 1e300;
@@ -1450,10 +1547,11 @@ void gather_plane_contacts(PbdState& s, double speed) {
     }
     if (near == 0) continue;
     const uint32_t* particles = s.pieces[i].particles;
-    for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) {
+    const auto [reps, count] = piece_reps(cut, s, i);
+    for (uint32_t r = 0; r < count; ++r) {
       double weights[8], mobility = 0.0;
       Vec3d point;
-      slot_point(s, x.piece_slots[n], i, point, weights);
+      slot_point(s, reps[r].slot, i, point, weights);
       for (int c = 0; c < 8; ++c) mobility += weights[c] * weights[c] * s.inv_mass[particles[c]];
       if (mobility == 0.0) continue;  // interpolates anchored particles only
       for (uint32_t k = 0; k < plane_count; ++k) {
@@ -1506,77 +1604,43 @@ void refresh_allowances(const CutState& cut, PieceContacts& pc) {
   pc.seen_steps = cut.steps;
 }
 
-// The surface vertices of the exposed pieces within reach of a partner (by piece, then slot), with
-// their allowances and deformed normals (area-weighted sums over the live triangles using them).
-void gather_surface_points(const CutState& cut, PbdState& s, double reach) {
+// The contact points of the exposed pieces within reach of a partner (by piece, then slot), with
+// their allowances and deformed normals.
+void gather_surface_points(const CutState& cut, PbdState& s) {
   PieceContacts& pc = s.piece_contacts;
   const ContactIndex& x = pc.index;
   pc.points.clear();
   pc.gathered.clear();
   for (uint32_t i = 0; i < x.pieces; ++i) {
-    if (pc.exposed[i]) pc.gathered.insert(pc.gathered.end(), x.piece_slots.begin() + x.piece_begin[i], x.piece_slots.begin() + x.piece_begin[i + 1]);
-  }
-  pc.point_of_slot.resize(x.slots, ~0u);
-  uint32_t kept = 0;
-  for (const uint32_t slot : pc.gathered) {
-    const uint32_t piece = x.slot_piece[slot];
-    SurfacePoint sp;
-    sp.allowance = pc.allowance[slot];
-    sp.slot = slot;
-    slot_point(s, slot, piece, sp.position, sp.weights);
-    if (!near_partner(pc.scratch, pc.lo.data(), pc.hi.data(), piece, sp.position, reach)) {
-      pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
-      continue;
-    }
-    std::copy(s.pieces[piece].particles, s.pieces[piece].particles + 8, sp.particles);
-    sp.body = x.body_index[piece];
-    sp.piece = piece;
-    sp.normal.setZero();
-    pc.point_of_slot[slot] = uint32_t(pc.points.size());
-    pc.points.push_back(sp);
-    pc.gathered[kept++] = slot;
-  }
-  pc.gathered.resize(kept);
-  // Normals: each exposed piece's triangles add their area-weighted normal to its gathered corners (a
-  // vertex sums its triangles in ascending order).
-  index_triangles(cut, s);
-  const CutSurface& surface = cut.surface;
-  for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!pc.exposed[i]) continue;
-    for (uint32_t n = x.triangle_begin[i]; n < x.triangle_begin[i + 1]; ++n) {
-      const Tri& tri = surface.triangles[x.piece_triangles[n]];
-      bool any = false;
-      for (int k = 0; k < 3; ++k) any = any || (x.slot_piece[tri[k]] == i && pc.point_of_slot[tri[k]] != ~0u);
-      if (!any) continue;
-      Vec3d corner[3];
-      double unused[8];
-      for (int k = 0; k < 3; ++k) {
-        const uint32_t p = pc.point_of_slot[tri[k]];
-        if (p != ~0u) {
-          corner[k] = pc.points[p].position;
-        } else {
-          slot_point(s, tri[k], x.slot_piece[tri[k]], corner[k], unused);
-        }
+    const auto [reps, count] = piece_reps(cut, s, i);
+    for (uint32_t r = 0; r < count; ++r) {
+      const uint32_t slot = reps[r].slot;
+      SurfacePoint sp;
+      sp.allowance = pc.allowance[slot];
+      sp.slot = slot;
+      slot_point(s, slot, i, sp.position, sp.weights);
+      if (!near_partner(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, sp.position)) {
+        pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
+        continue;
       }
-      const Vec3d normal = (corner[1] - corner[0]).cross(corner[2] - corner[0]);
-      for (int k = 0; k < 3; ++k) {
-        if (x.slot_piece[tri[k]] == i && pc.point_of_slot[tri[k]] != ~0u) pc.points[pc.point_of_slot[tri[k]]].normal += normal;
-      }
+      const Vec3d normal = deformed_normal(s, i, s.embedding[slot].local, reps[r].normal);
+      const double length = normal.norm();
+      pc.gathered.push_back(slot);
+      if (!(length > 0.0)) continue;  // a degenerate map: no normal (no allowance, see the caller)
+      sp.normal = normal / length;
+      std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, sp.particles);
+      sp.body = x.body_index[i];
+      sp.piece = i;
+      sp.reach = float(pc.reach[i]);
+      pc.points.push_back(sp);
     }
   }
-  kept = 0;
-  for (const SurfacePoint& sp : pc.points) {
-    const double length = sp.normal.norm();
-    if (!(length > 0.0)) continue;
-    pc.points[kept] = sp;
-    pc.points[kept++].normal /= length;
-  }
-  pc.points.resize(kept);
 }
 
 // Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
 // vertices with deformed normals, the nearest facing vertex of another body.
-void collect_piece_contacts(const CutState& cut, PbdState& s, double speed) {
+void collect_piece_contacts(const CutState& cut, PbdState& s) {
   PieceContacts& pc = s.piece_contacts;
   contacts_clear(pc.set);
   pc.exposed_pieces = 0;
@@ -1585,52 +1649,53 @@ void collect_piece_contacts(const CutState& cut, PbdState& s, double speed) {
   refresh_allowances(cut, pc);  // every step, so a cut is fresh when its sides first touch
   const ContactIndex& x = pc.index;
   if (x.bodies < 2) return;  // one body: nothing to collide with
+  // Reach: two fine voxels (the two faces of a cut can sit a voxel apart at its rim) or a contact
+  // cell (the spacing of the contact points), whichever is larger, plus twice what the piece moves
+  // in a step; capped at a simulation voxel. A pair of pieces touches within the larger reach.
+  const double fine = s.sim_size / s.ratio;
+  const double base = std::max(2.0 * fine, s.sim_size / contact_cells(s.ratio));
   pc.lo.resize(pieces);
   pc.hi.resize(pieces);
+  pc.reach.assign(pieces, 0.0);
   for (uint32_t i = 0; i < pieces; ++i) {
     if (!pc.live[i]) continue;
+    pc.reach[i] = std::min(s.sim_size, base + 2.0 * pc.motion[i]);
     pc.lo[i] = pc.hi[i] = s.position[s.pieces[i].particles[0]];
     for (uint32_t p : s.pieces[i].particles) {
       pc.lo[i] = pc.lo[i].cwiseMin(s.position[p]);
       pc.hi[i] = pc.hi[i].cwiseMax(s.position[p]);
     }
   }
-  // Reach: two fine voxels (the two faces of a cut can sit a voxel apart at its rim), plus twice what
-  // any particle moves in a step (capped at a simulation voxel).
-  const double fine = s.sim_size / s.ratio;
-  const double reach = std::min(s.sim_size, 2.0 * fine + 2.0 * (speed + s.params.gravity.norm() * s.params.dt) * s.params.dt);
   // Bodies near another body, then their pieces near another body's pieces.
-  if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.live.data(), x.body_index.data(), x.bodies, pieces, reach,
-                            pc.scratch) == 0) {
+  if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.live.data(), x.body_index.data(), x.bodies,
+                            pieces, pc.scratch) == 0) {
     return;
   }
-  pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
-                                          reach, pc.exposed, pc.scratch, &pc.counters.piece_pairs);
+  pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(),
+                                          pc.body.data(), pieces, pc.exposed, pc.scratch, &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
-  gather_surface_points(cut, s, reach);
+  gather_surface_points(cut, s);
   ++pc.counters.gathers;
   pc.counters.points += pc.points.size();
   pc.counters.contacts += gather_piece_contacts(pc.points.data(), uint32_t(pc.points.size()), s.position[0].data(), particles,
-                                                reach, kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch,
+                                                kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch,
                                                 &pc.counters.point_pairs);
   contacts_finish(pc.set);
-  for (const uint32_t slot : pc.gathered) {  // dropped (no normal): no allowance
-    pc.allowance[slot] = 0.0f;
-    pc.point_of_slot[slot] = ~0u;
-  }
+  pc.counters.contact_pairs += pc.set.group_begin.size() - 1;
+  for (const uint32_t slot : pc.gathered) pc.allowance[slot] = 0.0f;  // dropped (no normal): no allowance
   for (const SurfacePoint& sp : pc.points) pc.allowance[sp.slot] = sp.allowance;
 }
 
-// This step's contacts with the planes and between pieces, from one index and one speed.
+// This step's contacts with the planes and between pieces, from one index and the pieces' motions.
 void gather_contacts(const CutState& cut, PbdState& s) {
   contacts_clear(s.contacts);
   contacts_clear(s.piece_contacts.set);
   s.piece_contacts.exposed_pieces = 0;
   if (s.params.planes.empty() && !s.params.piece_contact) return;
   refresh_index(cut, s);
-  const double speed = max_speed(s);
-  gather_plane_contacts(s, speed);
-  collect_piece_contacts(cut, s, speed);
+  piece_motions(s);
+  gather_plane_contacts(cut, s);
+  collect_piece_contacts(cut, s);
 }
 
 // ---- Embedding rows ---------------------------------------------------------------------------

@@ -598,6 +598,7 @@ struct TwoCubes {
       }
       p.allowance = allowance;
       p.slot = uint32_t(side);
+      p.reach = 0.5f;
     }
   }
   // Gathers the pair's contacts (reach 0.5) and solves them `iterations` times in one substep.
@@ -609,7 +610,7 @@ struct TwoCubes {
       p.position.setZero();
       for (int c = 0; c < 8; ++c) p.position += p.weights[c] * Vec3d(x[3 * p.particles[c]], x[3 * p.particles[c] + 1], x[3 * p.particles[c] + 2]);
     }
-    REQUIRE(gather_piece_contacts(points, 2, x, 16, 0.5, max_push, 0.5, set, scratch) == 1);  // a mutual pair: one contact
+    REQUIRE(gather_piece_contacts(points, 2, x, 16, max_push, 0.5, set, scratch) == 1);  // a mutual pair: one contact
     contacts_finish(set);
     contacts_begin_substep(set);
     std::copy(x, x + 48, previous);
