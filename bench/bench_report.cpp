@@ -535,6 +535,40 @@ void vdb_section(Results& in, std::ostream& md, std::ostream& head) {
   md << "\n";
 }
 
+// Bullet's soft body on the same PBD model (tools/peers bullet, when it ran): time per step at equal
+// iterations, single-threaded, and the sag of each against a converged reference (issue 17).
+void bullet_section(Results& in, std::ostream& md, std::ostream& head) {
+  const json& b = in.read("peers_bullet.json");
+  if (b.is_null() || b.value("status", "") != "ok" || !b.contains("rows") || b["rows"].empty()) return;
+  md << "## Deformation against Bullet's soft body\n\n"
+     << "`divvox_peers bullet`: the bunny scene's PBD model (" << b.value("particles", 0) << " particles, "
+     << b.value("pieces", 0) << " shape-matching pieces, " << b.value("stretch_constraints", 0)
+     << " stretch constraints) given to Bullet " << b.value("bullet_version", 0) / 100 << "."
+     << b.value("bullet_version", 0) % 100 << "'s `btSoftBody`: the same particles, masses and anchors, a link per stretch constraint plus bending "
+        "links for shear, the same iterations, dt, damping and gravity, one substep, no contact; both from rest, "
+        "single-threaded, "
+     << b.value("time", std::string("time per step")) << " (p50). divvox's PBD time excludes its surface embedding "
+        "(timed apart). Sag: mean drop of the free particles; reference: divvox at "
+     << b.value("reference_iterations", 0) << " iterations.\n\n"
+     << "| iterations | divvox PBD ms | divvox embedding ms | Bullet ms | Bullet / divvox | divvox sag | Bullet sag | "
+        "divvox RMS to ref. | Bullet RMS to ref. |\n|---|---|---|---|---|---|---|---|---|\n";
+  double worst = 1e30;
+  for (const json& r : b["rows"]) {
+    const double speedup = get(r, "speedup_pbd");
+    worst = std::min(worst, speedup);
+    md << "| " << r["iterations"] << " | " << num(get(r, "divvox_pbd_ms_p50")) << " | "
+       << num(get(r, "divvox_embed_ms_p50")) << " | " << num(get(r, "bullet_step_ms_p50")) << " | " << num(speedup)
+       << "× | " << num(get(r, "divvox_sag")) << " | " << num(get(r, "bullet_sag")) << " | "
+       << num(get(r, "divvox_rms_to_reference")) << " | " << num(get(r, "bullet_rms_to_reference")) << " |\n";
+  }
+  md << "\nReference sag " << num(get(b["rows"][0], "reference_sag"))
+     << ". Goal (issue 17): divvox at least 2× faster per step at equal iterations; Bullet's bending links are "
+        "stiffer per iteration than one shape-matching pass, so at equal iterations it sags less.\n\n";
+  head << "- **Against Bullet's soft body** (same particles and links, equal iterations, one thread): divvox's PBD "
+          "step is at least "
+       << num(worst) << "× faster.\n";
+}
+
 // Section 6: determinism and throughput of headless replay (and the replay's timings plot).
 void replay_section(Results& in, std::ostream& md, std::ostream& head) {
   const json& replay = in.read("bench_replay.json");
@@ -606,6 +640,7 @@ constexpr Section report_sections[] = {
     replay_section,       // 6. bench_replay.json
     cut_section,          //    bench_cut.json
     contact_section,      //    bench_contact.json
+    bullet_section,       //    peers_bullet.json
 };
 
 }  // namespace

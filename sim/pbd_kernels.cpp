@@ -101,25 +101,23 @@ typedef int64_t M4 __attribute__((vector_size(32)));
 static_assert(kShapeLanes == 4, "V4 holds one value of each lane");
 
 inline double lane_select(bool m, double a, double b) { return m ? a : b; }
-inline V4 lane_select(M4 m, V4 a, V4 b) { return m ? a : b; }
+__attribute__((always_inline)) inline V4 lane_select(M4 m, V4 a, V4 b) { return m ? a : b; }
 inline double lane_sqrt(double v) { return std::sqrt(v); }
-inline V4 lane_sqrt(V4 v) {
+__attribute__((always_inline)) inline V4 lane_sqrt(V4 v) {
   V4 r;
   for (int l = 0; l < 4; ++l) r[l] = std::sqrt(v[l]);
   return r;
 }
 inline double lane_abs(double v) { return std::fabs(v); }
-inline V4 lane_abs(V4 v) { return V4(M4(v) & std::numeric_limits<int64_t>::max()); }
+__attribute__((always_inline)) inline V4 lane_abs(V4 v) { return V4(M4(v) & std::numeric_limits<int64_t>::max()); }
 // std::max's rule on values: a select (std::max's references would branch).
 template <class T>
-inline T lane_max(T m, T v) {
+__attribute__((always_inline)) inline T lane_max(T m, T v) {
   return lane_select(m < v, v, m);
 }
-inline V4 load4(const double* p) {
-  V4 v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
+// Vectors cross into the solver's clones only by reference: clang refuses a V4 passed or returned by
+// value between its avx2 clone and a helper compiled without AVX (the ABIs differ).
+__attribute__((always_inline)) inline void load4(V4& v, const double* p) { std::memcpy(&v, p, sizeof v); }
 
 // One warm-started rotation step (extract_rotation_step's usual case) per lane: a[i][j] is A, q the
 // quaternion (w, x, y, z), updated where the step moves it. Returns the lanes where the step is
@@ -197,6 +195,12 @@ __attribute__((always_inline)) inline auto rotation_step_lanes(const T (&a)[3][3
   q[2] = lane_select(move, py * inv_norm, qy);
   q[3] = lane_select(move, pz * inv_norm, qz);
   return defined;
+}
+
+// rotation_step_lanes with its lane mask written to `defined` (see load4: no vector by value).
+template <class T, class M>
+__attribute__((always_inline)) inline void rotation_step_lanes_into(const T (&a)[3][3], T (&q)[4], M& defined) {
+  defined = rotation_step_lanes<T>(a, q);
 }
 
 // R(q) per lane (Eigen's toRotationMatrix, operation for operation).
@@ -593,7 +597,7 @@ namespace {
 // Four particles' positions as one vector per axis: (x, y) pairs joined and interleaved, z apart
 // (GCC's vector shuffles: unpck / insertf128 with AVX, their SSE2 pairs otherwise); and back.
 typedef double V2 __attribute__((vector_size(16)));
-inline V2 load2(const double* p) {
+__attribute__((always_inline)) inline V2 load2(const double* p) {
   V2 v;
   std::memcpy(&v, p, sizeof v);
   return v;
@@ -635,16 +639,19 @@ void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quatern
   }
   V4 c[3] = {};
   for (int k = 0; k < kS; ++k) {
-    const V4 m = load4(b.mass[k]);
+    V4 m;
+    load4(m, b.mass[k]);
     for (int e = 0; e < 3; ++e) c[e] += m * p[k][e];
   }
-  const V4 inv_total = load4(b.inv_total);
+  V4 inv_total;
+  load4(inv_total, b.inv_total);
   for (int e = 0; e < 3; ++e) c[e] *= inv_total;
   // A = sum_i m_i (x_i - c)(r_i - c0)^T.
   V4 a[3][3] = {};
   for (int k = 0; k < kS; ++k) {
-    const V4 m = load4(b.mass[k]);
-    const V4 o[3] = {load4(b.offset[k][0]), load4(b.offset[k][1]), load4(b.offset[k][2])};
+    V4 m, o[3];
+    load4(m, b.mass[k]);
+    for (int e = 0; e < 3; ++e) load4(o[e], b.offset[k][e]);
     for (int i = 0; i < 3; ++i) {
       const V4 d = m * (p[k][i] - c[i]);
       for (int j = 0; j < 3; ++j) a[i][j] += d * o[j];
@@ -659,7 +666,8 @@ void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quatern
     q[2][l] = r.y();
     q[3][l] = r.z();
   }
-  const M4 defined = rotation_step_lanes<V4>(a, q);
+  M4 defined;
+  rotation_step_lanes_into(a, q, defined);
   for (int l = 0; l < b.lanes; ++l) {
     Quaterniond& r = rotations[b.piece[l]];
     if (defined[l] != 0) {
@@ -685,8 +693,8 @@ void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quatern
   std::memcpy(moves, b.moves, sizeof moves);
   for (const uint64_t m : moves) all_move = all_move && m == 0x0101010101010101ull;
   for (int k = 0; k < kS; ++k) {
-    const V4 o[3] = {load4(b.offset[k][0]), load4(b.offset[k][1]), load4(b.offset[k][2])};
-    V4 out[3];
+    V4 o[3], out[3];
+    for (int e = 0; e < 3; ++e) load4(o[e], b.offset[k][e]);
     for (int e = 0; e < 3; ++e) {
       const V4 goal = c[e] + (rot[e][0] * o[0] + rot[e][1] * o[1] + rot[e][2] * o[2]);
       out[e] = p[k][e] + stiffness * (goal - p[k][e]);
