@@ -96,6 +96,19 @@ inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d&
 // both give the same bits. M is the comparison result (bool, or a lane mask of 0 / -1).
 // (Internal helpers, always inlined: the warning about passing V4 without AVX does not apply.)
 #pragma GCC diagnostic ignored "-Wpsabi"
+// The solver's kernels in an AVX2 and a baseline clone, picked when the program loads (an ifunc).
+// ThreadSanitizer instruments the clones' resolver, which runs before its runtime is up (the binary
+// crashed while loading), so a TSan build keeps the baseline clone only: the same bits either way.
+#if defined(__SANITIZE_THREAD__)
+#define DVX_CLONES
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define DVX_CLONES
+#endif
+#endif
+#ifndef DVX_CLONES
+#define DVX_CLONES __attribute__((target_clones("avx2", "default")))
+#endif
 typedef double V4 __attribute__((vector_size(32)));
 typedef int64_t M4 __attribute__((vector_size(32)));
 static_assert(kShapeLanes == 4, "V4 holds one value of each lane");
@@ -405,7 +418,7 @@ void solve_distance(double* x, const double* inv_mass, uint32_t i, uint32_t j, d
 
 namespace {
 
-__attribute__((target_clones("avx2", "default")))
+DVX_CLONES
 void stretch_rows_scalar(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha) {
   for (uint32_t i = begin; i < end; ++i) solve_stretch_row(x, rows[i], alpha, lambda[i]);
 }
@@ -498,7 +511,7 @@ void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint3
   stretch_rows_scalar(x, rows, lambda, begin, end, alpha);
 }
 
-__attribute__((target_clones("avx2", "default")))
+DVX_CLONES
 void embed_rows(const float* corners, const EmbedRow* rows, uint32_t begin, uint32_t end, float* out) {
   typedef float F4 __attribute__((vector_size(16)));
   for (uint32_t i = begin; i < end; ++i) {
@@ -628,7 +641,7 @@ __attribute__((always_inline)) inline void scatter_lanes(double* const* at, cons
 // its order); one clone per instruction set, picked when the program loads. The positions are
 // gathered and scattered as (x, y) pairs and z, and a full block whose particles all move is
 // written without a test per slot and lane.
-__attribute__((target_clones("avx2", "default")))
+DVX_CLONES
 void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
   // Gather the positions; the mass centre.
   V4 p[kS][3];

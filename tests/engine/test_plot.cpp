@@ -65,7 +65,9 @@ TEST_SUITE("plot") {
       CAPTURE(axis);
       const auto ticks = explicit_ticks(script, axis);
       REQUIRE(ticks.size() >= 3);
-      for (const auto& [label, value] : ticks) {
+      for (const auto& tick : ticks) {
+        const auto& label = tick.first;  // not a structured binding: clang 14 cannot capture one (CAPTURE)
+        const auto value = tick.second;
         CAPTURE(label);
         const double mantissa = value / std::pow(10.0, std::floor(std::log10(value) + 1e-9));
         CHECK((std::abs(mantissa - 1) < 1e-6 || std::abs(mantissa - 2) < 1e-6 || std::abs(mantissa - 5) < 1e-6));
