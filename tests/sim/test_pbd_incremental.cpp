@@ -23,6 +23,13 @@ namespace {
 
 using Scene = dvx_test::PbdScene;
 
+// Two arrays of plain structs hold the same bytes (an empty array's data() may be null: memcmp's
+// arguments must not be, even for no bytes).
+template <class T>
+bool same_bytes(const std::vector<T>& a, const std::vector<T>& b) {
+  return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0);
+}
+
 uint64_t position_hash(const PbdState& s) {
   Fnv1a f;
   for (const Vec3d& p : s.position) f.bytes(p.data(), 3 * sizeof(double));
@@ -88,7 +95,7 @@ void check_caches_equal(const PbdState& a, const PbdState& b) {
   const PieceContacts& pa = a.piece_contacts;
   const PieceContacts& pb = b.piece_contacts;
   REQUIRE(pa.seen.size() == pb.seen.size());
-  CHECK(std::memcmp(pa.seen.data(), pb.seen.data(), pa.seen.size() * sizeof(Vec3f)) == 0);
+  CHECK(same_bytes(pa.seen, pb.seen));
   CHECK(pa.allowance == pb.allowance);
   uint32_t oa = 0, ob = 0;
   CHECK(lanes_by_piece(a, oa) == lanes_by_piece(b, ob));
@@ -97,7 +104,7 @@ void check_caches_equal(const PbdState& a, const PbdState& b) {
     // As many blocks per colour (the solver's batches), and the same stretch rows in order.
     CHECK(a.shape_blocks[c].size() == b.shape_blocks[c].size());
     REQUIRE(a.stretch_rows[c].size() == b.stretch_rows[c].size());
-    CHECK(std::memcmp(a.stretch_rows[c].data(), b.stretch_rows[c].data(), a.stretch_rows[c].size() * sizeof(StretchRow)) == 0);
+    CHECK(same_bytes(a.stretch_rows[c], b.stretch_rows[c]));
   }
 }
 
