@@ -300,6 +300,17 @@ FinalSurface final_surface(const Session& session) {
   return f;
 }
 
+// The task pool's counters since the session opened (README "summary.json": "pool").
+nlohmann::json pool_json(const TaskPoolStats& stats) {
+  nlohmann::json threads = nlohmann::json::array();
+  for (const TaskPoolThreadStats& t : stats.threads) {
+    threads.push_back({{"jobs", t.jobs}, {"chunks", t.chunks}, {"stolen", t.stolen}, {"waits", t.waits},
+                       {"long_waits", t.long_waits}, {"wait_ms", t.wait_ms}, {"cpu_s", t.cpu_s}});
+  }
+  return {{"workers", stats.threads.size()}, {"jobs", stats.jobs}, {"wakeups", stats.wakeups}, {"stages", stats.stages},
+          {"late_workers", stats.late_workers}, {"threads", threads}};
+}
+
 // summary.json (DESIGN §1 contract: the fields that apply without physics).
 nlohmann::json summary_json(const ReplayOptions& options, const Playback& playback, const Session& session,
                             const ReplayResult& result, const ReplayRun& run, const PhaseSamples& phases,
@@ -348,6 +359,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Playback& playba
     summary["particles"] = pbd->position.size() - pbd->free_particles.size();
     summary["shape_constraints"] = live_pieces(*pbd);
     summary["stretch_constraints"] = stretch_count(*pbd);
+    summary["pool"] = pool_json(session.pool->stats());
   }
   return summary;
 }

@@ -1850,9 +1850,51 @@ void update_shape_blocks(PbdState& s) {
   for (size_t i = from.particles; i < e.particles.size(); ++i) mark[e.particles[i]] = 0;
 }
 
+// The clusters of each parallel colour in the order of their smallest particle (unique: they share
+// no particle), four to a block, their lanes' codes renumbered; the unused lanes of the last block
+// repeat its first, as shape_block_add leaves them. The order never changes a result (a colour's
+// clusters are independent); it is for the task pool, which gives each thread the same share of
+// every colour (task_pool.h): with the clusters, and the stretch rows, in particle order that share
+// covers about the same particles in every colour, so their cache lines stay on one core. Without
+// it the blocks mix clusters from all over after a few cuts (remove_cluster moves the colour's last
+// lane into each hole).
+void sort_shape_lanes(PbdState& s) {
+  static_assert(kShapeLanes <= 4, "a lane in two bits");
+  std::vector<std::pair<uint32_t, uint32_t>> order;  // (key, block << 2 | lane)
+  std::vector<ShapeBlock> sorted;
+  for (int c = 0; c < kOverflowColour; ++c) {
+    std::vector<ShapeBlock>& blocks = s.shape_blocks[c];
+    order.clear();
+    for (uint32_t b = 0; b < blocks.size(); ++b) {
+      for (int l = 0; l < blocks[b].lanes; ++l) {
+        uint32_t key = ~0u;
+        for (int k = 0; k < kShapeMaxParticles; ++k) key = std::min(key, blocks[b].index[k][l]);
+        order.emplace_back(key, b << 2 | uint32_t(l));
+      }
+    }
+    if (std::is_sorted(order.begin(), order.end())) continue;
+    std::sort(order.begin(), order.end());
+    sorted.assign((order.size() + kShapeLanes - 1) / kShapeLanes, ShapeBlock{});
+    for (uint32_t i = 0; i < order.size(); ++i) {
+      ShapeBlock& dst = sorted[i / kShapeLanes];
+      const int lane = int(i % kShapeLanes);
+      copy_lane(dst, lane, blocks[order[i].second >> 2], int(order[i].second & 3u));
+      dst.lanes = lane + 1;
+      s.shape_lane[dst.piece[lane]] = lane_code(uint32_t(c), i / kShapeLanes, lane);
+    }
+    if (!sorted.empty()) {
+      ShapeBlock& last = sorted.back();
+      for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, 0);
+    }
+    blocks.swap(sorted);
+  }
+}
+
 // The solver's blocks, when the model changed: the shape-matching blocks from the recorded cuts when
-// they can follow them, else from scratch; the stretch constraints' rows (parallel to their groups,
-// with the particles' masses: O(constraints), a copy each).
+// they can follow them, else from scratch; the stretch constraints' rows (with the particles'
+// masses: O(constraints), a copy each), those of the parallel colours in particle order (as the
+// blocks above; a row's multiplier is its substep's, so they follow the rows), the overflow's in its
+// group's order (it is solved in order).
 void refresh_blocks(const CutState& cut, PbdState& s) {
   if (s.blocks_revision != s.revision) {
     if (edits_replayable(s, cut, s.blocks_edits, s.blocks_revision, 0, false) && s.shape_lane.size() <= s.pieces.size()) {
@@ -1860,9 +1902,14 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
     } else {
       build_shape_blocks(s);
     }
+    sort_shape_lanes(s);
     for (int c = 0; c < kColourGroups; ++c) {
-      s.stretch_rows[c].clear();
-      for (const StretchConstraint& k : s.stretch_groups[c]) s.stretch_rows[c].push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
+      std::vector<StretchRow>& rows = s.stretch_rows[c];
+      rows.clear();
+      for (const StretchConstraint& k : s.stretch_groups[c]) rows.push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
+      if (c != kOverflowColour) {
+        std::sort(rows.begin(), rows.end(), [](const StretchRow& x, const StretchRow& y) { return x.a != y.a ? x.a < y.a : x.b < y.b; });
+      }
     }
     s.blocks_revision = s.revision;
   }
@@ -1878,7 +1925,7 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
 // so a stretch colour of a few hundred constraints is still split (A/B in bench contact, 2 workers).
 constexpr uint32_t kParticleGrain = 512;
 constexpr uint32_t kStretchGrain = 128;
-constexpr uint32_t kShapeGrain = 64 / kShapeLanes;  // blocks
+constexpr uint32_t kShapeGrain = 16 / kShapeLanes;  // blocks
 constexpr uint32_t kContactGrain = 4;
 constexpr uint32_t kSerial = ~0u;
 

@@ -150,4 +150,45 @@ TEST_SUITE("task_pool") {
       for (uint32_t b = 0; b < job.size(); ++b) CHECK(p.sum(b) == want[b]);
     }
   }
+
+  TEST_CASE("jobs the caller runs alone between shared ones: a worker that wakes late runs none of their items") {
+    // A shared job wakes the workers; the one-chunk job after it must not be joined by a worker that
+    // is only now waking for the first (it would run the chunk a second time).
+    for (int workers : {2, 4}) {
+      TaskPool pool(workers);
+      const TaskRunner runner = pool.runner();
+      Counts shared(256), alone(64);
+      for (int job = 0; job < 500; ++job) {
+        runner.parallel_for(runner.context, 256, 1, count_range, &shared);
+        runner.parallel_for(runner.context, 64, 1000, count_range, &alone);
+      }
+      int wrong = 0;
+      for (uint32_t i = 0; i < 256; ++i) wrong += shared.hits[i].load() != 500;
+      for (uint32_t i = 0; i < 64; ++i) wrong += alone.hits[i].load() != 500;
+      CAPTURE(workers);
+      CHECK(wrong == 0);
+    }
+  }
+
+  TEST_CASE("the pool's counters add up: every chunk counted once, stages per job, workers' CPU time") {
+    TaskPool pool(2);
+    const TaskRunner runner = pool.runner();
+    // 3 shared batches (8 chunks each with 2 workers), then 2 one-chunk batches merged into one stage.
+    const std::vector<TaskBatch> job = {{4096, 16}, {4096, 16}, {4096, 16}, {5, 100}, {7, 100}};
+    for (int repeat = 0; repeat < 50; ++repeat) {
+      Phased p(job);
+      runner.run_batches(runner.context, job.data(), uint32_t(job.size()), phased_chunk, &p);
+      CHECK(p.sum(4) == expected_sums(job)[4]);
+    }
+    const TaskPoolStats stats = pool.stats();
+    REQUIRE(stats.threads.size() == 2);
+    CHECK(stats.jobs == 50);
+    CHECK(stats.wakeups == 50);
+    CHECK(stats.stages == 50 * 4);
+    const uint64_t per_job = 3 * 2 * TaskPool::kChunksPerThread + 1;
+    CHECK(stats.threads[0].chunks + stats.threads[1].chunks == 50 * per_job);
+    CHECK(stats.threads[0].stolen <= stats.threads[0].chunks);
+    CHECK(stats.threads[1].cpu_s >= 0.0);
+    CHECK(stats.threads[0].cpu_s == 0.0);
+  }
 }
