@@ -35,6 +35,12 @@ constexpr uint64_t kLongWaitNs = 1000000;
 // First chunk of thread t's home range among the n chunks of a stage (n / workers a thread; the
 // caller, thread 0, has the one chunk of a one-chunk stage).
 inline uint32_t home_begin(uint32_t t, uint32_t n, uint32_t workers) { return n == 1 ? std::min(t, 1u) : t * (n / workers); }
+// The thread whose home range holds chunk i of a stage's n.
+inline uint32_t chunk_owner(uint32_t i, uint32_t n, uint32_t workers) { return n == 1 ? 0 : i / (n / workers); }
+
+// Pauses a thread that has run out of chunks watches another that is still claiming its own before
+// it takes one of them: a few of its chunks' time.
+constexpr uint32_t kStealPatience = 256;
 
 }  // namespace
 
@@ -107,9 +113,10 @@ void TaskPool::wait_done(uint32_t target, Counters& counters) const {
   if (ns > kLongWaitNs) counters.long_waits.fetch_add(1, std::memory_order_relaxed);
 }
 
-bool TaskPool::claim(uint32_t chunk) {
+// Takes a chunk for thread t (its flag: t + 1, so the others see whether its owner has started).
+bool TaskPool::claim(uint32_t chunk, uint32_t t) {
   std::atomic<uint32_t>& flag = claimed_[chunk];
-  return flag.load(std::memory_order_relaxed) == 0 && flag.exchange(1, std::memory_order_relaxed) == 0;
+  return flag.load(std::memory_order_relaxed) == 0 && flag.exchange(t + 1, std::memory_order_relaxed) == 0;
 }
 
 void TaskPool::run_chunk(const Chunk& c) const {
@@ -182,16 +189,39 @@ void TaskPool::take_part(int self) {
     const uint32_t own_begin = first + home_begin(t, n, workers), own_end = first + home_begin(t + 1, n, workers);
     uint32_t mine = 0, stolen = 0;
     for (uint32_t c = own_begin; c < own_end; ++c) {
-      if (!claim(c)) break;  // the others have reached my range: the rest is theirs
+      if (!claim(c, t)) break;  // the others have reached my range from its end: the rest is theirs
       run_chunk(chunks_[c]);
       ++mine;
     }
-    // Then every chunk still free, from the far end (own ones too: never one left behind).
-    for (uint32_t c = end; c-- > first;) {
-      if (!claim(c)) continue;
-      run_chunk(chunks_[c]);
+    // Then the chunks left, the last first: at once those of a thread that has not started this
+    // stage (asleep, descheduled, late); those of one that has, only once it has claimed nothing new
+    // for kStealPatience pauses (its lines are in its cache: a chunk taken from it runs slower here
+    // than there, and holds up the barrier, unless it is stuck).
+    uint32_t watched_front = ~0u, spins = 0;
+    while (true) {
+      uint32_t c = end;
+      while (c > first && claimed_[c - 1].load(std::memory_order_relaxed) != 0) --c;
+      if (c == first) break;
+      const uint32_t chunk = c - 1;
+      const uint32_t owner = chunk_owner(chunk - first, n, workers);
+      const uint32_t victim_begin = first + home_begin(owner, n, workers);
+      if (owner != t && claimed_[victim_begin].load(std::memory_order_relaxed) == owner + 1) {
+        uint32_t front = victim_begin;
+        while (front < chunk && claimed_[front].load(std::memory_order_relaxed) != 0) ++front;
+        if (front != watched_front) {
+          watched_front = front;
+          spins = 0;
+        }
+        if (spins++ < kStealPatience) {
+          cpu_relax();
+          continue;
+        }
+      }
+      if (!claim(chunk, t)) continue;
+      run_chunk(chunks_[chunk]);
       ++mine;
-      stolen += c < own_begin || c >= own_end ? 1 : 0;
+      stolen += owner != t ? 1 : 0;
+      watched_front = ~0u;
     }
     if (mine > 0) {
       // The counters before the count of finished chunks: the caller reads them once it saw all done.

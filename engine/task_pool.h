@@ -89,7 +89,7 @@ class TaskPool {
   void run_chunk(const Chunk& c) const;
   void work_loop(int self);
   void take_part(int self);
-  bool claim(uint32_t chunk);
+  bool claim(uint32_t chunk, uint32_t t);
   void wait_done(uint32_t target, Counters& counters) const;
 
   std::vector<std::thread> threads_;
