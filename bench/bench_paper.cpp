@@ -385,7 +385,8 @@ std::string bench_replay(const BenchReplayOptions& options) {
   make_output_dir(options.out_dir);
   std::ostringstream csv;
   csv << "recording,workers,repeat,steps,simulated_s,wall_s,steps_per_s,realtime_factor,step_p50_ms,step_p99_ms,"
-         "final_hash,hash_checked,hash_mismatched\n";
+         "final_hash,hash_checked,hash_mismatched,deform_p50_ms,deform_p99_ms,pool_stages_per_step,pool_waits_per_step,"
+         "pool_long_waits,worker_cpu_s\n";
   nlohmann::json rows = nlohmann::json::array();
   bool all_deterministic = true;
   for (const std::string& recording : recordings) {
@@ -407,12 +408,26 @@ std::string bench_replay(const BenchReplayOptions& options) {
         if (first_hash.empty()) first_hash = result.final_hash;
         deterministic = deterministic && result.final_hash == first_hash && result.hash_mismatched == 0;
         const nlohmann::json& step = summary["timing_ms"]["step"];
+        const nlohmann::json& deform = summary["timing_ms"]["deform"];
+        // The task pool's barriers and waits per step, and the workers' CPU time (summary.json "pool").
+        const nlohmann::json pool = summary.value("pool", nlohmann::json::object());
+        const double steps = std::max<double>(1.0, double(result.steps));
+        double waits = 0.0, long_waits = 0.0, worker_cpu = 0.0;
+        for (const nlohmann::json& t : pool.value("threads", nlohmann::json::array())) {
+          waits += t.value("waits", 0.0);
+          long_waits += t.value("long_waits", 0.0);
+          worker_cpu += t.value("cpu_s", 0.0);
+        }
+        const double stages_per_step = pool.value("stages", 0.0) / steps;
         csv << file_name(recording) << ',' << workers << ',' << r + 1 << ',' << result.steps << ',' << simulated << ','
             << wall << ',' << result.steps / wall << ',' << simulated / wall << ',' << step["p50"] << ','
             << step["p99"] << ',' << result.final_hash << ',' << result.hash_checked << ',' << result.hash_mismatched
-            << '\n';
+            << ',' << deform["p50"] << ',' << deform["p99"] << ',' << stages_per_step << ',' << waits / steps << ','
+            << long_waits << ',' << worker_cpu << '\n';
         runs.push_back({{"workers", workers}, {"repeat", r + 1}, {"steps", result.steps}, {"simulated_s", simulated},
                         {"wall_s", wall}, {"realtime_factor", simulated / wall}, {"step_ms", step},
+                        {"deform_ms", deform}, {"pool", pool}, {"pool_stages_per_step", stages_per_step},
+                        {"pool_waits_per_step", waits / steps}, {"worker_cpu_s", worker_cpu},
                         {"final_hash", result.final_hash}, {"hash_checked", result.hash_checked},
                         {"hash_mismatched", result.hash_mismatched}});
       }

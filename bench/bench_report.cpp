@@ -588,25 +588,38 @@ void replay_section(Results& in, std::ostream& md, std::ostream& head) {
   md << "## 6. Determinism and throughput of headless replay\n\n"
      << "Each shipped recording replayed with physics (no frames) several times with 1 and with 2 workers. "
         "Deterministic: every run's final state hash agrees and every hash recorded in the file matched.\n\n"
+     << "Deform: the PBD step's time (p50 and p99 of each run, medians over the runs); barriers: the task "
+        "pool's stages per step (a barrier between two), waits: those a thread reached before they opened, per "
+        "step and thread (summary.json `pool`).\n\n"
      << "| recording | workers | runs | steps | wall s (median) | × real time (median) | step p99 ms | "
-        "deterministic |\n|---|---|---|---|---|---|---|---|\n";
+        "deform p50 ms | deform p99 ms | barriers / step | waits / step | deterministic |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const json& r : replay["rows"]) {
     std::map<int, std::vector<const json*>> by_workers;
     for (const json& run : r["runs"]) by_workers[run["workers"].get<int>()].push_back(&run);
     for (auto& [workers, runs] : by_workers) {
-      std::vector<double> wall, factor, p99;
+      std::vector<double> wall, factor, p99, deform50, deform99, stages, waits;
       for (const json* run : runs) {
         wall.push_back(get(*run, "wall_s"));
         factor.push_back(get(*run, "realtime_factor"));
         p99.push_back(get((*run)["step_ms"], "p99"));
+        if (run->contains("deform_ms")) {
+          deform50.push_back(get((*run)["deform_ms"], "p50"));
+          deform99.push_back(get((*run)["deform_ms"], "p99"));
+          stages.push_back(get(*run, "pool_stages_per_step"));
+          waits.push_back(get(*run, "pool_waits_per_step") / std::max(1, workers));
+        }
       }
+      const auto median = [](const std::vector<double>& v) { return v.empty() ? std::string("–") : num(quantile(v, 0.5)); };
       md << "| " << r["recording"].get<std::string>() << " | " << workers << " | " << runs.size() << " | "
          << (*runs[0])["steps"] << " | " << num(quantile(wall, 0.5)) << " | " << num(quantile(factor, 0.5))
-         << " | " << num(quantile(p99, 0.5)) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
+         << " | " << num(quantile(p99, 0.5)) << " | " << median(deform50) << " | " << median(deform99) << " | "
+         << median(stages) << " | " << median(waits) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
          << " |\n";
-      if (workers == 1 && r["recording"] == "bunny_cut.jsonl") {
-        head << "- **Replay** of the default recording: " << num(quantile(factor, 0.5))
-             << "× real time with physics, " << (replay["deterministic"].get<bool>() ? "bit-identical" : "NOT identical")
+      if (r["recording"] == "bunny_cut.jsonl") {
+        head << "- **Replay** of the default recording with " << workers << (workers == 1 ? " worker: " : " workers: ")
+             << num(quantile(factor, 0.5)) << "× real time with physics (deform p50 " << median(deform50) << " ms), "
+             << (replay["deterministic"].get<bool>() ? "bit-identical" : "NOT identical")
              << " across runs and worker counts.\n";
       }
     }
