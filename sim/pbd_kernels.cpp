@@ -135,6 +135,7 @@ __attribute__((always_inline)) inline T lane_max(T m, T v) {
 // moves through the stack, and the 32-byte loads that followed stalled on store forwarding.
 typedef double V4u __attribute__((vector_size(32), aligned(8), may_alias));
 __attribute__((always_inline)) inline void load4(V4& v, const double* p) { v = *reinterpret_cast<const V4u*>(p); }
+__attribute__((always_inline)) inline void store4(double* p, const V4& v) { *reinterpret_cast<V4u*>(p) = v; }
 // Four flags (bytes 0 / 1) as a lane mask: their bits gathered by one product (bit 8l moves to 21 + l,
 // no other term reaches bits 21-24), then a table of the 16 masks.
 struct LaneMasks {
@@ -725,35 +726,47 @@ __attribute__((always_inline)) inline void block_frame(const double* x, const Sh
 // Pass 2: the rotation step from each lane's warm start; extract_rotation in a lane where it is not
 // defined. Writes the block's rotations.
 __attribute__((always_inline)) inline void block_rotation(const ShapeBlock& b, Quaterniond* rotations, BlockFrame& f) {
-  for (int l = 0; l < kShapeLanes; ++l) {
-    const Quaterniond& r = rotations[b.piece[l]];
-    f.q[0][l] = r.w();
-    f.q[1][l] = r.x();
-    f.q[2][l] = r.y();
-    f.q[3][l] = r.z();
+  // The four warm starts (Eigen's coefficients x, y, z, w) transposed into one vector per coefficient.
+  static_assert(sizeof(Quaterniond) == 4 * sizeof(double), "a quaternion is its four coefficients");
+  V4 r0, r1, r2, r3;
+  load4(r0, rotations[b.piece[0]].coeffs().data());
+  load4(r1, rotations[b.piece[1]].coeffs().data());
+  load4(r2, rotations[b.piece[2]].coeffs().data());
+  load4(r3, rotations[b.piece[3]].coeffs().data());
+  {
+    const V4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 2, 6), t1 = __builtin_shufflevector(r0, r1, 1, 5, 3, 7);
+    const V4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 2, 6), t3 = __builtin_shufflevector(r2, r3, 1, 5, 3, 7);
+    f.q[1] = __builtin_shufflevector(t0, t2, 0, 1, 4, 5);  // x
+    f.q[3] = __builtin_shufflevector(t0, t2, 2, 3, 6, 7);  // z
+    f.q[2] = __builtin_shufflevector(t1, t3, 0, 1, 4, 5);  // y
+    f.q[0] = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);  // w
   }
   M4 defined;
   rotation_step_lanes_into(f.a, f.q, defined);
   for (int l = 0; l < b.lanes; ++l) {
-    Quaterniond& r = rotations[b.piece[l]];
-    if (defined[l] != 0) {
-      r = Quaterniond(f.q[0][l], f.q[1][l], f.q[2][l], f.q[3][l]);
-      continue;
-    }
+    if (defined[l] != 0) continue;
     Matrix3d al;
     for (int i = 0; i < 3; ++i) {
       for (int j = 0; j < 3; ++j) al(i, j) = f.a[i][j][l];
     }
-    r = extract_rotation(al, r, kShapeRotationIterations);
+    const Quaterniond r = extract_rotation(al, rotations[b.piece[l]], kShapeRotationIterations);
     f.q[0][l] = r.w();
     f.q[1][l] = r.x();
     f.q[2][l] = r.y();
     f.q[3][l] = r.z();
   }
-  // Unused lanes repeat the first lane's cluster, so they take its rotation (block_goals writes them).
+  // Unused lanes repeat the first lane's cluster, so they take its rotation (block_goals writes them,
+  // and they store it again into the first lane's slot).
   for (int l = b.lanes; l < kShapeLanes; ++l) {
     for (int e = 0; e < 4; ++e) f.q[e][l] = f.q[e][0];
   }
+  // Back: the inverse transpose, one store per lane.
+  const V4 u0 = __builtin_shufflevector(f.q[1], f.q[2], 0, 4, 2, 6), u1 = __builtin_shufflevector(f.q[1], f.q[2], 1, 5, 3, 7);
+  const V4 u2 = __builtin_shufflevector(f.q[3], f.q[0], 0, 4, 2, 6), u3 = __builtin_shufflevector(f.q[3], f.q[0], 1, 5, 3, 7);
+  store4(rotations[b.piece[0]].coeffs().data(), __builtin_shufflevector(u0, u2, 0, 1, 4, 5));
+  store4(rotations[b.piece[1]].coeffs().data(), __builtin_shufflevector(u1, u3, 0, 1, 4, 5));
+  store4(rotations[b.piece[2]].coeffs().data(), __builtin_shufflevector(u0, u2, 2, 3, 6, 7));
+  store4(rotations[b.piece[3]].coeffs().data(), __builtin_shufflevector(u1, u3, 2, 3, 6, 7));
 }
 
 // Pass 3: goals c + R q_k; the particles that move go `stiffness` of the way there, the others keep
