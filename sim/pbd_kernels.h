@@ -161,7 +161,7 @@ void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r
 // solve_shape_matching(x, indices, rest, stiffness, rotation, 0) (no reassociation, no FMA), so
 // the results are the same bits on every machine and equal the scalar path. The lanes of a block
 // must share no particle (one colour group); a block of fewer than kShapeLanes clusters repeats its
-// first lane, computes it again and writes only its own lanes.
+// first lane, computes it again and stores the same values to the same particles and rotation again.
 constexpr int kShapeLanes = 4;
 // The doubles first and the block 32-byte aligned, so each [lane] row of four is one aligned vector.
 struct alignas(32) ShapeBlock {
