@@ -96,7 +96,7 @@ double relative_error(const CutState& cut, const PbdState& run, const PbdState& 
 
 // The shape-matching kernel before and after issue 17 in one run, on a settled state of `pbd`:
 // passes over every cluster, colour by colour, with the scalar kernel (solve_shape_matching from a
-// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_block) from the
+// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_blocks) from the
 // same start. Both must end on the same bits (checked: "identical"); time per cluster solve, the
 // fastest pass of `repeats`.
 nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
@@ -119,7 +119,8 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kColourGroups; ++c) {
       if (blocks) {
-        for (const ShapeBlock& b : pbd.shape_blocks[c]) solve_shape_block(x, b, 1.0, pbd.rotation.data());
+        solve_shape_blocks(x, pbd.shape_blocks[c].data(), 0, uint32_t(pbd.shape_blocks[c].size()), 1.0,
+                           pbd.rotation.data());
         continue;
       }
       for (const uint32_t slot : pbd.piece_groups[c]) {

@@ -2294,9 +2294,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       }
       case StepBatch::kShape:
-        for (uint32_t i = begin; i < end; ++i) {
-          solve_shape_block(x, s.shape_blocks[b.index][i], params.shape_stiffness, s.rotation.data());
-        }
+        solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data());
         break;
       case StepBatch::kGrab:
         solve_grab(s, h, grab_lambda);

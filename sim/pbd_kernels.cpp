@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstring>
 #include <limits>
 
@@ -130,7 +131,28 @@ __attribute__((always_inline)) inline T lane_max(T m, T v) {
 }
 // Vectors cross into the solver's clones only by reference: clang refuses a V4 passed or returned by
 // value between its avx2 clone and a helper compiled without AVX (the ABIs differ).
-__attribute__((always_inline)) inline void load4(V4& v, const double* p) { std::memcpy(&v, p, sizeof v); }
+// A typed load, not memcpy: GCC merged the memcpys of adjacent vectors into one copy loop of 16-byte
+// moves through the stack, and the 32-byte loads that followed stalled on store forwarding.
+typedef double V4u __attribute__((vector_size(32), aligned(8), may_alias));
+__attribute__((always_inline)) inline void load4(V4& v, const double* p) { v = *reinterpret_cast<const V4u*>(p); }
+__attribute__((always_inline)) inline void store4(double* p, const V4& v) { *reinterpret_cast<V4u*>(p) = v; }
+// Four flags (bytes 0 / 1) as a lane mask: their bits gathered by one product (bit 8l moves to 21 + l,
+// no other term reaches bits 21-24), then a table of the 16 masks.
+struct LaneMasks {
+  int64_t mask[16][4];
+  constexpr LaneMasks() : mask() {
+    for (int i = 0; i < 16; ++i) {
+      for (int l = 0; l < 4; ++l) mask[i][l] = (i >> l & 1) ? -1 : 0;
+    }
+  }
+};
+alignas(32) constexpr LaneMasks kLaneMasks;
+typedef int64_t M4u __attribute__((vector_size(32), aligned(8), may_alias));
+__attribute__((always_inline)) inline void lane_mask(const uint8_t* flags, M4& m) {
+  uint32_t w;
+  std::memcpy(&w, flags, sizeof w);
+  m = *reinterpret_cast<const M4u*>(kLaneMasks.mask[(w * 0x204081u) >> 21 & 15u]);
+}
 
 // One warm-started rotation step (extract_rotation_step's usual case) per lane: a[i][j] is A, q the
 // quaternion (w, x, y, z), updated where the step moves it. Returns the lanes where the step is
@@ -452,10 +474,29 @@ DVX_AVX2 __m256d moved4(__m256d v, __m256d s, __m256d d, bool plus, __m256d vali
   return _mm256_blendv_pd(v, plus ? _mm256_add_pd(v, delta) : _mm256_sub_pd(v, delta), valid);
 }
 
+// Four rows' constants as one vector per field: the 32 bytes from `rest` of each row (rest,
+// min_length, wa, wb) transposed (unpck and perm2f128) instead of 16 single loads and inserts.
+DVX_AVX2 void row_constants4(const StretchRow* r, __m256d& rest, __m256d& min_length, __m256d& wa, __m256d& wb) {
+  static_assert(offsetof(StretchRow, min_length) == offsetof(StretchRow, rest) + 8 &&
+                    offsetof(StretchRow, wa) == offsetof(StretchRow, rest) + 16 &&
+                    offsetof(StretchRow, wb) == offsetof(StretchRow, rest) + 24,
+                "rest, min_length, wa, wb are consecutive");
+  const __m256d r0 = _mm256_loadu_pd(&r[0].rest), r1 = _mm256_loadu_pd(&r[1].rest);
+  const __m256d r2 = _mm256_loadu_pd(&r[2].rest), r3 = _mm256_loadu_pd(&r[3].rest);
+  const __m256d t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);  // rest wa, min wb (rows 0 1)
+  const __m256d t2 = _mm256_unpacklo_pd(r2, r3), t3 = _mm256_unpackhi_pd(r2, r3);  // the same, rows 2 3
+  rest = _mm256_permute2f128_pd(t0, t2, 0x20);
+  wa = _mm256_permute2f128_pd(t0, t2, 0x31);
+  min_length = _mm256_permute2f128_pd(t1, t3, 0x20);
+  wb = _mm256_permute2f128_pd(t1, t3, 0x31);
+}
+
 // Four rows of one colour at once in AVX2 (x86-64 only): distance_step per lane, operation for
 // operation (the same IEEE additions, products, square root and divisions in the same order, no FMA),
 // its early returns as a mask (a lane that would return writes back what it read). Positions are
 // gathered as (x, y) pairs and z, transposed into one vector per axis, and scattered back the same way.
+// (Two groups of four written side by side, so that their chains of square root and divisions
+// overlap, measured ~5 % faster for ~15 % more instructions: not kept.)
 __attribute__((target("avx2"))) void stretch_rows_avx2(double* x, const StretchRow* rows, double* lambda,
                                                        uint32_t begin, uint32_t end, double alpha) {
   const __m256d zero = _mm256_setzero_pd(), sign = _mm256_set1_pd(-0.0);
@@ -465,13 +506,10 @@ __attribute__((target("avx2"))) void stretch_rows_avx2(double* x, const StretchR
     const StretchRow* r = rows + i;
     double* pa[4] = {x + 3 * size_t(r[0].a), x + 3 * size_t(r[1].a), x + 3 * size_t(r[2].a), x + 3 * size_t(r[3].a)};
     double* pb[4] = {x + 3 * size_t(r[0].b), x + 3 * size_t(r[1].b), x + 3 * size_t(r[2].b), x + 3 * size_t(r[3].b)};
-    __m256d ax, ay, az, bx, by, bz;
+    __m256d ax, ay, az, bx, by, bz, rest, min_length, wa, wb;
     gather4(pa, ax, ay, az);
     gather4(pb, bx, by, bz);
-    const __m256d rest = _mm256_set_pd(r[3].rest, r[2].rest, r[1].rest, r[0].rest);
-    const __m256d min_length = _mm256_set_pd(r[3].min_length, r[2].min_length, r[1].min_length, r[0].min_length);
-    const __m256d wa = _mm256_set_pd(r[3].wa, r[2].wa, r[1].wa, r[0].wa);
-    const __m256d wb = _mm256_set_pd(r[3].wb, r[2].wb, r[1].wb, r[0].wb);
+    row_constants4(r, rest, min_length, wa, wb);
     const __m256d w_sum = _mm256_add_pd(wa, wb);
     const __m256d d0 = _mm256_sub_pd(ax, bx), d1 = _mm256_sub_pd(ay, by), d2 = _mm256_sub_pd(az, bz);
     const __m256d length = _mm256_sqrt_pd(
@@ -635,95 +673,144 @@ __attribute__((always_inline)) inline void scatter_lanes(double* const* at, cons
   for (int l = 0; l < 4; ++l) at[l][2] = v[2][l];
 }
 
-}  // namespace
-
-// The lanes of shape_matching_frame and solve_shape_matching in V4 (the scalar path's operations in
-// its order); one clone per instruction set, picked when the program loads. The positions are
-// gathered and scattered as (x, y) pairs and z, and a full block whose particles all move is
-// written without a test per slot and lane.
-DVX_CLONES
-void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
-  // Gather the positions; the mass centre.
+// A block between the passes of solve_shape_blocks: its gathered positions, mass centre, A and
+// rotation (w, x, y, z), one V4 (a value per lane) each.
+struct BlockFrame {
   V4 p[kS][3];
+  V4 c[3];
+  V4 a[3][3];
+  V4 q[4];
+};
+
+// Pass 1: gather the positions; the mass centre; A = sum_i m_i (x_i - c)(r_i - c0)^T row by row
+// (three accumulators live at a time; each entry still sums its slots in order: the same bits).
+__attribute__((always_inline)) inline void block_frame(const double* x, const ShapeBlock& b, BlockFrame& f) {
   for (int k = 0; k < kS; ++k) {
-    double* const at[4] = {x + 3 * size_t(b.index[k][0]), x + 3 * size_t(b.index[k][1]),
-                           x + 3 * size_t(b.index[k][2]), x + 3 * size_t(b.index[k][3])};
-    gather_lanes(at, p[k]);
+    double* const at[4] = {const_cast<double*>(x) + 3 * size_t(b.index[k][0]), const_cast<double*>(x) + 3 * size_t(b.index[k][1]),
+                           const_cast<double*>(x) + 3 * size_t(b.index[k][2]), const_cast<double*>(x) + 3 * size_t(b.index[k][3])};
+    gather_lanes(at, f.p[k]);
   }
-  V4 c[3] = {};
+  V4 c0 = {}, c1 = {}, c2 = {};
   for (int k = 0; k < kS; ++k) {
     V4 m;
     load4(m, b.mass[k]);
-    for (int e = 0; e < 3; ++e) c[e] += m * p[k][e];
+    c0 += m * f.p[k][0];
+    c1 += m * f.p[k][1];
+    c2 += m * f.p[k][2];
   }
   V4 inv_total;
   load4(inv_total, b.inv_total);
-  for (int e = 0; e < 3; ++e) c[e] *= inv_total;
-  // A = sum_i m_i (x_i - c)(r_i - c0)^T.
-  V4 a[3][3] = {};
-  for (int k = 0; k < kS; ++k) {
-    V4 m, o[3];
-    load4(m, b.mass[k]);
-    for (int e = 0; e < 3; ++e) load4(o[e], b.offset[k][e]);
-    for (int i = 0; i < 3; ++i) {
-      const V4 d = m * (p[k][i] - c[i]);
-      for (int j = 0; j < 3; ++j) a[i][j] += d * o[j];
+  f.c[0] = c0 * inv_total;
+  f.c[1] = c1 * inv_total;
+  f.c[2] = c2 * inv_total;
+  for (int i = 0; i < 3; ++i) {
+    const V4 ci = f.c[i];
+    V4 s0 = {}, s1 = {}, s2 = {};
+    for (int k = 0; k < kS; ++k) {
+      V4 m, o0, o1, o2;
+      load4(m, b.mass[k]);
+      load4(o0, b.offset[k][0]);
+      load4(o1, b.offset[k][1]);
+      load4(o2, b.offset[k][2]);
+      const V4 d = m * (f.p[k][i] - ci);
+      s0 += d * o0;
+      s1 += d * o1;
+      s2 += d * o2;
     }
+    f.a[i][0] = s0;
+    f.a[i][1] = s1;
+    f.a[i][2] = s2;
   }
-  // The rotation step from each lane's warm start; extract_rotation in a lane where it is not defined.
-  V4 q[4];
-  for (int l = 0; l < kShapeLanes; ++l) {
-    const Quaterniond& r = rotations[b.piece[l]];
-    q[0][l] = r.w();
-    q[1][l] = r.x();
-    q[2][l] = r.y();
-    q[3][l] = r.z();
+}
+
+// Pass 2: the rotation step from each lane's warm start; extract_rotation in a lane where it is not
+// defined. Writes the block's rotations.
+__attribute__((always_inline)) inline void block_rotation(const ShapeBlock& b, Quaterniond* rotations, BlockFrame& f) {
+  // The four warm starts (Eigen's coefficients x, y, z, w) transposed into one vector per coefficient.
+  static_assert(sizeof(Quaterniond) == 4 * sizeof(double), "a quaternion is its four coefficients");
+  V4 r0, r1, r2, r3;
+  load4(r0, rotations[b.piece[0]].coeffs().data());
+  load4(r1, rotations[b.piece[1]].coeffs().data());
+  load4(r2, rotations[b.piece[2]].coeffs().data());
+  load4(r3, rotations[b.piece[3]].coeffs().data());
+  {
+    const V4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 2, 6), t1 = __builtin_shufflevector(r0, r1, 1, 5, 3, 7);
+    const V4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 2, 6), t3 = __builtin_shufflevector(r2, r3, 1, 5, 3, 7);
+    f.q[1] = __builtin_shufflevector(t0, t2, 0, 1, 4, 5);  // x
+    f.q[3] = __builtin_shufflevector(t0, t2, 2, 3, 6, 7);  // z
+    f.q[2] = __builtin_shufflevector(t1, t3, 0, 1, 4, 5);  // y
+    f.q[0] = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);  // w
   }
   M4 defined;
-  rotation_step_lanes_into(a, q, defined);
+  rotation_step_lanes_into(f.a, f.q, defined);
   for (int l = 0; l < b.lanes; ++l) {
-    Quaterniond& r = rotations[b.piece[l]];
-    if (defined[l] != 0) {
-      r = Quaterniond(q[0][l], q[1][l], q[2][l], q[3][l]);
-      continue;
-    }
+    if (defined[l] != 0) continue;
     Matrix3d al;
     for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) al(i, j) = a[i][j][l];
+      for (int j = 0; j < 3; ++j) al(i, j) = f.a[i][j][l];
     }
-    r = extract_rotation(al, r, kShapeRotationIterations);
-    q[0][l] = r.w();
-    q[1][l] = r.x();
-    q[2][l] = r.y();
-    q[3][l] = r.z();
+    const Quaterniond r = extract_rotation(al, rotations[b.piece[l]], kShapeRotationIterations);
+    f.q[0][l] = r.w();
+    f.q[1][l] = r.x();
+    f.q[2][l] = r.y();
+    f.q[3][l] = r.z();
   }
+  // Unused lanes repeat the first lane's cluster, so they take its rotation (block_goals writes them,
+  // and they store it again into the first lane's slot).
+  for (int l = b.lanes; l < kShapeLanes; ++l) {
+    for (int e = 0; e < 4; ++e) f.q[e][l] = f.q[e][0];
+  }
+  // Back: the inverse transpose, one store per lane.
+  const V4 u0 = __builtin_shufflevector(f.q[1], f.q[2], 0, 4, 2, 6), u1 = __builtin_shufflevector(f.q[1], f.q[2], 1, 5, 3, 7);
+  const V4 u2 = __builtin_shufflevector(f.q[3], f.q[0], 0, 4, 2, 6), u3 = __builtin_shufflevector(f.q[3], f.q[0], 1, 5, 3, 7);
+  store4(rotations[b.piece[0]].coeffs().data(), __builtin_shufflevector(u0, u2, 0, 1, 4, 5));
+  store4(rotations[b.piece[1]].coeffs().data(), __builtin_shufflevector(u1, u3, 0, 1, 4, 5));
+  store4(rotations[b.piece[2]].coeffs().data(), __builtin_shufflevector(u0, u2, 2, 3, 6, 7));
+  store4(rotations[b.piece[3]].coeffs().data(), __builtin_shufflevector(u1, u3, 2, 3, 6, 7));
+}
+
+// Pass 3: goals c + R q_k; the particles that move go `stiffness` of the way there, the others keep
+// their bits, and every slot is scattered: a lane that repeats the first (a block of fewer clusters)
+// writes the same values to the same particle again.
+__attribute__((always_inline)) inline void block_goals(double* x, const ShapeBlock& b, double stiffness,
+                                                       const BlockFrame& f) {
   V4 rot[3][3];
-  rotation_matrix_lanes<V4>(q, rot);
-  // Goals c + R q_k; the particles that move go `stiffness` of the way there.
-  // Every lane a cluster of its own and every particle moving: no test per slot and lane.
-  bool all_move = b.lanes == kShapeLanes;
-  uint64_t moves[kS * kShapeLanes / 8];
-  std::memcpy(moves, b.moves, sizeof moves);
-  for (const uint64_t m : moves) all_move = all_move && m == 0x0101010101010101ull;
+  rotation_matrix_lanes<V4>(f.q, rot);
   for (int k = 0; k < kS; ++k) {
     V4 o[3], out[3];
+    M4 move;
+    lane_mask(b.moves[k], move);
     for (int e = 0; e < 3; ++e) load4(o[e], b.offset[k][e]);
     for (int e = 0; e < 3; ++e) {
-      const V4 goal = c[e] + (rot[e][0] * o[0] + rot[e][1] * o[1] + rot[e][2] * o[2]);
-      out[e] = p[k][e] + stiffness * (goal - p[k][e]);
+      const V4 goal = f.c[e] + (rot[e][0] * o[0] + rot[e][1] * o[1] + rot[e][2] * o[2]);
+      out[e] = lane_select(move, f.p[k][e] + stiffness * (goal - f.p[k][e]), f.p[k][e]);
     }
-    if (all_move) {
-      double* const at[4] = {x + 3 * size_t(b.index[k][0]), x + 3 * size_t(b.index[k][1]),
-                             x + 3 * size_t(b.index[k][2]), x + 3 * size_t(b.index[k][3])};
-      scatter_lanes(at, out);
-      continue;
-    }
-    for (int l = 0; l < b.lanes; ++l) {
-      if (!b.moves[k][l]) continue;
-      double* xi = x + 3 * size_t(b.index[k][l]);
-      for (int e = 0; e < 3; ++e) xi[e] = out[e][l];
-    }
+    double* const at[4] = {x + 3 * size_t(b.index[k][0]), x + 3 * size_t(b.index[k][1]),
+                           x + 3 * size_t(b.index[k][2]), x + 3 * size_t(b.index[k][3])};
+    scatter_lanes(at, out);
   }
+}
+
+}  // namespace
+
+// The lanes of shape_matching_frame and solve_shape_matching in V4 (the scalar path's operations in
+// its order); one clone per instruction set, picked when the program loads. A block in three passes
+// through its frame (few vectors live at a time: the compiler spilled ~250 of them when the block was
+// one pass). Gathering a few blocks before the first rotation step, so that the steps' chains of
+// divisions overlap, measured slower (more traffic through the stack, no gain in overlap).
+DVX_CLONES
+void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
+                        Quaterniond* rotations) {
+  BlockFrame f;
+  for (uint32_t i = begin; i < end; ++i) {
+    block_frame(x, blocks[i], f);
+    block_rotation(blocks[i], rotations, f);
+    block_goals(x, blocks[i], stiffness, f);
+  }
+}
+
+void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
+  solve_shape_blocks(x, &b, 0, 1, stiffness, rotations);
 }
 
 void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* indices, const double* rest, int count,

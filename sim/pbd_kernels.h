@@ -161,16 +161,17 @@ void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r
 // solve_shape_matching(x, indices, rest, stiffness, rotation, 0) (no reassociation, no FMA), so
 // the results are the same bits on every machine and equal the scalar path. The lanes of a block
 // must share no particle (one colour group); a block of fewer than kShapeLanes clusters repeats its
-// first lane, computes it again and writes only its own lanes.
+// first lane, computes it again and stores the same values to the same particles and rotation again.
 constexpr int kShapeLanes = 4;
-struct ShapeBlock {
-  int lanes = 0;
-  uint32_t piece[kShapeLanes] = {};                        // rotation slot of each lane
-  uint32_t index[kShapeMaxParticles][kShapeLanes] = {};    // particle of each cluster slot
+// The doubles first and the block 32-byte aligned, so each [lane] row of four is one aligned vector.
+struct alignas(32) ShapeBlock {
   double mass[kShapeMaxParticles][kShapeLanes] = {};
   double offset[kShapeMaxParticles][3][kShapeLanes] = {};  // r_i - c0
   double inv_total[kShapeLanes] = {};
+  uint32_t index[kShapeMaxParticles][kShapeLanes] = {};    // particle of each cluster slot
+  uint32_t piece[kShapeLanes] = {};                        // rotation slot of each lane
   uint8_t moves[kShapeMaxParticles][kShapeLanes] = {};
+  int lanes = 0;
 };
 
 // Puts cluster (indices, rest frame r with r.count > 0, rotation slot `piece`) into the next lane
@@ -179,7 +180,12 @@ void shape_block_add(ShapeBlock& block, uint32_t piece, const uint32_t* indices,
 
 // Solves the block's clusters with stiffness `stiffness`; rotations[piece] is each lane's warm start,
 // updated in place (one rotation step; extract_rotation with kShapeRotationIterations in a lane where
-// the step is not defined, as in the scalar path).
+// the step is not defined, as in the scalar path). Every particle of the block is stored, those that
+// do not move with the bits they had (so a block touches only its own particles, as before).
 void solve_shape_block(double* x, const ShapeBlock& block, double stiffness, Eigen::Quaterniond* rotations);
+
+// Blocks [begin, end) one after the other (solve_shape_block on each in turn, one call).
+void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
+                        Eigen::Quaterniond* rotations);
 
 }  // namespace dvx

@@ -560,6 +560,51 @@ TEST_SUITE("pbd_kernels") {
     }
   }
 
+  // A range of blocks in one call against the scalar path cluster by cluster in order: full blocks
+  // of one colour (no shared particle) with anchored particles, then one-cluster blocks that share
+  // particles (the overflow colour's), whose solves must follow one another.
+  TEST_CASE("solve_shape_blocks over a range equals the scalar solves in order, also with shared particles") {
+    Rng rng(49);
+    for (int trial = 0; trial < 40; ++trial) {
+      const int kFull = 3, kShared = 3;
+      const int clusters = 4 * kFull + kShared;
+      std::vector<double> x(3 * 8 * clusters), rest(3 * 8 * clusters), inv_mass(8 * clusters);
+      std::vector<std::array<uint32_t, 8>> indices(clusters);
+      for (int cl = 0; cl < clusters; ++cl) {
+        const Matrix3d r = rng.rotation().toRotationMatrix() * random_stretch(rng, 0.8, 1.2);
+        const Vector3d shift = rng.vec(-1, 1);
+        for (int c = 0; c < 8; ++c) {
+          // The shared clusters take their first four particles from the previous cluster.
+          const bool shared = cl > 4 * kFull && c < 4;
+          const uint32_t i = shared ? indices[cl - 1][c + 4] : uint32_t(8 * cl + (c * 3) % 8);
+          indices[cl][c] = i;
+          const Vector3d q = 0.1 * Vector3d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+          for (int e = 0; e < 3; ++e) rest[3 * (8 * cl + c) + e] = q[e];
+          if (shared) continue;
+          set(x, i, r * q + shift + rng.vec(-0.01, 0.01));
+          inv_mass[i] = (trial + cl + c) % 11 == 0 ? 0.0 : rng.uniform(0.5, 2.0);
+        }
+      }
+      std::vector<ShapeBlock> blocks(kFull + kShared);
+      std::vector<ShapeRest> frames(clusters);
+      for (int cl = 0; cl < clusters; ++cl) {
+        REQUIRE(shape_matching_rest(inv_mass.data(), indices[cl].data(), &rest[24 * cl], 8, frames[cl]));
+        shape_block_add(blocks[cl < 4 * kFull ? cl / 4 : kFull + cl - 4 * kFull], uint32_t(cl), indices[cl].data(),
+                        frames[cl]);
+      }
+      std::vector<Quaterniond> rotations(clusters, Quaterniond::Identity());
+      std::vector<double> x_scalar = x;
+      std::vector<Quaterniond> rotations_scalar = rotations;
+      for (int solve = 0; solve < 3; ++solve) {
+        solve_shape_blocks(x.data(), blocks.data(), 0, uint32_t(blocks.size()), 0.8, rotations.data());
+        for (int cl = 0; cl < clusters; ++cl)
+          solve_shape_matching(x_scalar.data(), indices[cl].data(), frames[cl], 0.8, rotations_scalar[cl], 0);
+        for (size_t k = 0; k < x.size(); ++k) REQUIRE(x[k] == x_scalar[k]);
+        for (int cl = 0; cl < clusters; ++cl) CHECK(rotations[cl].coeffs() == rotations_scalar[cl].coeffs());
+      }
+    }
+  }
+
   // The rotation step against the full extract_rotation where both apply: warm-started near the
   // answer, repeated steps land on the polar rotation (the step's half angle without trigonometry
   // takes the same step as atan, cos and sin).
