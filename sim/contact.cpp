@@ -358,43 +358,112 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* r
   return count;
 }
 
-uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
-                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
-                             PieceContactScratch& g, uint64_t* pairs_tested) {
-  exposed.assign(piece_count, 0);
-  // Cells at least as large as any grown piece: overlapping pieces have their grown low corners in
-  // neighbouring cells.
+namespace {
+
+// The pairs (i << 32 | j, i < j) of live pieces of different bodies whose bounds, grown by their
+// reach plus `margin`, overlap, in g.pairs (one direction, in the order met). Cells at least as large
+// as any grown piece: overlapping pieces have their grown low corners in neighbouring cells. Returns
+// false when no live piece has finite, non-empty grown bounds.
+bool overlapping_pairs(const Vec3d* lo, const Vec3d* hi, const double* reach, double margin, const uint8_t* live,
+                       const uint32_t* body, uint32_t piece_count, PieceContactScratch& g, uint64_t* pairs_tested) {
+  g.pairs.clear();
   double size = 0.0;
   for (uint32_t i = 0; i < piece_count; ++i) {
-    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff() + 2.0 * reach[i]);
+    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff() + 2.0 * (reach[i] + margin));
   }
-  if (!(size > 0.0) || !std::isfinite(size)) return 0;
+  if (!(size > 0.0) || !std::isfinite(size)) return false;
   g.keys.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    const uint64_t cell = cell_key(cell_coord(lo[i].x() - reach[i], size), cell_coord(lo[i].y() - reach[i], size),
-                                   cell_coord(lo[i].z() - reach[i], size));
+    const double r = reach[i] + margin;
+    const uint64_t cell = cell_key(cell_coord(lo[i].x() - r, size), cell_coord(lo[i].y() - r, size),
+                                   cell_coord(lo[i].z() - r, size));
     g.keys.push_back(cell | i);
   }
   build_cells(g);
-  uint32_t count = 0;
-  g.pairs.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    const Vec3d a = lo[i] - Vec3d::Constant(reach[i]);
+    const double r = reach[i] + margin;
+    const Vec3d a = lo[i] - Vec3d::Constant(r);
     for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
       const uint32_t j = g.cell_items[n];
       if (j <= i || body[j] == body[i]) return;
       if (pairs_tested) ++*pairs_tested;
-      if (!grown_overlap(lo[i], hi[i], reach[i], lo[j], hi[j], reach[j])) return;
-      count += !exposed[i] + !exposed[j];
-      exposed[i] = exposed[j] = 1;
-      g.pairs.push_back((uint64_t(i) << 32) | j);
-      g.pairs.push_back((uint64_t(j) << 32) | i);
+      if (grown_overlap(lo[i], hi[i], r, lo[j], hi[j], reach[j] + margin)) g.pairs.push_back((uint64_t(i) << 32) | j);
     });
   }
-  partner_lists(g.pairs, piece_count, g.partner_begin, g.partners);  // the partners of each piece, ascending
+  return true;
+}
+
+// Marks both pieces of each pair (i << 32 | j) in `pairs` that passes `keep`, and lists each piece's
+// partners (g.partner_begin, g.partners). Returns how many pieces it marked.
+template <typename Keep>
+uint32_t mark_exposed(const std::vector<uint64_t>& pairs, uint32_t piece_count, std::vector<uint8_t>& exposed,
+                      PieceContactScratch& g, Keep&& keep) {
+  exposed.assign(piece_count, 0);
+  uint32_t count = 0;
+  g.both.clear();
+  for (const uint64_t pair : pairs) {
+    const uint32_t i = uint32_t(pair >> 32), j = uint32_t(pair);
+    if (!keep(i, j)) continue;
+    count += !exposed[i] + !exposed[j];
+    exposed[i] = exposed[j] = 1;
+    g.both.push_back(pair);
+    g.both.push_back((uint64_t(j) << 32) | i);
+  }
+  partner_lists(g.both, piece_count, g.partner_begin, g.partners);  // the partners of each piece, ascending
   return count;
+}
+
+}  // namespace
+
+uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
+                             PieceContactScratch& g, uint64_t* pairs_tested) {
+  if (!overlapping_pairs(lo, hi, reach, 0.0, live, body, piece_count, g, pairs_tested)) {
+    exposed.assign(piece_count, 0);
+    return 0;
+  }
+  return mark_exposed(g.pairs, piece_count, exposed, g, [](uint32_t, uint32_t) { return true; });
+}
+
+uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                                    const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
+                                    uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& g,
+                                    uint64_t* pairs_tested) {
+  PairCache& cache = g.pair_cache;
+  // The grown bounds now, as grown_overlap computes them; the cache holds while each candidate's lie
+  // within its cached ones (NaN never does).
+  const auto inside = [&](uint32_t i) {
+    const Vec3d a = lo[i] - Vec3d::Constant(reach[i]), b = hi[i] + Vec3d::Constant(reach[i]);
+    return (cache.lo[i].array() <= a.array()).all() && (b.array() <= cache.hi[i].array()).all();
+  };
+  bool valid = cache.key == key && cache.pieces == piece_count;
+  for (uint32_t i = 0; i < piece_count && valid; ++i) valid = !candidate[i] || inside(i);
+  if (!valid) {
+    // Rebuild over every live piece (a piece that is no candidate now may be one later), grown by
+    // the margin.
+    ++cache.builds;
+    cache.key = key;
+    cache.pieces = piece_count;
+    cache.lo.resize(piece_count);
+    cache.hi.resize(piece_count);
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (!live[i]) continue;
+      cache.lo[i] = lo[i] - Vec3d::Constant(reach[i] + margin);
+      cache.hi[i] = hi[i] + Vec3d::Constant(reach[i] + margin);
+    }
+    cache.pairs.clear();
+    if (overlapping_pairs(lo, hi, reach, margin, live, body, piece_count, g, pairs_tested)) cache.pairs.swap(g.pairs);
+    // A candidate whose bounds are not finite: never cached (the next step rebuilds again).
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (live[i] && !(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.key = ~uint64_t(0);
+    }
+  }
+  if (pairs_tested) *pairs_tested += cache.pairs.size();
+  return mark_exposed(cache.pairs, piece_count, exposed, g, [&](uint32_t i, uint32_t j) {
+    return candidate[i] && candidate[j] && grown_overlap(lo[i], hi[i], reach[i], lo[j], hi[j], reach[j]);
+  });
 }
 
 bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,

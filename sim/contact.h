@@ -226,6 +226,20 @@ struct SurfacePoint {
   float reach = 0.0f;  // its piece's contact reach: a pair within the larger of its points' reaches may touch
 };
 
+// The broad phase's pair cache (a Verlet list): the pairs of live pieces of different bodies whose
+// bounds grown by their reach plus a margin overlapped when it was built, and those grown bounds.
+// While every candidate's bounds grown by its reach now lie inside its cached ones, every pair whose
+// grown bounds overlap now is among the cached pairs, so testing only those finds the same pairs as
+// the grid (find_exposed_pieces). Built for one set of pieces and bodies (`key`: the caller's; the PBD
+// model's contact index updates), rebuilt when a candidate leaves its bounds.
+struct PairCache {
+  uint64_t key = ~uint64_t(0);
+  uint32_t pieces = 0;
+  std::vector<Vec3d> lo, hi;    // (pieces) grown bounds when built
+  std::vector<uint64_t> pairs;  // i << 32 | j, i < j
+  uint64_t builds = 0;          // diagnostics
+};
+
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
 struct PieceContactScratch {
   std::vector<uint32_t> parent;                   // (particles) union-find
@@ -239,7 +253,9 @@ struct PieceContactScratch {
   std::vector<uint32_t> item_body, run_end;       // (cell_items) body; end of its body's run in the cell
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
-  std::vector<uint64_t> pairs;                    // i << 32 | j, both directions
+  std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
+  std::vector<uint64_t> both;                     // the exposed pairs, both directions
+  PairCache pair_cache;
   std::vector<uint32_t> partner_begin, partners;
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
@@ -359,6 +375,13 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* r
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
                              const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
+
+// find_exposed_pieces over the pieces marked in `candidate` (a subset of `live`), through the pair
+// cache (PairCache: built over the `live` pieces with reach + margin, for `key`): the same result.
+uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                                    const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
+                                    uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& scratch,
+                                    uint64_t* pairs_tested = nullptr);
 
 // Whether x lies within the pair's reach (the larger of the two pieces') of the bounds of a partner
 // of `piece` (the last find_exposed_pieces): only such a surface point can be within reach of a point
