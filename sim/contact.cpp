@@ -395,23 +395,34 @@ bool overlapping_pairs(const Vec3d* lo, const Vec3d* hi, const double* reach, do
   return true;
 }
 
-// Marks both pieces of each pair (i << 32 | j) in `pairs` that passes `keep`, and lists each piece's
-// partners (g.partner_begin, g.partners). Returns how many pieces it marked.
+// Marks both pieces of each pair (i << 32 | j, i < j, ascending) in `pairs` that passes `keep`, and
+// lists each piece's partners (g.partner_begin, g.partners), ascending: a piece p meets its partners
+// below it in pairs (i, p), ascending in i, before those above it in pairs (p, k), ascending in k.
+// Returns how many pieces it marked.
 template <typename Keep>
 uint32_t mark_exposed(const std::vector<uint64_t>& pairs, uint32_t piece_count, std::vector<uint8_t>& exposed,
                       PieceContactScratch& g, Keep&& keep) {
   exposed.assign(piece_count, 0);
-  uint32_t count = 0;
+  g.partner_begin.assign(piece_count + 1, 0);
   g.both.clear();
+  uint32_t count = 0;
   for (const uint64_t pair : pairs) {
     const uint32_t i = uint32_t(pair >> 32), j = uint32_t(pair);
     if (!keep(i, j)) continue;
     count += !exposed[i] + !exposed[j];
     exposed[i] = exposed[j] = 1;
+    ++g.partner_begin[i + 1];
+    ++g.partner_begin[j + 1];
     g.both.push_back(pair);
-    g.both.push_back((uint64_t(j) << 32) | i);
   }
-  partner_lists(g.both, piece_count, g.partner_begin, g.partners);  // the partners of each piece, ascending
+  for (uint32_t i = 0; i < piece_count; ++i) g.partner_begin[i + 1] += g.partner_begin[i];
+  g.partners.resize(g.partner_begin[piece_count]);
+  g.cursor.assign(g.partner_begin.begin(), g.partner_begin.end() - 1);
+  for (const uint64_t pair : g.both) {
+    const uint32_t i = uint32_t(pair >> 32), j = uint32_t(pair);
+    g.partners[g.cursor[i]++] = j;
+    g.partners[g.cursor[j]++] = i;
+  }
   return count;
 }
 
@@ -424,41 +435,39 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* rea
     exposed.assign(piece_count, 0);
     return 0;
   }
+  std::sort(g.pairs.begin(), g.pairs.end());
   return mark_exposed(g.pairs, piece_count, exposed, g, [](uint32_t, uint32_t) { return true; });
 }
 
-uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
-                                    const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
+uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
                                     uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& g,
                                     uint64_t* pairs_tested) {
   PairCache& cache = g.pair_cache;
-  // The grown bounds now, as grown_overlap computes them; the cache holds while each candidate's lie
-  // within its cached ones (NaN never does).
+  // The grown bounds now, as grown_overlap computes them; the cache holds while each candidate was
+  // one when it was built and its bounds lie within the cached ones (NaN never does).
   const auto inside = [&](uint32_t i) {
     const Vec3d a = lo[i] - Vec3d::Constant(reach[i]), b = hi[i] + Vec3d::Constant(reach[i]);
     return (cache.lo[i].array() <= a.array()).all() && (b.array() <= cache.hi[i].array()).all();
   };
   bool valid = cache.key == key && cache.pieces == piece_count;
-  for (uint32_t i = 0; i < piece_count && valid; ++i) valid = !candidate[i] || inside(i);
+  for (uint32_t i = 0; i < piece_count && valid; ++i) valid = !candidate[i] || (cache.member[i] && inside(i));
   if (!valid) {
-    // Rebuild over every live piece (a piece that is no candidate now may be one later), grown by
-    // the margin.
+    // Rebuild over the candidates, grown by the margin.
     ++cache.builds;
     cache.key = key;
     cache.pieces = piece_count;
+    cache.member.assign(candidate, candidate + piece_count);
     cache.lo.resize(piece_count);
     cache.hi.resize(piece_count);
     for (uint32_t i = 0; i < piece_count; ++i) {
-      if (!live[i]) continue;
+      if (!candidate[i]) continue;
       cache.lo[i] = lo[i] - Vec3d::Constant(reach[i] + margin);
       cache.hi[i] = hi[i] + Vec3d::Constant(reach[i] + margin);
+      if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.key = ~uint64_t(0);  // not kept
     }
     cache.pairs.clear();
-    if (overlapping_pairs(lo, hi, reach, margin, live, body, piece_count, g, pairs_tested)) cache.pairs.swap(g.pairs);
-    // A candidate whose bounds are not finite: never cached (the next step rebuilds again).
-    for (uint32_t i = 0; i < piece_count; ++i) {
-      if (live[i] && !(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.key = ~uint64_t(0);
-    }
+    if (overlapping_pairs(lo, hi, reach, margin, candidate, body, piece_count, g, pairs_tested)) cache.pairs.swap(g.pairs);
+    std::sort(cache.pairs.begin(), cache.pairs.end());
   }
   if (pairs_tested) *pairs_tested += cache.pairs.size();
   return mark_exposed(cache.pairs, piece_count, exposed, g, [&](uint32_t i, uint32_t j) {

@@ -226,15 +226,17 @@ struct SurfacePoint {
   float reach = 0.0f;  // its piece's contact reach: a pair within the larger of its points' reaches may touch
 };
 
-// The broad phase's pair cache (a Verlet list): the pairs of live pieces of different bodies whose
-// bounds grown by their reach plus a margin overlapped when it was built, and those grown bounds.
-// While every candidate's bounds grown by its reach now lie inside its cached ones, every pair whose
-// grown bounds overlap now is among the cached pairs, so testing only those finds the same pairs as
-// the grid (find_exposed_pieces). Built for one set of pieces and bodies (`key`: the caller's; the PBD
-// model's contact index updates), rebuilt when a candidate leaves its bounds.
+// The broad phase's pair cache (a Verlet list): the pairs of candidate pieces of different bodies
+// whose bounds grown by their reach plus a margin overlapped when it was built, and those grown
+// bounds. While every candidate now was one then and its bounds grown by its reach now lie inside
+// its cached ones, every pair whose grown bounds overlap now is among the cached pairs, so testing
+// only those finds the same pairs as the grid (find_exposed_pieces). Built for one set of pieces and
+// bodies (`key`: the caller's; the PBD model's contact index updates), rebuilt when a candidate
+// leaves its bounds or a new one appears.
 struct PairCache {
   uint64_t key = ~uint64_t(0);
   uint32_t pieces = 0;
+  std::vector<uint8_t> member;  // (pieces) a candidate when built
   std::vector<Vec3d> lo, hi;    // (pieces) grown bounds when built
   std::vector<uint64_t> pairs;  // i << 32 | j, i < j
   uint64_t builds = 0;          // diagnostics
@@ -254,7 +256,7 @@ struct PieceContactScratch {
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
   std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
-  std::vector<uint64_t> both;                     // the exposed pairs, both directions
+  std::vector<uint64_t> both;                     // the exposed pairs (i < j)
   PairCache pair_cache;
   std::vector<uint32_t> partner_begin, partners;
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
@@ -376,10 +378,9 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* rea
                              const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
 
-// find_exposed_pieces over the pieces marked in `candidate` (a subset of `live`), through the pair
-// cache (PairCache: built over the `live` pieces with reach + margin, for `key`): the same result.
-uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
-                                    const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
+// find_exposed_pieces over the pieces marked in `candidate`, through the pair cache (PairCache:
+// built over the candidates with reach + margin, for `key`): the same result.
+uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
                                     uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& scratch,
                                     uint64_t* pairs_tested = nullptr);
 

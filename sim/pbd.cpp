@@ -1673,8 +1673,7 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
   }
   // Through the pair cache (sim/contact.h PairCache), kept while the pieces and bodies stay (the
   // index's updates) and no candidate moves more than a margin of a contact cell from where it was.
-  pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.live.data(),
-                                                 pc.scratch.candidate.data(), pc.body.data(), pieces,
+  pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
                                                  s.sim_size / contact_cells(s.ratio), x.updates, pc.exposed, pc.scratch,
                                                  &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
