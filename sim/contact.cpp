@@ -507,15 +507,31 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
   });
 }
 
-bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
-                  const Vec3d& x) {
+void partner_regions(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
+                     std::vector<Vec3d>& region_lo, std::vector<Vec3d>& region_hi) {
+  region_lo.clear();
+  region_hi.clear();
   for (uint32_t k = g.partner_begin[piece]; k < g.partner_begin[piece + 1]; ++k) {
     const uint32_t j = g.partners[k];
     // The pair's reach; a hair of slack: an embedded point may round a few ulps outside its piece's bounds.
     const double r = std::max(reach[piece], reach[j]) * (1.0 + 1e-9);
-    if ((lo[j].array() - r <= x.array()).all() && (x.array() <= hi[j].array() + r).all()) return true;
+    region_lo.push_back(lo[j].array() - r);
+    region_hi.push_back(hi[j].array() + r);
+  }
+}
+
+bool in_regions(const std::vector<Vec3d>& region_lo, const std::vector<Vec3d>& region_hi, const Vec3d& x) {
+  for (size_t k = 0; k < region_lo.size(); ++k) {
+    if ((region_lo[k].array() <= x.array()).all() && (x.array() <= region_hi[k].array()).all()) return true;
   }
   return false;
+}
+
+bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
+                  const Vec3d& x) {
+  std::vector<Vec3d> region_lo, region_hi;
+  partner_regions(g, lo, hi, reach, piece, region_lo, region_hi);
+  return in_regions(region_lo, region_hi, x);
 }
 
 // Two surface points face each other when their normals are more than ~155 degrees apart: the faces

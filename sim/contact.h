@@ -344,6 +344,7 @@ struct PieceContacts {
   std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
   std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
   std::vector<Vec3d> rep_normal;        // (the piece's slots) rest normals, scratch
+  std::vector<Vec3d> region_lo, region_hi;  // a piece's partner regions (partner_regions), scratch
   std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
@@ -390,6 +391,12 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
 // the narrow phase.
 bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, const double* reach,
                   uint32_t piece, const Vec3d& x);
+
+// near_partner for many points of one piece: its partners' bounds grown by the pair's reach (once per
+// piece), then whether x lies in one of them (the same answer as near_partner).
+void partner_regions(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, const double* reach,
+                     uint32_t piece, std::vector<Vec3d>& region_lo, std::vector<Vec3d>& region_hi);
+bool in_regions(const std::vector<Vec3d>& region_lo, const std::vector<Vec3d>& region_hi, const Vec3d& x);
 
 // Adds the contacts of `points` (see above; each pair within the larger of its points' reaches) to
 // `set` (batch = colour, group = pair of pieces), coloured over `particle_count` particles, and

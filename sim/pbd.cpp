@@ -1614,13 +1614,14 @@ void gather_surface_points(const CutState& cut, PbdState& s) {
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!pc.exposed[i]) continue;
     const auto [reps, count] = piece_reps(cut, s, i);
+    partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, pc.region_lo, pc.region_hi);
     for (uint32_t r = 0; r < count; ++r) {
       const uint32_t slot = reps[r].slot;
       SurfacePoint sp;
       sp.allowance = pc.allowance[slot];
       sp.slot = slot;
       slot_point(s, slot, i, sp.position, sp.weights);
-      if (!near_partner(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, sp.position)) {
+      if (!in_regions(pc.region_lo, pc.region_hi, sp.position)) {
         pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
         continue;
       }
