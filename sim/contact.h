@@ -155,7 +155,9 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 //
 // Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
 // bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
-// is *exposed* when its grown bounds overlap those of a piece of another body. Narrow phase: the
+// is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
+// cache of the pairs within reach plus a contact cell, kept between steps while the pieces stay
+// within that margin: PairCache). Narrow phase: the
 // contact points of exposed pieces (near a partner's bounds) in a hash grid of cell = the largest
 // reach, each pair of points met once (a cell against itself and the 13 cells after it); each point
 // v pairs with its nearest point q of another body within the pair's reach whose normal faces it
