@@ -87,8 +87,8 @@ namespace {
 // sum_k w_k p_k over the particles with a non-zero weight (p_k: 3 doubles at x + 3 particles[k]),
 // each coordinate summed in the order of k -- the same sums as Vec3d's r += w_k p_k -- with x and y
 // in one SSE2 register and no temporary vectors. This is most of a contact's solve (most points are
-// not pressed and change nothing), so the two counts in use (8: a plane contact, 16: two pieces')
-// get unrolled loops.
+// not pressed and change nothing), specialised for the two counts in use (8: a plane contact, 16:
+// two pieces').
 template <uint32_t kCount>
 Vec3d weighted_sum(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
   const uint32_t n = kCount == 0 ? count : kCount;
