@@ -1,6 +1,7 @@
 #include "engine/plot.h"
 
 #include <sys/utsname.h>
+#include <csignal>
 #include <unistd.h>
 
 #include <algorithm>
@@ -10,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <numeric>
 #include <sstream>
 
@@ -477,19 +479,60 @@ std::string find_gnuplot(std::string& error) {
   return "";
 }
 
+namespace {
+
+// Whether every output exists and is not empty.
+bool outputs_written(const std::vector<std::string>& outputs) {
+  bool written = true;
+  for (const std::string& out : outputs) written = written && fs::exists(out) && fs::file_size(out) > 0;
+  return written;
+}
+
+// The error of a failed gnuplot run: the first line of its complaint (an error rather than a
+// warning when there is one).
+std::string plot_failure(const std::string& exe, const std::string& messages) {
+  std::string first;
+  std::istringstream lines(messages);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.find_first_not_of(" \t^") == std::string::npos) continue;
+    if (first.empty() || first.find("warning:") != std::string::npos) first = line;
+    if (line.find("warning:") == std::string::npos) break;
+  }
+  return exe + " failed" + (first.empty() ? std::string() : ": " + first);
+}
+
+// A temporary file's name (the file is created empty); "" when none can be made.
+std::string temporary_file() {
+  std::string name = (fs::temp_directory_path() / "divvox_plot_XXXXXX").string();
+  const int fd = mkstemp(name.data());
+  if (fd < 0) return "";
+  close(fd);
+  return name;
+}
+
+// Writes text to a child's stdin; a child that is gone makes it fail (SIGPIPE ignored meanwhile).
+void write_to_child(FILE* pipe, const std::string& text) {
+  struct sigaction ignore = {}, previous = {};
+  ignore.sa_handler = SIG_IGN;
+  sigaction(SIGPIPE, &ignore, &previous);
+  std::fwrite(text.data(), 1, text.size(), pipe);
+  std::fflush(pipe);
+  sigaction(SIGPIPE, &previous, nullptr);
+}
+
+}  // namespace
+
 bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::string& error) {
   std::error_code ignored;
   for (const std::string& out : outputs) fs::remove(out, ignored);
   const std::string exe = find_gnuplot(error);
   if (exe.empty()) return false;
   // The script goes through a temporary file; gnuplot's messages come back through the pipe.
-  std::string script = (fs::temp_directory_path() / "divvox_plot_XXXXXX").string();
-  const int fd = mkstemp(script.data());
-  if (fd < 0) {
+  const std::string script = temporary_file();
+  if (script.empty()) {
     error = "cannot create a temporary file for the gnuplot script";
     return false;
   }
-  close(fd);
   std::ofstream(script, std::ios::binary) << plot_script(plot, outputs);
   FILE* pipe = popen((shell_word(exe) + " " + shell_word(script) + " 2>&1").c_str(), "r");
   std::string messages;
@@ -500,19 +543,62 @@ bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::s
     status = pclose(pipe);
   }
   fs::remove(script, ignored);
-  bool written = status == 0;
-  for (const std::string& out : outputs) written = written && fs::exists(out) && fs::file_size(out) > 0;
-  if (written) return true;
+  if (status == 0 && outputs_written(outputs)) return true;
   for (const std::string& out : outputs) fs::remove(out, ignored);
-  // The first line of gnuplot's complaint (an error rather than a warning when there is one).
-  std::string first;
-  std::istringstream lines(messages);
-  for (std::string line; std::getline(lines, line);) {
-    if (line.find_first_not_of(" \t^") == std::string::npos) continue;
-    if (first.empty() || first.find("warning:") != std::string::npos) first = line;
-    if (line.find("warning:") == std::string::npos) break;
+  error = plot_failure(exe, messages);
+  return false;
+}
+
+PlotProcess::~PlotProcess() {
+  if (pipe_ != nullptr) pclose(pipe_);  // gnuplot reads the end of its input and exits
+  std::error_code ignored;
+  if (!messages_.empty()) fs::remove(messages_, ignored);
+}
+
+bool PlotProcess::start(std::string& error) {
+  exe_ = find_gnuplot(error_);
+  if (exe_.empty()) {
+    error = error_;
+    return false;
   }
-  error = exe + " failed" + (first.empty() ? std::string() : ": " + first);
+  // Commands come through the pipe; gnuplot's messages go to a temporary file.
+  messages_ = temporary_file();
+  if (messages_.empty()) {
+    error = error_ = "cannot create a temporary file for gnuplot's messages";
+    return false;
+  }
+  pipe_ = popen((shell_word(exe_) + " > " + shell_word(messages_) + " 2>&1").c_str(), "w");
+  if (pipe_ == nullptr) {
+    error = error_ = "cannot start " + exe_;
+    return false;
+  }
+  // The throwaway PNG: gnuplot's test page (its terminal and fonts stay loaded; a `plot` here would
+  // leave state behind: the SVG's element titles changed), then a clean state for the plot.
+  write_to_child(pipe_, "set terminal pngcairo font 'DejaVu Sans,10'\nset output '/dev/null'\ntest\nunset output\nreset\n");
+  return true;
+}
+
+void PlotProcess::send(const Plot& plot, const std::vector<std::string>& outputs) {
+  std::error_code ignored;
+  for (const std::string& out : outputs) fs::remove(out, ignored);
+  outputs_ = outputs;
+  if (pipe_ != nullptr) write_to_child(pipe_, plot_script(plot, outputs) + "\nexit\n");
+}
+
+bool PlotProcess::finish(std::string& error) {
+  std::error_code ignored;
+  if (pipe_ == nullptr) {
+    error = error_.empty() ? "gnuplot was not started" : error_;
+    for (const std::string& out : outputs_) fs::remove(out, ignored);
+    return false;
+  }
+  const int status = pclose(pipe_);
+  pipe_ = nullptr;
+  std::ifstream file(messages_, std::ios::binary);
+  const std::string messages((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
+  if (status == 0 && outputs_written(outputs_)) return true;
+  for (const std::string& out : outputs_) fs::remove(out, ignored);
+  error = plot_failure(exe_, messages);
   return false;
 }
 

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cmath>
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -64,6 +65,31 @@ struct Plot {
 // executable named by $DIVVOX_GNUPLOT, else `gnuplot` on PATH. False with `error` (one line) when it is
 // missing or fails; the outputs are then removed, never left stale. Never throws for a missing tool.
 bool draw_plot(const Plot& plot, const std::vector<std::string>& outputs, std::string& error);
+
+// A gnuplot child started ahead of its plot: while the caller works (a replay's steps), it starts up
+// and draws a throwaway PNG (loading its cairo terminal and fonts, most of a small plot's time);
+// then it is sent the plot and drawn in the background while the caller writes its other outputs,
+// and finally waited for. The same files and messages as draw_plot. Ends (and reaps) the child when
+// destroyed unfinished.
+class PlotProcess {
+ public:
+  PlotProcess() = default;
+  PlotProcess(const PlotProcess&) = delete;
+  PlotProcess& operator=(const PlotProcess&) = delete;
+  ~PlotProcess();
+  // Starts gnuplot (as draw_plot finds it). False with `error` when it cannot: then finish() reports it.
+  bool start(std::string& error);
+  // Sends `plot` for `outputs` (the outputs are removed first, as draw_plot does).
+  void send(const Plot& plot, const std::vector<std::string>& outputs);
+  // Waits for gnuplot: true when every output of send() was written, else false with `error` (one
+  // line; the outputs are removed).
+  bool finish(std::string& error);
+
+ private:
+  FILE* pipe_ = nullptr;
+  std::string exe_, messages_, error_;
+  std::vector<std::string> outputs_;
+};
 
 // The gnuplot draw_plot would run ("" with `error` when there is none).
 std::string find_gnuplot(std::string& error);

@@ -183,9 +183,11 @@ PhaseSamples write_timings_csv(const std::vector<StepReport>& rows, bool physics
 
 // timings.svg and timings.png: one panel per phase against the step (the same log time axis in each),
 // the cutting steps shaded, each phase's p50 / p99 (over the samples summary.json uses) and the frame
-// (33 ms) and haptic (1 ms) budgets as lines. Without gnuplot: a message, and the replay goes on.
-void write_timings_plot(const std::string& recording, const std::vector<StepReport>& rows,
-                        const std::vector<FrameRow>& frames, bool physics, const std::filesystem::path& out) {
+// (33 ms) and haptic (1 ms) budgets as lines. Sent to the gnuplot child started with the replay,
+// which draws them while the other outputs are written (PlotProcess::finish waits for it).
+void send_timings_plot(const std::string& recording, const std::vector<StepReport>& rows,
+                       const std::vector<FrameRow>& frames, bool physics, const std::filesystem::path& out,
+                       PlotProcess& plotter) {
   Plot plot;
   plot.title = "divvox replay: time per step, " + std::filesystem::path(recording).filename().string();
   plot.subtitle = std::to_string(rows.size()) + " steps, physics " + (physics ? "on" : "off") + "; " + machine_summary();
@@ -247,10 +249,7 @@ void write_timings_plot(const std::string& recording, const std::vector<StepRepo
     plot.spans.push_back({double(rows[i].step) - 0.5, double(rows[j].step) + 0.5});
     i = j;
   }
-  std::string error;
-  if (!draw_plot(plot, {(out / "timings.svg").string(), (out / "timings.png").string()}, error)) {
-    std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", error.c_str());
-  }
+  plotter.send(plot, {(out / "timings.svg").string(), (out / "timings.png").string()});
 }
 
 // Per-frame samples of the render thread: upload + draw + readback, and the interval between frames.
@@ -291,11 +290,14 @@ FinalSurface final_surface(const Session& session) {
   f.deformed = rest;
   if (const PbdState* pbd = session.pbd.get()) {
     f.nonfinite += count_nonfinite(*pbd);
-    CutSurface deformed = session.cut.surface;
-    for (size_t slot = 0; slot < deformed.positions.size() && slot < pbd->deformed.size(); ++slot) {
-      if (deformed.vertex_piece[slot] != CutSurface::kFreeKey) deformed.positions[slot] = pbd->deformed[slot];
+    // compact_surface keeps the live slots in order: the k-th live slot is vertex k.
+    const CutSurface& surface = session.cut.surface;
+    size_t k = 0;
+    for (size_t slot = 0; slot < surface.positions.size(); ++slot) {
+      if (surface.vertex_piece[slot] == CutSurface::kFreeKey) continue;
+      if (slot < pbd->deformed.size()) f.deformed.positions[k] = pbd->deformed[slot];
+      ++k;
     }
-    f.deformed = compact_surface(deformed);
   }
   return f;
 }
@@ -394,6 +396,11 @@ ReplayResult run_replay(const ReplayOptions& options) {
   const auto simulate_on = [&](SnapshotExchange* exchange) {
     simulate(playback, options, check_hashes, session, recorder.get(), exchange, run);
   };
+  // The gnuplot child for timings.svg / .png gets ready while the steps run (without gnuplot: a
+  // message at the end, and the replay goes on).
+  PlotProcess plotter;
+  std::string plot_error;
+  plotter.start(plot_error);
   const Clock::time_point start = Clock::now();
   std::signal(SIGINT, on_sigint);
   if (options.render || options.frames_every > 0) {
@@ -419,13 +426,15 @@ ReplayResult run_replay(const ReplayOptions& options) {
   result.final_hash = hash_hex(session_hash(session));
   if (recorder) recorder->finish(session);
 
-  // The outputs: timings, plot, frame timings, final surface, summary.
+  // The outputs: the plot first (gnuplot draws it meanwhile), timings, frame timings, final surface,
+  // then the plot waited for, and the summary.
   const std::filesystem::path out(options.out_dir);
+  send_timings_plot(options.recording, run.rows, frames, session.pbd != nullptr, out, plotter);
   const FinalSurface final = final_surface(session);
   const PhaseSamples phases = write_timings_csv(run.rows, session.pbd != nullptr, out);
   const FrameSamples frame_samples = write_frame_timings(frames, out);
-  write_timings_plot(options.recording, run.rows, frames, session.pbd != nullptr, out);
   save_ply((out / "final.ply").string(), final.deformed);
+  if (!plotter.finish(plot_error)) std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", plot_error.c_str());
   run.wall_s = std::chrono::duration<double>(Clock::now() - start).count();  // the steps and the outputs
   result.summary_path = (out / "summary.json").string();
   write_json_file(result.summary_path, summary_json(options, playback, session, result, run, phases, frame_samples, final));

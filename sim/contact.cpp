@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
 
 namespace dvx {
 ContactPoint plane_contact(const ContactPlane& plane, const uint32_t particles[8], const double weights[8]) {
@@ -81,6 +84,43 @@ void contacts_begin_substep(ContactSet& set) {
 
 namespace {
 
+// sum_k w_k p_k over the particles with a non-zero weight (p_k: 3 doubles at x + 3 particles[k]),
+// each coordinate summed in the order of k -- the same sums as Vec3d's r += w_k p_k -- with x and y
+// in one SSE2 register and no temporary vectors. This is most of a contact's solve (most points are
+// not pressed and change nothing), specialised for the two counts in use (8: a plane contact, 16:
+// two pieces').
+template <uint32_t kCount>
+Vec3d weighted_sum(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
+  const uint32_t n = kCount == 0 ? count : kCount;
+#ifdef __SSE2__
+  __m128d xy = _mm_setzero_pd();
+  double z = 0.0;
+  for (uint32_t k = 0; k < n; ++k) {
+    const double w = weights[k];
+    if (w == 0.0) continue;
+    const double* p = x + 3 * size_t(particles[k]);
+    xy = _mm_add_pd(xy, _mm_mul_pd(_mm_set1_pd(w), _mm_loadu_pd(p)));
+    z += w * p[2];
+  }
+  alignas(16) double out[2];
+  _mm_store_pd(out, xy);
+  return Vec3d(out[0], out[1], z);
+#else
+  Vec3d r = Vec3d::Zero();
+  for (uint32_t k = 0; k < n; ++k) {
+    const double* p = x + 3 * size_t(particles[k]);
+    if (weights[k] != 0.0) r += weights[k] * Vec3d(p[0], p[1], p[2]);
+  }
+  return r;
+#endif
+}
+
+Vec3d weighted_point(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
+  if (count == 8) return weighted_sum<8>(x, particles, weights, count);
+  if (count == 16) return weighted_sum<16>(x, particles, weights, count);
+  return weighted_sum<0>(x, particles, weights, count);
+}
+
 // The lever cap (sim/contact.h, kMaxLever) and the point's start in this substep. W = sum_k w_k^2 / m_k,
 // W_eff = max(W, max_k |w_k| / m_k / kMaxLever): a requested correction d moves particle k by
 // (w_k / m_k / W_eff) d and the point by gain d (gain = W / W_eff: 1 unless the point is nearly
@@ -99,11 +139,7 @@ void prepare_contact(const double* previous, const double* inv_mass, ContactPoin
     for (uint32_t k = 0; k < c.count; ++k) c.scale[k] = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
     c.prepared = true;
   }
-  c.start.setZero();
-  for (uint32_t k = 0; k < c.count; ++k) {
-    const double* p = previous + 3 * size_t(c.particles[k]);
-    if (c.weights[k] != 0.0) c.start += c.weights[k] * Vec3d(p[0], p[1], p[2]);
-  }
+  c.start = weighted_point(previous, c.particles, c.weights, c.count);
 }
 
 }  // namespace
@@ -112,11 +148,7 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
   if (c.solves++ == 0) prepare_contact(previous, inv_mass, c);
   if (!(c.gain > 0.0)) return;  // W = 0: nothing can move it
   // The relative point and its motion since the start of the substep.
-  Vec3d r = Vec3d::Zero();
-  for (uint32_t k = 0; k < c.count; ++k) {
-    const double* p = x + 3 * size_t(c.particles[k]);
-    if (c.weights[k] != 0.0) r += c.weights[k] * Vec3d(p[0], p[1], p[2]);
-  }
+  const Vec3d r = weighted_point(x, c.particles, c.weights, c.count);
   Vec3d moved = r - c.start;
   const double gain = c.gain;
   const Vec3d& n = c.normal;
@@ -358,54 +390,148 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* r
   return count;
 }
 
-uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
-                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
-                             PieceContactScratch& g, uint64_t* pairs_tested) {
-  exposed.assign(piece_count, 0);
-  // Cells at least as large as any grown piece: overlapping pieces have their grown low corners in
-  // neighbouring cells.
+namespace {
+
+// The pairs (i << 32 | j, i < j) of live pieces of different bodies whose bounds, grown by their
+// reach plus `margin`, overlap, in g.pairs (one direction, in the order met). Cells at least as large
+// as any grown piece: overlapping pieces have their grown low corners in neighbouring cells. Returns
+// false when no live piece has finite, non-empty grown bounds.
+bool overlapping_pairs(const Vec3d* lo, const Vec3d* hi, const double* reach, double margin, const uint8_t* live,
+                       const uint32_t* body, uint32_t piece_count, PieceContactScratch& g, uint64_t* pairs_tested) {
+  g.pairs.clear();
   double size = 0.0;
   for (uint32_t i = 0; i < piece_count; ++i) {
-    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff() + 2.0 * reach[i]);
+    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff() + 2.0 * (reach[i] + margin));
   }
-  if (!(size > 0.0) || !std::isfinite(size)) return 0;
+  if (!(size > 0.0) || !std::isfinite(size)) return false;
   g.keys.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    const uint64_t cell = cell_key(cell_coord(lo[i].x() - reach[i], size), cell_coord(lo[i].y() - reach[i], size),
-                                   cell_coord(lo[i].z() - reach[i], size));
+    const double r = reach[i] + margin;
+    const uint64_t cell = cell_key(cell_coord(lo[i].x() - r, size), cell_coord(lo[i].y() - r, size),
+                                   cell_coord(lo[i].z() - r, size));
     g.keys.push_back(cell | i);
   }
   build_cells(g);
-  uint32_t count = 0;
-  g.pairs.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    const Vec3d a = lo[i] - Vec3d::Constant(reach[i]);
+    const double r = reach[i] + margin;
+    const Vec3d a = lo[i] - Vec3d::Constant(r);
     for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
       const uint32_t j = g.cell_items[n];
       if (j <= i || body[j] == body[i]) return;
       if (pairs_tested) ++*pairs_tested;
-      if (!grown_overlap(lo[i], hi[i], reach[i], lo[j], hi[j], reach[j])) return;
-      count += !exposed[i] + !exposed[j];
-      exposed[i] = exposed[j] = 1;
-      g.pairs.push_back((uint64_t(i) << 32) | j);
-      g.pairs.push_back((uint64_t(j) << 32) | i);
+      if (grown_overlap(lo[i], hi[i], r, lo[j], hi[j], reach[j] + margin)) g.pairs.push_back((uint64_t(i) << 32) | j);
     });
   }
-  partner_lists(g.pairs, piece_count, g.partner_begin, g.partners);  // the partners of each piece, ascending
+  return true;
+}
+
+// Marks both pieces of each pair (i << 32 | j, i < j, ascending) in `pairs` that passes `keep`, and
+// lists each piece's partners (g.partner_begin, g.partners), ascending: a piece p meets its partners
+// below it in pairs (i, p), ascending in i, before those above it in pairs (p, k), ascending in k.
+// Returns how many pieces it marked.
+template <typename Keep>
+uint32_t mark_exposed(const std::vector<uint64_t>& pairs, uint32_t piece_count, std::vector<uint8_t>& exposed,
+                      PieceContactScratch& g, Keep&& keep) {
+  exposed.assign(piece_count, 0);
+  g.partner_begin.assign(piece_count + 1, 0);
+  g.both.clear();
+  uint32_t count = 0;
+  for (const uint64_t pair : pairs) {
+    const uint32_t i = uint32_t(pair >> 32), j = uint32_t(pair);
+    if (!keep(i, j)) continue;
+    count += !exposed[i] + !exposed[j];
+    exposed[i] = exposed[j] = 1;
+    ++g.partner_begin[i + 1];
+    ++g.partner_begin[j + 1];
+    g.both.push_back(pair);
+  }
+  for (uint32_t i = 0; i < piece_count; ++i) g.partner_begin[i + 1] += g.partner_begin[i];
+  g.partners.resize(g.partner_begin[piece_count]);
+  g.cursor.assign(g.partner_begin.begin(), g.partner_begin.end() - 1);
+  for (const uint64_t pair : g.both) {
+    const uint32_t i = uint32_t(pair >> 32), j = uint32_t(pair);
+    g.partners[g.cursor[i]++] = j;
+    g.partners[g.cursor[j]++] = i;
+  }
   return count;
 }
 
-bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
-                  const Vec3d& x) {
+}  // namespace
+
+uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
+                             const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
+                             PieceContactScratch& g, uint64_t* pairs_tested) {
+  if (!overlapping_pairs(lo, hi, reach, 0.0, live, body, piece_count, g, pairs_tested)) {
+    exposed.assign(piece_count, 0);
+    return 0;
+  }
+  std::sort(g.pairs.begin(), g.pairs.end());
+  return mark_exposed(g.pairs, piece_count, exposed, g, [](uint32_t, uint32_t) { return true; });
+}
+
+uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
+                                    uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& g,
+                                    uint64_t* pairs_tested) {
+  PairCache& cache = g.pair_cache;
+  // The grown bounds now, as grown_overlap computes them; the cache holds while each candidate was
+  // one when it was built and its bounds lie within the cached ones (NaN never does).
+  const auto inside = [&](uint32_t i) {
+    const Vec3d a = lo[i] - Vec3d::Constant(reach[i]), b = hi[i] + Vec3d::Constant(reach[i]);
+    return (cache.lo[i].array() <= a.array()).all() && (b.array() <= cache.hi[i].array()).all();
+  };
+  bool valid = cache.key == key && cache.pieces == piece_count;
+  for (uint32_t i = 0; i < piece_count && valid; ++i) valid = !candidate[i] || (cache.member[i] && inside(i));
+  if (!valid) {
+    // Rebuild over the candidates, grown by the margin.
+    ++cache.builds;
+    cache.key = key;
+    cache.pieces = piece_count;
+    cache.member.assign(candidate, candidate + piece_count);
+    cache.lo.resize(piece_count);
+    cache.hi.resize(piece_count);
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (!candidate[i]) continue;
+      cache.lo[i] = lo[i] - Vec3d::Constant(reach[i] + margin);
+      cache.hi[i] = hi[i] + Vec3d::Constant(reach[i] + margin);
+      if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.key = ~uint64_t(0);  // not kept
+    }
+    cache.pairs.clear();
+    if (overlapping_pairs(lo, hi, reach, margin, candidate, body, piece_count, g, pairs_tested)) cache.pairs.swap(g.pairs);
+    std::sort(cache.pairs.begin(), cache.pairs.end());
+  }
+  if (pairs_tested) *pairs_tested += cache.pairs.size();
+  return mark_exposed(cache.pairs, piece_count, exposed, g, [&](uint32_t i, uint32_t j) {
+    return candidate[i] && candidate[j] && grown_overlap(lo[i], hi[i], reach[i], lo[j], hi[j], reach[j]);
+  });
+}
+
+void partner_regions(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
+                     std::vector<Vec3d>& region_lo, std::vector<Vec3d>& region_hi) {
+  region_lo.clear();
+  region_hi.clear();
   for (uint32_t k = g.partner_begin[piece]; k < g.partner_begin[piece + 1]; ++k) {
     const uint32_t j = g.partners[k];
     // The pair's reach; a hair of slack: an embedded point may round a few ulps outside its piece's bounds.
     const double r = std::max(reach[piece], reach[j]) * (1.0 + 1e-9);
-    if ((lo[j].array() - r <= x.array()).all() && (x.array() <= hi[j].array() + r).all()) return true;
+    region_lo.push_back(lo[j].array() - r);
+    region_hi.push_back(hi[j].array() + r);
+  }
+}
+
+bool in_regions(const std::vector<Vec3d>& region_lo, const std::vector<Vec3d>& region_hi, const Vec3d& x) {
+  for (size_t k = 0; k < region_lo.size(); ++k) {
+    if ((region_lo[k].array() <= x.array()).all() && (x.array() <= region_hi[k].array()).all()) return true;
   }
   return false;
+}
+
+bool near_partner(const PieceContactScratch& g, const Vec3d* lo, const Vec3d* hi, const double* reach, uint32_t piece,
+                  const Vec3d& x) {
+  std::vector<Vec3d> region_lo, region_hi;
+  partner_regions(g, lo, hi, reach, piece, region_lo, region_hi);
+  return in_regions(region_lo, region_hi, x);
 }
 
 // Two surface points face each other when their normals are more than ~155 degrees apart: the faces

@@ -155,7 +155,9 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 //
 // Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
 // bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
-// is *exposed* when its grown bounds overlap those of a piece of another body. Narrow phase: the
+// is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
+// cache of the pairs within reach plus a contact cell, kept between steps while the pieces stay
+// within that margin: PairCache). Narrow phase: the
 // contact points of exposed pieces (near a partner's bounds) in a hash grid of cell = the largest
 // reach, each pair of points met once (a cell against itself and the 13 cells after it); each point
 // v pairs with its nearest point q of another body within the pair's reach whose normal faces it
@@ -226,6 +228,22 @@ struct SurfacePoint {
   float reach = 0.0f;  // its piece's contact reach: a pair within the larger of its points' reaches may touch
 };
 
+// The broad phase's pair cache (a Verlet list): the pairs of candidate pieces of different bodies
+// whose bounds grown by their reach plus a margin overlapped when it was built, and those grown
+// bounds. While every candidate now was one then and its bounds grown by its reach now lie inside
+// its cached ones, every pair whose grown bounds overlap now is among the cached pairs, so testing
+// only those finds the same pairs as the grid (find_exposed_pieces). Built for one set of pieces and
+// bodies (`key`: the caller's; the PBD model's contact index updates), rebuilt when a candidate
+// leaves its bounds or a new one appears.
+struct PairCache {
+  uint64_t key = ~uint64_t(0);
+  uint32_t pieces = 0;
+  std::vector<uint8_t> member;  // (pieces) a candidate when built
+  std::vector<Vec3d> lo, hi;    // (pieces) grown bounds when built
+  std::vector<uint64_t> pairs;  // i << 32 | j, i < j
+  uint64_t builds = 0;          // diagnostics
+};
+
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
 struct PieceContactScratch {
   std::vector<uint32_t> parent;                   // (particles) union-find
@@ -239,7 +257,9 @@ struct PieceContactScratch {
   std::vector<uint32_t> item_body, run_end;       // (cell_items) body; end of its body's run in the cell
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
-  std::vector<uint64_t> pairs;                    // i << 32 | j, both directions
+  std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
+  std::vector<uint64_t> both;                     // the exposed pairs (i < j)
+  PairCache pair_cache;
   std::vector<uint32_t> partner_begin, partners;
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
@@ -326,6 +346,7 @@ struct PieceContacts {
   std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
   std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
   std::vector<Vec3d> rep_normal;        // (the piece's slots) rest normals, scratch
+  std::vector<Vec3d> region_lo, region_hi;  // a piece's partner regions (partner_regions), scratch
   std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
   std::vector<Vec3f> seen;              // (surface vertex slots) rest position when last seen
@@ -360,12 +381,24 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* rea
                              const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
 
+// find_exposed_pieces over the pieces marked in `candidate`, through the pair cache (PairCache:
+// built over the candidates with reach + margin, for `key`): the same result.
+uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
+                                    uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& scratch,
+                                    uint64_t* pairs_tested = nullptr);
+
 // Whether x lies within the pair's reach (the larger of the two pieces') of the bounds of a partner
 // of `piece` (the last find_exposed_pieces): only such a surface point can be within reach of a point
 // of another body (every embedded point lies in its piece's bounds), so the others need not enter
 // the narrow phase.
 bool near_partner(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, const double* reach,
                   uint32_t piece, const Vec3d& x);
+
+// near_partner for many points of one piece: its partners' bounds grown by the pair's reach (once per
+// piece), then whether x lies in one of them (the same answer as near_partner).
+void partner_regions(const PieceContactScratch& scratch, const Vec3d* lo, const Vec3d* hi, const double* reach,
+                     uint32_t piece, std::vector<Vec3d>& region_lo, std::vector<Vec3d>& region_hi);
+bool in_regions(const std::vector<Vec3d>& region_lo, const std::vector<Vec3d>& region_hi, const Vec3d& x);
 
 // Adds the contacts of `points` (see above; each pair within the larger of its points' reaches) to
 // `set` (batch = colour, group = pair of pieces), coloured over `particle_count` particles, and

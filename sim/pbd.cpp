@@ -1614,13 +1614,14 @@ void gather_surface_points(const CutState& cut, PbdState& s) {
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!pc.exposed[i]) continue;
     const auto [reps, count] = piece_reps(cut, s, i);
+    partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, pc.region_lo, pc.region_hi);
     for (uint32_t r = 0; r < count; ++r) {
       const uint32_t slot = reps[r].slot;
       SurfacePoint sp;
       sp.allowance = pc.allowance[slot];
       sp.slot = slot;
       slot_point(s, slot, i, sp.position, sp.weights);
-      if (!near_partner(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, sp.position)) {
+      if (!in_regions(pc.region_lo, pc.region_hi, sp.position)) {
         pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
         continue;
       }
@@ -1671,8 +1672,11 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
                             pieces, pc.scratch) == 0) {
     return;
   }
-  pc.exposed_pieces = find_exposed_pieces(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(),
-                                          pc.body.data(), pieces, pc.exposed, pc.scratch, &pc.counters.piece_pairs);
+  // Through the pair cache (sim/contact.h PairCache), kept while the pieces and bodies stay (the
+  // index's updates) and no candidate moves more than a margin of a contact cell from where it was.
+  pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
+                                                 s.sim_size / contact_cells(s.ratio), x.updates, pc.exposed, pc.scratch,
+                                                 &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
   gather_surface_points(cut, s);
   ++pc.counters.gathers;
