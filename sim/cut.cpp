@@ -1346,11 +1346,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
         state.divided.push_back(dv);
       }
       const uint16_t bit = uint16_t(1u << voxel_edge_index(axis, corners[q]));
-      if (change == EdgeChange::kCut) {
-        state.divided[d].cut_edges |= bit;
-      } else {
-        state.divided[d].air_edges |= bit;
-      }
+      uint16_t& edges = change == EdgeChange::kCut ? state.divided[d].cut_edges : state.divided[d].air_edges;
+      if (!(edges & bit)) state.pending_reshaped.push_back(v);
+      edges |= bit;
     }
   }
   merge_sorted_unique(voxels, pending_before);
@@ -1375,6 +1373,9 @@ void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& 
   refresh_voxels(model, state, state.pending_voxels, stats);
   state.changed_voxels.swap(state.pending_voxels);
   state.pending_voxels.clear();
+  sorted_unique(state.pending_reshaped);
+  state.reshaped_voxels.swap(state.pending_reshaped);
+  state.pending_reshaped.clear();
 }
 
 CutStepStats cut_step(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to) {

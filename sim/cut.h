@@ -142,6 +142,11 @@ struct CutState {
                                          // holds still until the blade comes back to its voxel)
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
   std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
+  std::vector<uint32_t> pending_reshaped;  // voxels cut_divide gave new cut or air edges (unsorted)
+  std::vector<uint32_t> reshaped_voxels;   // of the last step's voxels, those whose cut or air edges changed
+                                           // (sorted): only their pieces can differ, the others' moved
+                                           // vertices only (a widened crossing, the front), so the PBD
+                                           // model relabels only the blocks holding these
   std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
   std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)
   FlatMap shape_of;                      // inside corners | cut edges << 8 | air edges << 20 -> index in shapes

@@ -977,9 +977,15 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   }
 }
 
-// Relabels a whole block from its spans (ratio <= 32); new pieces inherit from the old piece of their
-// first node. Labels are numbered in node order, as label_block numbers them.
-void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats) {
+// Relabels a whole block from its spans (ratio <= 32) when its components changed; new pieces inherit
+// from the old piece of their first node. Labels are numbered in node order, as label_block numbers
+// them. Cuts only split components and the old labels are the components before the cut, so the
+// components changed exactly when their count did (below the label range): a cut that splits nothing
+// (a slit still joined around its front) leaves the block alone. When they changed, calls
+// before_write() before changing anything. Returns whether they changed.
+template <typename BeforeWrite>
+bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats,
+                   BeforeWrite&& before_write) {
   SpanScratch& w = s.spans;
   build_spans(model, cut, s, sv, w);
   const Lattice& l = model.lattice;
@@ -988,6 +994,10 @@ void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   sim_voxel_coords(s, sv, c);
   const uint32_t rows = uint32_t(n * n), spans = uint32_t(w.mask.size());
   if (stats) stats->spans += spans;
+  uint32_t roots = 0;
+  for (uint32_t i = 0; i < spans; ++i) roots += w.parent[i] == i;
+  if (roots == s.pieces_in_voxel[sv] && roots < kMaxSimPieces) return false;
+  before_write();
   // Components numbered by their first span (row order, x order within a row).
   w.label.assign(spans, kNoPiece);
   uint8_t count = 0;
@@ -1040,6 +1050,7 @@ void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
     }
   }
   assign_slots(s, sv, count, eighths, inherit, old_slots, old_count);
+  return true;
 }
 
 // ---- Embedding -----------------------------------------------------------------------------
@@ -2013,16 +2024,17 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
-  // The simulation voxels holding changed divided fine voxels. Up to kSpanRatio a block is relabelled
-  // whole, so only the voxels are needed (consecutive fine voxels mostly share one: deduplicated on
-  // the fly, then sorted); beyond it the local search needs the changed fine voxels of each, sorted
-  // by simulation voxel (sim voxel << 32 | fine voxel).
+  // The simulation voxels holding fine voxels whose pieces may have changed (new cut or air edges;
+  // the others only moved vertices). Up to kSpanRatio a block is relabelled whole, so only the
+  // voxels are needed (consecutive fine voxels mostly share one: deduplicated on the fly, then
+  // sorted); beyond it the local search needs the changed fine voxels of each, sorted by simulation
+  // voxel (sim voxel << 32 | fine voxel).
   const bool spans = s.ratio <= kSpanRatio;
   std::vector<uint64_t>& changed = s.scratch_changed;
   std::vector<uint32_t>& affected = s.scratch_sim;
   changed.clear();
   affected.clear();
-  for (uint32_t voxel : cut.changed_voxels) {
+  for (uint32_t voxel : cut.reshaped_voxels) {
     const uint32_t d = cut.divided_of.get(voxel);
     if (d == kDeadIndex) continue;
     note_cut_voxel(s, model.lattice, cut.divided[d]);
@@ -2050,65 +2062,75 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     }
   }
 
-  if (!affected.empty()) {
-    ++s.revision;  // pieces, particles and masses change: the solver rebuilds its blocks
-    // The voxels whose pieces may change particles: the affected ones and their neighbours.
-    std::vector<uint32_t>& near = s.scratch_near;
-    near.clear();
-    for (uint32_t sv : affected) {
-      int32_t c[3];
-      sim_voxel_coords(s, sv, c);
-      for (int32_t dz = -1; dz <= 1; ++dz) {
-        for (int32_t dy = -1; dy <= 1; ++dy) {
-          for (int32_t dx = -1; dx <= 1; ++dx) {
-            if (!sim_in_range(s, c[0] + dx, c[1] + dy, c[2] + dz)) continue;
-            const uint32_t n = sim_voxel_id(s, c[0] + dx, c[1] + dy, c[2] + dz);
-            if (has_pieces(s, n)) near.push_back(n);
-          }
+  // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
+  // kSpanRatio locally from their changed fine voxels, else node by node. Before a voxel's pieces
+  // change, the pieces that may change particles with them (its own and its neighbours') are
+  // detached, remembering the particles they used; a voxel whose components did not change touches
+  // nothing.
+  std::vector<uint32_t>& near = s.scratch_near;
+  std::vector<uint32_t>& relabelled = s.scratch_relabelled;  // the voxels whose components changed
+  std::vector<uint64_t>& touched = s.scratch_corners;
+  std::vector<uint8_t>& detached = s.scratch_mark;  // (sim voxels) in `near`
+  near.clear();
+  relabelled.clear();
+  touched.clear();
+  if (!affected.empty()) detached.resize(s.pieces_in_voxel.size(), 0);
+  uint32_t pieces_touched = 0;
+  const auto detach_around = [&](uint32_t sv) {
+    relabelled.push_back(sv);
+    int32_t c[3];
+    sim_voxel_coords(s, sv, c);
+    for (int32_t dz = -1; dz <= 1; ++dz) {
+      for (int32_t dy = -1; dy <= 1; ++dy) {
+        for (int32_t dx = -1; dx <= 1; ++dx) {
+          if (!sim_in_range(s, c[0] + dx, c[1] + dy, c[2] + dz)) continue;
+          const uint32_t n = sim_voxel_id(s, c[0] + dx, c[1] + dy, c[2] + dz);
+          if (!has_pieces(s, n) || detached[n]) continue;
+          detached[n] = 1;
+          near.push_back(n);
+          for_pieces(s, n, [&](uint32_t slot) {
+            for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+            detach_piece(s, slot);
+            ++pieces_touched;
+          });
         }
       }
     }
+  };
+  if (spans) {
+    for (uint32_t sv : affected) relabel_spans(model, cut, s, sv, stats, [&] { detach_around(sv); });
+    if (stats) stats->span_relabels += uint32_t(affected.size());
+  }
+  std::vector<uint32_t>& fine = s.scratch_parent;
+  for (size_t i = 0; i < changed.size();) {
+    const uint32_t sv = uint32_t(changed[i] >> 32);
+    fine.clear();
+    for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
+    if (!has_pieces(s, sv)) continue;
+    detach_around(sv);
+    const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
+    if (!local) relabel_block(model, cut, s, sv);
+    if (stats) {
+      stats->nodes_searched += s.search.visited.size();
+      ++(local ? stats->local_relabels : stats->block_relabels);
+    }
+  }
+
+  if (!relabelled.empty()) {
+    ++s.revision;  // pieces, particles and masses change: the solver rebuilds its blocks
+    for (uint32_t n : near) detached[n] = 0;
     sorted_unique(near);
-    // Detach their pieces (remembering the particles they used).
-    std::vector<uint64_t>& touched = s.scratch_corners;
-    touched.clear();
-    uint32_t pieces_touched = 0;
-    for (uint32_t sv : near) {
-      for_pieces(s, sv, [&](uint32_t slot) {
-        for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
-        detach_piece(s, slot);
-        ++pieces_touched;
-      });
-    }
-    // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
-    // kSpanRatio locally from their changed fine voxels, else node by node.
-    if (spans) {
-      for (uint32_t sv : affected) relabel_spans(model, cut, s, sv, stats);
-      if (stats) stats->span_relabels += uint32_t(affected.size());
-    }
-    std::vector<uint32_t>& fine = s.scratch_parent;
-    for (size_t i = 0; i < changed.size();) {
-      const uint32_t sv = uint32_t(changed[i] >> 32);
-      fine.clear();
-      for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
-      if (!has_pieces(s, sv)) continue;
-      const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
-      if (!local) relabel_block(model, cut, s, sv);
-      if (stats) {
-        stats->nodes_searched += s.search.visited.size();
-        ++(local ? stats->local_relabels : stats->block_relabels);
-      }
-    }
-    // Corner particles of the affected voxels.
+    sorted_unique(relabelled);
+    // Corner particles of the relabelled voxels.
     std::vector<uint64_t>& corners = s.scratch_corner_ids;
     corners.clear();
-    for (uint32_t sv : affected) {
+    for (uint32_t sv : relabelled) {
       int32_t c[3];
       sim_voxel_coords(s, sv, c);
       for (int q = 0; q < 8; ++q) corners.push_back(corner_id(s, c[0] + (q & 1), c[1] + ((q >> 1) & 1), c[2] + ((q >> 2) & 1)));
     }
     sorted_unique(corners);
-    forget_faces(s, affected);
+    forget_faces(s, relabelled);
     CornerMembers members;
     for (uint64_t id : corners) {
       int32_t I, J, K;
@@ -2126,6 +2148,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     if (stats) {
       stats->pieces_touched += pieces_touched;
       stats->corners += uint32_t(corners.size());
+      stats->components_changed += uint32_t(relabelled.size());
     }
     sorted_unique(touched);
     for (uint64_t p : touched) {
@@ -2142,7 +2165,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   for (uint32_t slot : cut.changed_vertices) {
     if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
-  record_edits(cut, s, affected, affected.empty() ? nullptr : &s.scratch_corners);  // for the caches
+  record_edits(cut, s, relabelled, relabelled.empty() ? nullptr : &touched);  // for the caches
   if (stats) stats->sim_voxels += uint32_t(affected.size());
   return uint32_t(affected.size());
 }

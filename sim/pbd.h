@@ -146,6 +146,8 @@ struct SpanScratch {
 // What one pbd_apply_cut did (counters for the benchmarks).
 struct PbdCutStats {
   uint32_t sim_voxels = 0;       // simulation voxels relabelled
+  uint32_t components_changed = 0;  // of those, whose material components changed (the others keep
+                                    // their pieces: no particle or constraint is touched)
   uint32_t local_relabels = 0;   // of those, relabelled by the local search
   uint32_t span_relabels = 0;    // by spans (the whole block, O(ratio^2) rows)
   uint32_t block_relabels = 0;   // by the node-by-node labelling (ratio > 32)
@@ -217,7 +219,7 @@ struct PbdModel {
   PbdParams params;
 
   // Scratch reused between cut steps (no allocation in steady state).
-  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots;
+  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots, scratch_relabelled;
   std::vector<uint8_t> scratch_labels, scratch_mark;
   std::vector<uint64_t> scratch_corners;
   FaceCache face_cache;
