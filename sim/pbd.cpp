@@ -793,38 +793,6 @@ uint64_t bit_range(const std::vector<uint64_t>& bits, uint64_t first, int32_t co
   return count >= 64 ? v : v & ((uint64_t(1) << count) - 1);
 }
 
-// The cut record of simulation voxel sv (null: none yet): its divided fine voxels as ratio^2 voxel row
-// masks, then its cut lattice edges along x, y and z as 3 x (ratio+1)^2 node row masks (bit x of row
-// (y, z) along axis a: the edge from block node (x, y, z) along a is cut).
-const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
-  const uint32_t at = s.cut_rows_of.get(sv);
-  return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
-}
-
-// Records a divided fine voxel and its cut edges in its simulation voxel's cut record (idempotent:
-// cuts only add).
-void note_cut_voxel(PbdModel& s, const Lattice& l, const DividedVoxel& dv) {
-  if (s.ratio > kSpanRatio) return;
-  const int32_t r = s.ratio, n = r + 1;
-  int32_t vc[3];
-  l.voxel_coords(dv.voxel, vc);
-  const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
-  uint32_t at = s.cut_rows_of.get(sv);
-  if (at == kDeadIndex) {
-    at = append_block(s, s.cut_rows, size_t(r * r + 3 * n * n), uint64_t(0));
-    s.cut_rows_of.set(sv, at);
-  }
-  uint64_t* rows = s.cut_rows.data() + at;
-  const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
-  rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
-  for (int e = 0; e < 12; ++e) {
-    if (!((dv.cut_edges >> e) & 1u)) continue;
-    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
-    const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
-    rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
-  }
-}
-
 // Whether the inside corners `bits` of a voxel are connected along the voxel's edges (an uncut voxel
 // joins all its inside corners; only the patterns this is false for need a look of their own).
 constexpr std::array<bool, 256> make_edge_connected() {
@@ -849,6 +817,81 @@ constexpr std::array<bool, 256> make_edge_connected() {
 }
 constexpr std::array<bool, 256> kEdgeConnected = make_edge_connected();
 
+// The cut record of simulation voxel sv (null: none yet), made when a cut first divides one of its
+// fine voxels. What cuts add: its divided fine voxels as ratio^2 voxel row masks, then its cut lattice
+// edges along x, y and z as 3 x (ratio+1)^2 node row masks (bit x of row (y, z) along axis a: the edge
+// from block node (x, y, z) along a is cut). Then what the model alone gives (static_rows): its inside
+// nodes ((ratio+1)^2 node rows), the voxels with inside and outside corners, and among those the
+// voxels whose inside corners their edges do not connect (ratio^2 voxel rows each).
+size_t record_rows(int32_t r) { return size_t(3 * r * r + 4 * (r + 1) * (r + 1)); }
+
+const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
+  const uint32_t at = s.cut_rows_of.get(sv);
+  return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
+}
+
+// The static part of a record (its rows after the cut edges), from the model.
+void static_rows(const VoxelModel& model, const PbdModel& s, uint32_t sv, uint64_t* record) {
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const int32_t gx = c[0] * r, gy = c[1] * r, gz = c[2] * r;
+  uint64_t* inside = record + size_t(r * r + 3 * n * n);
+  uint64_t* partial = inside + size_t(n * n);
+  uint64_t* odd = partial + size_t(r * r);
+  // Inside nodes per node row (the lattice's last node is nx; outside the lattice nothing is inside).
+  const int32_t xnodes = std::min(r, l.nx - gx) + 1, xvoxels = std::min(r, l.nx - gx);
+  for (int32_t z = 0; z < n && gz + z <= l.nz; ++z) {
+    for (int32_t y = 0; y < n && gy + y <= l.ny; ++y) {
+      inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
+    }
+  }
+  // Voxel rows in the lattice (every voxel of such a row is in the block: vmask).
+  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
+  for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
+    for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
+      const uint64_t* in = inside + (vy + n * vz);
+      const uint64_t all4 = in[0] & in[1] & in[n] & in[n + 1], any4 = in[0] | in[1] | in[n] | in[n + 1];
+      const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
+      const uint32_t v = uint32_t(vy + r * vz);
+      partial[v] = any & ~all;
+      for (uint64_t m = any & ~all; m != 0; m &= m - 1) {
+        const int x = __builtin_ctzll(m);
+        const uint32_t bits = uint32_t((in[0] >> x) & 3) | uint32_t((in[1] >> x) & 3) << 2 |
+                              uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
+        if (!kEdgeConnected[bits]) odd[v] |= uint64_t(1) << x;
+      }
+    }
+  }
+}
+
+// Records a divided fine voxel and its cut edges in its simulation voxel's cut record (idempotent:
+// cuts only add).
+void note_cut_voxel(const VoxelModel& model, PbdModel& s, const DividedVoxel& dv) {
+  if (s.ratio > kSpanRatio) return;
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t vc[3];
+  l.voxel_coords(dv.voxel, vc);
+  const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
+  uint32_t at = s.cut_rows_of.get(sv);
+  if (at == kDeadIndex) {
+    at = append_block(s, s.cut_rows, record_rows(r), uint64_t(0));
+    s.cut_rows_of.set(sv, at);
+    static_rows(model, s, sv, s.cut_rows.data() + at);
+  }
+  uint64_t* rows = s.cut_rows.data() + at;
+  const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
+  rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
+  for (int e = 0; e < 12; ++e) {
+    if (!((dv.cut_edges >> e) & 1u)) continue;
+    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
+    const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
+    rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
+  }
+}
+
 // Spans of a block (ratio <= 32): the block's inside nodes as runs along x joined by x edges,
 // united across neighbouring rows where a y or z edge joins them. An edge with both ends inside joins
 // them unless the blade cut it (every fine voxel holding it, uncut or divided, joins its ends then);
@@ -863,39 +906,24 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   sim_voxel_coords(s, sv, c);
   const int32_t gx = c[0] * r, gy = c[1] * r, gz = c[2] * r;
   const uint32_t rows = uint32_t(n * n), vrows = uint32_t(r * r);
-  w.inside.assign(rows, 0);
-  w.explicit_.assign(vrows, 0);
-  // Inside nodes per node row (the lattice's last node is nx; outside the lattice nothing is inside).
-  const int32_t xnodes = std::min(r, l.nx - gx) + 1, xvoxels = std::min(r, l.nx - gx);
-  for (int32_t z = 0; z < n && gz + z <= l.nz; ++z) {
-    for (int32_t y = 0; y < n && gy + y <= l.ny; ++y) {
-      w.inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
-    }
+  // The block's record (a block without one has no cuts: its static rows are made here).
+  const uint64_t* record = cut_rows(s, sv);
+  if (!record) {
+    w.record.assign(record_rows(r), 0);
+    static_rows(model, s, sv, w.record.data());
+    record = w.record.data();
   }
-  // Voxel rows: those that join corners diagonally (w.explicit_). Every voxel of a voxel row in the
-  // lattice is in the block (vmask); ry, rz: voxel rows in the lattice along y and z.
-  const uint64_t* cuts = cut_rows(s, sv);
-  const auto cut_edges = [&](int axis, uint32_t row) {
-    return cuts ? cuts[uint32_t(r * r + axis * n * n) + row] : uint64_t(0);
-  };
-  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
-  for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
-    for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
-      const uint64_t* in = w.inside.data() + (vy + n * vz);
-      const uint64_t all4 = in[0] & in[1] & in[n] & in[n + 1], any4 = in[0] | in[1] | in[n] | in[n + 1];
-      const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
-      const uint32_t v = uint32_t(vy + r * vz);
-      const uint64_t divided = cuts ? cuts[v] : 0;
-      uint64_t odd = 0;
-      for (uint64_t m = any & ~all & ~divided; m != 0; m &= m - 1) {
-        const int x = __builtin_ctzll(m);
-        const uint32_t bits = uint32_t((in[0] >> x) & 3) | uint32_t((in[1] >> x) & 3) << 2 |
-                              uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
-        if (!kEdgeConnected[bits]) odd |= uint64_t(1) << x;
-      }
-      w.explicit_[v] = (divided & any & ~all) | odd;
-    }
-  }
+  const uint64_t* divided = record;
+  const uint64_t* cuts_x = divided + vrows;
+  const uint64_t* cuts_y = cuts_x + rows;
+  const uint64_t* cuts_z = cuts_y + rows;
+  const uint64_t* inside = cuts_z + rows;
+  const uint64_t* partial = inside + rows;
+  const uint64_t* odd = partial + vrows;
+  // Every voxel of a voxel row in the lattice is in the block (vmask); ry, rz: voxel rows in the
+  // lattice along y and z.
+  const int32_t xvoxels = std::min(r, l.nx - gx);
+  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1, vnodes = vmask | (vmask << 1);
   const int32_t ry = std::min(r, l.ny - gy), rz = std::min(r, l.nz - gz);
   // Spans per node row, in x order.
   w.row_begin.resize(rows + 1);
@@ -905,9 +933,10 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
       w.row_begin[row] = uint32_t(w.mask.size());
-      const uint64_t in = w.inside[row];
+      const uint64_t in = inside[row];
+      if (in == 0) continue;
       // An x edge of node row (y, z) lies in voxel rows y-1 and y by z-1 and z: one in the lattice.
-      const uint64_t joins = y <= ry && z <= rz ? in & (in >> 1) & ~cut_edges(0, row) & vmask : 0;
+      const uint64_t joins = y <= ry && z <= rz ? in & (in >> 1) & ~cuts_x[row] & vmask : 0;
       for (uint64_t m = in; m != 0;) {
         const int x0 = __builtin_ctzll(m);
         const int run = __builtin_ctzll(~(joins >> x0));  // joined edges x0, x0+1, ...: nodes x0 .. x0+run
@@ -929,13 +958,19 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     if (a != b) w.parent[std::max(a, b)] = std::min(a, b);
   };
   // Rows joined by y and z edges: both ends inside, not cut, in a voxel of the block (voxel x holds
-  // nodes x and x+1).
-  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t voxels, uint64_t cut) {
-    const uint64_t link = (voxels | (voxels << 1)) & w.inside[a_row] & w.inside[b_row] & ~cut;
+  // nodes x and x+1). Rows of one span each (the most) need no search for the spans that touch.
+  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t cut) {
+    const uint64_t link = vnodes & inside[a_row] & inside[b_row] & ~cut;
     if (link == 0) return;
-    for (uint32_t a = w.row_begin[a_row]; a < w.row_begin[a_row + 1]; ++a) {
+    const uint32_t a0 = w.row_begin[a_row], a1 = w.row_begin[a_row + 1];
+    const uint32_t b0 = w.row_begin[b_row], b1 = w.row_begin[b_row + 1];
+    if (a1 == a0 + 1 && b1 == b0 + 1) {
+      unite(a0, b0);
+      return;
+    }
+    for (uint32_t a = a0; a < a1; ++a) {
       if ((w.mask[a] & link) == 0) continue;
-      for (uint32_t b = w.row_begin[b_row]; b < w.row_begin[b_row + 1]; ++b) {
+      for (uint32_t b = b0; b < b1; ++b) {
         if (w.mask[a] & w.mask[b] & link) unite(a, b);
       }
     }
@@ -943,11 +978,13 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   for (int32_t z = 0; z < n; ++z) {
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
-      if (y < ry && z <= rz) unite_rows(row, row + 1, vmask, cut_edges(1, row));
-      if (z < rz && y <= ry) unite_rows(row, row + uint32_t(n), vmask, cut_edges(2, row));
+      if (inside[row] == 0) continue;
+      if (y < ry && z <= rz) unite_rows(row, row + 1, cuts_y[row]);
+      if (z < rz && y <= ry) unite_rows(row, row + uint32_t(n), cuts_z[row]);
     }
   }
-  // The diagonal voxels: each unites its pieces' corners.
+  // The diagonal voxels: those with inside and outside corners that a cut divided, and the uncut
+  // ones whose edges do not connect their inside corners. Each unites its pieces' corners.
   const auto span_at = [&](uint32_t row, int x) {
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
       if ((w.mask[i] >> x) & 1u) return i;
@@ -956,7 +993,8 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   };
   for (int32_t vz = 0; vz < r; ++vz) {
     for (int32_t vy = 0; vy < r; ++vy) {
-      for (uint64_t e = w.explicit_[uint32_t(vy + r * vz)]; e != 0; e &= e - 1) {
+      const uint32_t v = uint32_t(vy + r * vz);
+      for (uint64_t e = (divided[v] & partial[v]) | (odd[v] & ~divided[v]); e != 0; e &= e - 1) {
         const int x = __builtin_ctzll(e);
         uint8_t corner_piece[8];
         fine_pieces(model, cut, gx + x, gy + vy, gz + vz, corner_piece);
@@ -1994,7 +2032,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.pieces_in_voxel.assign(voxels, 0);
 
   // Pieces: the material components of every block (cuts made before init included).
-  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(s, l, dv);
+  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(model, s, dv);
   s.scratch_labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
     const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
@@ -2037,7 +2075,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   for (uint32_t voxel : cut.reshaped_voxels) {
     const uint32_t d = cut.divided_of.get(voxel);
     if (d == kDeadIndex) continue;
-    note_cut_voxel(s, model.lattice, cut.divided[d]);
+    note_cut_voxel(model, s, cut.divided[d]);
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
     const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);

@@ -134,8 +134,7 @@ struct LocalSearch {
 // Scratch of the span relabelling (sim/pbd.cpp relabel_spans): a block's fine nodes as runs along x
 // ("spans", one 64-bit mask per node row), united across rows where material joins them.
 struct SpanScratch {
-  std::vector<uint64_t> inside;     // (node rows) inside nodes
-  std::vector<uint64_t> explicit_;  // (voxel rows) voxels joining corners diagonally: their own pieces join
+  std::vector<uint64_t> record;     // the cut record (sim/pbd.cpp record_rows) of a block without one
   std::vector<uint32_t> row_begin;  // (node rows + 1) first span of each row
   std::vector<uint64_t> mask;       // (spans) nodes of the span
   std::vector<uint32_t> parent;     // (spans) union-find
@@ -228,8 +227,9 @@ struct PbdModel {
   std::vector<uint64_t> scratch_changed, scratch_corner_ids;
   // Cuts per simulation voxel (ratio <= 32): its divided fine voxels (one 64-bit mask per (y, z)
   // voxel row) and its cut lattice edges (one mask per node row and axis), so a relabel finds the
-  // block's cuts without looking up each fine voxel.
-  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 + 3 (ratio+1)^2 rows)
+  // block's cuts without looking up each fine voxel; with the block's inside nodes and corner
+  // patterns per row (they never change), so it reads no node of the model either.
+  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (3 ratio^2 + 4 (ratio+1)^2 rows)
   std::vector<uint64_t> cut_rows;
 
   // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver updates its constraint
