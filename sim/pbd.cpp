@@ -1015,6 +1015,101 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   }
 }
 
+// Whether the last cut step left the material components of block sv (ratio <= 32) as they were,
+// shown by a short search: every pair of corners that one of its reshaped fine voxels
+// (cut.reshaped_voxels[reshaped[i]], with their pieces before the step) joined before and no longer
+// joins must still be joined through the block, within one span (a run of nodes along x joined by
+// uncut x edges) or from one span through the row next to it (uncut y or z edges: build_spans' joins;
+// an edge with both ends inside in the block lies in a fine voxel of the block). Cuts only remove
+// joins and the old labels are the components before the step, so the labels stay exact then. False
+// when the search finds no such join (the block is relabelled).
+bool keeps_components(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv,
+                      const uint32_t* reshaped, const uint32_t* reshaped_end) {
+  const uint64_t* record = cut_rows(s, sv);
+  if (!record) return false;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const uint32_t rows = uint32_t(n * n);
+  const uint64_t* cuts[3] = {record + size_t(r * r), record + size_t(r * r) + rows, record + size_t(r * r) + 2 * rows};
+  const uint64_t* inside = record + size_t(r * r) + 3 * rows;
+  // The span of row (y, z) holding node x (0: x is outside).
+  const auto span = [&](int32_t y, int32_t z, int32_t x) -> uint64_t {
+    const uint32_t row = uint32_t(y + n * z);
+    const uint64_t in = inside[row];
+    if (!((in >> x) & 1u)) return 0;
+    const uint64_t joins = in & (in >> 1) & ~cuts[0][row];
+    const int hi = x + __builtin_ctzll(~(joins >> x));
+    const uint64_t below = ~joins & ((uint64_t(1) << x) - 1);
+    const int lo = below ? 64 - __builtin_clzll(below) : 0;
+    return ((uint64_t(2) << hi) - 1) & ~((uint64_t(1) << lo) - 1);  // hi <= ratio < 63
+  };
+  // The spans of row (y, z) meeting `bits` (nodes of that row).
+  const auto spans_meeting = [&](int32_t y, int32_t z, uint64_t bits) {
+    uint64_t out = 0;
+    while (bits) {
+      const uint64_t sp = span(y, z, __builtin_ctzll(bits));
+      out |= sp;
+      bits &= ~sp;
+    }
+    return out;
+  };
+  // The uncut edges from row (y, z) to row (y2, z2) (0: not the next row along y or z).
+  const auto link = [&](int32_t y, int32_t z, int32_t y2, int32_t z2) -> uint64_t {
+    int axis = 0;
+    if (z == z2 && (y2 == y + 1 || y2 == y - 1)) axis = 1;
+    if (y == y2 && (z2 == z + 1 || z2 == z - 1)) axis = 2;
+    if (axis == 0) return 0;
+    const uint32_t a = uint32_t(y + n * z), b = uint32_t(y2 + n * z2);
+    return inside[a] & inside[b] & ~cuts[axis][std::min(a, b)];
+  };
+  // Nodes a and b (block coordinates x, y, z) joined within their span, from a's span to b's, or
+  // through the spans of a row next to a's.
+  const auto joined = [&](const int32_t a[3], const int32_t b[3]) {
+    const uint64_t sa = span(a[1], a[2], a[0]), sb = span(b[1], b[2], b[0]);
+    if (a[1] == b[1] && a[2] == b[2] && (sa & sb)) return true;
+    if (sa & sb & link(a[1], a[2], b[1], b[2])) return true;
+    const int32_t next[4][2] = {{a[1] - 1, a[2]}, {a[1] + 1, a[2]}, {a[1], a[2] - 1}, {a[1], a[2] + 1}};
+    for (const auto& m : next) {
+      if (m[0] < 0 || m[1] < 0 || m[0] > r || m[1] > r) continue;
+      const uint64_t reach = spans_meeting(m[0], m[1], sa & link(a[1], a[2], m[0], m[1]));
+      if (reach == 0) continue;
+      const bool there = m[0] == b[1] && m[1] == b[2] ? (reach & sb) != 0 : (reach & sb & link(m[0], m[1], b[1], b[2])) != 0;
+      if (there) return true;
+    }
+    return false;
+  };
+  for (const uint32_t* i = reshaped; i != reshaped_end; ++i) {
+    const uint64_t entry = cut.reshaped_voxels[*i];
+    const uint32_t voxel = uint32_t(entry >> 32), before = uint32_t(entry);
+    const DividedVoxel& dv = cut.divided[cut.divided_of.get(voxel)];
+    int32_t vc[3];
+    model.lattice.voxel_coords(voxel, vc);
+    for (int a = 0; a < 3; ++a) vc[a] -= c[a] * r;
+    // Per piece before the step: its corners now in another piece than its first corner.
+    for (uint32_t p = 0; p < 8; ++p) {
+      int first = -1;
+      uint32_t reached = 0;  // bit q: new piece q joined to the first corner's
+      for (int q = 0; q < 8; ++q) {
+        if (((before >> (4 * q)) & 0xF) != p) continue;
+        const uint8_t now = dv.corner_piece[q];
+        if (now >= 8) return false;  // not reached: cuts do not change what is inside
+        if (first < 0) {
+          first = q;
+          reached = 1u << now;
+          continue;
+        }
+        if ((reached >> now) & 1u) continue;
+        const int32_t na[3] = {vc[0] + (first & 1), vc[1] + ((first >> 1) & 1), vc[2] + ((first >> 2) & 1)};
+        const int32_t nb[3] = {vc[0] + (q & 1), vc[1] + ((q >> 1) & 1), vc[2] + ((q >> 2) & 1)};
+        if (!joined(na, nb)) return false;
+        reached |= 1u << now;
+      }
+    }
+  }
+  return true;
+}
+
 // Relabels a whole block from its spans (ratio <= 32) when its components changed; new pieces inherit
 // from the old piece of their first node. Labels are numbered in node order, as label_block numbers
 // them. Cuts only split components and the old labels are the components before the cut, so the
@@ -2072,32 +2167,20 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   std::vector<uint32_t>& affected = s.scratch_sim;
   changed.clear();
   affected.clear();
-  for (uint32_t voxel : cut.reshaped_voxels) {
+  for (uint32_t i = 0; i < cut.reshaped_voxels.size(); ++i) {
+    const uint32_t voxel = uint32_t(cut.reshaped_voxels[i] >> 32);
     const uint32_t d = cut.divided_of.get(voxel);
     if (d == kDeadIndex) continue;
     note_cut_voxel(model, s, cut.divided[d]);
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
     const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
-    if (!spans) {
-      changed.push_back(uint64_t(sv) << 32 | voxel);
-    } else if (affected.empty() || affected.back() != sv) {
-      affected.push_back(sv);
-    }
+    changed.push_back(uint64_t(sv) << 32 | (spans ? i : voxel));
   }
-  if (spans) {
-    sorted_unique(affected);
-    size_t kept = 0;
-    for (uint32_t sv : affected) {
-      if (has_pieces(s, sv)) affected[kept++] = sv;
-    }
-    affected.resize(kept);
-  } else {
-    std::sort(changed.begin(), changed.end());
-    for (uint64_t c : changed) {
-      const uint32_t sv = uint32_t(c >> 32);
-      if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
-    }
+  std::sort(changed.begin(), changed.end());
+  for (uint64_t c : changed) {
+    const uint32_t sv = uint32_t(c >> 32);
+    if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
   }
 
   // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
@@ -2135,16 +2218,22 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
       }
     }
   };
-  if (spans) {
-    for (uint32_t sv : affected) relabel_spans(model, cut, s, sv, stats, [&] { detach_around(sv); });
-    if (stats) stats->span_relabels += uint32_t(affected.size());
-  }
   std::vector<uint32_t>& fine = s.scratch_parent;
   for (size_t i = 0; i < changed.size();) {
     const uint32_t sv = uint32_t(changed[i] >> 32);
     fine.clear();
     for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
     if (!has_pieces(s, sv)) continue;
+    if (spans) {
+      // The joins the cut removed mostly reconnect next to it (a slit joined around its front).
+      if (keeps_components(model, cut, s, sv, fine.data(), fine.data() + fine.size())) {
+        if (stats) ++stats->kept_by_search;
+        continue;
+      }
+      relabel_spans(model, cut, s, sv, stats, [&] { detach_around(sv); });
+      if (stats) ++stats->span_relabels;
+      continue;
+    }
     detach_around(sv);
     const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
     if (!local) relabel_block(model, cut, s, sv);

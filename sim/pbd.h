@@ -149,6 +149,7 @@ struct PbdCutStats {
                                     // their pieces: no particle or constraint is touched)
   uint32_t local_relabels = 0;   // of those, relabelled by the local search
   uint32_t span_relabels = 0;    // by spans (the whole block, O(ratio^2) rows)
+  uint32_t kept_by_search = 0;   // shown unchanged by a search next to their cut (keeps_components)
   uint32_t block_relabels = 0;   // by the node-by-node labelling (ratio > 32)
   uint64_t nodes_searched = 0;   // fine nodes the local searches visited
   uint64_t spans = 0;            // spans the span relabels built
