@@ -1343,14 +1343,23 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
         DividedVoxel dv{};
         dv.voxel = v;
         dv.piece_count = 8;  // unknown until refreshed: visit every piece slot once
+        // Its pieces until refreshed: those of the uncut voxel (one of all inside corners).
+        int32_t vc[3];
+        l.voxel_coords(v, vc);
+        const uint8_t inside = corner_inside_bits(model, vc);
+        for (int c = 0; c < 8; ++c) dv.corner_piece[c] = (inside >> c) & 1u ? 0 : kNoPiece;
         state.divided.push_back(dv);
       }
       const uint16_t bit = uint16_t(1u << voxel_edge_index(axis, corners[q]));
-      if (change == EdgeChange::kCut) {
-        state.divided[d].cut_edges |= bit;
-      } else {
-        state.divided[d].air_edges |= bit;
+      DividedVoxel& dv = state.divided[d];
+      uint16_t& edges = change == EdgeChange::kCut ? dv.cut_edges : dv.air_edges;
+      if (!(edges & bit)) {
+        // Its pieces before the step (not refreshed yet within it), 4 bits per corner.
+        uint32_t before = 0;
+        for (int c = 0; c < 8; ++c) before |= uint32_t(dv.corner_piece[c] == kNoPiece ? 0xF : dv.corner_piece[c] & 7) << (4 * c);
+        state.pending_reshaped.push_back(uint64_t(v) << 32 | before);
       }
+      edges |= bit;
     }
   }
   merge_sorted_unique(voxels, pending_before);
@@ -1375,6 +1384,11 @@ void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& 
   refresh_voxels(model, state, state.pending_voxels, stats);
   state.changed_voxels.swap(state.pending_voxels);
   state.pending_voxels.clear();
+  std::sort(state.pending_reshaped.begin(), state.pending_reshaped.end());  // a voxel's entries are equal
+  state.pending_reshaped.erase(std::unique(state.pending_reshaped.begin(), state.pending_reshaped.end()),
+                               state.pending_reshaped.end());
+  state.reshaped_voxels.swap(state.pending_reshaped);
+  state.pending_reshaped.clear();
 }
 
 CutStepStats cut_step(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to) {

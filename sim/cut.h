@@ -142,6 +142,11 @@ struct CutState {
                                          // holds still until the blade comes back to its voxel)
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
   std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
+  // The last step's voxels whose cut or air edges changed, as voxel << 32 | their pieces before the
+  // step (4 bits per corner c at bit 4c, 0xF outside), sorted: only their pieces can differ (the
+  // others' vertices moved: a widened crossing, the front), so the PBD model looks only at these.
+  std::vector<uint64_t> reshaped_voxels;
+  std::vector<uint64_t> pending_reshaped;  // the same, as cut_divide finds them (unsorted, repeats)
   std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
   std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)
   FlatMap shape_of;                      // inside corners | cut edges << 8 | air edges << 20 -> index in shapes

@@ -793,38 +793,6 @@ uint64_t bit_range(const std::vector<uint64_t>& bits, uint64_t first, int32_t co
   return count >= 64 ? v : v & ((uint64_t(1) << count) - 1);
 }
 
-// The cut record of simulation voxel sv (null: none yet): its divided fine voxels as ratio^2 voxel row
-// masks, then its cut lattice edges along x, y and z as 3 x (ratio+1)^2 node row masks (bit x of row
-// (y, z) along axis a: the edge from block node (x, y, z) along a is cut).
-const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
-  const uint32_t at = s.cut_rows_of.get(sv);
-  return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
-}
-
-// Records a divided fine voxel and its cut edges in its simulation voxel's cut record (idempotent:
-// cuts only add).
-void note_cut_voxel(PbdModel& s, const Lattice& l, const DividedVoxel& dv) {
-  if (s.ratio > kSpanRatio) return;
-  const int32_t r = s.ratio, n = r + 1;
-  int32_t vc[3];
-  l.voxel_coords(dv.voxel, vc);
-  const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
-  uint32_t at = s.cut_rows_of.get(sv);
-  if (at == kDeadIndex) {
-    at = append_block(s, s.cut_rows, size_t(r * r + 3 * n * n), uint64_t(0));
-    s.cut_rows_of.set(sv, at);
-  }
-  uint64_t* rows = s.cut_rows.data() + at;
-  const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
-  rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
-  for (int e = 0; e < 12; ++e) {
-    if (!((dv.cut_edges >> e) & 1u)) continue;
-    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
-    const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
-    rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
-  }
-}
-
 // Whether the inside corners `bits` of a voxel are connected along the voxel's edges (an uncut voxel
 // joins all its inside corners; only the patterns this is false for need a look of their own).
 constexpr std::array<bool, 256> make_edge_connected() {
@@ -849,6 +817,81 @@ constexpr std::array<bool, 256> make_edge_connected() {
 }
 constexpr std::array<bool, 256> kEdgeConnected = make_edge_connected();
 
+// The cut record of simulation voxel sv (null: none yet), made when a cut first divides one of its
+// fine voxels. What cuts add: its divided fine voxels as ratio^2 voxel row masks, then its cut lattice
+// edges along x, y and z as 3 x (ratio+1)^2 node row masks (bit x of row (y, z) along axis a: the edge
+// from block node (x, y, z) along a is cut). Then what the model alone gives (static_rows): its inside
+// nodes ((ratio+1)^2 node rows), the voxels with inside and outside corners, and among those the
+// voxels whose inside corners their edges do not connect (ratio^2 voxel rows each).
+size_t record_rows(int32_t r) { return size_t(3 * r * r + 4 * (r + 1) * (r + 1)); }
+
+const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
+  const uint32_t at = s.cut_rows_of.get(sv);
+  return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
+}
+
+// The static part of a record (its rows after the cut edges), from the model.
+void static_rows(const VoxelModel& model, const PbdModel& s, uint32_t sv, uint64_t* record) {
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const int32_t gx = c[0] * r, gy = c[1] * r, gz = c[2] * r;
+  uint64_t* inside = record + size_t(r * r + 3 * n * n);
+  uint64_t* partial = inside + size_t(n * n);
+  uint64_t* odd = partial + size_t(r * r);
+  // Inside nodes per node row (the lattice's last node is nx; outside the lattice nothing is inside).
+  const int32_t xnodes = std::min(r, l.nx - gx) + 1, xvoxels = std::min(r, l.nx - gx);
+  for (int32_t z = 0; z < n && gz + z <= l.nz; ++z) {
+    for (int32_t y = 0; y < n && gy + y <= l.ny; ++y) {
+      inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
+    }
+  }
+  // Voxel rows in the lattice (every voxel of such a row is in the block: vmask).
+  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
+  for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
+    for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
+      const uint64_t* in = inside + (vy + n * vz);
+      const uint64_t all4 = in[0] & in[1] & in[n] & in[n + 1], any4 = in[0] | in[1] | in[n] | in[n + 1];
+      const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
+      const uint32_t v = uint32_t(vy + r * vz);
+      partial[v] = any & ~all;
+      for (uint64_t m = any & ~all; m != 0; m &= m - 1) {
+        const int x = __builtin_ctzll(m);
+        const uint32_t bits = uint32_t((in[0] >> x) & 3) | uint32_t((in[1] >> x) & 3) << 2 |
+                              uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
+        if (!kEdgeConnected[bits]) odd[v] |= uint64_t(1) << x;
+      }
+    }
+  }
+}
+
+// Records a divided fine voxel and its cut edges in its simulation voxel's cut record (idempotent:
+// cuts only add).
+void note_cut_voxel(const VoxelModel& model, PbdModel& s, const DividedVoxel& dv) {
+  if (s.ratio > kSpanRatio) return;
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t vc[3];
+  l.voxel_coords(dv.voxel, vc);
+  const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
+  uint32_t at = s.cut_rows_of.get(sv);
+  if (at == kDeadIndex) {
+    at = append_block(s, s.cut_rows, record_rows(r), uint64_t(0));
+    s.cut_rows_of.set(sv, at);
+    static_rows(model, s, sv, s.cut_rows.data() + at);
+  }
+  uint64_t* rows = s.cut_rows.data() + at;
+  const int32_t x = vc[0] % r, y = vc[1] % r, z = vc[2] % r;
+  rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
+  for (int e = 0; e < 12; ++e) {
+    if (!((dv.cut_edges >> e) & 1u)) continue;
+    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
+    const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
+    rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
+  }
+}
+
 // Spans of a block (ratio <= 32): the block's inside nodes as runs along x joined by x edges,
 // united across neighbouring rows where a y or z edge joins them. An edge with both ends inside joins
 // them unless the blade cut it (every fine voxel holding it, uncut or divided, joins its ends then);
@@ -863,39 +906,24 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   sim_voxel_coords(s, sv, c);
   const int32_t gx = c[0] * r, gy = c[1] * r, gz = c[2] * r;
   const uint32_t rows = uint32_t(n * n), vrows = uint32_t(r * r);
-  w.inside.assign(rows, 0);
-  w.explicit_.assign(vrows, 0);
-  // Inside nodes per node row (the lattice's last node is nx; outside the lattice nothing is inside).
-  const int32_t xnodes = std::min(r, l.nx - gx) + 1, xvoxels = std::min(r, l.nx - gx);
-  for (int32_t z = 0; z < n && gz + z <= l.nz; ++z) {
-    for (int32_t y = 0; y < n && gy + y <= l.ny; ++y) {
-      w.inside[uint32_t(y + n * z)] = bit_range(model.inside, l.node(gx, gy + y, gz + z), xnodes);
-    }
+  // The block's record (a block without one has no cuts: its static rows are made here).
+  const uint64_t* record = cut_rows(s, sv);
+  if (!record) {
+    w.record.assign(record_rows(r), 0);
+    static_rows(model, s, sv, w.record.data());
+    record = w.record.data();
   }
-  // Voxel rows: those that join corners diagonally (w.explicit_). Every voxel of a voxel row in the
-  // lattice is in the block (vmask); ry, rz: voxel rows in the lattice along y and z.
-  const uint64_t* cuts = cut_rows(s, sv);
-  const auto cut_edges = [&](int axis, uint32_t row) {
-    return cuts ? cuts[uint32_t(r * r + axis * n * n) + row] : uint64_t(0);
-  };
-  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1;
-  for (int32_t vz = 0; vz < r && gz + vz < l.nz; ++vz) {
-    for (int32_t vy = 0; vy < r && gy + vy < l.ny; ++vy) {
-      const uint64_t* in = w.inside.data() + (vy + n * vz);
-      const uint64_t all4 = in[0] & in[1] & in[n] & in[n + 1], any4 = in[0] | in[1] | in[n] | in[n + 1];
-      const uint64_t all = all4 & (all4 >> 1) & vmask, any = (any4 | (any4 >> 1)) & vmask;
-      const uint32_t v = uint32_t(vy + r * vz);
-      const uint64_t divided = cuts ? cuts[v] : 0;
-      uint64_t odd = 0;
-      for (uint64_t m = any & ~all & ~divided; m != 0; m &= m - 1) {
-        const int x = __builtin_ctzll(m);
-        const uint32_t bits = uint32_t((in[0] >> x) & 3) | uint32_t((in[1] >> x) & 3) << 2 |
-                              uint32_t((in[n] >> x) & 3) << 4 | uint32_t((in[n + 1] >> x) & 3) << 6;
-        if (!kEdgeConnected[bits]) odd |= uint64_t(1) << x;
-      }
-      w.explicit_[v] = (divided & any & ~all) | odd;
-    }
-  }
+  const uint64_t* divided = record;
+  const uint64_t* cuts_x = divided + vrows;
+  const uint64_t* cuts_y = cuts_x + rows;
+  const uint64_t* cuts_z = cuts_y + rows;
+  const uint64_t* inside = cuts_z + rows;
+  const uint64_t* partial = inside + rows;
+  const uint64_t* odd = partial + vrows;
+  // Every voxel of a voxel row in the lattice is in the block (vmask); ry, rz: voxel rows in the
+  // lattice along y and z.
+  const int32_t xvoxels = std::min(r, l.nx - gx);
+  const uint64_t vmask = (uint64_t(1) << xvoxels) - 1, vnodes = vmask | (vmask << 1);
   const int32_t ry = std::min(r, l.ny - gy), rz = std::min(r, l.nz - gz);
   // Spans per node row, in x order.
   w.row_begin.resize(rows + 1);
@@ -905,9 +933,10 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
       w.row_begin[row] = uint32_t(w.mask.size());
-      const uint64_t in = w.inside[row];
+      const uint64_t in = inside[row];
+      if (in == 0) continue;
       // An x edge of node row (y, z) lies in voxel rows y-1 and y by z-1 and z: one in the lattice.
-      const uint64_t joins = y <= ry && z <= rz ? in & (in >> 1) & ~cut_edges(0, row) & vmask : 0;
+      const uint64_t joins = y <= ry && z <= rz ? in & (in >> 1) & ~cuts_x[row] & vmask : 0;
       for (uint64_t m = in; m != 0;) {
         const int x0 = __builtin_ctzll(m);
         const int run = __builtin_ctzll(~(joins >> x0));  // joined edges x0, x0+1, ...: nodes x0 .. x0+run
@@ -929,13 +958,19 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
     if (a != b) w.parent[std::max(a, b)] = std::min(a, b);
   };
   // Rows joined by y and z edges: both ends inside, not cut, in a voxel of the block (voxel x holds
-  // nodes x and x+1).
-  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t voxels, uint64_t cut) {
-    const uint64_t link = (voxels | (voxels << 1)) & w.inside[a_row] & w.inside[b_row] & ~cut;
+  // nodes x and x+1). Rows of one span each (the most) need no search for the spans that touch.
+  const auto unite_rows = [&](uint32_t a_row, uint32_t b_row, uint64_t cut) {
+    const uint64_t link = vnodes & inside[a_row] & inside[b_row] & ~cut;
     if (link == 0) return;
-    for (uint32_t a = w.row_begin[a_row]; a < w.row_begin[a_row + 1]; ++a) {
+    const uint32_t a0 = w.row_begin[a_row], a1 = w.row_begin[a_row + 1];
+    const uint32_t b0 = w.row_begin[b_row], b1 = w.row_begin[b_row + 1];
+    if (a1 == a0 + 1 && b1 == b0 + 1) {
+      unite(a0, b0);
+      return;
+    }
+    for (uint32_t a = a0; a < a1; ++a) {
       if ((w.mask[a] & link) == 0) continue;
-      for (uint32_t b = w.row_begin[b_row]; b < w.row_begin[b_row + 1]; ++b) {
+      for (uint32_t b = b0; b < b1; ++b) {
         if (w.mask[a] & w.mask[b] & link) unite(a, b);
       }
     }
@@ -943,11 +978,13 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   for (int32_t z = 0; z < n; ++z) {
     for (int32_t y = 0; y < n; ++y) {
       const uint32_t row = uint32_t(y + n * z);
-      if (y < ry && z <= rz) unite_rows(row, row + 1, vmask, cut_edges(1, row));
-      if (z < rz && y <= ry) unite_rows(row, row + uint32_t(n), vmask, cut_edges(2, row));
+      if (inside[row] == 0) continue;
+      if (y < ry && z <= rz) unite_rows(row, row + 1, cuts_y[row]);
+      if (z < rz && y <= ry) unite_rows(row, row + uint32_t(n), cuts_z[row]);
     }
   }
-  // The diagonal voxels: each unites its pieces' corners.
+  // The diagonal voxels: those with inside and outside corners that a cut divided, and the uncut
+  // ones whose edges do not connect their inside corners. Each unites its pieces' corners.
   const auto span_at = [&](uint32_t row, int x) {
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
       if ((w.mask[i] >> x) & 1u) return i;
@@ -956,7 +993,8 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   };
   for (int32_t vz = 0; vz < r; ++vz) {
     for (int32_t vy = 0; vy < r; ++vy) {
-      for (uint64_t e = w.explicit_[uint32_t(vy + r * vz)]; e != 0; e &= e - 1) {
+      const uint32_t v = uint32_t(vy + r * vz);
+      for (uint64_t e = (divided[v] & partial[v]) | (odd[v] & ~divided[v]); e != 0; e &= e - 1) {
         const int x = __builtin_ctzll(e);
         uint8_t corner_piece[8];
         fine_pieces(model, cut, gx + x, gy + vy, gz + vz, corner_piece);
@@ -977,9 +1015,110 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   }
 }
 
-// Relabels a whole block from its spans (ratio <= 32); new pieces inherit from the old piece of their
-// first node. Labels are numbered in node order, as label_block numbers them.
-void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats) {
+// Whether the last cut step left the material components of block sv (ratio <= 32) as they were,
+// shown by a short search: every pair of corners that one of its reshaped fine voxels
+// (cut.reshaped_voxels[reshaped[i]], with their pieces before the step) joined before and no longer
+// joins must still be joined through the block, within one span (a run of nodes along x joined by
+// uncut x edges) or from one span through the row next to it (uncut y or z edges: build_spans' joins;
+// an edge with both ends inside in the block lies in a fine voxel of the block). Cuts only remove
+// joins and the old labels are the components before the step, so the labels stay exact then. False
+// when the search finds no such join (the block is relabelled).
+bool keeps_components(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv,
+                      const uint32_t* reshaped, const uint32_t* reshaped_end) {
+  const uint64_t* record = cut_rows(s, sv);
+  if (!record) return false;
+  const int32_t r = s.ratio, n = r + 1;
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const uint32_t rows = uint32_t(n * n);
+  const uint64_t* cuts[3] = {record + size_t(r * r), record + size_t(r * r) + rows, record + size_t(r * r) + 2 * rows};
+  const uint64_t* inside = record + size_t(r * r) + 3 * rows;
+  // The span of row (y, z) holding node x (0: x is outside).
+  const auto span = [&](int32_t y, int32_t z, int32_t x) -> uint64_t {
+    const uint32_t row = uint32_t(y + n * z);
+    const uint64_t in = inside[row];
+    if (!((in >> x) & 1u)) return 0;
+    const uint64_t joins = in & (in >> 1) & ~cuts[0][row];
+    const int hi = x + __builtin_ctzll(~(joins >> x));
+    const uint64_t below = ~joins & ((uint64_t(1) << x) - 1);
+    const int lo = below ? 64 - __builtin_clzll(below) : 0;
+    return ((uint64_t(2) << hi) - 1) & ~((uint64_t(1) << lo) - 1);  // hi <= ratio < 63
+  };
+  // The spans of row (y, z) meeting `bits` (nodes of that row).
+  const auto spans_meeting = [&](int32_t y, int32_t z, uint64_t bits) {
+    uint64_t out = 0;
+    while (bits) {
+      const uint64_t sp = span(y, z, __builtin_ctzll(bits));
+      out |= sp;
+      bits &= ~sp;
+    }
+    return out;
+  };
+  // The uncut edges from row (y, z) to row (y2, z2) (0: not the next row along y or z).
+  const auto link = [&](int32_t y, int32_t z, int32_t y2, int32_t z2) -> uint64_t {
+    int axis = 0;
+    if (z == z2 && (y2 == y + 1 || y2 == y - 1)) axis = 1;
+    if (y == y2 && (z2 == z + 1 || z2 == z - 1)) axis = 2;
+    if (axis == 0) return 0;
+    const uint32_t a = uint32_t(y + n * z), b = uint32_t(y2 + n * z2);
+    return inside[a] & inside[b] & ~cuts[axis][std::min(a, b)];
+  };
+  // Nodes a and b (block coordinates x, y, z) joined within their span, from a's span to b's, or
+  // through the spans of a row next to a's.
+  const auto joined = [&](const int32_t a[3], const int32_t b[3]) {
+    const uint64_t sa = span(a[1], a[2], a[0]), sb = span(b[1], b[2], b[0]);
+    if (a[1] == b[1] && a[2] == b[2] && (sa & sb)) return true;
+    if (sa & sb & link(a[1], a[2], b[1], b[2])) return true;
+    const int32_t next[4][2] = {{a[1] - 1, a[2]}, {a[1] + 1, a[2]}, {a[1], a[2] - 1}, {a[1], a[2] + 1}};
+    for (const auto& m : next) {
+      if (m[0] < 0 || m[1] < 0 || m[0] > r || m[1] > r) continue;
+      const uint64_t reach = spans_meeting(m[0], m[1], sa & link(a[1], a[2], m[0], m[1]));
+      if (reach == 0) continue;
+      const bool there = m[0] == b[1] && m[1] == b[2] ? (reach & sb) != 0 : (reach & sb & link(m[0], m[1], b[1], b[2])) != 0;
+      if (there) return true;
+    }
+    return false;
+  };
+  for (const uint32_t* i = reshaped; i != reshaped_end; ++i) {
+    const uint64_t entry = cut.reshaped_voxels[*i];
+    const uint32_t voxel = uint32_t(entry >> 32), before = uint32_t(entry);
+    const DividedVoxel& dv = cut.divided[cut.divided_of.get(voxel)];
+    int32_t vc[3];
+    model.lattice.voxel_coords(voxel, vc);
+    for (int a = 0; a < 3; ++a) vc[a] -= c[a] * r;
+    // Per piece before the step: its corners now in another piece than its first corner.
+    for (uint32_t p = 0; p < 8; ++p) {
+      int first = -1;
+      uint32_t reached = 0;  // bit q: new piece q joined to the first corner's
+      for (int q = 0; q < 8; ++q) {
+        if (((before >> (4 * q)) & 0xF) != p) continue;
+        const uint8_t now = dv.corner_piece[q];
+        if (now >= 8) return false;  // not reached: cuts do not change what is inside
+        if (first < 0) {
+          first = q;
+          reached = 1u << now;
+          continue;
+        }
+        if ((reached >> now) & 1u) continue;
+        const int32_t na[3] = {vc[0] + (first & 1), vc[1] + ((first >> 1) & 1), vc[2] + ((first >> 2) & 1)};
+        const int32_t nb[3] = {vc[0] + (q & 1), vc[1] + ((q >> 1) & 1), vc[2] + ((q >> 2) & 1)};
+        if (!joined(na, nb)) return false;
+        reached |= 1u << now;
+      }
+    }
+  }
+  return true;
+}
+
+// Relabels a whole block from its spans (ratio <= 32) when its components changed; new pieces inherit
+// from the old piece of their first node. Labels are numbered in node order, as label_block numbers
+// them. Cuts only split components and the old labels are the components before the cut, so the
+// components changed exactly when their count did (below the label range): a cut that splits nothing
+// (a slit still joined around its front) leaves the block alone. When they changed, calls
+// before_write() before changing anything. Returns whether they changed.
+template <typename BeforeWrite>
+bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats,
+                   BeforeWrite&& before_write) {
   SpanScratch& w = s.spans;
   build_spans(model, cut, s, sv, w);
   const Lattice& l = model.lattice;
@@ -988,6 +1127,10 @@ void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   sim_voxel_coords(s, sv, c);
   const uint32_t rows = uint32_t(n * n), spans = uint32_t(w.mask.size());
   if (stats) stats->spans += spans;
+  uint32_t roots = 0;
+  for (uint32_t i = 0; i < spans; ++i) roots += w.parent[i] == i;
+  if (roots == s.pieces_in_voxel[sv] && roots < kMaxSimPieces) return false;
+  before_write();
   // Components numbered by their first span (row order, x order within a row).
   w.label.assign(spans, kNoPiece);
   uint8_t count = 0;
@@ -1040,6 +1183,7 @@ void relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
     }
   }
   assign_slots(s, sv, count, eighths, inherit, old_slots, old_count);
+  return true;
 }
 
 // ---- Embedding -----------------------------------------------------------------------------
@@ -2034,7 +2178,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.pieces_in_voxel.assign(voxels, 0);
 
   // Pieces: the material components of every block (cuts made before init included).
-  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(s, l, dv);
+  for (const DividedVoxel& dv : cut.divided) note_cut_voxel(model, s, dv);
   s.scratch_labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
     const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
@@ -2064,102 +2208,107 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
 }
 
 uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
-  // The simulation voxels holding changed divided fine voxels. Up to kSpanRatio a block is relabelled
-  // whole, so only the voxels are needed (consecutive fine voxels mostly share one: deduplicated on
-  // the fly, then sorted); beyond it the local search needs the changed fine voxels of each, sorted
-  // by simulation voxel (sim voxel << 32 | fine voxel).
+  // The simulation voxels holding fine voxels whose pieces may have changed (new cut or air edges;
+  // the others only moved vertices). Up to kSpanRatio a block is relabelled whole, so only the
+  // voxels are needed (consecutive fine voxels mostly share one: deduplicated on the fly, then
+  // sorted); beyond it the local search needs the changed fine voxels of each, sorted by simulation
+  // voxel (sim voxel << 32 | fine voxel).
   const bool spans = s.ratio <= kSpanRatio;
   std::vector<uint64_t>& changed = s.scratch_changed;
   std::vector<uint32_t>& affected = s.scratch_sim;
   changed.clear();
   affected.clear();
-  for (uint32_t voxel : cut.changed_voxels) {
+  for (uint32_t i = 0; i < cut.reshaped_voxels.size(); ++i) {
+    const uint32_t voxel = uint32_t(cut.reshaped_voxels[i] >> 32);
     const uint32_t d = cut.divided_of.get(voxel);
     if (d == kDeadIndex) continue;
-    note_cut_voxel(s, model.lattice, cut.divided[d]);
+    note_cut_voxel(model, s, cut.divided[d]);
     int32_t vc[3];
     model.lattice.voxel_coords(voxel, vc);
     const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
-    if (!spans) {
-      changed.push_back(uint64_t(sv) << 32 | voxel);
-    } else if (affected.empty() || affected.back() != sv) {
-      affected.push_back(sv);
-    }
+    changed.push_back(uint64_t(sv) << 32 | (spans ? i : voxel));
   }
-  if (spans) {
-    sorted_unique(affected);
-    size_t kept = 0;
-    for (uint32_t sv : affected) {
-      if (has_pieces(s, sv)) affected[kept++] = sv;
-    }
-    affected.resize(kept);
-  } else {
-    std::sort(changed.begin(), changed.end());
-    for (uint64_t c : changed) {
-      const uint32_t sv = uint32_t(c >> 32);
-      if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
-    }
+  std::sort(changed.begin(), changed.end());
+  for (uint64_t c : changed) {
+    const uint32_t sv = uint32_t(c >> 32);
+    if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
   }
 
-  if (!affected.empty()) {
-    ++s.revision;  // pieces, particles and masses change: the solver rebuilds its blocks
-    // The voxels whose pieces may change particles: the affected ones and their neighbours.
-    std::vector<uint32_t>& near = s.scratch_near;
-    near.clear();
-    for (uint32_t sv : affected) {
-      int32_t c[3];
-      sim_voxel_coords(s, sv, c);
-      for (int32_t dz = -1; dz <= 1; ++dz) {
-        for (int32_t dy = -1; dy <= 1; ++dy) {
-          for (int32_t dx = -1; dx <= 1; ++dx) {
-            if (!sim_in_range(s, c[0] + dx, c[1] + dy, c[2] + dz)) continue;
-            const uint32_t n = sim_voxel_id(s, c[0] + dx, c[1] + dy, c[2] + dz);
-            if (has_pieces(s, n)) near.push_back(n);
-          }
+  // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
+  // kSpanRatio locally from their changed fine voxels, else node by node. Before a voxel's pieces
+  // change, the pieces that may change particles with them (its own and its neighbours') are
+  // detached, remembering the particles they used; a voxel whose components did not change touches
+  // nothing.
+  std::vector<uint32_t>& near = s.scratch_near;
+  std::vector<uint32_t>& relabelled = s.scratch_relabelled;  // the voxels whose components changed
+  std::vector<uint64_t>& touched = s.scratch_corners;
+  std::vector<uint8_t>& detached = s.scratch_mark;  // (sim voxels) in `near`
+  near.clear();
+  relabelled.clear();
+  touched.clear();
+  if (!affected.empty()) detached.resize(s.pieces_in_voxel.size(), 0);
+  uint32_t pieces_touched = 0;
+  const auto detach_around = [&](uint32_t sv) {
+    relabelled.push_back(sv);
+    int32_t c[3];
+    sim_voxel_coords(s, sv, c);
+    for (int32_t dz = -1; dz <= 1; ++dz) {
+      for (int32_t dy = -1; dy <= 1; ++dy) {
+        for (int32_t dx = -1; dx <= 1; ++dx) {
+          if (!sim_in_range(s, c[0] + dx, c[1] + dy, c[2] + dz)) continue;
+          const uint32_t n = sim_voxel_id(s, c[0] + dx, c[1] + dy, c[2] + dz);
+          if (!has_pieces(s, n) || detached[n]) continue;
+          detached[n] = 1;
+          near.push_back(n);
+          for_pieces(s, n, [&](uint32_t slot) {
+            for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+            detach_piece(s, slot);
+            ++pieces_touched;
+          });
         }
       }
     }
-    sorted_unique(near);
-    // Detach their pieces (remembering the particles they used).
-    std::vector<uint64_t>& touched = s.scratch_corners;
-    touched.clear();
-    uint32_t pieces_touched = 0;
-    for (uint32_t sv : near) {
-      for_pieces(s, sv, [&](uint32_t slot) {
-        for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
-        detach_piece(s, slot);
-        ++pieces_touched;
-      });
-    }
-    // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
-    // kSpanRatio locally from their changed fine voxels, else node by node.
+  };
+  std::vector<uint32_t>& fine = s.scratch_parent;
+  for (size_t i = 0; i < changed.size();) {
+    const uint32_t sv = uint32_t(changed[i] >> 32);
+    fine.clear();
+    for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
+    if (!has_pieces(s, sv)) continue;
     if (spans) {
-      for (uint32_t sv : affected) relabel_spans(model, cut, s, sv, stats);
-      if (stats) stats->span_relabels += uint32_t(affected.size());
-    }
-    std::vector<uint32_t>& fine = s.scratch_parent;
-    for (size_t i = 0; i < changed.size();) {
-      const uint32_t sv = uint32_t(changed[i] >> 32);
-      fine.clear();
-      for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
-      if (!has_pieces(s, sv)) continue;
-      const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
-      if (!local) relabel_block(model, cut, s, sv);
-      if (stats) {
-        stats->nodes_searched += s.search.visited.size();
-        ++(local ? stats->local_relabels : stats->block_relabels);
+      // The joins the cut removed mostly reconnect next to it (a slit joined around its front).
+      if (keeps_components(model, cut, s, sv, fine.data(), fine.data() + fine.size())) {
+        if (stats) ++stats->kept_by_search;
+        continue;
       }
+      relabel_spans(model, cut, s, sv, stats, [&] { detach_around(sv); });
+      if (stats) ++stats->span_relabels;
+      continue;
     }
-    // Corner particles of the affected voxels.
+    detach_around(sv);
+    const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
+    if (!local) relabel_block(model, cut, s, sv);
+    if (stats) {
+      stats->nodes_searched += s.search.visited.size();
+      ++(local ? stats->local_relabels : stats->block_relabels);
+    }
+  }
+
+  if (!relabelled.empty()) {
+    ++s.revision;  // pieces, particles and masses change: the solver rebuilds its blocks
+    for (uint32_t n : near) detached[n] = 0;
+    sorted_unique(near);
+    sorted_unique(relabelled);
+    // Corner particles of the relabelled voxels.
     std::vector<uint64_t>& corners = s.scratch_corner_ids;
     corners.clear();
-    for (uint32_t sv : affected) {
+    for (uint32_t sv : relabelled) {
       int32_t c[3];
       sim_voxel_coords(s, sv, c);
       for (int q = 0; q < 8; ++q) corners.push_back(corner_id(s, c[0] + (q & 1), c[1] + ((q >> 1) & 1), c[2] + ((q >> 2) & 1)));
     }
     sorted_unique(corners);
-    forget_faces(s, affected);
+    forget_faces(s, relabelled);
     CornerMembers members;
     for (uint64_t id : corners) {
       int32_t I, J, K;
@@ -2177,6 +2326,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     if (stats) {
       stats->pieces_touched += pieces_touched;
       stats->corners += uint32_t(corners.size());
+      stats->components_changed += uint32_t(relabelled.size());
     }
     sorted_unique(touched);
     for (uint64_t p : touched) {
@@ -2193,7 +2343,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   for (uint32_t slot : cut.changed_vertices) {
     if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
-  record_edits(cut, s, affected, affected.empty() ? nullptr : &s.scratch_corners);  // for the caches
+  record_edits(cut, s, relabelled, relabelled.empty() ? nullptr : &touched);  // for the caches
   if (stats) stats->sim_voxels += uint32_t(affected.size());
   return uint32_t(affected.size());
 }

@@ -134,8 +134,7 @@ struct LocalSearch {
 // Scratch of the span relabelling (sim/pbd.cpp relabel_spans): a block's fine nodes as runs along x
 // ("spans", one 64-bit mask per node row), united across rows where material joins them.
 struct SpanScratch {
-  std::vector<uint64_t> inside;     // (node rows) inside nodes
-  std::vector<uint64_t> explicit_;  // (voxel rows) voxels joining corners diagonally: their own pieces join
+  std::vector<uint64_t> record;     // the cut record (sim/pbd.cpp record_rows) of a block without one
   std::vector<uint32_t> row_begin;  // (node rows + 1) first span of each row
   std::vector<uint64_t> mask;       // (spans) nodes of the span
   std::vector<uint32_t> parent;     // (spans) union-find
@@ -146,8 +145,11 @@ struct SpanScratch {
 // What one pbd_apply_cut did (counters for the benchmarks).
 struct PbdCutStats {
   uint32_t sim_voxels = 0;       // simulation voxels relabelled
+  uint32_t components_changed = 0;  // of those, whose material components changed (the others keep
+                                    // their pieces: no particle or constraint is touched)
   uint32_t local_relabels = 0;   // of those, relabelled by the local search
   uint32_t span_relabels = 0;    // by spans (the whole block, O(ratio^2) rows)
+  uint32_t kept_by_search = 0;   // shown unchanged by a search next to their cut (keeps_components)
   uint32_t block_relabels = 0;   // by the node-by-node labelling (ratio > 32)
   uint64_t nodes_searched = 0;   // fine nodes the local searches visited
   uint64_t spans = 0;            // spans the span relabels built
@@ -217,7 +219,7 @@ struct PbdModel {
   PbdParams params;
 
   // Scratch reused between cut steps (no allocation in steady state).
-  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots;
+  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots, scratch_relabelled;
   std::vector<uint8_t> scratch_labels, scratch_mark;
   std::vector<uint64_t> scratch_corners;
   FaceCache face_cache;
@@ -226,8 +228,9 @@ struct PbdModel {
   std::vector<uint64_t> scratch_changed, scratch_corner_ids;
   // Cuts per simulation voxel (ratio <= 32): its divided fine voxels (one 64-bit mask per (y, z)
   // voxel row) and its cut lattice edges (one mask per node row and axis), so a relabel finds the
-  // block's cuts without looking up each fine voxel.
-  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (ratio^2 + 3 (ratio+1)^2 rows)
+  // block's cuts without looking up each fine voxel; with the block's inside nodes and corner
+  // patterns per row (they never change), so it reads no node of the model either.
+  FlatMap cut_rows_of;              // sim voxel -> offset into cut_rows (3 ratio^2 + 4 (ratio+1)^2 rows)
   std::vector<uint64_t> cut_rows;
 
   // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver updates its constraint

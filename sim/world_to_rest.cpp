@@ -255,33 +255,59 @@ bool rest_through(const PbdState& pbd, const SweepMapper& m, uint32_t k, uint32_
   return true;
 }
 
+// How much farther from segment a-c than from segment a-b any point can be, when |c - a| >= |b - a|:
+// the nearest point a + t (b - a) of a-b has a + t |b - a| u' on a-c (u' the unit direction of c - a),
+// |b - a| |u - u'| away. Infinite when c is nearer to a than b (no bound needed then: strips grow).
+double extension_shift(const Vec3d& a, const Vec3d& b, const Vec3d& c) {
+  const double lb = (b - a).norm(), lc = (c - a).norm();
+  if (!(lc >= lb)) return std::numeric_limits<double>::infinity();
+  if (lb == 0.0) return 0.0;
+  return lb * ((b - a) / lb - (c - a) / lc).norm();
+}
+
 // Appends a cell's quad, merged into a quad of the previous cell of its row (quads[prev_first,
 // prev_last) of m.cell_quads) that it continues: the same blade motion edge (joined within 1e-6 h)
 // and the merged quad's blade edges still straight (every junction within 0.02 h). Cells through
 // several pieces (a piece boundary along the sweep) continue their own strips, each piece's.
-// Returns the quad it went to.
+// Returns the quad it went to. The junctions are measured again only when the bound of their
+// distances (m.joint_bound, grown by each extension's extension_shift) does not show them within
+// 0.02 h by a wide margin: a straight strip costs one test per cell, not one per junction, and the
+// decisions are those of measuring every junction.
 uint32_t emit_quad(const RestQuad& q, double h, SweepMapper& m, size_t prev_first, size_t prev_last) {
-  const double join = 1e-6 * h, straight = 0.02 * h;
+  const double join = 1e-6 * h, straight = 0.02 * h, sure = straight * (1.0 - 1e-6);
   for (size_t c = prev_first; c < prev_last; ++c) {
     const uint32_t o = m.cell_quads[c];
     RestQuad& last = m.quads[o];
     if (!near_point(last.from.b, q.from.a, join) || !near_point(last.to.b, q.to.a, join)) continue;
     // Every junction of the strip must stay on the merged strip's edges.
-    bool ok = segment_distance(q.from.a, last.from.a, q.from.b) <= straight &&
-              segment_distance(q.to.a, last.to.a, q.to.b) <= straight;
-    for (uint32_t x = m.joint_head[o]; x != kDeadIndex && ok; x = m.joints[x].next) {
-      ok = segment_distance(m.joints[x].a, last.from.a, q.from.b) <= straight &&
-           segment_distance(m.joints[x].b, last.to.a, q.to.b) <= straight;
+    const double from_new = segment_distance(q.from.a, last.from.a, q.from.b);
+    const double to_new = segment_distance(q.to.a, last.to.a, q.to.b);
+    bool ok = from_new <= straight && to_new <= straight;
+    if (!ok) continue;
+    double from_bound = m.joint_bound[2 * o] + extension_shift(last.from.a, last.from.b, q.from.b);
+    double to_bound = m.joint_bound[2 * o + 1] + extension_shift(last.to.a, last.to.b, q.to.b);
+    if (!(from_bound <= sure && to_bound <= sure)) {
+      from_bound = to_bound = 0.0;
+      for (uint32_t x = m.joint_head[o]; x != kDeadIndex && ok; x = m.joints[x].next) {
+        const double df = segment_distance(m.joints[x].a, last.from.a, q.from.b);
+        const double dt = df <= straight ? segment_distance(m.joints[x].b, last.to.a, q.to.b) : 0.0;
+        ok = df <= straight && dt <= straight;
+        from_bound = std::max(from_bound, df);
+        to_bound = std::max(to_bound, dt);
+      }
     }
     if (!ok) continue;
     m.joints.push_back({q.from.a, q.to.a, m.joint_head[o]});
     m.joint_head[o] = uint32_t(m.joints.size() - 1);
+    m.joint_bound[2 * o] = std::max(from_bound, from_new) * (1.0 + 1e-12);
+    m.joint_bound[2 * o + 1] = std::max(to_bound, to_new) * (1.0 + 1e-12);
     last.from.b = q.from.b;
     last.to.b = q.to.b;
     return o;
   }
   m.quads.push_back(q);
   m.joint_head.push_back(kDeadIndex);
+  m.joint_bound.resize(2 * m.quads.size(), 0.0);
   return uint32_t(m.quads.size() - 1);
 }
 
@@ -383,6 +409,7 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
   m.rungs.clear();
   m.merged_away.clear();
   m.joint_head.clear();
+  m.joint_bound.clear();
   if (motion > 1e-9 * h) {
     for (uint32_t j = 0; j < nv; ++j) {
       const size_t row_first = m.quads.size();

@@ -113,6 +113,9 @@ struct SweepMapper {
   };
   std::vector<uint32_t> cell_quads, joint_head;
   std::vector<Joint> joints;
+  // (quads x 2) upper bounds of the distances of a quad's junctions from its blade edges (from, to):
+  // a strip that stays straight is extended without measuring each junction again.
+  std::vector<double> joint_bound;
   std::vector<uint32_t> open, next_open;
   std::vector<Rung> rungs;
   std::vector<uint8_t> merged_away;

@@ -60,20 +60,21 @@ TEST_SUITE("pbd") {
     MESSAGE("skipped under ThreadSanitizer: its runtime owns operator new");
     return;
 #endif
-    // A block 1 x 2 x 1 at 64 with 8 simulation voxels along y (8^3 fine voxels each), cut along a
-    // slanted plane in 160 steps: every step relabels the blocks the blade crosses.
+    // A block 1 x 2 x 1 at 64 with 8 simulation voxels along y (8^3 fine voxels each), cut along four
+    // slanted planes in 45 steps each (about a fine voxel per step): every step in the material gives
+    // fine voxels new cut edges and relabels the blocks holding them.
     const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1);
     dvx_test::PbdScene s;
     dvx_test::make_pbd_scene(s, box, 64, 8, PbdParams{});
-    const int steps = 160;
-    BladePose previous{Vec3d(-0.7, 0.1, -2), Vec3d(-0.7, 0.1, 2)};
+    const int steps = 45;
     uint64_t total = 0;
     int allocating = 0, cutting = 0;
-    for (int i = 1; i <= steps; ++i) {
-      const double x = -0.7 + 1.4 * i / steps;
-      const BladePose next{Vec3d(x, 0.1 + 0.3 * x, -2), Vec3d(x, 0.1 + 0.3 * x, 2)};
+    for (int i = 1; i <= 4 * steps; ++i) {
+      const double height = -0.6 + 0.35 * ((i - 1) / steps);
+      const double x0 = -0.7 + 1.4 * ((i - 1) % steps) / steps, x = x0 + 1.4 / steps;
+      const BladePose previous{Vec3d(x0, height + 0.3 * x0, -2), Vec3d(x0, height + 0.3 * x0, 2)};
+      const BladePose next{Vec3d(x, height + 0.3 * x, -2), Vec3d(x, height + 0.3 * x, 2)};
       cut_step(s.model, s.cut, previous, next);
-      previous = next;
       PbdCutStats stats;
       g_allocations = 0;
       g_counting = true;
