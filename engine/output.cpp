@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 
@@ -36,6 +37,8 @@ void write_cut_mesh_ply(const std::string& path, const CutSurface& surface, cons
   std::vector<uint32_t> index(surface.positions.size(), kDeadIndex);
   std::string vertices, faces;
   uint32_t vertex_count = 0, face_count = 0;
+  vertices.reserve(surface.positions.size() * 3 * sizeof(float));
+  faces.reserve(surface.triangles.size() * (2 + 3 * sizeof(int32_t)));
   for (uint32_t slot = 0; slot < surface.positions.size(); ++slot) {
     if (surface.vertex_piece[slot] == CutSurface::kFreeKey) continue;
     index[slot] = vertex_count++;
@@ -46,12 +49,15 @@ void write_cut_mesh_ply(const std::string& path, const CutSurface& surface, cons
     const Tri& tri = surface.triangles[t];
     if (tri[0] == kDeadIndex) continue;
     const uint8_t three = 3, cut = t < surface.triangle_cut.size() && surface.triangle_cut[t] ? 1 : 0;
-    faces.push_back(char(three));
-    for (uint32_t v : tri) {
-      const int32_t i = int32_t(index[v]);
-      faces.append(reinterpret_cast<const char*>(&i), sizeof(i));
+    // count, three indices, cut flag: 14 bytes, packed as the header declares.
+    char face[2 + 3 * sizeof(int32_t)];
+    face[0] = char(three);
+    for (int k = 0; k < 3; ++k) {
+      const int32_t i = int32_t(index[tri[k]]);
+      std::memcpy(face + 1 + k * sizeof(i), &i, sizeof(i));
     }
-    faces.push_back(char(cut));
+    face[sizeof(face) - 1] = char(cut);
+    faces.append(face, sizeof(face));
     ++face_count;
   }
   const std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(vertex_count) +

@@ -275,11 +275,10 @@ FrameSamples write_frame_timings(const std::vector<FrameRow>& frames, const std:
   return samples;
 }
 
-// The final surface: its checks on the rest-space surface, the deformed one for final.ply, and the
-// count of non-finite values in both (and in the particles).
+// The final surface's checks on the rest-space surface, and the count of non-finite values in it and
+// in the particles (final.ply itself is written from the cut surface, as the --meshes files are).
 struct FinalSurface {
   SurfaceStats stats;
-  SurfaceMesh deformed;
   uint64_t nonfinite = 0;
 };
 FinalSurface final_surface(const Session& session) {
@@ -287,18 +286,7 @@ FinalSurface final_surface(const Session& session) {
   const SurfaceMesh rest = compact_surface(session.cut.surface);
   f.stats = surface_stats(rest);
   for (const Vec3f& p : rest.positions) f.nonfinite += p.allFinite() ? 0 : 1;
-  f.deformed = rest;
-  if (const PbdState* pbd = session.pbd.get()) {
-    f.nonfinite += count_nonfinite(*pbd);
-    // compact_surface keeps the live slots in order: the k-th live slot is vertex k.
-    const CutSurface& surface = session.cut.surface;
-    size_t k = 0;
-    for (size_t slot = 0; slot < surface.positions.size(); ++slot) {
-      if (surface.vertex_piece[slot] == CutSurface::kFreeKey) continue;
-      if (slot < pbd->deformed.size()) f.deformed.positions[k] = pbd->deformed[slot];
-      ++k;
-    }
-  }
+  if (const PbdState* pbd = session.pbd.get()) f.nonfinite += count_nonfinite(*pbd);
   return f;
 }
 
@@ -433,7 +421,8 @@ ReplayResult run_replay(const ReplayOptions& options) {
   const FinalSurface final = final_surface(session);
   const PhaseSamples phases = write_timings_csv(run.rows, session.pbd != nullptr, out);
   const FrameSamples frame_samples = write_frame_timings(frames, out);
-  save_ply((out / "final.ply").string(), final.deformed);
+  // The same binary PLY as the --meshes files (world space, cut faces marked).
+  write_cut_mesh_ply((out / "final.ply").string(), session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr);
   if (!plotter.finish(plot_error)) std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", plot_error.c_str());
   run.wall_s = std::chrono::duration<double>(Clock::now() - start).count();  // the steps and the outputs
   result.summary_path = (out / "summary.json").string();
