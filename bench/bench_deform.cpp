@@ -94,11 +94,19 @@ double relative_error(const CutState& cut, const PbdState& run, const PbdState& 
   return den > 0.0 ? std::sqrt(num / den) : 0.0;
 }
 
+// The kernel paths this CPU has (pbd_kernels.h: the same bits on each), by name.
+std::vector<std::pair<KernelIsa, const char*>> kernel_paths() {
+  std::vector<std::pair<KernelIsa, const char*>> paths = {{KernelIsa::kBaseline, "baseline"}};
+  if (kernel_isa() >= KernelIsa::kAvx2) paths.emplace_back(KernelIsa::kAvx2, "avx2");
+  if (kernel_isa() >= KernelIsa::kAvx512) paths.emplace_back(KernelIsa::kAvx512, "avx512");
+  return paths;
+}
+
 // The shape-matching kernel before and after issue 17 in one run, on a settled state of `pbd`:
 // passes over every cluster, colour by colour, with the scalar kernel (solve_shape_matching from a
-// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_blocks) from the
-// same start. Both must end on the same bits (checked: "identical"); time per cluster solve, the
-// fastest pass of `repeats`.
+// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_blocks) on each
+// kernel path the CPU has (the solver's is the last, the best), from the same start. All must end on
+// the same bits (checked: "identical"); time per cluster solve, the fastest pass of `repeats`.
 nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
   const std::vector<Vec3d> start = pbd.position;
   const std::vector<Eigen::Quaterniond> rotations = pbd.rotation;
@@ -113,14 +121,15 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
       clusters += shape_matching_rest(pbd.inv_mass.data(), pbd.pieces[slot].particles, rest, 8, frames[slot]) ? 1 : 0;
     }
   }
-  // One pass over every cluster; returns its time (ms).
-  const auto pass = [&](bool blocks) {
+  const std::vector<std::pair<KernelIsa, const char*>> paths = kernel_paths();
+  // One pass over every cluster, scalar (path < 0) or by the blocks on paths[path]; returns its time (ms).
+  const auto pass = [&](int path) {
     double* x = pbd.position[0].data();
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kColourGroups; ++c) {
-      if (blocks) {
-        solve_shape_blocks(x, pbd.shape_blocks[c].data(), 0, uint32_t(pbd.shape_blocks[c].size()), 1.0,
-                           pbd.rotation.data());
+      if (path >= 0) {
+        solve_shape_blocks(paths[size_t(path)].first, x, pbd.shape_blocks[c].data(), 0,
+                           uint32_t(pbd.shape_blocks[c].size()), 1.0, pbd.rotation.data());
         continue;
       }
       for (const uint32_t slot : pbd.piece_groups[c]) {
@@ -129,51 +138,76 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     }
     return ms_between(t0, Clock::now());
   };
-  double best[2] = {1e300, 1e300};
-  std::vector<Vec3d> end[2];
-  for (const bool blocks : {false, true}) {
+  const double per = 1e6 / double(std::max<uint64_t>(1, clusters));  // ms -> ns per cluster
+  double scalar_ms = 1e300;
+  bool identical = true;
+  std::vector<Vec3d> scalar_end;
+  nlohmann::json by_path = nlohmann::json::object();
+  double blocks_ms = 1e300;
+  for (int path = -1; path < int(paths.size()); ++path) {
     pbd.position = start;
     pbd.rotation = rotations;
-    for (int r = 0; r < repeats; ++r) best[blocks] = std::min(best[blocks], pass(blocks));
-    end[blocks] = pbd.position;
+    double best = 1e300;
+    for (int r = 0; r < repeats; ++r) best = std::min(best, pass(path));
+    if (path < 0) {
+      scalar_ms = best;
+      scalar_end = pbd.position;
+    } else {
+      identical = identical && pbd.position == scalar_end;
+      by_path[paths[size_t(path)].second] = best * per;
+      blocks_ms = best;  // the last path is the solver's
+    }
   }
   pbd.position = start;
   pbd.rotation = rotations;
-  const double per = 1e6 / double(std::max<uint64_t>(1, clusters));  // ms -> ns per cluster
 
-  // The stretch rows the same way: one by one (the solver's rows before) and four at a time in the
-  // colour groups (solve_stretch_rows with disjoint groups), from the same start and multipliers.
+  // The stretch rows the same way: one by one (the solver's rows before) and by the vector rows of
+  // each path in the colour groups (solve_stretch_rows with disjoint groups), from the same start and
+  // multipliers.
   uint64_t constraints = 0;
   for (int c = 0; c < kOverflowColour; ++c) constraints += pbd.stretch_rows[c].size();
   const double alpha = pbd.params.stretch_compliance / (pbd.params.dt * pbd.params.dt);
-  const auto stretch_pass = [&](bool four, std::vector<std::vector<double>>& lambdas) {
+  const auto stretch_pass = [&](int path, std::vector<std::vector<double>>& lambdas) {
     double* x = pbd.position[0].data();
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kOverflowColour; ++c) {
-      solve_stretch_rows(x, pbd.stretch_rows[c].data(), lambdas[c].data(), 0, uint32_t(pbd.stretch_rows[c].size()),
-                         alpha, four);
+      solve_stretch_rows(path < 0 ? KernelIsa::kBaseline : paths[size_t(path)].first, x, pbd.stretch_rows[c].data(),
+                         lambdas[c].data(), 0, uint32_t(pbd.stretch_rows[c].size()), alpha, path >= 0);
     }
     return ms_between(t0, Clock::now());
   };
-  double stretch_best[2] = {1e300, 1e300};
-  std::vector<Vec3d> stretch_end[2];
-  for (const bool four : {false, true}) {
+  const double per_row = 1e6 / double(std::max<uint64_t>(1, constraints));
+  double rows_ms = 1e300, vector_ms = 1e300;
+  bool stretch_identical = true;
+  std::vector<Vec3d> rows_end;
+  nlohmann::json stretch_by_path = nlohmann::json::object();
+  for (int path = -1; path < int(paths.size()); ++path) {
     pbd.position = start;
     std::vector<std::vector<double>> lambdas(kColourGroups);
     for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.stretch_rows[c].size(), 0.0);
-    for (int r = 0; r < repeats; ++r) stretch_best[four] = std::min(stretch_best[four], stretch_pass(four, lambdas));
-    stretch_end[four] = pbd.position;
+    double best = 1e300;
+    for (int r = 0; r < repeats; ++r) best = std::min(best, stretch_pass(path, lambdas));
+    if (path < 0) {
+      rows_ms = best;
+      rows_end = pbd.position;
+    } else {
+      stretch_identical = stretch_identical && pbd.position == rows_end;
+      stretch_by_path[paths[size_t(path)].second] = best * per_row;
+      vector_ms = best;
+    }
   }
   pbd.position = start;
-  const double per_row = 1e6 / double(std::max<uint64_t>(1, constraints));
   return {{"clusters", clusters},
           {"repeats", repeats},
-          {"shape_matching", {{"scalar_ns", best[0] * per}, {"blocks_ns", best[1] * per},
-                              {"speedup", best[1] > 0.0 ? best[0] / best[1] : 0.0}, {"identical", end[0] == end[1]}}},
+          {"path", paths.back().second},
+          {"shape_matching", {{"scalar_ns", scalar_ms * per}, {"blocks_ns", blocks_ms * per},
+                              {"blocks_ns_by_path", by_path},
+                              {"speedup", blocks_ms > 0.0 ? scalar_ms / blocks_ms : 0.0}, {"identical", identical}}},
           {"stretch_constraints", constraints},
-          {"stretch", {{"rows_ns", stretch_best[0] * per_row}, {"rows4_ns", stretch_best[1] * per_row},
-                       {"speedup", stretch_best[1] > 0.0 ? stretch_best[0] / stretch_best[1] : 0.0},
-                       {"identical", stretch_end[0] == stretch_end[1]}}}};
+          {"stretch", {{"rows_ns", rows_ms * per_row}, {"vector_ns", vector_ms * per_row},
+                       {"vector_ns_by_path", stretch_by_path},
+                       {"speedup", vector_ms > 0.0 ? rows_ms / vector_ms : 0.0},
+                       {"identical", stretch_identical}}}};
 }
 
 }  // namespace
