@@ -137,7 +137,6 @@ typedef double V2 __attribute__((vector_size(16)));
 typedef double V4u __attribute__((vector_size(32), aligned(8), may_alias));
 typedef double V8u __attribute__((vector_size(64), aligned(8), may_alias));
 typedef int64_t M4u __attribute__((vector_size(32), aligned(8), may_alias));
-typedef uint8_t B8 __attribute__((vector_size(8)));
 struct LaneMasks {
   int64_t mask[16][4];
   constexpr LaneMasks() : mask() {
