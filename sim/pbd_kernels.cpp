@@ -6,14 +6,19 @@
 #include <cstddef>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 
 #if defined(__x86_64__)
 // GCC 12 warns inside its own AVX-512 intrinsics (the `__Y = __Y` of _mm512_undefined_pd: GCC bug
 // 105593, fixed in 13).
+#if !defined(__clang__)
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 #include <immintrin.h>
+#if !defined(__clang__)
 #pragma GCC diagnostic pop
+#endif
 #endif
 
 namespace dvx {
@@ -129,6 +134,10 @@ static_assert(kShapeLanes == 8, "a block is one V8, or two V4 halves");
 // Lanes of a vector type.
 template <class V>
 constexpr int kWidth = int(sizeof(V) / sizeof(double));
+// The lane mask type of a vector type (spelled out: clang's comparisons give vectors of long long,
+// GCC's of long).
+template <class V>
+using MaskOf = std::conditional_t<sizeof(V) == sizeof(V8), M8, M4>;
 // Particle slots of a cluster.
 constexpr int kS = kShapeMaxParticles;
 
@@ -152,19 +161,27 @@ alignas(32) constexpr LaneMasks kLaneMasks;
 namespace lanes {
 #include "sim/pbd_kernels_lanes.inc"
 }  // namespace lanes
+// (clang lowers vector operations only after inlining: it needs no target regions, and has no
+// `#pragma GCC target`.)
 #if defined(__x86_64__)
+#if !defined(__clang__)
 #pragma GCC push_options
 #pragma GCC target("avx2")
+#endif
 namespace avx2_lanes {
 #include "sim/pbd_kernels_lanes.inc"
 }  // namespace avx2_lanes
+#if !defined(__clang__)
 #pragma GCC pop_options
 #pragma GCC push_options
 #pragma GCC target("avx512f,avx512dq,avx512vl,avx512bw")
+#endif
 namespace avx512_lanes {
 #include "sim/pbd_kernels_lanes.inc"
 }  // namespace avx512_lanes
+#if !defined(__clang__)
 #pragma GCC pop_options
+#endif
 #endif
 
 // Centre and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0) need,
@@ -502,12 +519,10 @@ DVX_AVX512_PATH void stretch_rows_avx512(double* x, const StretchRow* rows, doub
     const __m512d nbx = _mm512_mask_sub_pd(bx, valid, bx, _mm512_mul_pd(sj, d0));
     const __m512d nby = _mm512_mask_sub_pd(by, valid, by, _mm512_mul_pd(sj, d1));
     const __m512d nbz = _mm512_mask_sub_pd(bz, valid, bz, _mm512_mul_pd(sj, d2));
-    for (int h = 0; h < 2; ++h) {
-      scatter4(pa + 4 * h, _mm512_extractf64x4_pd(nax, h), _mm512_extractf64x4_pd(nay, h),
-               _mm512_extractf64x4_pd(naz, h));
-      scatter4(pb + 4 * h, _mm512_extractf64x4_pd(nbx, h), _mm512_extractf64x4_pd(nby, h),
-               _mm512_extractf64x4_pd(nbz, h));
-    }
+    scatter4(pa, _mm512_castpd512_pd256(nax), _mm512_castpd512_pd256(nay), _mm512_castpd512_pd256(naz));
+    scatter4(pb, _mm512_castpd512_pd256(nbx), _mm512_castpd512_pd256(nby), _mm512_castpd512_pd256(nbz));
+    scatter4(pa + 4, _mm512_extractf64x4_pd(nax, 1), _mm512_extractf64x4_pd(nay, 1), _mm512_extractf64x4_pd(naz, 1));
+    scatter4(pb + 4, _mm512_extractf64x4_pd(nbx, 1), _mm512_extractf64x4_pd(nby, 1), _mm512_extractf64x4_pd(nbz, 1));
   }
   stretch_rows_avx2(x, rows, lambda, i, end, alpha);
 }
