@@ -129,7 +129,7 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     for (int c = 0; c < kColourGroups; ++c) {
       if (path >= 0) {
         solve_shape_blocks(paths[size_t(path)].first, x, pbd.shape_blocks[c].data(), 0,
-                           uint32_t(pbd.shape_blocks[c].size()), 1.0, pbd.rotation.data());
+                           uint32_t(pbd.shape_blocks[c].size()), 1.0, pbd.rotation.data(), c != kOverflowColour);
         continue;
       }
       for (const uint32_t slot : pbd.piece_groups[c]) {

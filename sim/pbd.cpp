@@ -2453,7 +2453,9 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       }
       case StepBatch::kShape:
-        solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data());
+        // Two blocks at once where a colour shares no particle (pbd_kernels.h); the overflow's in order.
+        solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data(),
+                           b.index != kOverflowColour);
         break;
       case StepBatch::kGrab:
         solve_grab(s, h, grab_lambda);

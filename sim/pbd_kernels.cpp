@@ -654,40 +654,40 @@ void shape_block_add(ShapeBlock& b, uint32_t piece, const uint32_t* indices, con
 namespace {
 
 void shape_blocks_baseline(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
-                           Quaterniond* rotations) {
-  lanes::shape_blocks_lanes<V4>(x, blocks, begin, end, stiffness, rotations);
+                           Quaterniond* rotations, bool disjoint) {
+  lanes::shape_blocks_lanes<V4>(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
 #if defined(__x86_64__)
 DVX_AVX2_PATH void shape_blocks_avx2(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
-                                     double stiffness, Quaterniond* rotations) {
-  avx2_lanes::shape_blocks_lanes<V4>(x, blocks, begin, end, stiffness, rotations);
+                                     double stiffness, Quaterniond* rotations, bool disjoint) {
+  avx2_lanes::shape_blocks_lanes<V4>(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
 DVX_AVX512_PATH void shape_blocks_avx512(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
-                                         double stiffness, Quaterniond* rotations) {
-  avx512_lanes::shape_blocks_lanes<V8>(x, blocks, begin, end, stiffness, rotations);
+                                         double stiffness, Quaterniond* rotations, bool disjoint) {
+  avx512_lanes::shape_blocks_lanes<V8>(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 #endif
 
 }  // namespace
 
 void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
-                        double stiffness, Quaterniond* rotations) {
+                        double stiffness, Quaterniond* rotations, bool disjoint) {
 #if defined(__x86_64__)
-  if (isa == KernelIsa::kAvx512) return shape_blocks_avx512(x, blocks, begin, end, stiffness, rotations);
-  if (isa == KernelIsa::kAvx2) return shape_blocks_avx2(x, blocks, begin, end, stiffness, rotations);
+  if (isa == KernelIsa::kAvx512) return shape_blocks_avx512(x, blocks, begin, end, stiffness, rotations, disjoint);
+  if (isa == KernelIsa::kAvx2) return shape_blocks_avx2(x, blocks, begin, end, stiffness, rotations, disjoint);
 #endif
-  shape_blocks_baseline(x, blocks, begin, end, stiffness, rotations);
+  shape_blocks_baseline(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
 void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
-                        Quaterniond* rotations) {
-  solve_shape_blocks(kernel_isa(), x, blocks, begin, end, stiffness, rotations);
+                        Quaterniond* rotations, bool disjoint) {
+  solve_shape_blocks(kernel_isa(), x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
 void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
-  solve_shape_blocks(x, &b, 0, 1, stiffness, rotations);
+  solve_shape_blocks(x, &b, 0, 1, stiffness, rotations, false);
 }
 
 void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* indices, const double* rest, int count,

@@ -199,11 +199,14 @@ void shape_block_add(ShapeBlock& block, uint32_t piece, const uint32_t* indices,
 // do not move with the bits they had (so a block touches only its own particles, as before).
 void solve_shape_block(double* x, const ShapeBlock& block, double stiffness, Eigen::Quaterniond* rotations);
 
-// Blocks [begin, end) one after the other (solve_shape_block on each in turn, one call).
+// Blocks [begin, end): the result of solve_shape_block on each in turn, in one call. `disjoint`: no
+// two of the blocks share a particle (one colour group), so the AVX-512 path solves two blocks at
+// once (their rotation steps side by side); otherwise (the overflow colour's blocks) one after the
+// other. The same bits either way.
 void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
-                        Eigen::Quaterniond* rotations);
+                        Eigen::Quaterniond* rotations, bool disjoint = false);
 // The same on a named path (at most kernel_isa(): one this CPU has).
 void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
-                        double stiffness, Eigen::Quaterniond* rotations);
+                        double stiffness, Eigen::Quaterniond* rotations, bool disjoint);
 
 }  // namespace dvx

@@ -554,7 +554,7 @@ TEST_SUITE("pbd_kernels") {
         CHECK(block.lanes == lanes);
         for (int solve = 0; solve < 4; ++solve) {
           const double stiffness = solve % 2 ? 1.0 : 0.6;
-          solve_shape_blocks(isa, x.data(), &block, 0, 1, stiffness, rotations.data());
+          solve_shape_blocks(isa, x.data(), &block, 0, 1, stiffness, rotations.data(), trial % 2 == 0);
           for (int cl = 0; cl < lanes; ++cl)
             solve_shape_matching(x_scalar.data(), indices[cl].data(), frames[cl], stiffness, rotations_scalar[cl], 0);
           for (size_t k = 0; k < x.size(); ++k) REQUIRE(x[k] == x_scalar[k]);
@@ -573,17 +573,19 @@ TEST_SUITE("pbd_kernels") {
     }
   }
 
-  // A range of blocks in one call against the scalar path cluster by cluster in order, on every
-  // kernel path: full blocks of one colour (no shared particle) with anchored particles, then
-  // one-cluster blocks that share particles (the overflow colour's), whose solves must follow one
-  // another.
+  // A range of blocks against the scalar path cluster by cluster in order, on every kernel path:
+  // three blocks of one colour (no shared particle; the last with 1 to 8 clusters) with anchored
+  // particles, then one-cluster blocks that share particles (the overflow colour's), whose solves
+  // must follow one another. The colour's blocks are solved as disjoint (two at once on the AVX-512
+  // path, an odd one alone) and, every other solve, with the rest in one call as not disjoint.
   TEST_CASE("solve_shape_blocks over a range equals the scalar solves in order, also with shared particles") {
     for (const KernelIsa isa : kernel_paths()) {
       CAPTURE(int(isa));
       Rng rng(49);
       for (int trial = 0; trial < 40; ++trial) {
         const int kFull = 3, kShared = 3;
-        const int clusters = kShapeLanes * kFull + kShared;
+        const int colour = kShapeLanes * kFull - trial % kShapeLanes;  // clusters in the colour's blocks
+        const int clusters = colour + kShared;
         std::vector<double> x(3 * 8 * clusters), rest(3 * 8 * clusters), inv_mass(8 * clusters);
         std::vector<std::array<uint32_t, 8>> indices(clusters);
         for (int cl = 0; cl < clusters; ++cl) {
@@ -591,7 +593,7 @@ TEST_SUITE("pbd_kernels") {
           const Vector3d shift = rng.vec(-1, 1);
           for (int c = 0; c < 8; ++c) {
             // The shared clusters take their first four particles from the previous cluster.
-            const bool shared = cl > kShapeLanes * kFull && c < 4;
+            const bool shared = cl > colour && c < 4;
             const uint32_t i = shared ? indices[cl - 1][c + 4] : uint32_t(8 * cl + (c * 3) % 8);
             indices[cl][c] = i;
             const Vector3d q = 0.1 * Vector3d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
@@ -605,14 +607,19 @@ TEST_SUITE("pbd_kernels") {
         std::vector<ShapeRest> frames(clusters);
         for (int cl = 0; cl < clusters; ++cl) {
           REQUIRE(shape_matching_rest(inv_mass.data(), indices[cl].data(), &rest[24 * cl], 8, frames[cl]));
-          shape_block_add(blocks[cl < kShapeLanes * kFull ? cl / kShapeLanes : kFull + cl - kShapeLanes * kFull],
-                          uint32_t(cl), indices[cl].data(), frames[cl]);
+          shape_block_add(blocks[cl < colour ? cl / kShapeLanes : kFull + cl - colour], uint32_t(cl),
+                          indices[cl].data(), frames[cl]);
         }
         std::vector<Quaterniond> rotations(clusters, Quaterniond::Identity());
         std::vector<double> x_scalar = x;
         std::vector<Quaterniond> rotations_scalar = rotations;
-        for (int solve = 0; solve < 3; ++solve) {
-          solve_shape_blocks(isa, x.data(), blocks.data(), 0, uint32_t(blocks.size()), 0.8, rotations.data());
+        for (int solve = 0; solve < 4; ++solve) {
+          if (solve % 2 == 0) {
+            solve_shape_blocks(isa, x.data(), blocks.data(), 0, kFull, 0.8, rotations.data(), true);
+            solve_shape_blocks(isa, x.data(), blocks.data(), kFull, kFull + kShared, 0.8, rotations.data(), false);
+          } else {
+            solve_shape_blocks(isa, x.data(), blocks.data(), 0, uint32_t(blocks.size()), 0.8, rotations.data(), false);
+          }
           for (int cl = 0; cl < clusters; ++cl)
             solve_shape_matching(x_scalar.data(), indices[cl].data(), frames[cl], 0.8, rotations_scalar[cl], 0);
           for (size_t k = 0; k < x.size(); ++k) REQUIRE(x[k] == x_scalar[k]);
