@@ -95,11 +95,42 @@ double relative_error(const CutState& cut, const PbdState& run, const PbdState& 
 }
 
 // The kernel paths this CPU has (pbd_kernels.h: the same bits on each), by name.
-std::vector<std::pair<KernelIsa, const char*>> kernel_paths() {
-  std::vector<std::pair<KernelIsa, const char*>> paths = {{KernelIsa::kBaseline, "baseline"}};
+typedef std::vector<std::pair<KernelIsa, const char*>> KernelPaths;
+KernelPaths kernel_paths() {
+  KernelPaths paths = {{KernelIsa::kBaseline, "baseline"}};
   if (kernel_isa() >= KernelIsa::kAvx2) paths.emplace_back(KernelIsa::kAvx2, "avx2");
   if (kernel_isa() >= KernelIsa::kAvx512) paths.emplace_back(KernelIsa::kAvx512, "avx512");
   return paths;
+}
+
+// A kernel timed on its scalar reference and on each path: the fastest pass of each (ms), ns per
+// item on each path, and whether every path ended on the reference's positions.
+struct PathTimes {
+  double reference_ms = 1e300, solver_ms = 1e300;  // the scalar reference; the last path (the solver's)
+  bool identical = true;
+  nlohmann::json ns_by_path = nlohmann::json::object();
+};
+
+// `pass(path)` (-1: the scalar reference, else paths[path]) `repeats` times after `reset()`, per path.
+template <class Reset, class Pass>
+PathTimes time_paths(const PbdState& pbd, const KernelPaths& paths, int repeats, double ns_per_ms, Reset reset,
+                     Pass pass) {
+  PathTimes t;
+  std::vector<Vec3d> reference_end;
+  for (int path = -1; path < int(paths.size()); ++path) {
+    reset();
+    double best = 1e300;
+    for (int r = 0; r < repeats; ++r) best = std::min(best, pass(path));
+    if (path < 0) {
+      t.reference_ms = best;
+      reference_end = pbd.position;
+      continue;
+    }
+    t.identical = t.identical && pbd.position == reference_end;
+    t.ns_by_path[paths[size_t(path)].second] = best * ns_per_ms;
+    t.solver_ms = best;
+  }
+  return t;
 }
 
 // The shape-matching kernel before and after issue 17 in one run, on a settled state of `pbd`:
@@ -121,7 +152,7 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
       clusters += shape_matching_rest(pbd.inv_mass.data(), pbd.pieces[slot].particles, rest, 8, frames[slot]) ? 1 : 0;
     }
   }
-  const std::vector<std::pair<KernelIsa, const char*>> paths = kernel_paths();
+  const KernelPaths paths = kernel_paths();
   // One pass over every cluster, scalar (path < 0) or by the blocks on paths[path]; returns its time (ms).
   const auto pass = [&](int path) {
     double* x = pbd.position[0].data();
@@ -139,25 +170,13 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     return ms_between(t0, Clock::now());
   };
   const double per = 1e6 / double(std::max<uint64_t>(1, clusters));  // ms -> ns per cluster
-  double scalar_ms = 1e300;
-  bool identical = true;
-  std::vector<Vec3d> scalar_end;
-  nlohmann::json by_path = nlohmann::json::object();
-  double blocks_ms = 1e300;
-  for (int path = -1; path < int(paths.size()); ++path) {
-    pbd.position = start;
-    pbd.rotation = rotations;
-    double best = 1e300;
-    for (int r = 0; r < repeats; ++r) best = std::min(best, pass(path));
-    if (path < 0) {
-      scalar_ms = best;
-      scalar_end = pbd.position;
-    } else {
-      identical = identical && pbd.position == scalar_end;
-      by_path[paths[size_t(path)].second] = best * per;
-      blocks_ms = best;  // the last path is the solver's
-    }
-  }
+  const PathTimes shape = time_paths(
+      pbd, paths, repeats, per,
+      [&] {
+        pbd.position = start;
+        pbd.rotation = rotations;
+      },
+      pass);
   pbd.position = start;
   pbd.rotation = rotations;
 
@@ -167,7 +186,8 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
   uint64_t constraints = 0;
   for (int c = 0; c < kOverflowColour; ++c) constraints += pbd.stretch_rows[c].size();
   const double alpha = pbd.params.stretch_compliance / (pbd.params.dt * pbd.params.dt);
-  const auto stretch_pass = [&](int path, std::vector<std::vector<double>>& lambdas) {
+  std::vector<std::vector<double>> lambdas(kColourGroups);
+  const auto stretch_pass = [&](int path) {
     double* x = pbd.position[0].data();
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kOverflowColour; ++c) {
@@ -177,37 +197,30 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     return ms_between(t0, Clock::now());
   };
   const double per_row = 1e6 / double(std::max<uint64_t>(1, constraints));
-  double rows_ms = 1e300, vector_ms = 1e300;
-  bool stretch_identical = true;
-  std::vector<Vec3d> rows_end;
-  nlohmann::json stretch_by_path = nlohmann::json::object();
-  for (int path = -1; path < int(paths.size()); ++path) {
-    pbd.position = start;
-    std::vector<std::vector<double>> lambdas(kColourGroups);
-    for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.stretch_rows[c].size(), 0.0);
-    double best = 1e300;
-    for (int r = 0; r < repeats; ++r) best = std::min(best, stretch_pass(path, lambdas));
-    if (path < 0) {
-      rows_ms = best;
-      rows_end = pbd.position;
-    } else {
-      stretch_identical = stretch_identical && pbd.position == rows_end;
-      stretch_by_path[paths[size_t(path)].second] = best * per_row;
-      vector_ms = best;
-    }
-  }
+  const PathTimes stretch = time_paths(
+      pbd, paths, repeats, per_row,
+      [&] {
+        pbd.position = start;
+        for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.stretch_rows[c].size(), 0.0);
+      },
+      stretch_pass);
   pbd.position = start;
   return {{"clusters", clusters},
           {"repeats", repeats},
           {"path", paths.back().second},
-          {"shape_matching", {{"scalar_ns", scalar_ms * per}, {"blocks_ns", blocks_ms * per},
-                              {"blocks_ns_by_path", by_path},
-                              {"speedup", blocks_ms > 0.0 ? scalar_ms / blocks_ms : 0.0}, {"identical", identical}}},
+          {"shape_matching",
+           {{"scalar_ns", shape.reference_ms * per},
+            {"blocks_ns", shape.solver_ms * per},
+            {"blocks_ns_by_path", shape.ns_by_path},
+            {"speedup", shape.solver_ms > 0.0 ? shape.reference_ms / shape.solver_ms : 0.0},
+            {"identical", shape.identical}}},
           {"stretch_constraints", constraints},
-          {"stretch", {{"rows_ns", rows_ms * per_row}, {"vector_ns", vector_ms * per_row},
-                       {"vector_ns_by_path", stretch_by_path},
-                       {"speedup", vector_ms > 0.0 ? rows_ms / vector_ms : 0.0},
-                       {"identical", stretch_identical}}}};
+          {"stretch",
+           {{"rows_ns", stretch.reference_ms * per_row},
+            {"vector_ns", stretch.solver_ms * per_row},
+            {"vector_ns_by_path", stretch.ns_by_path},
+            {"speedup", stretch.solver_ms > 0.0 ? stretch.reference_ms / stretch.solver_ms : 0.0},
+            {"identical", stretch.identical}}}};
 }
 
 }  // namespace
