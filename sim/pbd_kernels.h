@@ -169,14 +169,15 @@ void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r
 // Shape-matching clusters solved kShapeLanes at a time (the solver's path): structure of arrays
 // ([slot][axis][lane]), so every stage of the solve (gather, centre, A, the rotation step, goals) is a
 // short loop over the lanes that the compiler vectorises: the eight lanes in one zmm register each
-// on the AVX-512 path, in two halves of four on the AVX2 (ymm) and baseline (SSE2 pairs) paths. Each
-// lane does the same IEEE operations in the same order as the scalar
+// on the AVX-512 path, in two halves of four on the AVX2 (ymm) and baseline (SSE2 pairs) paths (the
+// halves' rotation steps side by side). Each lane does the same IEEE operations in the same order as
+// the scalar
 // solve_shape_matching(x, indices, rest, stiffness, rotation, 0) (no reassociation, no FMA), so
 // the results are the same bits on every path and equal the scalar path. The lanes of a block must
 // share no particle (one colour group). A block of fewer than kShapeLanes clusters repeats its last
 // lane in the unused ones: they compute it again and store the same values to the same particles
-// and rotation again; a half of four without a cluster of its own is skipped (the other half has
-// already moved the particles its repeated lanes would read).
+// and rotation again; a half of four without a cluster of its own is skipped (it would only repeat
+// the other half's last cluster).
 constexpr int kShapeLanes = 8;
 // The doubles first and the block 64-byte aligned, so each [lane] row of eight is one aligned vector.
 struct alignas(64) ShapeBlock {
