@@ -2071,14 +2071,14 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
-// constraint costs ~60 instructions, a shape-matching solve ~400 (a block of 4 ~1 600), a particle's
+// constraint costs ~36 instructions, a shape-matching solve ~350 (a block of 8 ~2 800), a particle's
 // velocity + predict ~30, a contact ~400 (its group: a piece's contacts with the planes, or the
 // contacts between two pieces, often 10 or more). A barrier between two chunks costs about as much as
 // 100-200 stretch constraints (one cache-line round trip per particle line the other thread wrote),
 // so a stretch colour of a few hundred constraints is still split (A/B in bench contact, 2 workers).
 constexpr uint32_t kParticleGrain = 512;
 constexpr uint32_t kStretchGrain = 128;
-constexpr uint32_t kShapeGrain = 16 / kShapeLanes;  // blocks
+constexpr uint32_t kShapeGrain = 16 / kShapeLanes;  // blocks (two: a pair solved side by side, pbd_kernels.h)
 constexpr uint32_t kContactGrain = 4;
 constexpr uint32_t kSerial = ~0u;
 
