@@ -94,11 +94,50 @@ double relative_error(const CutState& cut, const PbdState& run, const PbdState& 
   return den > 0.0 ? std::sqrt(num / den) : 0.0;
 }
 
+// The kernel paths this CPU has (pbd_kernels.h: the same bits on each), by name.
+typedef std::vector<std::pair<KernelIsa, const char*>> KernelPaths;
+KernelPaths kernel_paths() {
+  KernelPaths paths = {{KernelIsa::kBaseline, "baseline"}};
+  if (kernel_isa() >= KernelIsa::kAvx2) paths.emplace_back(KernelIsa::kAvx2, "avx2");
+  if (kernel_isa() >= KernelIsa::kAvx512) paths.emplace_back(KernelIsa::kAvx512, "avx512");
+  return paths;
+}
+
+// A kernel timed on its scalar reference and on each path: the fastest pass of each (ms), ns per
+// item on each path, and whether every path ended on the reference's positions.
+struct PathTimes {
+  double reference_ms = 1e300, solver_ms = 1e300;  // the scalar reference; the last path (the solver's)
+  bool identical = true;
+  nlohmann::json ns_by_path = nlohmann::json::object();
+};
+
+// `pass(path)` (-1: the scalar reference, else paths[path]) `repeats` times after `reset()`, per path.
+template <class Reset, class Pass>
+PathTimes time_paths(const PbdState& pbd, const KernelPaths& paths, int repeats, double ns_per_ms, Reset reset,
+                     Pass pass) {
+  PathTimes t;
+  std::vector<Vec3d> reference_end;
+  for (int path = -1; path < int(paths.size()); ++path) {
+    reset();
+    double best = 1e300;
+    for (int r = 0; r < repeats; ++r) best = std::min(best, pass(path));
+    if (path < 0) {
+      t.reference_ms = best;
+      reference_end = pbd.position;
+      continue;
+    }
+    t.identical = t.identical && pbd.position == reference_end;
+    t.ns_by_path[paths[size_t(path)].second] = best * ns_per_ms;
+    t.solver_ms = best;
+  }
+  return t;
+}
+
 // The shape-matching kernel before and after issue 17 in one run, on a settled state of `pbd`:
 // passes over every cluster, colour by colour, with the scalar kernel (solve_shape_matching from a
-// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_blocks) from the
-// same start. Both must end on the same bits (checked: "identical"); time per cluster solve, the
-// fastest pass of `repeats`.
+// rest frame: the solver's code before the blocks) and with the blocks (solve_shape_blocks) on each
+// kernel path the CPU has (the solver's is the last, the best), from the same start. All must end on
+// the same bits (checked: "identical"); time per cluster solve, the fastest pass of `repeats`.
 nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
   const std::vector<Vec3d> start = pbd.position;
   const std::vector<Eigen::Quaterniond> rotations = pbd.rotation;
@@ -113,14 +152,15 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
       clusters += shape_matching_rest(pbd.inv_mass.data(), pbd.pieces[slot].particles, rest, 8, frames[slot]) ? 1 : 0;
     }
   }
-  // One pass over every cluster; returns its time (ms).
-  const auto pass = [&](bool blocks) {
+  const KernelPaths paths = kernel_paths();
+  // One pass over every cluster, scalar (path < 0) or by the blocks on paths[path]; returns its time (ms).
+  const auto pass = [&](int path) {
     double* x = pbd.position[0].data();
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kColourGroups; ++c) {
-      if (blocks) {
-        solve_shape_blocks(x, pbd.shape_blocks[c].data(), 0, uint32_t(pbd.shape_blocks[c].size()), 1.0,
-                           pbd.rotation.data());
+      if (path >= 0) {
+        solve_shape_blocks(paths[size_t(path)].first, x, pbd.shape_blocks[c].data(), 0,
+                           uint32_t(pbd.shape_blocks[c].size()), 1.0, pbd.rotation.data(), c != kOverflowColour);
         continue;
       }
       for (const uint32_t slot : pbd.piece_groups[c]) {
@@ -129,51 +169,58 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     }
     return ms_between(t0, Clock::now());
   };
-  double best[2] = {1e300, 1e300};
-  std::vector<Vec3d> end[2];
-  for (const bool blocks : {false, true}) {
-    pbd.position = start;
-    pbd.rotation = rotations;
-    for (int r = 0; r < repeats; ++r) best[blocks] = std::min(best[blocks], pass(blocks));
-    end[blocks] = pbd.position;
-  }
+  const double per = 1e6 / double(std::max<uint64_t>(1, clusters));  // ms -> ns per cluster
+  const PathTimes shape = time_paths(
+      pbd, paths, repeats, per,
+      [&] {
+        pbd.position = start;
+        pbd.rotation = rotations;
+      },
+      pass);
   pbd.position = start;
   pbd.rotation = rotations;
-  const double per = 1e6 / double(std::max<uint64_t>(1, clusters));  // ms -> ns per cluster
 
-  // The stretch rows the same way: one by one (the solver's rows before) and four at a time in the
-  // colour groups (solve_stretch_rows with disjoint groups), from the same start and multipliers.
+  // The stretch rows the same way: one by one (the solver's rows before) and by the vector rows of
+  // each path in the colour groups (solve_stretch_rows with disjoint groups), from the same start and
+  // multipliers.
   uint64_t constraints = 0;
   for (int c = 0; c < kOverflowColour; ++c) constraints += pbd.stretch_rows[c].size();
   const double alpha = pbd.params.stretch_compliance / (pbd.params.dt * pbd.params.dt);
-  const auto stretch_pass = [&](bool four, std::vector<std::vector<double>>& lambdas) {
+  std::vector<std::vector<double>> lambdas(kColourGroups);
+  const auto stretch_pass = [&](int path) {
     double* x = pbd.position[0].data();
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kOverflowColour; ++c) {
-      solve_stretch_rows(x, pbd.stretch_rows[c].data(), lambdas[c].data(), 0, uint32_t(pbd.stretch_rows[c].size()),
-                         alpha, four);
+      solve_stretch_rows(path < 0 ? KernelIsa::kBaseline : paths[size_t(path)].first, x, pbd.stretch_rows[c].data(),
+                         lambdas[c].data(), 0, uint32_t(pbd.stretch_rows[c].size()), alpha, path >= 0);
     }
     return ms_between(t0, Clock::now());
   };
-  double stretch_best[2] = {1e300, 1e300};
-  std::vector<Vec3d> stretch_end[2];
-  for (const bool four : {false, true}) {
-    pbd.position = start;
-    std::vector<std::vector<double>> lambdas(kColourGroups);
-    for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.stretch_rows[c].size(), 0.0);
-    for (int r = 0; r < repeats; ++r) stretch_best[four] = std::min(stretch_best[four], stretch_pass(four, lambdas));
-    stretch_end[four] = pbd.position;
-  }
-  pbd.position = start;
   const double per_row = 1e6 / double(std::max<uint64_t>(1, constraints));
+  const PathTimes stretch = time_paths(
+      pbd, paths, repeats, per_row,
+      [&] {
+        pbd.position = start;
+        for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.stretch_rows[c].size(), 0.0);
+      },
+      stretch_pass);
+  pbd.position = start;
   return {{"clusters", clusters},
           {"repeats", repeats},
-          {"shape_matching", {{"scalar_ns", best[0] * per}, {"blocks_ns", best[1] * per},
-                              {"speedup", best[1] > 0.0 ? best[0] / best[1] : 0.0}, {"identical", end[0] == end[1]}}},
+          {"path", paths.back().second},
+          {"shape_matching",
+           {{"scalar_ns", shape.reference_ms * per},
+            {"blocks_ns", shape.solver_ms * per},
+            {"blocks_ns_by_path", shape.ns_by_path},
+            {"speedup", shape.solver_ms > 0.0 ? shape.reference_ms / shape.solver_ms : 0.0},
+            {"identical", shape.identical}}},
           {"stretch_constraints", constraints},
-          {"stretch", {{"rows_ns", stretch_best[0] * per_row}, {"rows4_ns", stretch_best[1] * per_row},
-                       {"speedup", stretch_best[1] > 0.0 ? stretch_best[0] / stretch_best[1] : 0.0},
-                       {"identical", stretch_end[0] == stretch_end[1]}}}};
+          {"stretch",
+           {{"rows_ns", stretch.reference_ms * per_row},
+            {"vector_ns", stretch.solver_ms * per_row},
+            {"vector_ns_by_path", stretch.ns_by_path},
+            {"speedup", stretch.solver_ms > 0.0 ? stretch.reference_ms / stretch.solver_ms : 0.0},
+            {"identical", stretch.identical}}}};
 }
 
 }  // namespace

@@ -195,14 +195,25 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
   for (uint32_t i = begin; i < end; ++i) {
     if (inv_mass[i] == 0.0) continue;
     double* p = x + 3 * size_t(i);
+    double p0 = p[0], p1 = p[1], p2 = p[2];
+    bool moved = false;
     for (uint32_t k = 0; k < plane_count; ++k) {
       const ContactPlane& plane = planes[k];
-      const double d = plane_distance(plane, Vec3d(p[0], p[1], p[2])) + depth;
+      const double n0 = plane.normal.x(), n1 = plane.normal.y(), n2 = plane.normal.z();
+      // plane_distance written out, operation for operation as Eigen's 3-vector dot, (n0 e0 + n1 e1) +
+      // n2 e2 (the same bits): through Vec3d the (x, y) packet went through the stack, and its 16-byte
+      // load waited on the two 8-byte stores before it (a failed store forward per particle and plane).
+      const double d = (n0 * (p0 - plane.point.x()) + n1 * (p1 - plane.point.y())) + n2 * (p2 - plane.point.z()) + depth;
       if (d >= 0.0) continue;
-      p[0] -= d * plane.normal.x();
-      p[1] -= d * plane.normal.y();
-      p[2] -= d * plane.normal.z();
+      p0 -= d * n0;
+      p1 -= d * n1;
+      p2 -= d * n2;
+      moved = true;
     }
+    if (!moved) continue;
+    p[0] = p0;
+    p[1] = p1;
+    p[2] = p2;
   }
 }
 

@@ -1903,8 +1903,14 @@ void refresh_embed_rows(const CutState& cut, PbdState& s) {
 
 // ---- Solver blocks ----------------------------------------------------------------------------
 
-// Where a piece's cluster sits in the shape blocks (PbdData::shape_lane).
-uint32_t lane_code(uint32_t colour, size_t block, int lane) { return colour << 26 | uint32_t(block) << 2 | uint32_t(lane); }
+// Where a piece's cluster sits in the shape blocks (PbdData::shape_lane): its lane in the low
+// kLaneBits, its block above, its colour in the top 6 bits.
+constexpr int kLaneBits = 3;
+static_assert(kShapeLanes <= 1 << kLaneBits && kColourGroups <= 64, "a lane code holds every lane and colour");
+constexpr uint32_t kLaneMask = (1u << kLaneBits) - 1;
+uint32_t lane_code(uint32_t colour, size_t block, int lane) {
+  return colour << 26 | uint32_t(block) << kLaneBits | uint32_t(lane);
+}
 
 // Copies lane `from` of block `src` into lane `to` of block `dst`.
 void copy_lane(ShapeBlock& dst, int to, const ShapeBlock& src, int from) {
@@ -1938,11 +1944,11 @@ void add_cluster(PbdState& s, uint32_t slot) {
 }
 
 // Takes a piece's cluster out of its block: the colour's last lane moves into its place (the unused
-// lanes of the last block repeat its first, as shape_block_add leaves them).
+// lanes of the last block repeat its last, as shape_block_add leaves them).
 void remove_cluster(PbdState& s, uint32_t slot) {
   const uint32_t code = s.shape_lane[slot];
-  const uint32_t colour = code >> 26, block = (code >> 2) & 0xFFFFFFu;
-  const int lane = int(code & 3u);
+  const uint32_t colour = code >> 26, block = (code & ((1u << 26) - 1)) >> kLaneBits;
+  const int lane = int(code & kLaneMask);
   std::vector<ShapeBlock>& blocks = s.shape_blocks[colour];
   ShapeBlock& last = blocks.back();
   const int last_lane = last.lanes - 1;
@@ -1953,7 +1959,7 @@ void remove_cluster(PbdState& s, uint32_t slot) {
   if (--last.lanes == 0) {
     blocks.pop_back();
   } else {
-    for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, 0);
+    for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, last.lanes - 1);
   }
   s.shape_lane[slot] = kDeadIndex;
 }
@@ -1999,16 +2005,15 @@ void update_shape_blocks(PbdState& s) {
 }
 
 // The clusters of each parallel colour in the order of their smallest particle (unique: they share
-// no particle), four to a block, their lanes' codes renumbered; the unused lanes of the last block
-// repeat its first, as shape_block_add leaves them. The order never changes a result (a colour's
+// no particle), kShapeLanes to a block, their lanes' codes renumbered; the unused lanes of the last
+// block repeat its last, as shape_block_add leaves them. The order never changes a result (a colour's
 // clusters are independent); it is for the task pool, which gives each thread the same share of
 // every colour (task_pool.h): with the clusters, and the stretch rows, in particle order that share
 // covers about the same particles in every colour, so their cache lines stay on one core. Without
 // it the blocks mix clusters from all over after a few cuts (remove_cluster moves the colour's last
 // lane into each hole).
 void sort_shape_lanes(PbdState& s) {
-  static_assert(kShapeLanes <= 4, "a lane in two bits");
-  std::vector<std::pair<uint32_t, uint32_t>> order;  // (key, block << 2 | lane)
+  std::vector<std::pair<uint32_t, uint32_t>> order;  // (key, block << kLaneBits | lane)
   std::vector<ShapeBlock> sorted;
   for (int c = 0; c < kOverflowColour; ++c) {
     std::vector<ShapeBlock>& blocks = s.shape_blocks[c];
@@ -2017,7 +2022,7 @@ void sort_shape_lanes(PbdState& s) {
       for (int l = 0; l < blocks[b].lanes; ++l) {
         uint32_t key = ~0u;
         for (int k = 0; k < kShapeMaxParticles; ++k) key = std::min(key, blocks[b].index[k][l]);
-        order.emplace_back(key, b << 2 | uint32_t(l));
+        order.emplace_back(key, b << kLaneBits | uint32_t(l));
       }
     }
     if (std::is_sorted(order.begin(), order.end())) continue;
@@ -2026,13 +2031,13 @@ void sort_shape_lanes(PbdState& s) {
     for (uint32_t i = 0; i < order.size(); ++i) {
       ShapeBlock& dst = sorted[i / kShapeLanes];
       const int lane = int(i % kShapeLanes);
-      copy_lane(dst, lane, blocks[order[i].second >> 2], int(order[i].second & 3u));
+      copy_lane(dst, lane, blocks[order[i].second >> kLaneBits], int(order[i].second & kLaneMask));
       dst.lanes = lane + 1;
       s.shape_lane[dst.piece[lane]] = lane_code(uint32_t(c), i / kShapeLanes, lane);
     }
     if (!sorted.empty()) {
       ShapeBlock& last = sorted.back();
-      for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, 0);
+      for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, last.lanes - 1);
     }
     blocks.swap(sorted);
   }
@@ -2066,14 +2071,14 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
 // a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
-// constraint costs ~60 instructions, a shape-matching solve ~400 (a block of 4 ~1 600), a particle's
+// constraint costs ~36 instructions, a shape-matching solve ~350 (a block of 8 ~2 800), a particle's
 // velocity + predict ~30, a contact ~400 (its group: a piece's contacts with the planes, or the
 // contacts between two pieces, often 10 or more). A barrier between two chunks costs about as much as
 // 100-200 stretch constraints (one cache-line round trip per particle line the other thread wrote),
 // so a stretch colour of a few hundred constraints is still split (A/B in bench contact, 2 workers).
 constexpr uint32_t kParticleGrain = 512;
 constexpr uint32_t kStretchGrain = 128;
-constexpr uint32_t kShapeGrain = 16 / kShapeLanes;  // blocks
+constexpr uint32_t kShapeGrain = 16 / kShapeLanes;  // blocks (two: a pair solved side by side, pbd_kernels.h)
 constexpr uint32_t kContactGrain = 4;
 constexpr uint32_t kSerial = ~0u;
 
@@ -2448,7 +2453,9 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       }
       case StepBatch::kShape:
-        solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data());
+        // Two blocks at once where a colour shares no particle (pbd_kernels.h); the overflow's in order.
+        solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data(),
+                           b.index != kOverflowColour);
         break;
       case StepBatch::kGrab:
         solve_grab(s, h, grab_lambda);

@@ -270,7 +270,7 @@ struct PbdData {
   // change the bits; the overflow colour is rebuilt in its group's order).
   uint64_t blocks_revision = ~uint64_t(0), blocks_edits = ~uint64_t(0);
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
-  std::vector<uint32_t> shape_lane;  // (piece slots) colour << 26 | block << 2 | lane, ~0u: in no block
+  std::vector<uint32_t> shape_lane;    // (piece slots) colour << 26 | block << 3 | lane, ~0u: in no block
   std::vector<uint8_t> blocks_mark;    // (particles) scratch: changed by the recorded cuts
   std::vector<uint32_t> blocks_dirty;  // scratch: pieces whose clusters join again
   std::vector<StretchRow> stretch_rows[kColourGroups];  // parallel to stretch_groups

@@ -6,9 +6,19 @@
 #include <cstddef>
 #include <cstring>
 #include <limits>
+#include <type_traits>
 
 #if defined(__x86_64__)
+// GCC 12 warns inside its own AVX-512 intrinsics (the `__Y = __Y` of _mm512_undefined_pd: GCC bug
+// 105593, fixed in 13).
+#if !defined(__clang__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#endif
 #include <immintrin.h>
+#if !defined(__clang__)
+#pragma GCC diagnostic pop
+#endif
 #endif
 
 namespace dvx {
@@ -91,15 +101,17 @@ inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d&
   return std::hypot(c, curvature) - curvature;
 }
 
-// Lanes: the rotation step and R(q) are written once over a lane type T: double (the scalar path)
-// or V4, four doubles in GCC's vector extension (the blocks; SSE2 pairs in the default build, AVX2
-// in the solver's avx2 clone). Per lane a V4 operation is the same IEEE operation as on a double, so
-// both give the same bits. M is the comparison result (bool, or a lane mask of 0 / -1).
-// (Internal helpers, always inlined: the warning about passing V4 without AVX does not apply.)
+// Lanes: the rotation step and R(q) are written once over a lane type T: double (the scalar path),
+// V4 or V8, four or eight doubles in GCC's vector extension (the blocks: V4 in SSE2 pairs in the
+// baseline path and in ymm registers in the AVX2 path, V8 in zmm registers in the AVX-512 path). Per
+// lane a vector operation is the same IEEE operation as on a double, so all give the same bits. M is
+// the comparison result (bool, or a lane mask of 0 / -1).
+// (Internal helpers, always inlined: the warning about passing vectors without AVX does not apply.)
 #pragma GCC diagnostic ignored "-Wpsabi"
-// The solver's kernels in an AVX2 and a baseline clone, picked when the program loads (an ifunc).
+// Kernels in an AVX2 and a baseline clone, picked when the program loads (an ifunc).
 // ThreadSanitizer instruments the clones' resolver, which runs before its runtime is up (the binary
 // crashed while loading), so a TSan build keeps the baseline clone only: the same bits either way.
+// (The solver's constraint kernels pick their path by KernelIsa instead: no ifunc, any build.)
 #if defined(__SANITIZE_THREAD__)
 #define DVX_CLONES
 #elif defined(__has_feature)
@@ -110,34 +122,30 @@ inline double line_maximum(const Vector3d& u, const Vector3d& g, const Matrix3d&
 #ifndef DVX_CLONES
 #define DVX_CLONES __attribute__((target_clones("avx2", "default")))
 #endif
+// The functions of each path: the vector helpers below are always inlined into them, so each path
+// compiles them for its own instruction set.
+#define DVX_AVX2_PATH __attribute__((target("avx2")))
+#define DVX_AVX512_PATH __attribute__((target("avx512f,avx512dq,avx512vl,avx512bw")))
 typedef double V4 __attribute__((vector_size(32)));
 typedef int64_t M4 __attribute__((vector_size(32)));
-static_assert(kShapeLanes == 4, "V4 holds one value of each lane");
+typedef double V8 __attribute__((vector_size(64)));
+typedef int64_t M8 __attribute__((vector_size(64)));
+static_assert(kShapeLanes == 8, "a block is one V8, or two V4 halves");
+// Lanes of a vector type.
+template <class V>
+constexpr int kWidth = int(sizeof(V) / sizeof(double));
+// The lane mask type of a vector type (spelled out: clang's comparisons give vectors of long long,
+// GCC's of long).
+template <class V>
+using MaskOf = std::conditional_t<sizeof(V) == sizeof(V8), M8, M4>;
+// Particle slots of a cluster.
+constexpr int kS = kShapeMaxParticles;
 
-inline double lane_select(bool m, double a, double b) { return m ? a : b; }
-__attribute__((always_inline)) inline V4 lane_select(M4 m, V4 a, V4 b) { return m ? a : b; }
-inline double lane_sqrt(double v) { return std::sqrt(v); }
-__attribute__((always_inline)) inline V4 lane_sqrt(V4 v) {
-  V4 r;
-  for (int l = 0; l < 4; ++l) r[l] = std::sqrt(v[l]);
-  return r;
-}
-inline double lane_abs(double v) { return std::fabs(v); }
-__attribute__((always_inline)) inline V4 lane_abs(V4 v) { return V4(M4(v) & std::numeric_limits<int64_t>::max()); }
-// std::max's rule on values: a select (std::max's references would branch).
-template <class T>
-__attribute__((always_inline)) inline T lane_max(T m, T v) {
-  return lane_select(m < v, v, m);
-}
-// Vectors cross into the solver's clones only by reference: clang refuses a V4 passed or returned by
-// value between its avx2 clone and a helper compiled without AVX (the ABIs differ).
-// A typed load, not memcpy: GCC merged the memcpys of adjacent vectors into one copy loop of 16-byte
-// moves through the stack, and the 32-byte loads that followed stalled on store forwarding.
+// Unaligned forms (the typed loads in pbd_kernels_lanes.inc) and the lane masks of four flags.
+typedef double V2 __attribute__((vector_size(16)));
 typedef double V4u __attribute__((vector_size(32), aligned(8), may_alias));
-__attribute__((always_inline)) inline void load4(V4& v, const double* p) { v = *reinterpret_cast<const V4u*>(p); }
-__attribute__((always_inline)) inline void store4(double* p, const V4& v) { *reinterpret_cast<V4u*>(p) = v; }
-// Four flags (bytes 0 / 1) as a lane mask: their bits gathered by one product (bit 8l moves to 21 + l,
-// no other term reaches bits 21-24), then a table of the 16 masks.
+typedef double V8u __attribute__((vector_size(64), aligned(8), may_alias));
+typedef int64_t M4u __attribute__((vector_size(32), aligned(8), may_alias));
 struct LaneMasks {
   int64_t mask[16][4];
   constexpr LaneMasks() : mask() {
@@ -147,122 +155,39 @@ struct LaneMasks {
   }
 };
 alignas(32) constexpr LaneMasks kLaneMasks;
-typedef int64_t M4u __attribute__((vector_size(32), aligned(8), may_alias));
-__attribute__((always_inline)) inline void lane_mask(const uint8_t* flags, M4& m) {
-  uint32_t w;
-  std::memcpy(&w, flags, sizeof w);
-  m = *reinterpret_cast<const M4u*>(kLaneMasks.mask[(w * 0x204081u) >> 21 & 15u]);
-}
 
-// One warm-started rotation step (extract_rotation_step's usual case) per lane: a[i][j] is A, q the
-// quaternion (w, x, y, z), updated where the step moves it. Returns the lanes where the step is
-// defined (q unit, B clearly positive definite, A and the step finite); elsewhere q is unchanged and
-// the caller falls back to extract_rotation. No branches.
-//
-// The step: q <- exp(t n/|n|) q with n = B^-1 g and t = atan|n| (the exact line maximum along n, see
-// extract_rotation_step). Its half angle needs no trigonometry: cos t = 1/sqrt(1 + |n|^2),
-// cos(t/2) = sqrt((1 + cos t)/2) and sin(t/2) / |n| = cos t / (2 cos(t/2)) (no cancellation, no
-// division by |n|), so every operation is a correctly rounded IEEE one (the same bits anywhere).
-template <class T>
-__attribute__((always_inline)) inline auto rotation_step_lanes(const T (&a)[3][3], T (&q)[4]) {
-  const T qw = q[0], qx = q[1], qy = q[2], qz = q[3];
-  const T qq = qw * qw + qx * qx + qy * qy + qz * qz;
-  const T a00 = a[0][0], a01 = a[0][1], a02 = a[0][2];
-  const T a10 = a[1][0], a11 = a[1][1], a12 = a[1][2];
-  const T a20 = a[2][0], a21 = a[2][1], a22 = a[2][2];
-  T scale = lane_abs(a00);
-  scale = lane_max(scale, lane_abs(a01));
-  scale = lane_max(scale, lane_abs(a02));
-  scale = lane_max(scale, lane_abs(a10));
-  scale = lane_max(scale, lane_abs(a11));
-  scale = lane_max(scale, lane_abs(a12));
-  scale = lane_max(scale, lane_abs(a20));
-  scale = lane_max(scale, lane_abs(a21));
-  scale = lane_max(scale, lane_abs(a22));
-  // R(q).
-  const T xx = qx * qx, yy = qy * qy, zz = qz * qz, xy = qx * qy, xz = qx * qz, yz = qy * qz;
-  const T wx = qw * qx, wy = qw * qy, wz = qw * qz;
-  const T r00 = 1.0 - 2.0 * (yy + zz), r01 = 2.0 * (xy - wz), r02 = 2.0 * (xz + wy);
-  const T r10 = 2.0 * (xy + wz), r11 = 1.0 - 2.0 * (xx + zz), r12 = 2.0 * (yz - wx);
-  const T r20 = 2.0 * (xz - wy), r21 = 2.0 * (yz + wx), r22 = 1.0 - 2.0 * (xx + yy);
-  // f = tr(R^T A), g = sum_i r_i x a_i, M = A R^T, B = f I - sym(M).
-  const T f = r00 * a00 + r10 * a10 + r20 * a20 + r01 * a01 + r11 * a11 + r21 * a21 + r02 * a02 + r12 * a12 + r22 * a22;
-  const T g0 = (r10 * a20 - r20 * a10) + (r11 * a21 - r21 * a11) + (r12 * a22 - r22 * a12);
-  const T g1 = (r20 * a00 - r00 * a20) + (r21 * a01 - r01 * a21) + (r22 * a02 - r02 * a22);
-  const T g2 = (r00 * a10 - r10 * a00) + (r01 * a11 - r11 * a01) + (r02 * a12 - r12 * a02);
-  const T m00 = a00 * r00 + a01 * r01 + a02 * r02;
-  const T m11 = a10 * r10 + a11 * r11 + a12 * r12;
-  const T m22 = a20 * r20 + a21 * r21 + a22 * r22;
-  const T m01 = a00 * r10 + a01 * r11 + a02 * r12, m10 = a10 * r00 + a11 * r01 + a12 * r02;
-  const T m02 = a00 * r20 + a01 * r21 + a02 * r22, m20 = a20 * r00 + a21 * r01 + a22 * r02;
-  const T m12 = a10 * r20 + a11 * r21 + a12 * r22, m21 = a20 * r10 + a21 * r11 + a22 * r12;
-  const T b00 = f - m00, b11 = f - m11, b22 = f - m22;
-  const T b10 = -0.5 * (m10 + m01), b20 = -0.5 * (m20 + m02), b21 = -0.5 * (m21 + m12);
-  // LDL^T of B and n = B^-1 g, pivots relative to the scale of A.
-  const T pivot_min = kPivotMin * scale;
-  const T d0 = b00;
-  const T l10 = b10 / d0, l20 = b20 / d0;
-  const T d1 = b11 - l10 * l10 * d0;
-  const T l21 = (b21 - l20 * l10 * d0) / d1;
-  const T d2 = b22 - l20 * l20 * d0 - l21 * l21 * d1;
-  const T y0 = g0, y1 = g1 - l10 * y0, y2 = g2 - l20 * y0 - l21 * y1;
-  const T n2 = y2 / d2;
-  const T n1 = y1 / d1 - l21 * n2;
-  const T n0 = y0 / d0 - l10 * n1 - l20 * n2;
-  const T length2 = n0 * n0 + n1 * n1 + n2 * n2;
-  // Defined: unit q, clear pivots, |n| finite and small enough to square (& not &&: no branches).
-  const auto defined = (lane_abs(qq - 1.0) < 1e-12) & (d0 > pivot_min) & (d1 > pivot_min) & (d2 > pivot_min) &
-                       (length2 < 1e300);
-  // Half angle, then (cos(t/2), sin(t/2) n/|n|) * q, normalised.
-  const T cos_t = 1.0 / lane_sqrt(1.0 + length2);
-  const T ch = lane_sqrt(0.5 * (1.0 + cos_t));
-  const T sn = cos_t / (2.0 * ch);
-  const T rx = sn * n0, ry = sn * n1, rz = sn * n2;
-  const T pw = ch * qw - (rx * qx + ry * qy + rz * qz);
-  const T px = ch * qx + rx * qw + (ry * qz - rz * qy);
-  const T py = ch * qy + ry * qw + (rz * qx - rx * qz);
-  const T pz = ch * qz + rz * qw + (rx * qy - ry * qx);
-  const T inv_norm = 1.0 / lane_sqrt(pw * pw + px * px + py * py + pz * pz);
-  // A step below kMinAngle (atan|n| ~ |n|) means converged: q stays.
-  const auto move = defined & (length2 > kMinAngle * kMinAngle);
-  q[0] = lane_select(move, pw * inv_norm, qw);
-  q[1] = lane_select(move, px * inv_norm, qx);
-  q[2] = lane_select(move, py * inv_norm, qy);
-  q[3] = lane_select(move, pz * inv_norm, qz);
-  return defined;
-}
-
-// rotation_step_lanes with its lane mask written to `defined` (see load4: no vector by value).
-template <class T, class M>
-__attribute__((always_inline)) inline void rotation_step_lanes_into(const T (&a)[3][3], T (&q)[4], M& defined) {
-  defined = rotation_step_lanes<T>(a, q);
-}
-
-// R(q) per lane (Eigen's toRotationMatrix, operation for operation).
-template <class T>
-__attribute__((always_inline)) inline void rotation_matrix_lanes(const T (&q)[4], T (&r)[3][3]) {
-  const T w = q[0], x = q[1], y = q[2], z = q[3];
-  const T tx = 2.0 * x, ty = 2.0 * y, tz = 2.0 * z;
-  const T twx = tx * w, twy = ty * w, twz = tz * w;
-  const T txx = tx * x, txy = ty * x, txz = tz * x;
-  const T tyy = ty * y, tyz = tz * y, tzz = tz * z;
-  r[0][0] = 1.0 - (tyy + tzz);
-  r[0][1] = txy - twz;
-  r[0][2] = txz + twy;
-  r[1][0] = txy + twz;
-  r[1][1] = 1.0 - (txx + tzz);
-  r[1][2] = tyz - twx;
-  r[2][0] = txz - twy;
-  r[2][1] = tyz + twx;
-  r[2][2] = 1.0 - (txx + tyy);
-}
+// The lane code once per path (see pbd_kernels_lanes.inc): `lanes` for the scalar and baseline
+// paths, `avx2_lanes` and `avx512_lanes` compiled for their instruction sets.
+namespace lanes {
+#include "sim/pbd_kernels_lanes.inc"
+}  // namespace lanes
+// (clang lowers vector operations only after inlining: it needs no target regions, and has no
+// `#pragma GCC target`.)
+#if defined(__x86_64__)
+#if !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC target("avx2")
+#endif
+namespace avx2_lanes {
+#include "sim/pbd_kernels_lanes.inc"
+}  // namespace avx2_lanes
+#if !defined(__clang__)
+#pragma GCC pop_options
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512dq,avx512vl,avx512bw")
+#endif
+namespace avx512_lanes {
+#include "sim/pbd_kernels_lanes.inc"
+}  // namespace avx512_lanes
+#if !defined(__clang__)
+#pragma GCC pop_options
+#endif
+#endif
 
 // Centre and rotation of one shape-matching cluster: everything the goals g_i = c + R (r_i - c0) need,
 // from its rest frame (shape_matching_rest), in scalar loops with the axes written out (the sums run
 // in slot order: the compiler may not reorder them under -ffp-contract=off and strict IEEE rules,
 // so vectorising the reductions would not pay; the gathered positions stay in registers and L1).
-constexpr int kS = kShapeMaxParticles;
-
 struct ShapeFrame {
   double p[kS][3];  // gathered positions
   double centre[3];
@@ -312,7 +237,7 @@ void shape_matching_frame(const double* x, const uint32_t* indices, const ShapeR
   rotation = rotation_iterations > 0 ? extract_rotation(a, rotation, rotation_iterations)
                                      : extract_rotation_step(a, rotation, kShapeRotationIterations);
   const double q[4] = {rotation.w(), rotation.x(), rotation.y(), rotation.z()};
-  rotation_matrix_lanes<double>(q, f.rot);
+  lanes::rotation_matrix_lanes<double>(q, f.rot);
 }
 
 // Goal of slot k: c + R q_k.
@@ -423,7 +348,7 @@ Quaterniond extract_rotation_step(const Matrix3d& a, const Quaterniond& q, int f
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < 3; ++j) al[i][j] = a(i, j);
   }
-  if (!rotation_step_lanes<double>(al, ql)) return extract_rotation(a, q, fallback_iterations);
+  if (!lanes::rotation_step_lanes<double>(al, ql)) return extract_rotation(a, q, fallback_iterations);
   return Quaterniond(ql[0], ql[1], ql[2], ql[3]);
 }
 
@@ -530,23 +455,106 @@ __attribute__((target("avx2"))) void stretch_rows_avx2(double* x, const StretchR
   for (; i < end; ++i) solve_stretch_row(x, rows[i], alpha, lambda[i]);
 }
 
-bool have_avx2() {
-  static const bool yes = __builtin_cpu_supports("avx2");
-  return yes;
+// Two four-lane halves as one vector.
+__attribute__((target("avx512f"), always_inline)) inline __m512d join(const __m256d (&v)[2]) {
+  return _mm512_insertf64x4(_mm512_castpd256_pd512(v[0]), v[1], 1);
+}
+
+// Eight rows of one colour at once in AVX-512: stretch_rows_avx2's lanes (distance_step per lane,
+// operation for operation), twice as wide, its mask in a k register. Positions as there: (x, y)
+// pairs and z, transposed into one vector per axis and back; the rows' constants by eight 32-byte
+// loads and an 8x4 transpose. The rest of the range (fewer than eight rows) four at a time, then
+// one by one.
+DVX_AVX512_PATH void stretch_rows_avx512(double* x, const StretchRow* rows, double* lambda, uint32_t begin,
+                                         uint32_t end, double alpha) {
+  const __m512d zero = _mm512_setzero_pd(), sign = _mm512_set1_pd(-0.0);
+  const __m512d big = _mm512_set1_pd(std::numeric_limits<double>::max()), va = _mm512_set1_pd(alpha);
+  // Lanes (rest, wa) of rows 0-1 | 4-5 and rows 2-3 | 6-7 into rows 0-7 in order.
+  const __m512i low_pairs = _mm512_setr_epi64(0, 1, 8, 9, 4, 5, 12, 13);
+  const __m512i high_pairs = _mm512_setr_epi64(2, 3, 10, 11, 6, 7, 14, 15);
+  uint32_t i = begin;
+  for (; i + 8 <= end; i += 8) {
+    const StretchRow* r = rows + i;
+    double* pa[8];
+    double* pb[8];
+    for (int l = 0; l < 8; ++l) {
+      pa[l] = x + 3 * size_t(r[l].a);
+      pb[l] = x + 3 * size_t(r[l].b);
+    }
+    __m256d ax4[2], ay4[2], az4[2], bx4[2], by4[2], bz4[2];
+    for (int h = 0; h < 2; ++h) {
+      gather4(pa + 4 * h, ax4[h], ay4[h], az4[h]);
+      gather4(pb + 4 * h, bx4[h], by4[h], bz4[h]);
+    }
+    const __m512d ax = join(ax4), ay = join(ay4), az = join(az4), bx = join(bx4), by = join(by4), bz = join(bz4);
+    // Row k's (rest, min_length, wa, wb) in 256-bit lane k / 4 of register k % 4, then transposed.
+    __m512d c[4];
+    for (int k = 0; k < 4; ++k) {
+      c[k] =
+          _mm512_insertf64x4(_mm512_castpd256_pd512(_mm256_loadu_pd(&r[k].rest)), _mm256_loadu_pd(&r[k + 4].rest), 1);
+    }
+    const __m512d t0 = _mm512_unpacklo_pd(c[0], c[1]), t1 = _mm512_unpackhi_pd(c[0], c[1]);  // rest wa, min wb
+    const __m512d t2 = _mm512_unpacklo_pd(c[2], c[3]), t3 = _mm512_unpackhi_pd(c[2], c[3]);
+    const __m512d rest = _mm512_permutex2var_pd(t0, low_pairs, t2), wa = _mm512_permutex2var_pd(t0, high_pairs, t2);
+    const __m512d min_length = _mm512_permutex2var_pd(t1, low_pairs, t3);
+    const __m512d wb = _mm512_permutex2var_pd(t1, high_pairs, t3);
+    const __m512d w_sum = _mm512_add_pd(wa, wb);
+    const __m512d d0 = _mm512_sub_pd(ax, bx), d1 = _mm512_sub_pd(ay, by), d2 = _mm512_sub_pd(az, bz);
+    const __m512d length = _mm512_sqrt_pd(
+        _mm512_add_pd(_mm512_add_pd(_mm512_mul_pd(d0, d0), _mm512_mul_pd(d1, d1)), _mm512_mul_pd(d2, d2)));
+    // distance_step's early returns: w_sum > 0, length > min_length, length <= max (false on NaN).
+    const __mmask8 valid = _mm512_cmp_pd_mask(w_sum, zero, _CMP_GT_OQ) &
+                           _mm512_cmp_pd_mask(length, min_length, _CMP_GT_OQ) &
+                           _mm512_cmp_pd_mask(length, big, _CMP_LE_OQ);
+    const __m512d l0 = _mm512_loadu_pd(lambda + i);
+    const __m512d numerator = _mm512_sub_pd(_mm512_xor_pd(_mm512_sub_pd(length, rest), sign), _mm512_mul_pd(va, l0));
+    const __m512d dl = _mm512_div_pd(numerator, _mm512_add_pd(w_sum, va));
+    _mm512_storeu_pd(lambda + i, _mm512_mask_add_pd(l0, valid, l0, dl));
+    const __m512d step = _mm512_div_pd(dl, length);
+    const __m512d si = _mm512_mul_pd(wa, step), sj = _mm512_mul_pd(wb, step);
+    // Where valid: a + si d, b - sj d; elsewhere what was read.
+    const __m512d nax = _mm512_mask_add_pd(ax, valid, ax, _mm512_mul_pd(si, d0));
+    const __m512d nay = _mm512_mask_add_pd(ay, valid, ay, _mm512_mul_pd(si, d1));
+    const __m512d naz = _mm512_mask_add_pd(az, valid, az, _mm512_mul_pd(si, d2));
+    const __m512d nbx = _mm512_mask_sub_pd(bx, valid, bx, _mm512_mul_pd(sj, d0));
+    const __m512d nby = _mm512_mask_sub_pd(by, valid, by, _mm512_mul_pd(sj, d1));
+    const __m512d nbz = _mm512_mask_sub_pd(bz, valid, bz, _mm512_mul_pd(sj, d2));
+    scatter4(pa, _mm512_castpd512_pd256(nax), _mm512_castpd512_pd256(nay), _mm512_castpd512_pd256(naz));
+    scatter4(pb, _mm512_castpd512_pd256(nbx), _mm512_castpd512_pd256(nby), _mm512_castpd512_pd256(nbz));
+    scatter4(pa + 4, _mm512_extractf64x4_pd(nax, 1), _mm512_extractf64x4_pd(nay, 1), _mm512_extractf64x4_pd(naz, 1));
+    scatter4(pb + 4, _mm512_extractf64x4_pd(nbx, 1), _mm512_extractf64x4_pd(nby, 1), _mm512_extractf64x4_pd(nbz, 1));
+  }
+  stretch_rows_avx2(x, rows, lambda, i, end, alpha);
 }
 #endif
 
 }  // namespace
 
-void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha,
-                        bool disjoint) {
+KernelIsa kernel_isa() {
 #if defined(__x86_64__)
-  if (disjoint && have_avx2()) {
-    stretch_rows_avx2(x, rows, lambda, begin, end, alpha);
-    return;
-  }
+  static const KernelIsa best = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+                                        __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw")
+                                    ? KernelIsa::kAvx512
+                                : __builtin_cpu_supports("avx2") ? KernelIsa::kAvx2
+                                                                 : KernelIsa::kBaseline;
+  return best;
+#else
+  return KernelIsa::kBaseline;
+#endif
+}
+
+void solve_stretch_rows(KernelIsa isa, double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end,
+                        double alpha, bool disjoint) {
+#if defined(__x86_64__)
+  if (disjoint && isa == KernelIsa::kAvx512) return stretch_rows_avx512(x, rows, lambda, begin, end, alpha);
+  if (disjoint && isa == KernelIsa::kAvx2) return stretch_rows_avx2(x, rows, lambda, begin, end, alpha);
 #endif
   stretch_rows_scalar(x, rows, lambda, begin, end, alpha);
+}
+
+void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha,
+                        bool disjoint) {
+  solve_stretch_rows(kernel_isa(), x, rows, lambda, begin, end, alpha, disjoint);
 }
 
 DVX_CLONES
@@ -630,8 +638,8 @@ void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r
 
 void shape_block_add(ShapeBlock& b, uint32_t piece, const uint32_t* indices, const ShapeRest& r) {
   const int lane = b.lanes++;
-  // Every lane from this one on (the unused ones repeat the first lane until they are filled).
-  for (int l = lane; l < (lane == 0 ? kShapeLanes : lane + 1); ++l) {
+  // Every lane from this one on (the unused ones repeat the last lane until they are filled).
+  for (int l = lane; l < kShapeLanes; ++l) {
     b.piece[l] = piece;
     b.inv_total[l] = r.inv_total;
     for (int k = 0; k < kS; ++k) {
@@ -645,172 +653,41 @@ void shape_block_add(ShapeBlock& b, uint32_t piece, const uint32_t* indices, con
 
 namespace {
 
-// Four particles' positions as one vector per axis: (x, y) pairs joined and interleaved, z apart
-// (GCC's vector shuffles: unpck / insertf128 with AVX, their SSE2 pairs otherwise); and back.
-typedef double V2 __attribute__((vector_size(16)));
-__attribute__((always_inline)) inline V2 load2(const double* p) {
-  V2 v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-__attribute__((always_inline)) inline void gather_lanes(double* const* at, V4 (&out)[3]) {
-  const V4 e = __builtin_shufflevector(load2(at[0]), load2(at[2]), 0, 1, 2, 3);  // x0 y0 x2 y2
-  const V4 o = __builtin_shufflevector(load2(at[1]), load2(at[3]), 0, 1, 2, 3);  // x1 y1 x3 y3
-  out[0] = __builtin_shufflevector(e, o, 0, 4, 2, 6);
-  out[1] = __builtin_shufflevector(e, o, 1, 5, 3, 7);
-  const V2 z01 = {at[0][2], at[1][2]}, z23 = {at[2][2], at[3][2]};
-  out[2] = __builtin_shufflevector(z01, z23, 0, 1, 2, 3);
-}
-__attribute__((always_inline)) inline void scatter_lanes(double* const* at, const V4 (&v)[3]) {
-  const V4 e = __builtin_shufflevector(v[0], v[1], 0, 4, 2, 6);  // x0 y0 x2 y2
-  const V4 o = __builtin_shufflevector(v[0], v[1], 1, 5, 3, 7);  // x1 y1 x3 y3
-  const V2 p0 = __builtin_shufflevector(e, e, 0, 1), p2 = __builtin_shufflevector(e, e, 2, 3);
-  const V2 p1 = __builtin_shufflevector(o, o, 0, 1), p3 = __builtin_shufflevector(o, o, 2, 3);
-  std::memcpy(at[0], &p0, sizeof p0);
-  std::memcpy(at[1], &p1, sizeof p1);
-  std::memcpy(at[2], &p2, sizeof p2);
-  std::memcpy(at[3], &p3, sizeof p3);
-  for (int l = 0; l < 4; ++l) at[l][2] = v[2][l];
+void shape_blocks_baseline(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
+                           Quaterniond* rotations, bool disjoint) {
+  lanes::shape_blocks_lanes<V4>(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
-// A block between the passes of solve_shape_blocks: its gathered positions, mass centre, A and
-// rotation (w, x, y, z), one V4 (a value per lane) each.
-struct BlockFrame {
-  V4 p[kS][3];
-  V4 c[3];
-  V4 a[3][3];
-  V4 q[4];
-};
-
-// Pass 1: gather the positions; the mass centre; A = sum_i m_i (x_i - c)(r_i - c0)^T row by row
-// (three accumulators live at a time; each entry still sums its slots in order: the same bits).
-__attribute__((always_inline)) inline void block_frame(const double* x, const ShapeBlock& b, BlockFrame& f) {
-  for (int k = 0; k < kS; ++k) {
-    double* const at[4] = {const_cast<double*>(x) + 3 * size_t(b.index[k][0]), const_cast<double*>(x) + 3 * size_t(b.index[k][1]),
-                           const_cast<double*>(x) + 3 * size_t(b.index[k][2]), const_cast<double*>(x) + 3 * size_t(b.index[k][3])};
-    gather_lanes(at, f.p[k]);
-  }
-  V4 c0 = {}, c1 = {}, c2 = {};
-  for (int k = 0; k < kS; ++k) {
-    V4 m;
-    load4(m, b.mass[k]);
-    c0 += m * f.p[k][0];
-    c1 += m * f.p[k][1];
-    c2 += m * f.p[k][2];
-  }
-  V4 inv_total;
-  load4(inv_total, b.inv_total);
-  f.c[0] = c0 * inv_total;
-  f.c[1] = c1 * inv_total;
-  f.c[2] = c2 * inv_total;
-  for (int i = 0; i < 3; ++i) {
-    const V4 ci = f.c[i];
-    V4 s0 = {}, s1 = {}, s2 = {};
-    for (int k = 0; k < kS; ++k) {
-      V4 m, o0, o1, o2;
-      load4(m, b.mass[k]);
-      load4(o0, b.offset[k][0]);
-      load4(o1, b.offset[k][1]);
-      load4(o2, b.offset[k][2]);
-      const V4 d = m * (f.p[k][i] - ci);
-      s0 += d * o0;
-      s1 += d * o1;
-      s2 += d * o2;
-    }
-    f.a[i][0] = s0;
-    f.a[i][1] = s1;
-    f.a[i][2] = s2;
-  }
+#if defined(__x86_64__)
+DVX_AVX2_PATH void shape_blocks_avx2(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
+                                     double stiffness, Quaterniond* rotations, bool disjoint) {
+  avx2_lanes::shape_blocks_lanes<V4>(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
-// Pass 2: the rotation step from each lane's warm start; extract_rotation in a lane where it is not
-// defined. Writes the block's rotations.
-__attribute__((always_inline)) inline void block_rotation(const ShapeBlock& b, Quaterniond* rotations, BlockFrame& f) {
-  // The four warm starts (Eigen's coefficients x, y, z, w) transposed into one vector per coefficient.
-  static_assert(sizeof(Quaterniond) == 4 * sizeof(double), "a quaternion is its four coefficients");
-  V4 r0, r1, r2, r3;
-  load4(r0, rotations[b.piece[0]].coeffs().data());
-  load4(r1, rotations[b.piece[1]].coeffs().data());
-  load4(r2, rotations[b.piece[2]].coeffs().data());
-  load4(r3, rotations[b.piece[3]].coeffs().data());
-  {
-    const V4 t0 = __builtin_shufflevector(r0, r1, 0, 4, 2, 6), t1 = __builtin_shufflevector(r0, r1, 1, 5, 3, 7);
-    const V4 t2 = __builtin_shufflevector(r2, r3, 0, 4, 2, 6), t3 = __builtin_shufflevector(r2, r3, 1, 5, 3, 7);
-    f.q[1] = __builtin_shufflevector(t0, t2, 0, 1, 4, 5);  // x
-    f.q[3] = __builtin_shufflevector(t0, t2, 2, 3, 6, 7);  // z
-    f.q[2] = __builtin_shufflevector(t1, t3, 0, 1, 4, 5);  // y
-    f.q[0] = __builtin_shufflevector(t1, t3, 2, 3, 6, 7);  // w
-  }
-  M4 defined;
-  rotation_step_lanes_into(f.a, f.q, defined);
-  for (int l = 0; l < b.lanes; ++l) {
-    if (defined[l] != 0) continue;
-    Matrix3d al;
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) al(i, j) = f.a[i][j][l];
-    }
-    const Quaterniond r = extract_rotation(al, rotations[b.piece[l]], kShapeRotationIterations);
-    f.q[0][l] = r.w();
-    f.q[1][l] = r.x();
-    f.q[2][l] = r.y();
-    f.q[3][l] = r.z();
-  }
-  // Unused lanes repeat the first lane's cluster, so they take its rotation (block_goals writes them,
-  // and they store it again into the first lane's slot).
-  for (int l = b.lanes; l < kShapeLanes; ++l) {
-    for (int e = 0; e < 4; ++e) f.q[e][l] = f.q[e][0];
-  }
-  // Back: the inverse transpose, one store per lane.
-  const V4 u0 = __builtin_shufflevector(f.q[1], f.q[2], 0, 4, 2, 6), u1 = __builtin_shufflevector(f.q[1], f.q[2], 1, 5, 3, 7);
-  const V4 u2 = __builtin_shufflevector(f.q[3], f.q[0], 0, 4, 2, 6), u3 = __builtin_shufflevector(f.q[3], f.q[0], 1, 5, 3, 7);
-  store4(rotations[b.piece[0]].coeffs().data(), __builtin_shufflevector(u0, u2, 0, 1, 4, 5));
-  store4(rotations[b.piece[1]].coeffs().data(), __builtin_shufflevector(u1, u3, 0, 1, 4, 5));
-  store4(rotations[b.piece[2]].coeffs().data(), __builtin_shufflevector(u0, u2, 2, 3, 6, 7));
-  store4(rotations[b.piece[3]].coeffs().data(), __builtin_shufflevector(u1, u3, 2, 3, 6, 7));
+DVX_AVX512_PATH void shape_blocks_avx512(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
+                                         double stiffness, Quaterniond* rotations, bool disjoint) {
+  avx512_lanes::shape_blocks_lanes<V8>(x, blocks, begin, end, stiffness, rotations, disjoint);
 }
-
-// Pass 3: goals c + R q_k; the particles that move go `stiffness` of the way there, the others keep
-// their bits, and every slot is scattered: a lane that repeats the first (a block of fewer clusters)
-// writes the same values to the same particle again.
-__attribute__((always_inline)) inline void block_goals(double* x, const ShapeBlock& b, double stiffness,
-                                                       const BlockFrame& f) {
-  V4 rot[3][3];
-  rotation_matrix_lanes<V4>(f.q, rot);
-  for (int k = 0; k < kS; ++k) {
-    V4 o[3], out[3];
-    M4 move;
-    lane_mask(b.moves[k], move);
-    for (int e = 0; e < 3; ++e) load4(o[e], b.offset[k][e]);
-    for (int e = 0; e < 3; ++e) {
-      const V4 goal = f.c[e] + (rot[e][0] * o[0] + rot[e][1] * o[1] + rot[e][2] * o[2]);
-      out[e] = lane_select(move, f.p[k][e] + stiffness * (goal - f.p[k][e]), f.p[k][e]);
-    }
-    double* const at[4] = {x + 3 * size_t(b.index[k][0]), x + 3 * size_t(b.index[k][1]),
-                           x + 3 * size_t(b.index[k][2]), x + 3 * size_t(b.index[k][3])};
-    scatter_lanes(at, out);
-  }
-}
+#endif
 
 }  // namespace
 
-// The lanes of shape_matching_frame and solve_shape_matching in V4 (the scalar path's operations in
-// its order); one clone per instruction set, picked when the program loads. A block in three passes
-// through its frame (few vectors live at a time: the compiler spilled ~250 of them when the block was
-// one pass). Gathering a few blocks before the first rotation step, so that the steps' chains of
-// divisions overlap, measured slower (more traffic through the stack, no gain in overlap).
-DVX_CLONES
+void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
+                        double stiffness, Quaterniond* rotations, bool disjoint) {
+#if defined(__x86_64__)
+  if (isa == KernelIsa::kAvx512) return shape_blocks_avx512(x, blocks, begin, end, stiffness, rotations, disjoint);
+  if (isa == KernelIsa::kAvx2) return shape_blocks_avx2(x, blocks, begin, end, stiffness, rotations, disjoint);
+#endif
+  shape_blocks_baseline(x, blocks, begin, end, stiffness, rotations, disjoint);
+}
+
 void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
-                        Quaterniond* rotations) {
-  BlockFrame f;
-  for (uint32_t i = begin; i < end; ++i) {
-    block_frame(x, blocks[i], f);
-    block_rotation(blocks[i], rotations, f);
-    block_goals(x, blocks[i], stiffness, f);
-  }
+                        Quaterniond* rotations, bool disjoint) {
+  solve_shape_blocks(kernel_isa(), x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
 void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
-  solve_shape_blocks(x, &b, 0, 1, stiffness, rotations);
+  solve_shape_blocks(x, &b, 0, 1, stiffness, rotations, false);
 }
 
 void solve_shape_matching(double* x, const double* inv_mass, const uint32_t* indices, const double* rest, int count,

@@ -95,12 +95,24 @@ inline void solve_stretch_row(double* x, const StretchRow& k, double alpha, doub
   distance_step(x + 3 * size_t(k.a), x + 3 * size_t(k.b), k.wa, k.wb, k.rest, k.min_length, alpha, lambda);
 }
 
+// The instruction sets the solver's constraint kernels have a path for: SSE2 (any x86-64), AVX2
+// (four double lanes in ymm registers) and AVX-512 F/DQ/VL/BW (eight in zmm). Every path does the
+// same IEEE operations per lane (no FMA, no reassociation), so all give the same bits; the kernels
+// take the best the CPU has (kernel_isa), tests and benchmarks may name another one it has.
+enum class KernelIsa : uint8_t { kBaseline, kAvx2, kAvx512 };
+// The best path this CPU has (asked once).
+KernelIsa kernel_isa();
+
 // Rows [begin, end) in order, with their lambdas. `disjoint`: no two rows share a particle (one colour
-// group), so on a CPU with AVX2 four rows are solved at once (gathered into one vector per axis);
-// otherwise (the overflow group, or no AVX2) one by one. Each row does solve_stretch_row's IEEE
-// operations in its order either way, so the results are the same bits on every machine.
+// group), so eight rows (AVX-512) or four (AVX2) are solved at once (gathered into one vector per
+// axis); otherwise (the overflow group, or the baseline path) one by one. Each row does
+// solve_stretch_row's IEEE operations in its order either way, so the results are the same bits on
+// every machine.
 void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end, double alpha,
                         bool disjoint = false);
+// The same on a named path (at most kernel_isa(): one this CPU has).
+void solve_stretch_rows(KernelIsa isa, double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end,
+                        double alpha, bool disjoint);
 
 // A surface vertex embedded in a piece: its slot, the piece slot and its local position in [0,1]^3.
 struct EmbedRow {
@@ -156,15 +168,19 @@ void solve_shape_matching(double* x, const uint32_t* indices, const ShapeRest& r
 
 // Shape-matching clusters solved kShapeLanes at a time (the solver's path): structure of arrays
 // ([slot][axis][lane]), so every stage of the solve (gather, centre, A, the rotation step, goals) is a
-// short loop over the lanes that the compiler vectorises (SSE2 on any x86-64, AVX2 where the CPU has
-// it, chosen at load time). Each lane does the same IEEE operations in the same order as the scalar
+// short loop over the lanes that the compiler vectorises: the eight lanes in one zmm register each
+// on the AVX-512 path, in two halves of four on the AVX2 (ymm) and baseline (SSE2 pairs) paths (the
+// halves' rotation steps side by side). Each lane does the same IEEE operations in the same order as
+// the scalar
 // solve_shape_matching(x, indices, rest, stiffness, rotation, 0) (no reassociation, no FMA), so
-// the results are the same bits on every machine and equal the scalar path. The lanes of a block
-// must share no particle (one colour group); a block of fewer than kShapeLanes clusters repeats its
-// first lane, computes it again and stores the same values to the same particles and rotation again.
-constexpr int kShapeLanes = 4;
-// The doubles first and the block 32-byte aligned, so each [lane] row of four is one aligned vector.
-struct alignas(32) ShapeBlock {
+// the results are the same bits on every path and equal the scalar path. The lanes of a block must
+// share no particle (one colour group). A block of fewer than kShapeLanes clusters repeats its last
+// lane in the unused ones: they compute it again and store the same values to the same particles
+// and rotation again; a half of four without a cluster of its own is skipped (it would only repeat
+// the other half's last cluster).
+constexpr int kShapeLanes = 8;
+// The doubles first and the block 64-byte aligned, so each [lane] row of eight is one aligned vector.
+struct alignas(64) ShapeBlock {
   double mass[kShapeMaxParticles][kShapeLanes] = {};
   double offset[kShapeMaxParticles][3][kShapeLanes] = {};  // r_i - c0
   double inv_total[kShapeLanes] = {};
@@ -175,7 +191,7 @@ struct alignas(32) ShapeBlock {
 };
 
 // Puts cluster (indices, rest frame r with r.count > 0, rotation slot `piece`) into the next lane
-// of `block` (block.lanes < kShapeLanes); the first lane is also copied into the unused ones.
+// of `block` (block.lanes < kShapeLanes), and into the unused ones after it.
 void shape_block_add(ShapeBlock& block, uint32_t piece, const uint32_t* indices, const ShapeRest& r);
 
 // Solves the block's clusters with stiffness `stiffness`; rotations[piece] is each lane's warm start,
@@ -184,8 +200,14 @@ void shape_block_add(ShapeBlock& block, uint32_t piece, const uint32_t* indices,
 // do not move with the bits they had (so a block touches only its own particles, as before).
 void solve_shape_block(double* x, const ShapeBlock& block, double stiffness, Eigen::Quaterniond* rotations);
 
-// Blocks [begin, end) one after the other (solve_shape_block on each in turn, one call).
+// Blocks [begin, end): the result of solve_shape_block on each in turn, in one call. `disjoint`: no
+// two of the blocks share a particle (one colour group), so the AVX-512 path solves two blocks at
+// once (their rotation steps side by side); otherwise (the overflow colour's blocks) one after the
+// other. The same bits either way.
 void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
-                        Eigen::Quaterniond* rotations);
+                        Eigen::Quaterniond* rotations, bool disjoint = false);
+// The same on a named path (at most kernel_isa(): one this CPU has).
+void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
+                        double stiffness, Eigen::Quaterniond* rotations, bool disjoint);
 
 }  // namespace dvx
