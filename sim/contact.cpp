@@ -84,20 +84,16 @@ void contacts_begin_substep(ContactSet& set) {
 
 namespace {
 
-// sum_k w_k p_k over the particles with a non-zero weight (p_k: 3 doubles at x + 3 particles[k]),
-// each coordinate summed in the order of k -- the same sums as Vec3d's r += w_k p_k -- with x and y
-// in one SSE2 register and no temporary vectors. This is most of a contact's solve (most points are
-// not pressed and change nothing), specialised for the two counts in use (8: a plane contact, 16:
-// two pieces').
-template <uint32_t kCount>
-Vec3d weighted_sum(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
-  const uint32_t n = kCount == 0 ? count : kCount;
+// sum_k w_k p_k (p_k: 3 doubles at x + 3 particles[k]; a prepared point has no zero weight, see
+// prepare_contact), each coordinate summed in the order of k -- the same sums as Vec3d's r += w_k
+// p_k -- with x and y in one SSE2 register and no temporary vectors. This is most of a contact's
+// solve (most points are not pressed and change nothing).
+Vec3d weighted_point(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
 #ifdef __SSE2__
   __m128d xy = _mm_setzero_pd();
   double z = 0.0;
-  for (uint32_t k = 0; k < n; ++k) {
+  for (uint32_t k = 0; k < count; ++k) {
     const double w = weights[k];
-    if (w == 0.0) continue;
     const double* p = x + 3 * size_t(particles[k]);
     xy = _mm_add_pd(xy, _mm_mul_pd(_mm_set1_pd(w), _mm_loadu_pd(p)));
     z += w * p[2];
@@ -107,26 +103,31 @@ Vec3d weighted_sum(const double* x, const uint32_t* particles, const double* wei
   return Vec3d(out[0], out[1], z);
 #else
   Vec3d r = Vec3d::Zero();
-  for (uint32_t k = 0; k < n; ++k) {
+  for (uint32_t k = 0; k < count; ++k) {
     const double* p = x + 3 * size_t(particles[k]);
-    if (weights[k] != 0.0) r += weights[k] * Vec3d(p[0], p[1], p[2]);
+    r += weights[k] * Vec3d(p[0], p[1], p[2]);
   }
   return r;
 #endif
 }
 
-Vec3d weighted_point(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
-  if (count == 8) return weighted_sum<8>(x, particles, weights, count);
-  if (count == 16) return weighted_sum<16>(x, particles, weights, count);
-  return weighted_sum<0>(x, particles, weights, count);
-}
-
-// The lever cap (sim/contact.h, kMaxLever) and the point's start in this substep. W = sum_k w_k^2 / m_k,
+// The lever cap (sim/contact.h, kMaxLever), once per step. W = sum_k w_k^2 / m_k,
 // W_eff = max(W, max_k |w_k| / m_k / kMaxLever): a requested correction d moves particle k by
 // (w_k / m_k / W_eff) d and the point by gain d (gain = W / W_eff: 1 unless the point is nearly
 // anchored, when it barely moves).
-void prepare_contact(const double* previous, const double* inv_mass, ContactPoint& c) {
+void prepare_contact(const double* inv_mass, ContactPoint& c) {
   if (!c.prepared) {
+    // Zero weights dropped (in order): their terms add nothing to the sums below nor to the point's
+    // sums (a sum that starts at +0 is never -0, so adding a zero product leaves it as it was), and
+    // their particles are not moved; a point on a piece's face or edge has 4 or 6 of them.
+    uint32_t kept = 0;
+    for (uint32_t k = 0; k < c.count; ++k) {
+      if (c.weights[k] == 0.0) continue;
+      c.particles[kept] = c.particles[k];
+      c.weights[kept] = c.weights[k];
+      ++kept;
+    }
+    c.count = kept;
     double w = 0.0, lever = 0.0;
     for (uint32_t k = 0; k < c.count; ++k) {
       const double a = c.weights[k], m = inv_mass[c.particles[k]];
@@ -139,17 +140,16 @@ void prepare_contact(const double* previous, const double* inv_mass, ContactPoin
     for (uint32_t k = 0; k < c.count; ++k) c.scale[k] = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
     c.prepared = true;
   }
-  c.start = weighted_point(previous, c.particles, c.weights, c.count);
+  c.started = false;
 }
 
 }  // namespace
 
 void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
-  if (c.solves++ == 0) prepare_contact(previous, inv_mass, c);
+  if (c.solves++ == 0) prepare_contact(inv_mass, c);
   if (!(c.gain > 0.0)) return;  // W = 0: nothing can move it
-  // The relative point and its motion since the start of the substep.
+  // The relative point.
   const Vec3d r = weighted_point(x, c.particles, c.weights, c.count);
-  Vec3d moved = r - c.start;
   const double gain = c.gain;
   const Vec3d& n = c.normal;
 
@@ -160,8 +160,15 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
   const double request = std::max(c.target - n.dot(r), -c.normal_total / gain);
   Vec3d delta = request * n;  // the correction requested of the point
   c.normal_total += gain * request;
-  moved += (gain * request) * n;
   if (c.normal_total > 0.0) {
+    // The point's motion since the start of the substep (the start taken on the first need: most
+    // points are never pressed, and `previous` does not change within a substep).
+    if (!c.started) {
+      c.start = weighted_point(previous, c.particles, c.weights, c.count);
+      c.started = true;
+    }
+    Vec3d moved = r - c.start;
+    moved += (gain * request) * n;
     // Friction: the total correction that would stop the tangential motion, clamped by Coulomb's cone.
     const Vec3d slide = moved - n.dot(moved) * n;
     Vec3d total = c.friction_total - slide;

@@ -58,12 +58,12 @@ struct ContactPoint {
   uint32_t count = kMaxParticles;        // slots in use (8 against a plane: the loops stop there)
   double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
   Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
-  // Solver data, set by the first solve (masses do not change within a step) and the first solve of
-  // each substep: what moving the point by d moves particle k (scale[k] d), the share of a requested
-  // correction the point moves (gain, see kMaxLever; 0: it cannot move), the point at the start of
-  // the substep.
+  // Solver data, set by the first solve (masses do not change within a step; it also drops the
+  // zero weights, which change nothing) and the first solve of each substep that presses the point:
+  // what moving the point by d moves particle k (scale[k] d), the share of a requested correction
+  // the point moves (gain, see kMaxLever; 0: it cannot move), the point at the start of the substep.
   uint32_t solves = 0;                   // in this substep
-  bool prepared = false;
+  bool prepared = false, started = false;
   double gain = 0.0;
   double scale[kMaxParticles] = {};
   Vec3d start = Vec3d::Zero();
