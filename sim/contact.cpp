@@ -571,21 +571,58 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
     std::sort(g.by_body.begin(), g.by_body.end());
   }
-  g.keys.clear();
+  // The points' cells. Where the cells they span are few (a contact zone: a few per point), a dense
+  // grid over them: cells by linear index (x fastest), so the cells of a row are neighbours in
+  // cell_items and a query's 13 cells are 5 ranges found by arithmetic. Otherwise hashed cells
+  // (build_cells: a table probe per neighbouring cell). Either way the same pairs are met.
+  g.point_cell.resize(3 * size_t(count));
+  int64_t low[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, high[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
   for (uint32_t rank = 0; rank < count; ++rank) {
     const Vec3d& p = points[uint32_t(g.by_body[rank])].position;
-    const uint64_t cell = cell_key(cell_coord(p.x(), reach), cell_coord(p.y(), reach), cell_coord(p.z(), reach));
-    g.keys.push_back(cell | rank);
+    for (int a = 0; a < 3; ++a) {
+      const int64_t c = cell_coord(p[a], reach);
+      g.point_cell[3 * size_t(rank) + a] = c;
+      low[a] = std::min(low[a], c);
+      high[a] = std::max(high[a], c);
+    }
   }
-  build_cells(g);
+  const uint64_t span[3] = {uint64_t(high[0] - low[0]) + 1, uint64_t(high[1] - low[1]) + 1, uint64_t(high[2] - low[2]) + 1};
+  const uint64_t dense_limit = std::max<uint64_t>(4096, 32 * uint64_t(count));
+  const bool dense = span[0] <= dense_limit && span[1] <= dense_limit && span[2] <= dense_limit &&
+                     span[0] * span[1] <= dense_limit && span[0] * span[1] * span[2] <= dense_limit;
+  const uint32_t nx = dense ? uint32_t(span[0]) : 0, ny = dense ? uint32_t(span[1]) : 0, nz = dense ? uint32_t(span[2]) : 0;
+  if (dense) {
+    // Counting sort by linear index, stable (ranks ascending: a cell's items in body order).
+    const uint32_t total = nx * ny * nz;
+    g.cell_begin.assign(size_t(total) + 1, 0);
+    g.cell_of.resize(count);
+    for (uint32_t rank = 0; rank < count; ++rank) {
+      const int64_t* c = &g.point_cell[3 * size_t(rank)];
+      g.cell_of[rank] = uint32_t(c[0] - low[0]) + nx * (uint32_t(c[1] - low[1]) + ny * uint32_t(c[2] - low[2]));
+      ++g.cell_begin[g.cell_of[rank]];
+    }
+    for (uint32_t c = 1; c < total; ++c) g.cell_begin[c] += g.cell_begin[c - 1];  // ends
+    g.cell_items.resize(count);
+    for (uint32_t rank = count; rank-- > 0;) g.cell_items[--g.cell_begin[g.cell_of[rank]]] = rank;  // begins
+    g.cell_begin[total] = count;
+  } else {
+    g.keys.clear();
+    for (uint32_t rank = 0; rank < count; ++rank) {
+      const int64_t* c = &g.point_cell[3 * size_t(rank)];
+      g.keys.push_back(cell_key(c[0], c[1], c[2]) | rank);
+    }
+    build_cells(g);
+  }
   g.item_body.resize(count);
   g.run_end.resize(count);
+  g.item_rank.resize(count);
   g.item_position.resize(count);
   g.item_normal.resize(count);
   g.item_reach.resize(count);
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
       const uint64_t entry = g.by_body[g.cell_items[n]];
+      g.item_rank[n] = g.cell_items[n];
       g.cell_items[n] = uint32_t(entry);
       g.item_body[n] = uint32_t(entry >> 32);
       g.item_position[n] = points[uint32_t(entry)].position;
@@ -613,15 +650,39 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   };
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     const uint32_t cell_end = g.cell_begin[c + 1];
+    if (g.cell_begin[c] == cell_end) continue;  // an empty cell of the dense grid
+    // The 13 cells after this one: in a dense grid, the next cell of the row (scanned with this
+    // cell's own items), the row above in y, and the three rows above in z; hashed, one probe each
+    // (the points of a cell share them, recomputed where two cells share a hash).
+    uint32_t own_end = cell_end;
     int64_t have[3] = {0, 0, 0};
     bool ready = false;
+    if (dense) {
+      const uint32_t cx = c % nx, cy = c / nx % ny, cz = c / nx / ny;
+      const uint32_t left = cx > 0, right = cx + 1 < nx;
+      if (right) own_end = g.cell_begin[c + 2];
+      g.ranges.resize(8);  // at most 4 rows
+      uint32_t rows = 0;
+      const auto row = [&](uint32_t middle) {  // the cells middle - 1 .. middle + 1 of one row
+        g.ranges[rows++] = g.cell_begin[middle - left];
+        g.ranges[rows++] = g.cell_begin[middle + right + 1];
+      };
+      if (cy + 1 < ny) row(c + nx);
+      if (cz + 1 < nz) {
+        for (int dj = -1; dj <= 1; ++dj) {
+          if ((dj < 0 && cy == 0) || (dj > 0 && cy + 1 == ny)) continue;
+          row(uint32_t(int64_t(c) + int64_t(nx) * ny + int64_t(dj) * nx));
+        }
+      }
+      g.ranges.resize(rows);
+    }
     for (uint32_t item = g.cell_begin[c]; item < cell_end; ++item) {
       const Vec3d& position = g.item_position[item];
       const Vec3d& normal = g.item_normal[item];
       const double reach2 = g.item_reach[item];
       const uint32_t body = g.item_body[item];
-      const int64_t at[3] = {cell_coord(position.x(), reach), cell_coord(position.y(), reach), cell_coord(position.z(), reach)};
-      if (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2]) {
+      const int64_t* at = &g.point_cell[3 * size_t(g.item_rank[item])];
+      if (!dense && (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2])) {
         g.ranges.clear();
         for (int64_t dk = 0; dk <= 1; ++dk) {
           for (int64_t dj = dk == 0 ? 0 : -1; dj <= 1; ++dj) {
@@ -650,7 +711,7 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
           meet(n, item, d);
         }
       };
-      scan(item + 1, cell_end);
+      scan(item + 1, own_end);
       for (size_t r = 0; r < g.ranges.size(); r += 2) scan(g.ranges[r], g.ranges[r + 1]);
     }
   }

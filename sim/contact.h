@@ -158,8 +158,9 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
 // cache of the pairs within reach plus a contact cell, kept between steps while the pieces stay
 // within that margin: PairCache). Narrow phase: the
-// contact points of exposed pieces (near a partner's bounds) in a hash grid of cell = the largest
-// reach, each pair of points met once (a cell against itself and the 13 cells after it); each point
+// contact points of exposed pieces (near a partner's bounds) in a grid of cell = the largest reach
+// (dense over the cells they span when those are few, as in a contact zone; else hashed), each pair
+// of points met once (a cell against itself and the 13 cells after it); each point
 // v pairs with its nearest point q of another body within the pair's reach whose normal faces it
 // (n_v . n_q < -0.9: more than ~155 degrees apart, so the rims where a cut face meets the old surface
 // do not pair). The contact keeps v on the outer side of q's tangent plane: C = n_q . (x_v - x_q) >=
@@ -254,7 +255,9 @@ struct PieceContactScratch {
   std::vector<uint32_t> table;                    // open addressing: cell index + 1 (0: empty)
   uint32_t table_bits = 1;
   std::vector<uint64_t> by_body;                  // (points) body << 32 | point, sorted (narrow phase)
+  std::vector<int64_t> point_cell;                // (points x 3) cell coordinates, by rank in body order
   std::vector<uint32_t> item_body, run_end;       // (cell_items) body; end of its body's run in the cell
+  std::vector<uint32_t> item_rank;                // (cell_items) rank in body order
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
   std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
@@ -265,7 +268,7 @@ struct PieceContactScratch {
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
   std::vector<float> allowance;                   // (points) updated allowances
   // Narrow phase: the points' positions and normals in cell order (a query scans them in sequence),
-  // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
+  // each point's nearest facing partner, the item ranges of the cells after the query's cell.
   std::vector<Vec3d> item_position, item_normal;  // (cell_items)
   std::vector<double> item_reach;                 // (cell_items) squared reach
   std::vector<uint32_t> best;                     // (points) partner point, ~0u: none

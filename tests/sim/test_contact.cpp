@@ -4,6 +4,7 @@
 #include "sim/contact.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
+#include "sim/random.h"
 #include "sim/shapes.h"
 #include "sim/state_hash.h"
 #include "sim/voxelize.h"
@@ -12,6 +13,7 @@
 
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <thread>
@@ -653,6 +655,98 @@ TEST_SUITE("contact") {
     for (uint32_t k = 8; k < 16; ++k) fresh.x[3 * k + 1] -= 0.01;  // pressed 0.01 deeper
     fresh.step(0.05, 5);
     CHECK(fresh.gap() == doctest::Approx(-0.3));
+  }
+}
+
+namespace {
+
+// Random surface points in a slab (x, z in [0, extent), y in [0, 0.3)) of three bodies, four points a
+// piece, each point on 8 particles of its own (all its weight on the first, which sits at the point):
+// bodies 0 and 2 face up, body 1 faces down (normals jittered by up to ~8 degrees).
+std::vector<SurfacePoint> random_points(uint32_t count, double extent, uint64_t seed, std::vector<double>& x) {
+  SplitMix64 rng{seed};
+  std::vector<SurfacePoint> points(count);
+  x.assign(24 * size_t(count), 0.0);
+  for (uint32_t v = 0; v < count; ++v) {
+    SurfacePoint& p = points[v];
+    p.piece = v / 4;
+    p.body = p.piece % 3;
+    p.position = Vec3d(rng.uniform(0.0, extent), rng.uniform(0.0, 0.3), rng.uniform(0.0, extent));
+    const double side = p.body == 1 ? -1.0 : 1.0;
+    p.normal = Vec3d(rng.uniform(-0.1, 0.1), side, rng.uniform(-0.1, 0.1)).normalized();
+    for (uint32_t c = 0; c < 8; ++c) {
+      p.particles[c] = 8 * v + c;
+      p.weights[c] = c == 0 ? 1.0 : 0.0;
+    }
+    for (int a = 0; a < 3; ++a) x[24 * size_t(v) + a] = p.position[a];
+    p.allowance = 0.0f;
+    p.slot = v;
+    p.reach = float(rng.uniform(0.05, 0.1));
+  }
+  return points;
+}
+
+// The point pairs (v << 32 | q) of the contacts gather_piece_contacts makes, from the particles.
+std::vector<uint64_t> contact_pairs(std::vector<SurfacePoint> points, const std::vector<double>& x) {
+  ContactSet set;
+  PieceContactScratch scratch;
+  contacts_clear(set);
+  gather_piece_contacts(points.data(), uint32_t(points.size()), x.data(), uint32_t(x.size() / 3), 1.0, 0.5, set, scratch);
+  contacts_finish(set);
+  std::vector<uint64_t> pairs;
+  for (const ContactPoint& c : set.points) pairs.push_back(uint64_t(c.particles[0] / 8) << 32 | (c.particles[8] / 8));
+  std::sort(pairs.begin(), pairs.end());
+  return pairs;
+}
+
+// The same pairs by brute force (sim/contact.h, "Broad phase" and "Contacts"): each point's nearest
+// facing point of another body within the pair's reach (ties: the lower index); one contact per
+// mutual pair, the lower point's.
+std::vector<uint64_t> brute_force_pairs(const std::vector<SurfacePoint>& points) {
+  const uint32_t n = uint32_t(points.size());
+  std::vector<uint32_t> best(n, ~0u);
+  for (uint32_t v = 0; v < n; ++v) {
+    double best_d = 0.0;
+    for (uint32_t q = 0; q < n; ++q) {
+      if (points[q].body == points[v].body || points[v].normal.dot(points[q].normal) > -0.9) continue;
+      const double d = (points[q].position - points[v].position).squaredNorm();
+      const double reach = std::max(double(points[v].reach), double(points[q].reach));
+      if (d > reach * reach) continue;
+      if (best[v] == ~0u || d < best_d) {
+        best[v] = q;
+        best_d = d;
+      }
+    }
+  }
+  std::vector<uint64_t> pairs;
+  for (uint32_t v = 0; v < n; ++v) {
+    if (best[v] == ~0u || (best[best[v]] == v && best[v] < v)) continue;
+    pairs.push_back(uint64_t(v) << 32 | best[v]);
+  }
+  std::sort(pairs.begin(), pairs.end());
+  return pairs;
+}
+
+}  // namespace
+
+TEST_SUITE("contact") {
+  TEST_CASE("the narrow phase pairs each point with its nearest facing point of another body, on a dense grid or hashed cells") {
+    // A slab 2 wide (20 cells of the largest reach along x and z: a dense grid over the points' cells),
+    // and the same with one pair of points moved 1e4 away (too many cells: hashed cells).
+    for (const uint64_t seed : {1u, 2u, 3u}) {
+      CAPTURE(seed);
+      std::vector<double> x;
+      std::vector<SurfacePoint> points = random_points(2000, 2.0, seed, x);
+      const std::vector<uint64_t> dense = contact_pairs(points, x);
+      CHECK(dense.size() > 100);
+      CHECK(dense == brute_force_pairs(points));
+      for (uint32_t v : {8u, 12u}) {  // a piece of body 2 and one of body 1
+        points[v].position += Vec3d(1e4, 0.0, 0.0);
+        x[24 * size_t(v)] += 1e4;
+      }
+      const std::vector<uint64_t> hashed = contact_pairs(points, x);
+      CHECK(hashed == brute_force_pairs(points));
+    }
   }
 }
 
