@@ -1627,6 +1627,8 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState&
   constexpr int kEntries = kContactCells * kContactCells * kContactCells * 6;
   uint32_t best[kEntries];
   double best_d[kEntries];
+  uint16_t used[kEntries];  // the entries taken, in order of first use
+  uint32_t used_count = 0;
   std::fill(best, best + kEntries, ~0u);
   for (uint32_t n = 0; n < count; ++n) {
     const uint32_t slot = x.piece_slots[first + n];
@@ -1645,16 +1647,19 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState&
     int axis = 0;
     normal[n].cwiseAbs().maxCoeff(&axis);
     entry = entry * 6 + 2 * axis + (normal[n][axis] < 0.0);
+    if (best[entry] == ~0u) used[used_count++] = uint16_t(entry);
     if (best[entry] == ~0u || d < best_d[entry]) {  // slots ascending: ties keep the lowest
       best[entry] = n;
       best_d[entry] = d;
     }
   }
   pc.rep_begin[piece] = uint32_t(pc.reps.size());
-  std::sort(best, best + kEntries);  // by slot (ascending within the piece); unused entries last
-  for (int e = 0; e < kEntries && best[e] != ~0u; ++e) {
-    const Vec3d n = normal[best[e]].normalized();
-    pc.reps.push_back(ContactRep{x.piece_slots[first + best[e]], {float(n.x()), float(n.y()), float(n.z())}});
+  uint32_t chosen[kEntries];
+  for (uint32_t e = 0; e < used_count; ++e) chosen[e] = best[used[e]];
+  std::sort(chosen, chosen + used_count);  // by slot (ascending within the piece)
+  for (uint32_t e = 0; e < used_count; ++e) {
+    const Vec3d n = normal[chosen[e]].normalized();
+    pc.reps.push_back(ContactRep{x.piece_slots[first + chosen[e]], {float(n.x()), float(n.y()), float(n.z())}});
   }
   pc.rep_count[piece] = uint16_t(pc.reps.size() - pc.rep_begin[piece]);
   return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
