@@ -137,15 +137,19 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // (every surface vertex of an exposed piece near a partner was one: at 256 the step after a sever
 // cost 35 ms). So contact acts on a fixed subset of each piece's surface vertices, its *contact
 // points*: its simulation voxel (rest frame) is divided into contact_cells(ratio)^3 cells
-// (kContactCells = 4 per edge, fewer where a cell would be smaller than kMinContactCell = 2 fine
+// (kContactCells = 2 per edge, fewer where a cell would be smaller than kMinContactCell = 2 fine
 // voxels), and in each cell and each of six normal directions (the dominant axis of the vertex's rest
 // normal and its sign, so a cut face and the old surface meeting at a rim keep a point each) the
 // vertex nearest the cell's centre is a contact point (ties: the lowest slot). The choice depends on
 // the rest surface only: made per piece on first need after each cut, it never flickers between
-// steps. A flat face of a piece has at most 16 contact points whatever the fine resolution; the plane
+// steps. A flat face of a piece has at most 4 contact points whatever the fine resolution; the plane
 // contacts and both sides of the narrow phase use only them. Between contact points the surface
 // interpolates the same particles (on a flat face, exactly: it stays on the side they hold it on); a
-// face curved with radius R dips up to d^2 / 8R between two points d apart. A contact point's deformed
+// face curved with radius R dips up to d^2 / 8R between two points d apart. (With 4 cells per edge,
+// 16 points a face, the default recording at 128 / sim 16 made ~10 contacts per pair of pieces while
+// the severed head top rested on the stump, 550-680 a step, the solve alone half the step; with 2,
+// 3 a pair and ~150 a step; tests/sim/test_contact.cpp checks a fresh cut and a box on a box at 8 fine
+// voxels per simulation voxel, as at 4.) A contact point's deformed
 // normal is its rest normal under the piece's trilinear map (the cofactor of its Jacobian there).
 //
 // Reach. Each piece's own: max(2 fine voxels, a contact cell) plus twice what its fastest corner moves
@@ -156,8 +160,8 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
 // bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
 // is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
-// cache of the pairs within reach plus a contact cell, kept between steps while the pieces stay
-// within that margin: PairCache). Narrow phase: the
+// cache of the pairs within reach plus a quarter simulation voxel, kept between steps while the
+// pieces stay within that margin: PairCache). Narrow phase: the
 // contact points of exposed pieces (near a partner's bounds) in a grid of cell = the largest reach
 // (dense over the cells they span when those are few, as in a contact zone; else hashed), each pair
 // of points met once (a cell against itself and the 13 cells after it); each point
@@ -327,7 +331,7 @@ struct ContactRep {
 
 // Contact cells per simulation voxel edge (see "Contact points"): kContactCells, fewer where a cell
 // would be smaller than kMinContactCell fine voxels.
-constexpr int kContactCells = 4;
+constexpr int kContactCells = 2;
 constexpr int kMinContactCell = 2;
 inline int contact_cells(int ratio) { return std::max(1, std::min(kContactCells, ratio / kMinContactCell)); }
 

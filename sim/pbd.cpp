@@ -1836,9 +1836,11 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
     return;
   }
   // Through the pair cache (sim/contact.h PairCache), kept while the pieces and bodies stay (the
-  // index's updates) and no candidate moves more than a margin of a contact cell from where it was.
+  // index's updates) and no candidate moves more than a margin of a quarter simulation voxel from
+  // where it was (a margin of a contact cell, half a simulation voxel at 8 fine voxels per simulation
+  // voxel, cost the default recording's broad phase 0.62 M instructions a step instead of 0.54).
   pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
-                                                 s.sim_size / contact_cells(s.ratio), x.updates, pc.exposed, pc.scratch,
+                                                 0.25 * s.sim_size, x.updates, pc.exposed, pc.scratch,
                                                  &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
   gather_surface_points(cut, s);
