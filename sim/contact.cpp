@@ -84,20 +84,16 @@ void contacts_begin_substep(ContactSet& set) {
 
 namespace {
 
-// sum_k w_k p_k over the particles with a non-zero weight (p_k: 3 doubles at x + 3 particles[k]),
-// each coordinate summed in the order of k -- the same sums as Vec3d's r += w_k p_k -- with x and y
-// in one SSE2 register and no temporary vectors. This is most of a contact's solve (most points are
-// not pressed and change nothing), specialised for the two counts in use (8: a plane contact, 16:
-// two pieces').
-template <uint32_t kCount>
-Vec3d weighted_sum(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
-  const uint32_t n = kCount == 0 ? count : kCount;
+// sum_k w_k p_k (p_k: 3 doubles at x + 3 particles[k]; a prepared point has no zero weight, see
+// prepare_contact), each coordinate summed in the order of k -- the same sums as Vec3d's r += w_k
+// p_k -- with x and y in one SSE2 register and no temporary vectors. This is most of a contact's
+// solve (most points are not pressed and change nothing).
+Vec3d weighted_point(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
 #ifdef __SSE2__
   __m128d xy = _mm_setzero_pd();
   double z = 0.0;
-  for (uint32_t k = 0; k < n; ++k) {
+  for (uint32_t k = 0; k < count; ++k) {
     const double w = weights[k];
-    if (w == 0.0) continue;
     const double* p = x + 3 * size_t(particles[k]);
     xy = _mm_add_pd(xy, _mm_mul_pd(_mm_set1_pd(w), _mm_loadu_pd(p)));
     z += w * p[2];
@@ -107,26 +103,31 @@ Vec3d weighted_sum(const double* x, const uint32_t* particles, const double* wei
   return Vec3d(out[0], out[1], z);
 #else
   Vec3d r = Vec3d::Zero();
-  for (uint32_t k = 0; k < n; ++k) {
+  for (uint32_t k = 0; k < count; ++k) {
     const double* p = x + 3 * size_t(particles[k]);
-    if (weights[k] != 0.0) r += weights[k] * Vec3d(p[0], p[1], p[2]);
+    r += weights[k] * Vec3d(p[0], p[1], p[2]);
   }
   return r;
 #endif
 }
 
-Vec3d weighted_point(const double* x, const uint32_t* particles, const double* weights, uint32_t count) {
-  if (count == 8) return weighted_sum<8>(x, particles, weights, count);
-  if (count == 16) return weighted_sum<16>(x, particles, weights, count);
-  return weighted_sum<0>(x, particles, weights, count);
-}
-
-// The lever cap (sim/contact.h, kMaxLever) and the point's start in this substep. W = sum_k w_k^2 / m_k,
+// The lever cap (sim/contact.h, kMaxLever), once per step. W = sum_k w_k^2 / m_k,
 // W_eff = max(W, max_k |w_k| / m_k / kMaxLever): a requested correction d moves particle k by
 // (w_k / m_k / W_eff) d and the point by gain d (gain = W / W_eff: 1 unless the point is nearly
 // anchored, when it barely moves).
-void prepare_contact(const double* previous, const double* inv_mass, ContactPoint& c) {
+void prepare_contact(const double* inv_mass, ContactPoint& c) {
   if (!c.prepared) {
+    // Zero weights dropped (in order): their terms add nothing to the sums below nor to the point's
+    // sums (a sum that starts at +0 is never -0, so adding a zero product leaves it as it was), and
+    // their particles are not moved; a point on a piece's face or edge has 4 or 6 of them.
+    uint32_t kept = 0;
+    for (uint32_t k = 0; k < c.count; ++k) {
+      if (c.weights[k] == 0.0) continue;
+      c.particles[kept] = c.particles[k];
+      c.weights[kept] = c.weights[k];
+      ++kept;
+    }
+    c.count = kept;
     double w = 0.0, lever = 0.0;
     for (uint32_t k = 0; k < c.count; ++k) {
       const double a = c.weights[k], m = inv_mass[c.particles[k]];
@@ -139,17 +140,16 @@ void prepare_contact(const double* previous, const double* inv_mass, ContactPoin
     for (uint32_t k = 0; k < c.count; ++k) c.scale[k] = c.weights[k] * inv_mass[c.particles[k]] * inv_w;
     c.prepared = true;
   }
-  c.start = weighted_point(previous, c.particles, c.weights, c.count);
+  c.started = false;
 }
 
 }  // namespace
 
 void solve_contact_point(double* x, const double* previous, const double* inv_mass, ContactPoint& c) {
-  if (c.solves++ == 0) prepare_contact(previous, inv_mass, c);
+  if (c.solves++ == 0) prepare_contact(inv_mass, c);
   if (!(c.gain > 0.0)) return;  // W = 0: nothing can move it
-  // The relative point and its motion since the start of the substep.
+  // The relative point.
   const Vec3d r = weighted_point(x, c.particles, c.weights, c.count);
-  Vec3d moved = r - c.start;
   const double gain = c.gain;
   const Vec3d& n = c.normal;
 
@@ -160,8 +160,15 @@ void solve_contact_point(double* x, const double* previous, const double* inv_ma
   const double request = std::max(c.target - n.dot(r), -c.normal_total / gain);
   Vec3d delta = request * n;  // the correction requested of the point
   c.normal_total += gain * request;
-  moved += (gain * request) * n;
   if (c.normal_total > 0.0) {
+    // The point's motion since the start of the substep (the start taken on the first need: most
+    // points are never pressed, and `previous` does not change within a substep).
+    if (!c.started) {
+      c.start = weighted_point(previous, c.particles, c.weights, c.count);
+      c.started = true;
+    }
+    Vec3d moved = r - c.start;
+    moved += (gain * request) * n;
     // Friction: the total correction that would stop the tangential motion, clamped by Coulomb's cone.
     const Vec3d slide = moved - n.dot(moved) * n;
     Vec3d total = c.friction_total - slide;
@@ -575,21 +582,58 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
     for (uint32_t v = 0; v < count; ++v) g.by_body[v] = (uint64_t(points[v].body) << 32) | v;
     std::sort(g.by_body.begin(), g.by_body.end());
   }
-  g.keys.clear();
+  // The points' cells. Where the cells they span are few (a contact zone: a few per point), a dense
+  // grid over them: cells by linear index (x fastest), so the cells of a row are neighbours in
+  // cell_items and a query's 13 cells are 5 ranges found by arithmetic. Otherwise hashed cells
+  // (build_cells: a table probe per neighbouring cell). Either way the same pairs are met.
+  g.point_cell.resize(3 * size_t(count));
+  int64_t low[3] = {INT64_MAX, INT64_MAX, INT64_MAX}, high[3] = {INT64_MIN, INT64_MIN, INT64_MIN};
   for (uint32_t rank = 0; rank < count; ++rank) {
     const Vec3d& p = points[uint32_t(g.by_body[rank])].position;
-    const uint64_t cell = cell_key(cell_coord(p.x(), reach), cell_coord(p.y(), reach), cell_coord(p.z(), reach));
-    g.keys.push_back(cell | rank);
+    for (int a = 0; a < 3; ++a) {
+      const int64_t c = cell_coord(p[a], reach);
+      g.point_cell[3 * size_t(rank) + a] = c;
+      low[a] = std::min(low[a], c);
+      high[a] = std::max(high[a], c);
+    }
   }
-  build_cells(g);
+  const uint64_t span[3] = {uint64_t(high[0] - low[0]) + 1, uint64_t(high[1] - low[1]) + 1, uint64_t(high[2] - low[2]) + 1};
+  const uint64_t dense_limit = std::max<uint64_t>(4096, 32 * uint64_t(count));
+  const bool dense = span[0] <= dense_limit && span[1] <= dense_limit && span[2] <= dense_limit &&
+                     span[0] * span[1] <= dense_limit && span[0] * span[1] * span[2] <= dense_limit;
+  const uint32_t nx = dense ? uint32_t(span[0]) : 0, ny = dense ? uint32_t(span[1]) : 0, nz = dense ? uint32_t(span[2]) : 0;
+  if (dense) {
+    // Counting sort by linear index, stable (ranks ascending: a cell's items in body order).
+    const uint32_t total = nx * ny * nz;
+    g.cell_begin.assign(size_t(total) + 1, 0);
+    g.cell_of.resize(count);
+    for (uint32_t rank = 0; rank < count; ++rank) {
+      const int64_t* c = &g.point_cell[3 * size_t(rank)];
+      g.cell_of[rank] = uint32_t(c[0] - low[0]) + nx * (uint32_t(c[1] - low[1]) + ny * uint32_t(c[2] - low[2]));
+      ++g.cell_begin[g.cell_of[rank]];
+    }
+    for (uint32_t c = 1; c < total; ++c) g.cell_begin[c] += g.cell_begin[c - 1];  // ends
+    g.cell_items.resize(count);
+    for (uint32_t rank = count; rank-- > 0;) g.cell_items[--g.cell_begin[g.cell_of[rank]]] = rank;  // begins
+    g.cell_begin[total] = count;
+  } else {
+    g.keys.clear();
+    for (uint32_t rank = 0; rank < count; ++rank) {
+      const int64_t* c = &g.point_cell[3 * size_t(rank)];
+      g.keys.push_back(cell_key(c[0], c[1], c[2]) | rank);
+    }
+    build_cells(g);
+  }
   g.item_body.resize(count);
   g.run_end.resize(count);
+  g.item_rank.resize(count);
   g.item_position.resize(count);
   g.item_normal.resize(count);
   g.item_reach.resize(count);
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     for (uint32_t n = g.cell_begin[c + 1]; n-- > g.cell_begin[c];) {
       const uint64_t entry = g.by_body[g.cell_items[n]];
+      g.item_rank[n] = g.cell_items[n];
       g.cell_items[n] = uint32_t(entry);
       g.item_body[n] = uint32_t(entry >> 32);
       g.item_position[n] = points[uint32_t(entry)].position;
@@ -617,15 +661,39 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
   };
   for (uint32_t c = 0; c + 1 < g.cell_begin.size(); ++c) {
     const uint32_t cell_end = g.cell_begin[c + 1];
+    if (g.cell_begin[c] == cell_end) continue;  // an empty cell of the dense grid
+    // The 13 cells after this one: in a dense grid, the next cell of the row (scanned with this
+    // cell's own items), the row above in y, and the three rows above in z; hashed, one probe each
+    // (the points of a cell share them, recomputed where two cells share a hash).
+    uint32_t own_end = cell_end;
     int64_t have[3] = {0, 0, 0};
     bool ready = false;
+    if (dense) {
+      const uint32_t cx = c % nx, cy = c / nx % ny, cz = c / nx / ny;
+      const uint32_t left = cx > 0, right = cx + 1 < nx;
+      if (right) own_end = g.cell_begin[c + 2];
+      g.ranges.resize(8);  // at most 4 rows
+      uint32_t rows = 0;
+      const auto row = [&](uint32_t middle) {  // the cells middle - 1 .. middle + 1 of one row
+        g.ranges[rows++] = g.cell_begin[middle - left];
+        g.ranges[rows++] = g.cell_begin[middle + right + 1];
+      };
+      if (cy + 1 < ny) row(c + nx);
+      if (cz + 1 < nz) {
+        for (int dj = -1; dj <= 1; ++dj) {
+          if ((dj < 0 && cy == 0) || (dj > 0 && cy + 1 == ny)) continue;
+          row(uint32_t(int64_t(c) + int64_t(nx) * ny + int64_t(dj) * nx));
+        }
+      }
+      g.ranges.resize(rows);
+    }
     for (uint32_t item = g.cell_begin[c]; item < cell_end; ++item) {
       const Vec3d& position = g.item_position[item];
       const Vec3d& normal = g.item_normal[item];
       const double reach2 = g.item_reach[item];
       const uint32_t body = g.item_body[item];
-      const int64_t at[3] = {cell_coord(position.x(), reach), cell_coord(position.y(), reach), cell_coord(position.z(), reach)};
-      if (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2]) {
+      const int64_t* at = &g.point_cell[3 * size_t(g.item_rank[item])];
+      if (!dense && (!ready || at[0] != have[0] || at[1] != have[1] || at[2] != have[2])) {
         g.ranges.clear();
         for (int64_t dk = 0; dk <= 1; ++dk) {
           for (int64_t dj = dk == 0 ? 0 : -1; dj <= 1; ++dj) {
@@ -654,7 +722,7 @@ uint32_t gather_piece_contacts(SurfacePoint* points, uint32_t count, const doubl
           meet(n, item, d);
         }
       };
-      scan(item + 1, cell_end);
+      scan(item + 1, own_end);
       for (size_t r = 0; r < g.ranges.size(); r += 2) scan(g.ranges[r], g.ranges[r + 1]);
     }
   }

@@ -58,12 +58,12 @@ struct ContactPoint {
   uint32_t count = kMaxParticles;        // slots in use (8 against a plane: the loops stop there)
   double normal_total = 0.0;             // normal correction applied in this substep (a length, >= 0)
   Vec3d friction_total = Vec3d::Zero();  // friction correction applied in this substep (tangent)
-  // Solver data, set by the first solve (masses do not change within a step) and the first solve of
-  // each substep: what moving the point by d moves particle k (scale[k] d), the share of a requested
-  // correction the point moves (gain, see kMaxLever; 0: it cannot move), the point at the start of
-  // the substep.
+  // Solver data, set by the first solve (masses do not change within a step; it also drops the
+  // zero weights, which change nothing) and the first solve of each substep that presses the point:
+  // what moving the point by d moves particle k (scale[k] d), the share of a requested correction
+  // the point moves (gain, see kMaxLever; 0: it cannot move), the point at the start of the substep.
   uint32_t solves = 0;                   // in this substep
-  bool prepared = false;
+  bool prepared = false, started = false;
   double gain = 0.0;
   double scale[kMaxParticles] = {};
   Vec3d start = Vec3d::Zero();
@@ -137,15 +137,19 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // (every surface vertex of an exposed piece near a partner was one: at 256 the step after a sever
 // cost 35 ms). So contact acts on a fixed subset of each piece's surface vertices, its *contact
 // points*: its simulation voxel (rest frame) is divided into contact_cells(ratio)^3 cells
-// (kContactCells = 4 per edge, fewer where a cell would be smaller than kMinContactCell = 2 fine
+// (kContactCells = 2 per edge, fewer where a cell would be smaller than kMinContactCell = 2 fine
 // voxels), and in each cell and each of six normal directions (the dominant axis of the vertex's rest
 // normal and its sign, so a cut face and the old surface meeting at a rim keep a point each) the
 // vertex nearest the cell's centre is a contact point (ties: the lowest slot). The choice depends on
 // the rest surface only: made per piece on first need after each cut, it never flickers between
-// steps. A flat face of a piece has at most 16 contact points whatever the fine resolution; the plane
+// steps. A flat face of a piece has at most 4 contact points whatever the fine resolution; the plane
 // contacts and both sides of the narrow phase use only them. Between contact points the surface
 // interpolates the same particles (on a flat face, exactly: it stays on the side they hold it on); a
-// face curved with radius R dips up to d^2 / 8R between two points d apart. A contact point's deformed
+// face curved with radius R dips up to d^2 / 8R between two points d apart. (With 4 cells per edge,
+// 16 points a face, the default recording at 128 / sim 16 made ~10 contacts per pair of pieces while
+// the severed head top rested on the stump, 550-680 a step, the solve alone half the step; with 2,
+// 3 a pair and ~150 a step; tests/sim/test_contact.cpp checks a fresh cut and a box on a box at 8 fine
+// voxels per simulation voxel, as at 4.) A contact point's deformed
 // normal is its rest normal under the piece's trilinear map (the cofactor of its Jacobian there).
 //
 // Reach. Each piece's own: max(2 fine voxels, a contact cell) plus twice what its fastest corner moves
@@ -156,10 +160,11 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
 // bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
 // is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
-// cache of the pairs within reach plus a contact cell, kept between steps while the pieces stay
-// within that margin: PairCache). Narrow phase: the
-// contact points of exposed pieces (near a partner's bounds) in a hash grid of cell = the largest
-// reach, each pair of points met once (a cell against itself and the 13 cells after it); each point
+// cache of the pairs within reach plus a quarter simulation voxel, kept between steps while the
+// pieces stay within that margin: PairCache). Narrow phase: the
+// contact points of exposed pieces (near a partner's bounds) in a grid of cell = the largest reach
+// (dense over the cells they span when those are few, as in a contact zone; else hashed), each pair
+// of points met once (a cell against itself and the 13 cells after it); each point
 // v pairs with its nearest point q of another body within the pair's reach whose normal faces it
 // (n_v . n_q < -0.9: more than ~155 degrees apart, so the rims where a cut face meets the old surface
 // do not pair). The contact keeps v on the outer side of q's tangent plane: C = n_q . (x_v - x_q) >=
@@ -254,7 +259,9 @@ struct PieceContactScratch {
   std::vector<uint32_t> table;                    // open addressing: cell index + 1 (0: empty)
   uint32_t table_bits = 1;
   std::vector<uint64_t> by_body;                  // (points) body << 32 | point, sorted (narrow phase)
+  std::vector<int64_t> point_cell;                // (points x 3) cell coordinates, by rank in body order
   std::vector<uint32_t> item_body, run_end;       // (cell_items) body; end of its body's run in the cell
+  std::vector<uint32_t> item_rank;                // (cell_items) rank in body order
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
   std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
@@ -265,7 +272,7 @@ struct PieceContactScratch {
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
   std::vector<float> allowance;                   // (points) updated allowances
   // Narrow phase: the points' positions and normals in cell order (a query scans them in sequence),
-  // each point's nearest facing partner, the ranges of the 27 cells around the query's cell.
+  // each point's nearest facing partner, the item ranges of the cells after the query's cell.
   std::vector<Vec3d> item_position, item_normal;  // (cell_items)
   std::vector<double> item_reach;                 // (cell_items) squared reach
   std::vector<uint32_t> best;                     // (points) partner point, ~0u: none
@@ -324,7 +331,7 @@ struct ContactRep {
 
 // Contact cells per simulation voxel edge (see "Contact points"): kContactCells, fewer where a cell
 // would be smaller than kMinContactCell fine voxels.
-constexpr int kContactCells = 4;
+constexpr int kContactCells = 2;
 constexpr int kMinContactCell = 2;
 inline int contact_cells(int ratio) { return std::max(1, std::min(kContactCells, ratio / kMinContactCell)); }
 

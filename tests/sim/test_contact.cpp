@@ -4,6 +4,7 @@
 #include "sim/contact.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
+#include "sim/random.h"
 #include "sim/shapes.h"
 #include "sim/state_hash.h"
 #include "sim/voxelize.h"
@@ -12,6 +13,7 @@
 
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <thread>
@@ -278,10 +280,10 @@ TEST_SUITE("contact") {
 namespace {
 
 // Several boxes voxelized together.
-void make_boxes(Scene& s, const std::vector<std::pair<Vec3d, Vec3d>>& boxes, PbdParams params) {
+void make_boxes(Scene& s, const std::vector<std::pair<Vec3d, Vec3d>>& boxes, PbdParams params, int resolution = 32) {
   TriMesh mesh;
   for (const auto& [centre, half] : boxes) mesh = merge_meshes(mesh, make_box(centre, half, Eigen::Matrix3d::Identity(), 1));
-  make_scene(s, mesh, params);
+  dvx_test::make_pbd_scene(s, mesh, resolution, 8, params);
 }
 
 // Body of each particle (the connected components of pieces under particle sharing), ~0u: unused.
@@ -389,6 +391,122 @@ uint32_t vertices_inside(const Scene& s, const std::vector<uint32_t>& of, uint32
 
 }  // namespace
 
+namespace {
+
+// A block 1 wide at `resolution` / sim 8 settles on a tray, then is cut through horizontally: the
+// largest speed (> 0: apart, < 0: sinking in) at which the mean heights of the two sides' cut faces
+// part in the 10 steps after the cut, in `worst`.
+void cut_separation(bool piece_contact, int substeps, int iterations, int resolution, double& worst) {
+  PbdParams params;
+  params.piece_contact = piece_contact;
+  params.substeps = substeps;
+  params.iterations = iterations;
+  params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
+  Scene s;
+  make_boxes(s, {{Vec3d(0.003, 0.0, 0.002), Vec3d(0.5, 0.5, 0.5)}}, params, resolution);
+  run(s, 180);  // settle on the tray
+  // Cut through horizontally (between simulation voxel corners), then watch the two halves.
+  BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
+  for (int i = 1; i <= 8; ++i) {
+    const double x = -1.0 + 2.0 * i / 8;
+    const BladePose next{Vec3d(x, 0.013, -2), Vec3d(x, 0.013, 2)};
+    cut_step(s.model, s.cut, previous, next);
+    pbd_apply_cut(s.model, s.cut, s.pbd);
+    previous = next;
+  }
+  const std::vector<uint32_t> of = particle_bodies(s.pbd);
+  const std::vector<uint32_t> bodies = bodies_bottom_up(s.pbd, of);
+  REQUIRE(bodies.size() == 2);
+  // The two sides' cut faces: the vertices of the cut triangles, per body; their mean height.
+  const CutSurface& surface = s.cut.surface;
+  std::vector<int> side(surface.positions.size(), -1);
+  for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
+    if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey || !surface.triangle_cut[t]) continue;
+    for (uint32_t v : surface.triangles[t]) side[v] = vertex_body(s.pbd, of, v) == bodies[1];
+  }
+  const auto face_height = [&](int which) {
+    double y = 0.0;
+    int n = 0;
+    for (size_t v = 0; v < side.size(); ++v) {
+      if (side[v] != which) continue;
+      y += s.pbd.deformed[v].y();
+      ++n;
+    }
+    REQUIRE(n > 100);
+    return y / n;
+  };
+  pbd_embed(s.cut, s.pbd);  // deformed positions of the cut's new vertices
+  double gap = face_height(1) - face_height(0);
+  CHECK(std::abs(gap) < 1e-6);  // the faces start together (the new particles copy the old)
+  worst = 0.0;
+  for (int i = 0; i < 10; ++i) {
+    pbd_step(s.cut, s.pbd);
+    const double now = face_height(1) - face_height(0);
+    const double speed = (now - gap) / PbdParams{}.dt;  // > 0: apart, < 0: sinking in
+    gap = now;
+    if (std::abs(speed) > std::abs(worst)) worst = speed;
+  }
+}
+
+
+// cut_separation with piece contact, against the bound: the sides part or sink at under 1 %
+// of g dt.
+void check_fresh_cut(int substeps, int iterations, int resolution) {
+  const double g_dt = 9.81 * PbdParams{}.dt;
+  double worst = 0.0;
+  cut_separation(true, substeps, iterations, resolution, worst);
+  MESSAGE(resolution << " / sim 8, " << substeps << " x " << iterations << ": largest separation speed in the first 10 steps "
+                     << worst / g_dt << " g dt");
+  CHECK(std::abs(worst) < 0.01 * g_dt);
+}
+
+// A box dropped onto another (at `resolution` / sim 8, with `workers`): it lands and stays on top,
+// no vertex deeper than a fine voxel inside the other box; the particles' hash in `hash`.
+void box_drop(int workers, int resolution, uint64_t& hash) {
+  PbdParams params;
+  params.planes.push_back(plane(Vec3d(0.0, -0.51, 0.0), Vec3d::UnitY(), 0.5));
+  Scene s;
+  make_boxes(s, {{Vec3d(0.003, -0.25, 0.002), Vec3d(0.5, 0.25, 0.5)}, {Vec3d(0.053, 0.55, 0.012), Vec3d(0.3, 0.15, 0.3)}},
+             params, resolution);
+  ThreadRunner runner{workers};
+  const TaskRunner tasks = workers > 1 ? runner.runner() : TaskRunner{};
+  const std::vector<uint32_t> of = particle_bodies(s.pbd);
+  const std::vector<uint32_t> bodies = bodies_bottom_up(s.pbd, of);
+  REQUIRE(bodies.size() == 2);
+  uint32_t deep = 0;
+  double tray_dip = 1e300;  // the lowest surface vertex's height above the tray
+  for (int i = 0; i < 12; ++i) {  // 2 s, checked every 10 steps
+    run(s, 10, tasks);
+    tray_dip = std::min(tray_dip, lowest_surface(s.pbd, params.planes[0]));
+    deep += vertices_inside(s, of, bodies[1], bodies[0], fine_voxel(s));
+    deep += vertices_inside(s, of, bodies[0], bodies[1], fine_voxel(s));
+  }
+  Vec3d c0, v0, c1, v1;
+  body_motion(s.pbd, of, bodies[0], c0, v0);
+  body_motion(s.pbd, of, bodies[1], c1, v1);
+  Fnv1a f;
+  for (const Vec3d& p : s.pbd.position) f.bytes(p.data(), 3 * sizeof(double));
+  hash = f.value;
+  // The gap between the top box's lowest surface vertex and the bottom box's highest.
+  double low = 1e300, high = -1e300;
+  for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) {
+    const uint32_t b = vertex_body(s.pbd, of, v);
+    if (b == bodies[1]) low = std::min(low, double(s.pbd.deformed[v].y()));
+    if (b == bodies[0]) high = std::max(high, double(s.pbd.deformed[v].y()));
+  }
+  const double gap = (low - high) / fine_voxel(s);
+  MESSAGE("top box: gap to the bottom box " << gap << " fine voxels, speed " << v1.norm()
+                                            << ", vertices deeper than a fine voxel inside the other box: " << deep);
+  CHECK(deep == 0);
+  CHECK(gap > -0.5);  // on top, not sunk in
+  CHECK(gap < 0.5);   // landed
+  CHECK(v1.norm() < 0.01 * 9.81 * PbdParams{}.dt);
+  // The bottom box rests on the tray: its surface never more than half a fine voxel below it.
+  CHECK(tray_dip >= -0.5 * fine_voxel(s));
+  CHECK(lowest_surface(s.pbd, params.planes[0]) <= 0.5 * fine_voxel(s));
+}
+}  // namespace
+
 TEST_SUITE("contact") {
   TEST_CASE("a fresh through-cut neither pushes its sides apart nor lets them sink into each other") {
     // The block settles under its own weight first, then is cut through horizontally. What parted the faces
@@ -402,119 +520,32 @@ TEST_SUITE("contact") {
     // reached it in its first step (faces parting at 0.058, 0.22 and 0.004 g dt). Each substep now ends with
     // two sweeps of the piece contacts alone, and a vertex-on-vertex pair is one contact, not two: |speed| <
     // 0.001 g dt at all three.
-    const auto separation = [](bool piece_contact, int substeps, int iterations, double& worst) {
-      PbdParams params;
-      params.piece_contact = piece_contact;
-      params.substeps = substeps;
-      params.iterations = iterations;
-      params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
-      Scene s;
-      make_boxes(s, {{Vec3d(0.003, 0.0, 0.002), Vec3d(0.5, 0.5, 0.5)}}, params);
-      run(s, 180);  // settle on the tray
-      // Cut through horizontally (between simulation voxel corners), then watch the two halves.
-      BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
-      for (int i = 1; i <= 8; ++i) {
-        const double x = -1.0 + 2.0 * i / 8;
-        const BladePose next{Vec3d(x, 0.013, -2), Vec3d(x, 0.013, 2)};
-        cut_step(s.model, s.cut, previous, next);
-        pbd_apply_cut(s.model, s.cut, s.pbd);
-        previous = next;
-      }
-      const std::vector<uint32_t> of = particle_bodies(s.pbd);
-      const std::vector<uint32_t> bodies = bodies_bottom_up(s.pbd, of);
-      REQUIRE(bodies.size() == 2);
-      // The two sides' cut faces: the vertices of the cut triangles, per body; their mean height.
-      const CutSurface& surface = s.cut.surface;
-      std::vector<int> side(surface.positions.size(), -1);
-      for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
-        if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey || !surface.triangle_cut[t]) continue;
-        for (uint32_t v : surface.triangles[t]) side[v] = vertex_body(s.pbd, of, v) == bodies[1];
-      }
-      const auto face_height = [&](int which) {
-        double y = 0.0;
-        int n = 0;
-        for (size_t v = 0; v < side.size(); ++v) {
-          if (side[v] != which) continue;
-          y += s.pbd.deformed[v].y();
-          ++n;
-        }
-        REQUIRE(n > 100);
-        return y / n;
-      };
-      pbd_embed(s.cut, s.pbd);  // deformed positions of the cut's new vertices
-      double gap = face_height(1) - face_height(0);
-      CHECK(std::abs(gap) < 1e-6);  // the faces start together (the new particles copy the old)
-      worst = 0.0;
-      for (int i = 0; i < 10; ++i) {
-        pbd_step(s.cut, s.pbd);
-        const double now = face_height(1) - face_height(0);
-        const double speed = (now - gap) / PbdParams{}.dt;  // > 0: apart, < 0: sinking in
-        gap = now;
-        if (std::abs(speed) > std::abs(worst)) worst = speed;
-      }
-      return fine_voxel(s);
-    };
+    // The scenes' solver (assets/scenes/*.json: 5 substeps x 2 iterations), then 1 x 10 and 8 x 10.
+    check_fresh_cut(5, 2, 32);
+    check_fresh_cut(1, 10, 32);
+    check_fresh_cut(8, 10, 32);
+    // Without piece contact the top half sinks through the bottom half (the checks above can fail).
     const double g_dt = 9.81 * PbdParams{}.dt;
     double worst = 0.0;
-    // The scenes' solver (assets/scenes/*.json: 5 substeps x 2 iterations): the bound.
-    separation(true, 5, 2, worst);
-    MESSAGE("5x2: largest separation speed in the first 10 steps " << worst / g_dt << " g dt");
-    CHECK(std::abs(worst) < 0.01 * g_dt);
-    separation(true, 1, 10, worst);
-    MESSAGE("1 substep: largest separation speed in the first 10 steps " << worst / g_dt << " g dt");
-    CHECK(std::abs(worst) < 0.01 * g_dt);
-    separation(true, 8, 10, worst);
-    MESSAGE("8 substeps: largest separation speed in the first 10 steps " << worst / g_dt << " g dt");
-    CHECK(std::abs(worst) < 0.01 * g_dt);
-    // Without piece contact the top half sinks through the bottom half (the checks above can fail).
-    separation(false, 8, 10, worst);
+    cut_separation(false, 8, 10, 32, worst);
     MESSAGE("without: " << worst / g_dt << " g dt");
     CHECK(worst < -1.0 * g_dt);
   }
 
   TEST_CASE("a box dropped onto another box stays on top, and the result does not depend on the workers") {
-    const auto drop = [](int workers, uint64_t& hash) {
-      PbdParams params;
-      params.planes.push_back(plane(Vec3d(0.0, -0.51, 0.0), Vec3d::UnitY(), 0.5));
-      Scene s;
-      make_boxes(s, {{Vec3d(0.003, -0.25, 0.002), Vec3d(0.5, 0.25, 0.5)}, {Vec3d(0.053, 0.55, 0.012), Vec3d(0.3, 0.15, 0.3)}},
-                 params);
-      ThreadRunner runner{workers};
-      const TaskRunner tasks = workers > 1 ? runner.runner() : TaskRunner{};
-      const std::vector<uint32_t> of = particle_bodies(s.pbd);
-      const std::vector<uint32_t> bodies = bodies_bottom_up(s.pbd, of);
-      REQUIRE(bodies.size() == 2);
-      uint32_t deep = 0;
-      for (int i = 0; i < 12; ++i) {  // 2 s, checked every 10 steps
-        run(s, 10, tasks);
-        deep += vertices_inside(s, of, bodies[1], bodies[0], fine_voxel(s));
-        deep += vertices_inside(s, of, bodies[0], bodies[1], fine_voxel(s));
-      }
-      Vec3d c0, v0, c1, v1;
-      body_motion(s.pbd, of, bodies[0], c0, v0);
-      body_motion(s.pbd, of, bodies[1], c1, v1);
-      Fnv1a f;
-      for (const Vec3d& p : s.pbd.position) f.bytes(p.data(), 3 * sizeof(double));
-      hash = f.value;
-      // The gap between the top box's lowest surface vertex and the bottom box's highest.
-      double low = 1e300, high = -1e300;
-      for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) {
-        const uint32_t b = vertex_body(s.pbd, of, v);
-        if (b == bodies[1]) low = std::min(low, double(s.pbd.deformed[v].y()));
-        if (b == bodies[0]) high = std::max(high, double(s.pbd.deformed[v].y()));
-      }
-      const double gap = (low - high) / fine_voxel(s);
-      MESSAGE("top box: gap to the bottom box " << gap << " fine voxels, speed " << v1.norm()
-                                                << ", vertices deeper than a fine voxel inside the other box: " << deep);
-      CHECK(deep == 0);
-      CHECK(gap > -0.5);  // on top, not sunk in
-      CHECK(gap < 0.5);   // landed
-      CHECK(v1.norm() < 0.01 * 9.81 * PbdParams{}.dt);
-    };
     uint64_t one = 0, two = 0;
-    drop(1, one);
-    drop(2, two);
+    box_drop(1, 32, one);
+    box_drop(2, 32, two);
     CHECK(one == two);
+  }
+
+  TEST_CASE("at 8 fine voxels per simulation voxel a fresh cut neither parts nor sinks, and a box stays on another") {
+    // The default recording's ratio (128 / sim 16): contact cells of 4 fine voxels, 2 x 2 contact
+    // points on a piece's flat face (sim/contact.h, "Contact points"); the tests above run at 4 fine
+    // voxels per simulation voxel, where the cells are 2 fine voxels.
+    check_fresh_cut(5, 2, 64);
+    uint64_t hash = 0;
+    box_drop(1, 64, hash);
   }
 
   TEST_CASE("pieces three fine voxels apart slide past each other untouched") {
@@ -653,6 +684,98 @@ TEST_SUITE("contact") {
     for (uint32_t k = 8; k < 16; ++k) fresh.x[3 * k + 1] -= 0.01;  // pressed 0.01 deeper
     fresh.step(0.05, 5);
     CHECK(fresh.gap() == doctest::Approx(-0.3));
+  }
+}
+
+namespace {
+
+// Random surface points in a slab (x, z in [0, extent), y in [0, 0.3)) of three bodies, four points a
+// piece, each point on 8 particles of its own (all its weight on the first, which sits at the point):
+// bodies 0 and 2 face up, body 1 faces down (normals jittered by up to ~8 degrees).
+std::vector<SurfacePoint> random_points(uint32_t count, double extent, uint64_t seed, std::vector<double>& x) {
+  SplitMix64 rng{seed};
+  std::vector<SurfacePoint> points(count);
+  x.assign(24 * size_t(count), 0.0);
+  for (uint32_t v = 0; v < count; ++v) {
+    SurfacePoint& p = points[v];
+    p.piece = v / 4;
+    p.body = p.piece % 3;
+    p.position = Vec3d(rng.uniform(0.0, extent), rng.uniform(0.0, 0.3), rng.uniform(0.0, extent));
+    const double side = p.body == 1 ? -1.0 : 1.0;
+    p.normal = Vec3d(rng.uniform(-0.1, 0.1), side, rng.uniform(-0.1, 0.1)).normalized();
+    for (uint32_t c = 0; c < 8; ++c) {
+      p.particles[c] = 8 * v + c;
+      p.weights[c] = c == 0 ? 1.0 : 0.0;
+    }
+    for (int a = 0; a < 3; ++a) x[24 * size_t(v) + a] = p.position[a];
+    p.allowance = 0.0f;
+    p.slot = v;
+    p.reach = float(rng.uniform(0.05, 0.1));
+  }
+  return points;
+}
+
+// The point pairs (v << 32 | q) of the contacts gather_piece_contacts makes, from the particles.
+std::vector<uint64_t> contact_pairs(std::vector<SurfacePoint> points, const std::vector<double>& x) {
+  ContactSet set;
+  PieceContactScratch scratch;
+  contacts_clear(set);
+  gather_piece_contacts(points.data(), uint32_t(points.size()), x.data(), uint32_t(x.size() / 3), 1.0, 0.5, set, scratch);
+  contacts_finish(set);
+  std::vector<uint64_t> pairs;
+  for (const ContactPoint& c : set.points) pairs.push_back(uint64_t(c.particles[0] / 8) << 32 | (c.particles[8] / 8));
+  std::sort(pairs.begin(), pairs.end());
+  return pairs;
+}
+
+// The same pairs by brute force (sim/contact.h, "Broad phase" and "Contacts"): each point's nearest
+// facing point of another body within the pair's reach (ties: the lower index); one contact per
+// mutual pair, the lower point's.
+std::vector<uint64_t> brute_force_pairs(const std::vector<SurfacePoint>& points) {
+  const uint32_t n = uint32_t(points.size());
+  std::vector<uint32_t> best(n, ~0u);
+  for (uint32_t v = 0; v < n; ++v) {
+    double best_d = 0.0;
+    for (uint32_t q = 0; q < n; ++q) {
+      if (points[q].body == points[v].body || points[v].normal.dot(points[q].normal) > -0.9) continue;
+      const double d = (points[q].position - points[v].position).squaredNorm();
+      const double reach = std::max(double(points[v].reach), double(points[q].reach));
+      if (d > reach * reach) continue;
+      if (best[v] == ~0u || d < best_d) {
+        best[v] = q;
+        best_d = d;
+      }
+    }
+  }
+  std::vector<uint64_t> pairs;
+  for (uint32_t v = 0; v < n; ++v) {
+    if (best[v] == ~0u || (best[best[v]] == v && best[v] < v)) continue;
+    pairs.push_back(uint64_t(v) << 32 | best[v]);
+  }
+  std::sort(pairs.begin(), pairs.end());
+  return pairs;
+}
+
+}  // namespace
+
+TEST_SUITE("contact") {
+  TEST_CASE("the narrow phase pairs each point with its nearest facing point of another body, on a dense grid or hashed cells") {
+    // A slab 2 wide (20 cells of the largest reach along x and z: a dense grid over the points' cells),
+    // and the same with one pair of points moved 1e4 away (too many cells: hashed cells).
+    for (const uint64_t seed : {1u, 2u, 3u}) {
+      CAPTURE(seed);
+      std::vector<double> x;
+      std::vector<SurfacePoint> points = random_points(2000, 2.0, seed, x);
+      const std::vector<uint64_t> dense = contact_pairs(points, x);
+      CHECK(dense.size() > 100);
+      CHECK(dense == brute_force_pairs(points));
+      for (uint32_t v : {8u, 12u}) {  // a piece of body 2 and one of body 1
+        points[v].position += Vec3d(1e4, 0.0, 0.0);
+        x[24 * size_t(v)] += 1e4;
+      }
+      const std::vector<uint64_t> hashed = contact_pairs(points, x);
+      CHECK(hashed == brute_force_pairs(points));
+    }
   }
 }
 
