@@ -535,8 +535,8 @@ void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eight
 }
 
 // Per-simulation-voxel block arrays (labels, label slots, cut records) hold their blocks up to a
-// count in use (the divided voxels' or cut records' blocks); beyond it, up to the array's size, lies a warm reserve
-// of value-initialised elements, their pages touched. A cut step that starts blocks takes them from
+// count in use (the divided voxels' or cut records' blocks); beyond it, up to the array's size, lies
+// a warm reserve of elements set to the array's fill value (never written since), their pages touched. A cut step that starts blocks takes them from
 // the reserve: a page's first touch is a fault (~20 us on the virtual machine measured, and 120 of
 // them, 5 label blocks and 5 cut records at 512, were most of the heaviest cut step's time). init_pbd
 // fills the reserve (kWarmBlocks blocks, at most kWarmBytes per array) and each cut step tops it up by
@@ -555,24 +555,22 @@ void reserve_blocks(const PbdModel& s, std::vector<T>& v, size_t count) {
 // `budget` bytes and within the reserved capacity; after a cut step only once it fell below half
 // its target (steps that start few blocks then touch no page at all).
 template <typename T>
-void warm_blocks(std::vector<T>& v, size_t used, size_t count, size_t budget, bool init) {
+void warm_blocks(std::vector<T>& v, size_t used, size_t count, T fill, size_t budget, bool init) {
   const size_t reserve = std::min(kWarmBlocks * count, std::max(count, kWarmBytes / sizeof(T)));
   const size_t end = std::min(used + reserve, v.capacity());
   if (end <= v.size() || (!init && v.size() - used >= reserve / 2)) return;
-  v.resize(v.size() + std::min(end - v.size(), budget / sizeof(T)));
+  v.resize(v.size() + std::min(end - v.size(), budget / sizeof(T)), fill);
 }
 
-// Appends one block of `count` elements to a block array (from its warm reserve when it has one);
-// returns its offset.
+// Appends one block of `count` elements set to `fill` (the array's) to a block array, from its warm
+// reserve when it has one (already set); returns its offset.
 template <typename T>
 uint32_t append_block(std::vector<T>& v, size_t used, size_t count, T fill) {
   if (used + count > v.size()) {
     if (used + count > v.capacity()) v.reserve(std::max(used + count, 2 * v.capacity()));
-    v.resize(used + count);
+    v.resize(used + count, fill);
   }
-  const uint32_t at = uint32_t(used);
-  std::fill(v.begin() + std::ptrdiff_t(at), v.begin() + std::ptrdiff_t(at + count), fill);
-  return at;
+  return uint32_t(used);
 }
 
 // Label storage for simulation voxel sv (a divided voxel's labels and slots), created on first use.
@@ -866,10 +864,10 @@ void warm_block_arrays(PbdModel& s, bool init) {
     reserve_blocks(s, s.label_slots, kLabelSlots);
     if (s.ratio <= kSpanRatio) reserve_blocks(s, s.cut_rows, record_rows(s.ratio));
   }
-  warm_blocks(s.labels, s.divided.size() * block_nodes(s), block_nodes(s), budget, init);
-  warm_blocks(s.label_slots, s.divided.size() * kLabelSlots, kLabelSlots, budget, init);
+  warm_blocks(s.labels, s.divided.size() * block_nodes(s), block_nodes(s), kNoPiece, budget, init);
+  warm_blocks(s.label_slots, s.divided.size() * kLabelSlots, kLabelSlots, kDeadIndex, budget, init);
   if (s.ratio <= kSpanRatio) {
-    warm_blocks(s.cut_rows, s.cut_rows_of.size() * record_rows(s.ratio), record_rows(s.ratio), budget, init);
+    warm_blocks(s.cut_rows, s.cut_rows_of.size() * record_rows(s.ratio), record_rows(s.ratio), uint64_t(0), budget, init);
   }
 }
 
