@@ -360,7 +360,6 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     at = uint32_t(cache.data.size());
     cache.offset.set(key, at);
     cache.data.push_back(0);
-    const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;
     const int u_axis = (axis + 1) % 3, v_axis = (axis + 2) % 3;
     // The face's nodes in both blocks' label arrays (the face is x = ratio in lo, x = 0 in hi along
     // `axis`); an undivided block's label is 0 at an inside node (the node is the same in both).
@@ -368,37 +367,57 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     const uint8_t* lo_labels = dl == kDeadIndex ? nullptr : s.labels.data() + s.divided[dl].first_label;
     const uint8_t* hi_labels = dh == kDeadIndex ? nullptr : s.labels.data() + s.divided[dh].first_label;
     const uint32_t n = uint32_t(s.ratio + 1), stride[3] = {1, n, n * n};
+    const uint32_t su = stride[u_axis], sv = stride[v_axis];
     const uint32_t lo_base = uint32_t(s.ratio) * stride[axis];
-    int32_t node[3];
-    node[axis] = hic[axis] * s.ratio;
-    uint16_t last = 0xFFFF;  // no pair: labels are below kNoPiece
-    for (int32_t v = 0; v <= s.ratio; ++v) {
-      for (int32_t u = 0; u <= s.ratio; ++u) {
-        const uint32_t b_hi = uint32_t(u) * stride[u_axis] + uint32_t(v) * stride[v_axis];
-        uint8_t a, b;
-        if (lo_labels && hi_labels) {
-          a = lo_labels[lo_base + b_hi];
-          b = hi_labels[b_hi];
-        } else if (lo_labels || hi_labels) {
-          // One side keeps labels: the node is inside exactly where its label is a piece, so the
-          // undivided side's label (0 where inside) follows from it.
-          a = lo_labels ? lo_labels[lo_base + b_hi] : hi_labels[b_hi] == kNoPiece ? kNoPiece : 0;
-          b = hi_labels ? hi_labels[b_hi] : a == kNoPiece ? kNoPiece : 0;
-        } else {
+    const auto add = [&](uint16_t pair) {
+      if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) != cache.data.end()) return;
+      cache.data.push_back(pair);
+      ++cache.data[at];
+    };
+    if (lo_labels && hi_labels) {
+      const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;  // one possible pair
+      uint16_t last = 0xFFFF;  // no pair: labels are below kNoPiece
+      for (uint32_t v = 0; v < n && !(single && last != 0xFFFF); ++v) {
+        const uint8_t* a_row = lo_labels + lo_base + v * sv;
+        const uint8_t* b_row = hi_labels + v * sv;
+        for (uint32_t u = 0; u < n; ++u) {
+          const uint8_t a = a_row[u * su], b = b_row[u * su];
+          if (a == kNoPiece || b == kNoPiece) continue;
+          const uint16_t pair = uint16_t(a << 8 | b);
+          if (pair == last) continue;  // neighbouring nodes mostly repeat the last pair
+          last = pair;
+          add(pair);
+        }
+      }
+    } else if (lo_labels || hi_labels) {
+      // One side keeps labels: the node is inside exactly where its label is a piece, and the other
+      // side's one piece (label 0) holds it too, so the pairs are that side's labels on the face
+      // (until all its labels are seen).
+      const uint8_t* labels = lo_labels ? lo_labels + lo_base : hi_labels;
+      const uint32_t all = s.pieces_in_voxel[lo_labels ? lo : hi];
+      uint64_t seen[4] = {};
+      uint32_t found = 0;
+      for (uint32_t v = 0; v < n && found < all; ++v) {
+        const uint8_t* row = labels + v * sv;
+        for (uint32_t u = 0; u < n; ++u) {
+          const uint8_t p = row[u * su];
+          if (p == kNoPiece || (seen[p >> 6] >> (p & 63)) & 1u) continue;
+          seen[p >> 6] |= uint64_t(1) << (p & 63);
+          ++found;
+          add(lo_labels ? uint16_t(p << 8) : uint16_t(p));
+        }
+      }
+    } else {
+      // Neither keeps labels: each has one piece, joined when any face node is inside.
+      int32_t node[3];
+      node[axis] = hic[axis] * s.ratio;
+      for (int32_t v = 0; v <= s.ratio; ++v) {
+        for (int32_t u = 0; u <= s.ratio; ++u) {
           node[u_axis] = loc[u_axis] * s.ratio + u;
           node[v_axis] = loc[v_axis] * s.ratio + v;
-          a = b = fine_inside(model, node[0], node[1], node[2]) ? 0 : kNoPiece;
-        }
-        if (a == kNoPiece || b == kNoPiece) continue;
-        const uint16_t pair = uint16_t(a << 8 | b);
-        if (pair == last) continue;  // neighbouring nodes mostly repeat the last pair
-        last = pair;
-        if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) == cache.data.end()) {
-          cache.data.push_back(pair);
-          ++cache.data[at];
-        }
-        if (single) {  // one possible pair, found
-          v = s.ratio + 1;
+          if (!fine_inside(model, node[0], node[1], node[2])) continue;
+          add(0);
+          v = s.ratio + 1;  // the one possible pair, found
           break;
         }
       }

@@ -123,6 +123,7 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
   grid.piece_lo.resize(pbd.pieces.size());
   grid.piece_hi.resize(pbd.pieces.size());
   grid.piece_map.resize(pbd.pieces.size());
+  grid.piece_origin.resize(pbd.pieces.size());
   grid.piece_jinv.resize(pbd.pieces.size());
   grid.jinv_valid.resize(pbd.pieces.size());
   for (uint32_t slot = 0; slot < pbd.pieces.size(); ++slot) {
@@ -144,6 +145,7 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
     Vec3d corners[8];
     piece_corners(pbd, slot, corners);
     grid.piece_map[slot] = trilinear_map(corners);
+    grid.piece_origin[slot] = piece_rest_origin(pbd, slot);
     grid.jinv_valid[slot] = 0;
     grid.box_lo.push_back(lo.cwiseMax(lo_region));
     grid.box_hi.push_back(hi.cwiseMin(hi_region));
@@ -241,14 +243,14 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& 
     Vec3d start = Vec3d::Constant(0.5);
     for (uint32_t h = near_begin; h < near_end; ++h) {
       if (out[h].piece != slot) continue;
-      start = (out[h].rest - piece_rest_origin(pbd, slot)) / pbd.sim_size;
+      start = (out[h].rest - grid.piece_origin[slot]) / pbd.sim_size;
       break;
     }
     Vec3d u;
     if (!piece_local(pbd, grid, slot, world, start, u)) return;
     if (u.minCoeff() < -kInside || u.maxCoeff() > 1.0 + kInside) return;
     if (!piece_holds(model, pbd, slot, u)) return;
-    out.push_back({slot, piece_rest_origin(pbd, slot) + pbd.sim_size * u});
+    out.push_back({slot, grid.piece_origin[slot] + pbd.sim_size * u});
   });
   return uint32_t(out.size() - before);
 }
@@ -307,7 +309,7 @@ bool rest_through(const PbdState& pbd, SweepMapper& m, uint32_t k, uint32_t piec
   }
   Vec3d u;
   if (!piece_local(pbd, m.grid, piece, m.points[k], start, u)) return false;
-  rest = piece_rest_origin(pbd, piece) + pbd.sim_size * u;
+  rest = m.grid.piece_origin[piece] + pbd.sim_size * u;
   return true;
 }
 
@@ -482,7 +484,7 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
           for (uint32_t x = m.hit_begin[corner]; x < m.hit_begin[corner + 1] && piece_count < 32; ++x) {
             const uint32_t p = m.hits[x].piece;
             if (std::find(pieces, pieces + piece_count, p) != pieces + piece_count) continue;
-            starts[piece_count] = (m.hits[x].rest - piece_rest_origin(pbd, p)) / pbd.sim_size;
+            starts[piece_count] = (m.hits[x].rest - m.grid.piece_origin[p]) / pbd.sim_size;
             pieces[piece_count++] = p;
           }
         }
@@ -544,7 +546,7 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
         return;
       }
       if (u.minCoeff() < 0.0 || u.maxCoeff() > 1.0) return;
-      m.carried[i] = piece_rest_origin(pbd, slot) + pbd.sim_size * u;
+      m.carried[i] = m.grid.piece_origin[slot] + pbd.sim_size * u;
       m.carried_piece[i] = slot;
     });
   }

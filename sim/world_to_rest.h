@@ -62,9 +62,10 @@ struct PieceGrid {
   std::vector<uint32_t> items;       // piece slots per cell
   std::vector<uint32_t> everywhere;  // pieces too large for the grid: tested by every query
   std::vector<Vec3d> piece_lo, piece_hi;  // (piece slots) deformed corner bounds, valid for the candidates
-  // (piece slots, valid for the candidates) each piece's map, and an inverse Jacobian of it from an
+  // (piece slots, valid for the candidates) each piece's map and rest origin, and an inverse Jacobian of it from an
   // earlier inversion (jinv_valid), so a sweep's many points in one piece mostly need chord steps.
   std::vector<TrilinearMap> piece_map;
+  std::vector<Vec3d> piece_origin;  // rest position of the piece's corner 0 (piece_rest_origin)
   std::vector<Eigen::Matrix3d> piece_jinv;
   std::vector<uint8_t> jinv_valid;
   // Scratch.
