@@ -2578,7 +2578,9 @@ bool piece_holds(const VoxelModel& model, const PbdState& s, uint32_t piece, con
   int32_t c[3], node[3];
   sim_voxel_coords(s, p.sim_voxel, c);
   for (int a = 0; a < 3; ++a) {
-    node[a] = c[a] * s.ratio + int32_t(std::lround(std::clamp(u[a], 0.0, 1.0) * s.ratio));
+    // Nearest node: the value is in [0, ratio], so truncating x + 0.5 rounds it (inline, where
+    // lround is a library call; the mapping asks this for every blade sample in material).
+    node[a] = c[a] * s.ratio + int32_t(std::clamp(u[a], 0.0, 1.0) * s.ratio + 0.5);
   }
   return node_label(model, s, p.sim_voxel, c, node[0], node[1], node[2]) == p.piece;
 }
