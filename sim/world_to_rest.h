@@ -8,7 +8,9 @@
 //
 // The pieces are found through a uniform grid over their deformed bounds (PieceGrid, rebuilt per use
 // over the region of interest: one pass over the pieces, no sort); the map is inverted by Newton's
-// method on the trilinear map (invert_trilinear). Contact uses both as well.
+// method on the trilinear map (invert_trilinear), warm along the sweep: each candidate piece's map in
+// monomial form, and chord steps with the inverse Jacobian of the piece's last inversion, Newton only
+// when they stop contracting (invert_trilinear_warm).
 //
 // The blade's sweep between two steps is sampled at fine-voxel spacing, along the blade and along
 // its motion. The sweep starts where the blade's previous samples are *now*: each sample that was in
