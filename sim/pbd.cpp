@@ -560,7 +560,7 @@ void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eight
 // them, 5 label blocks and 5 cut records at 512, were most of the heaviest cut step's time). init_pbd
 // fills the reserve (kWarmBlocks blocks, at most kWarmBytes per array) and each cut step tops it up by
 // at most kRefillBytes per array, so touching pages never lands on one step.
-constexpr size_t kWarmBlocks = 64, kWarmBytes = size_t(4) << 20, kRefillBytes = size_t(4) << 10;
+constexpr size_t kWarmBlocks = 128, kWarmBytes = size_t(8) << 20, kRefillBytes = size_t(4) << 10;
 
 // Address space for a block of `count` elements per simulation voxel (up to 64 MiB; pages are
 // touched only by the warm reserve), so growing never copies the array in a cut step.
