@@ -44,16 +44,21 @@ CutStepStats world_cut(Body& b, const BladePose& from, const BladePose& to) {
 
 int components(const Body& b) { return int(surface_stats(compact_surface(b.cut.surface)).components); }
 
+// A rotated, sheared and bent hexahedron.
+void bent_hexahedron(Vec3d corners[8]) {
+  const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Vec3d(1, 2, 3).normalized()).toRotationMatrix();
+  for (int c = 0; c < 8; ++c) {
+    const Vec3d u((c & 1), (c >> 1) & 1, (c >> 2) & 1);
+    corners[c] = Vec3d(3, 1, 2) + r * (Vec3d(2 * u.x() + 0.4 * u.y(), u.y(), u.z()) + 0.3 * u.x() * u.y() * Vec3d(0, 0, 1));
+  }
+}
+
 }  // namespace
 
 TEST_SUITE("world_to_rest") {
   TEST_CASE("Newton inverts the trilinear map of a rotated, sheared and bent hexahedron") {
-    const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Vec3d(1, 2, 3).normalized()).toRotationMatrix();
     Vec3d corners[8];
-    for (int c = 0; c < 8; ++c) {
-      const Vec3d u((c & 1), (c >> 1) & 1, (c >> 2) & 1);
-      corners[c] = Vec3d(3, 1, 2) + r * (Vec3d(2 * u.x() + 0.4 * u.y(), u.y(), u.z()) + 0.3 * u.x() * u.y() * Vec3d(0, 0, 1));
-    }
+    bent_hexahedron(corners);
     for (const Vec3d& u : {Vec3d(0.1, 0.2, 0.3), Vec3d(0.9, 0.5, 0.01), Vec3d(1.1, -0.05, 0.5)}) {
       Vec3d found = Vec3d::Constant(0.5);
       REQUIRE(invert_trilinear(corners, trilinear(corners, u), found, 1e-12));
@@ -67,13 +72,9 @@ TEST_SUITE("world_to_rest") {
   }
 
   TEST_CASE("the warm inversion reaches Newton's tolerance from another point's inverse Jacobian, and falls back to Newton") {
-    // A rotated, sheared and bent hexahedron (as above), in monomial form.
-    const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Vec3d(1, 2, 3).normalized()).toRotationMatrix();
+    // The bent hexahedron, in monomial form.
     Vec3d corners[8];
-    for (int c = 0; c < 8; ++c) {
-      const Vec3d u((c & 1), (c >> 1) & 1, (c >> 2) & 1);
-      corners[c] = Vec3d(3, 1, 2) + r * (Vec3d(2 * u.x() + 0.4 * u.y(), u.y(), u.z()) + 0.3 * u.x() * u.y() * Vec3d(0, 0, 1));
-    }
+    bent_hexahedron(corners);
     const TrilinearMap map = trilinear_map(corners);
     for (const Vec3d& u : {Vec3d(0.1, 0.2, 0.3), Vec3d(0.9, 0.5, 0.01), Vec3d(0.5, 0.5, 0.5)}) {
       CHECK((trilinear(corners, u) - (map.c[0] + u.x() * map.c[1] + u.y() * map.c[2] + u.z() * map.c[3] +
