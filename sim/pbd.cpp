@@ -360,7 +360,6 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     at = uint32_t(cache.data.size());
     cache.offset.set(key, at);
     cache.data.push_back(0);
-    const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;
     const int u_axis = (axis + 1) % 3, v_axis = (axis + 2) % 3;
     // The face's nodes in both blocks' label arrays (the face is x = ratio in lo, x = 0 in hi along
     // `axis`); an undivided block's label is 0 at an inside node (the node is the same in both).
@@ -368,37 +367,57 @@ const uint16_t* face_pairs(const VoxelModel& model, const PbdModel& s, uint32_t 
     const uint8_t* lo_labels = dl == kDeadIndex ? nullptr : s.labels.data() + s.divided[dl].first_label;
     const uint8_t* hi_labels = dh == kDeadIndex ? nullptr : s.labels.data() + s.divided[dh].first_label;
     const uint32_t n = uint32_t(s.ratio + 1), stride[3] = {1, n, n * n};
+    const uint32_t su = stride[u_axis], sv = stride[v_axis];
     const uint32_t lo_base = uint32_t(s.ratio) * stride[axis];
-    int32_t node[3];
-    node[axis] = hic[axis] * s.ratio;
-    uint16_t last = 0xFFFF;  // no pair: labels are below kNoPiece
-    for (int32_t v = 0; v <= s.ratio; ++v) {
-      for (int32_t u = 0; u <= s.ratio; ++u) {
-        const uint32_t b_hi = uint32_t(u) * stride[u_axis] + uint32_t(v) * stride[v_axis];
-        uint8_t a, b;
-        if (lo_labels && hi_labels) {
-          a = lo_labels[lo_base + b_hi];
-          b = hi_labels[b_hi];
-        } else if (lo_labels || hi_labels) {
-          // One side keeps labels: the node is inside exactly where its label is a piece, so the
-          // undivided side's label (0 where inside) follows from it.
-          a = lo_labels ? lo_labels[lo_base + b_hi] : hi_labels[b_hi] == kNoPiece ? kNoPiece : 0;
-          b = hi_labels ? hi_labels[b_hi] : a == kNoPiece ? kNoPiece : 0;
-        } else {
+    const auto add = [&](uint16_t pair) {
+      if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) != cache.data.end()) return;
+      cache.data.push_back(pair);
+      ++cache.data[at];
+    };
+    if (lo_labels && hi_labels) {
+      const bool single = s.pieces_in_voxel[lo] == 1 && s.pieces_in_voxel[hi] == 1;  // one possible pair
+      uint16_t last = 0xFFFF;  // no pair: labels are below kNoPiece
+      for (uint32_t v = 0; v < n && !(single && last != 0xFFFF); ++v) {
+        const uint8_t* a_row = lo_labels + lo_base + v * sv;
+        const uint8_t* b_row = hi_labels + v * sv;
+        for (uint32_t u = 0; u < n; ++u) {
+          const uint8_t a = a_row[u * su], b = b_row[u * su];
+          if (a == kNoPiece || b == kNoPiece) continue;
+          const uint16_t pair = uint16_t(a << 8 | b);
+          if (pair == last) continue;  // neighbouring nodes mostly repeat the last pair
+          last = pair;
+          add(pair);
+        }
+      }
+    } else if (lo_labels || hi_labels) {
+      // One side keeps labels: the node is inside exactly where its label is a piece, and the other
+      // side's one piece (label 0) holds it too, so the pairs are that side's labels on the face
+      // (until all its labels are seen).
+      const uint8_t* labels = lo_labels ? lo_labels + lo_base : hi_labels;
+      const uint32_t all = s.pieces_in_voxel[lo_labels ? lo : hi];
+      uint64_t seen[4] = {};
+      uint32_t found = 0;
+      for (uint32_t v = 0; v < n && found < all; ++v) {
+        const uint8_t* row = labels + v * sv;
+        for (uint32_t u = 0; u < n; ++u) {
+          const uint8_t p = row[u * su];
+          if (p == kNoPiece || (seen[p >> 6] >> (p & 63)) & 1u) continue;
+          seen[p >> 6] |= uint64_t(1) << (p & 63);
+          ++found;
+          add(lo_labels ? uint16_t(p << 8) : uint16_t(p));
+        }
+      }
+    } else {
+      // Neither keeps labels: each has one piece, joined when any face node is inside.
+      int32_t node[3];
+      node[axis] = hic[axis] * s.ratio;
+      for (int32_t v = 0; v <= s.ratio; ++v) {
+        for (int32_t u = 0; u <= s.ratio; ++u) {
           node[u_axis] = loc[u_axis] * s.ratio + u;
           node[v_axis] = loc[v_axis] * s.ratio + v;
-          a = b = fine_inside(model, node[0], node[1], node[2]) ? 0 : kNoPiece;
-        }
-        if (a == kNoPiece || b == kNoPiece) continue;
-        const uint16_t pair = uint16_t(a << 8 | b);
-        if (pair == last) continue;  // neighbouring nodes mostly repeat the last pair
-        last = pair;
-        if (std::find(cache.data.begin() + at + 1, cache.data.end(), pair) == cache.data.end()) {
-          cache.data.push_back(pair);
-          ++cache.data[at];
-        }
-        if (single) {  // one possible pair, found
-          v = s.ratio + 1;
+          if (!fine_inside(model, node[0], node[1], node[2])) continue;
+          add(0);
+          v = s.ratio + 1;  // the one possible pair, found
           break;
         }
       }
@@ -534,18 +553,43 @@ void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eight
   if (count == 0 || d != kDeadIndex) s.voxel_piece[sv] = kDeadIndex;
 }
 
-// Appends one block of `count` elements to a per-simulation-voxel array; returns its offset. The
-// first growth reserves a block for every simulation voxel (up to 64 MiB: address space, its pages
-// are touched only as blocks are used), so a cut step does not copy the whole array (a p99 spike).
+// Per-simulation-voxel block arrays (labels, label slots, cut records) hold their blocks up to a
+// count in use (the divided voxels' or cut records' blocks); beyond it, up to the array's size, lies
+// a warm reserve of elements set to the array's fill value (never written since), their pages touched. A cut step that starts blocks takes them from
+// the reserve: a page's first touch is a fault (~20 us on the virtual machine measured, and 120 of
+// them, 5 label blocks and 5 cut records at 512, were most of the heaviest cut step's time). init_pbd
+// fills the reserve (kWarmBlocks blocks, at most kWarmBytes per array) and each cut step tops it up by
+// at most kRefillBytes per array, so touching pages never lands on one step.
+constexpr size_t kWarmBlocks = 128, kWarmBytes = size_t(8) << 20, kRefillBytes = size_t(4) << 10;
+
+// Address space for a block of `count` elements per simulation voxel (up to 64 MiB; pages are
+// touched only by the warm reserve), so growing never copies the array in a cut step.
 template <typename T>
-uint32_t append_block(const PbdModel& s, std::vector<T>& v, size_t count, T fill) {
-  if (v.size() + count > v.capacity()) {
-    const size_t all = count * s.voxel_piece.size(), cap = (size_t(64) << 20) / sizeof(T);
-    v.reserve(std::max({v.size() + count, 2 * v.capacity(), std::min(all, cap)}));
+void reserve_blocks(const PbdModel& s, std::vector<T>& v, size_t count) {
+  const size_t all = count * s.voxel_piece.size(), cap = (size_t(64) << 20) / sizeof(T);
+  v.reserve(std::max(v.capacity(), std::min(all, cap)));
+}
+
+// Extends the warm reserve of v (blocks of `count`, `used` in use) towards its target, by at most
+// `budget` bytes and within the reserved capacity; after a cut step only once it fell below half
+// its target (steps that start few blocks then touch no page at all).
+template <typename T>
+void warm_blocks(std::vector<T>& v, size_t used, size_t count, T fill, size_t budget, bool init) {
+  const size_t reserve = std::min(kWarmBlocks * count, std::max(count, kWarmBytes / sizeof(T)));
+  const size_t end = std::min(used + reserve, v.capacity());
+  if (end <= v.size() || (!init && v.size() - used >= reserve / 2)) return;
+  v.resize(v.size() + std::min(end - v.size(), budget / sizeof(T)), fill);
+}
+
+// Appends one block of `count` elements set to `fill` (the array's) to a block array, from its warm
+// reserve when it has one (already set); returns its offset.
+template <typename T>
+uint32_t append_block(std::vector<T>& v, size_t used, size_t count, T fill) {
+  if (used + count > v.size()) {
+    if (used + count > v.capacity()) v.reserve(std::max(used + count, 2 * v.capacity()));
+    v.resize(used + count, fill);
   }
-  const uint32_t at = uint32_t(v.size());
-  v.resize(v.size() + count, fill);
-  return at;
+  return uint32_t(used);
 }
 
 // Label storage for simulation voxel sv (a divided voxel's labels and slots), created on first use.
@@ -554,8 +598,8 @@ uint32_t ensure_divided(PbdState& s, uint32_t sv) {
   if (d != kDeadIndex) return d;
   d = uint32_t(s.divided.size());
   s.voxel_divided[sv] = d;
-  const uint32_t first_label = append_block(s, s.labels, block_nodes(s), kNoPiece);
-  const uint32_t first_slot = append_block(s, s.label_slots, kLabelSlots, kDeadIndex);
+  const uint32_t first_label = append_block(s.labels, d * size_t(block_nodes(s)), block_nodes(s), kNoPiece);
+  const uint32_t first_slot = append_block(s.label_slots, d * size_t(kLabelSlots), kLabelSlots, kDeadIndex);
   s.divided.push_back({sv, first_label, first_slot, 0});
   return d;
 }
@@ -830,6 +874,22 @@ const uint64_t* cut_rows(const PbdModel& s, uint32_t sv) {
   return at == kDeadIndex ? nullptr : s.cut_rows.data() + at;
 }
 
+// The block arrays' warm reserves: at init their address space and whole reserves, after a cut step
+// a few more pages.
+void warm_block_arrays(PbdModel& s, bool init) {
+  const size_t budget = init ? std::numeric_limits<size_t>::max() : kRefillBytes;
+  if (init) {
+    reserve_blocks(s, s.labels, block_nodes(s));
+    reserve_blocks(s, s.label_slots, kLabelSlots);
+    if (s.ratio <= kSpanRatio) reserve_blocks(s, s.cut_rows, record_rows(s.ratio));
+  }
+  warm_blocks(s.labels, s.divided.size() * block_nodes(s), block_nodes(s), kNoPiece, budget, init);
+  warm_blocks(s.label_slots, s.divided.size() * kLabelSlots, kLabelSlots, kDeadIndex, budget, init);
+  if (s.ratio <= kSpanRatio) {
+    warm_blocks(s.cut_rows, s.cut_rows_of.size() * record_rows(s.ratio), record_rows(s.ratio), uint64_t(0), budget, init);
+  }
+}
+
 // The static part of a record (its rows after the cut edges), from the model.
 void static_rows(const VoxelModel& model, const PbdModel& s, uint32_t sv, uint64_t* record) {
   const Lattice& l = model.lattice;
@@ -877,7 +937,7 @@ void note_cut_voxel(const VoxelModel& model, PbdModel& s, const DividedVoxel& dv
   const uint32_t sv = sim_voxel_id(s, vc[0] / r, vc[1] / r, vc[2] / r);
   uint32_t at = s.cut_rows_of.get(sv);
   if (at == kDeadIndex) {
-    at = append_block(s, s.cut_rows, record_rows(r), uint64_t(0));
+    at = append_block(s.cut_rows, s.cut_rows_of.size() * record_rows(r), record_rows(r), uint64_t(0));
     s.cut_rows_of.set(sv, at);
     static_rows(model, s, sv, s.cut_rows.data() + at);
   }
@@ -1227,11 +1287,19 @@ uint32_t embedded_piece(const PbdModel& s, const VertexEmbedding& e) {
 
 // Grows the embedding with the surface's vertex slots. Capacity follows the surface's own (it keeps
 // headroom for cuts): growing past a capacity copies every slot, a p99 spike of the cut step.
+// The new capacity is touched right away (grown to it and shrunk back, which keeps the pages): the
+// surface grows by about a thousand vertices per cutting step at 512, and first touches of their
+// pages inside the steps cost ~0.1 ms each step on a virtual machine.
 void grow_embedding(const CutState& cut, PbdState& s) {
   if (s.embedding.size() < cut.surface.positions.size()) {
     if (s.embedding.capacity() < cut.surface.positions.capacity()) {
-      s.embedding.reserve(cut.surface.positions.capacity());
-      s.deformed.reserve(cut.surface.positions.capacity());
+      const size_t size = s.embedding.size(), capacity = cut.surface.positions.capacity();
+      s.embedding.reserve(capacity);
+      s.deformed.reserve(capacity);
+      s.embedding.resize(capacity, VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
+      s.deformed.resize(capacity, Vec3f::Zero());
+      s.embedding.resize(size);
+      s.deformed.resize(size);
     }
     s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
     s.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
@@ -2204,6 +2272,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.pieces_in_voxel.assign(voxels, 0);
 
   // Pieces: the material components of every block (cuts made before init included).
+  warm_block_arrays(s, true);
   for (const DividedVoxel& dv : cut.divided) note_cut_voxel(model, s, dv);
   s.scratch_labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
@@ -2226,6 +2295,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   // The embedding of every live vertex.
   grow_embedding(cut, s);
   for (uint32_t slot = 0; slot < cut.surface.positions.size(); ++slot) embed_vertex(model, cut, s, slot);
+  warm_block_arrays(s, true);
   reserve_edits(s.edits);
   s.edits.base_revision = s.revision;  // the caches follow the cuts from here
   s.edits.base_cut_steps = cut.steps;
@@ -2370,6 +2440,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
   record_edits(cut, s, relabelled, relabelled.empty() ? nullptr : &touched);  // for the caches
+  warm_block_arrays(s, false);
   if (stats) stats->sim_voxels += uint32_t(affected.size());
   return uint32_t(affected.size());
 }
@@ -2535,7 +2606,9 @@ bool piece_holds(const VoxelModel& model, const PbdState& s, uint32_t piece, con
   int32_t c[3], node[3];
   sim_voxel_coords(s, p.sim_voxel, c);
   for (int a = 0; a < 3; ++a) {
-    node[a] = c[a] * s.ratio + int32_t(std::lround(std::clamp(u[a], 0.0, 1.0) * s.ratio));
+    // Nearest node: the value is in [0, ratio], so truncating x + 0.5 rounds it (inline, where
+    // lround is a library call; the mapping asks this for every blade sample in material).
+    node[a] = c[a] * s.ratio + int32_t(std::clamp(u[a], 0.0, 1.0) * s.ratio + 0.5);
   }
   return node_label(model, s, p.sim_voxel, c, node[0], node[1], node[2]) == p.piece;
 }

@@ -20,43 +20,90 @@ Vec3d trilinear(const Vec3d corners[8], const Vec3d& u) {
   return x;
 }
 
-bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, double tolerance, int max_iterations) {
-  for (int it = 0; it <= max_iterations; ++it) {
-    // The map and its Jacobian at u.
-    // Weights per axis (1 - u, u); a derivative's weight is the product of the other two axes'
-    // weights, negated on the lower side (exactly the product with -1).
-    // The map first: the last evaluation (converged, or out of iterations) needs no Jacobian.
-    Vec3d x = Vec3d::Zero();
-    const double wx[2] = {1.0 - u.x(), u.x()}, wy[2] = {1.0 - u.y(), u.y()}, wz[2] = {1.0 - u.z(), u.z()};
-    for (int c = 0; c < 8; ++c) {
-      const double g2 = wx[c & 1] * wy[(c >> 1) & 1];
-      x += g2 * wz[(c >> 2) & 1] * corners[c];
+TrilinearMap trilinear_map(const Vec3d x[8]) {
+  TrilinearMap m;
+  m.c[0] = x[0];
+  m.c[1] = x[1] - x[0];
+  m.c[2] = x[2] - x[0];
+  m.c[3] = x[4] - x[0];
+  m.c[4] = (x[3] - x[2]) - m.c[1];
+  m.c[5] = (x[5] - x[4]) - m.c[1];
+  m.c[6] = (x[6] - x[4]) - m.c[2];
+  m.c[7] = ((x[7] - x[6]) - (x[5] - x[4])) - m.c[4];
+  return m;
+}
+
+namespace {
+
+Vec3d map_point(const TrilinearMap& m, const Vec3d& u) {
+  return m.c[0] + u.x() * m.c[1] + u.y() * (m.c[2] + u.x() * m.c[4]) + u.z() * (m.c[3] + u.x() * m.c[5] + u.y() * (m.c[6] + u.x() * m.c[7]));
+}
+
+Eigen::Matrix3d map_jacobian(const TrilinearMap& m, const Vec3d& u) {
+  Eigen::Matrix3d j;
+  j.col(0) = m.c[1] + u.y() * m.c[4] + u.z() * (m.c[5] + u.y() * m.c[7]);
+  j.col(1) = m.c[2] + u.x() * m.c[4] + u.z() * (m.c[6] + u.x() * m.c[7]);
+  j.col(2) = m.c[3] + u.x() * m.c[5] + u.y() * (m.c[6] + u.x() * m.c[7]);
+  return j;
+}
+
+// Whether Newton's step may be taken with Jacobian j (not flat or inverted), and its inverse then.
+bool invertible(const Eigen::Matrix3d& j, Eigen::Matrix3d& inverse) {
+  const double scale = j.cwiseAbs().maxCoeff();
+  const double det = j.determinant();
+  if (!(scale > 0.0) || !(std::abs(det) > 1e-9 * scale * scale * scale)) return false;
+  inverse = j.inverse();
+  return true;
+}
+
+// u += step, at most one cell per axis; false when u leaves the search range (|u - 0.5| > 2).
+bool take_step(Vec3d step, Vec3d& u) {
+  const double longest = step.cwiseAbs().maxCoeff();
+  if (!(longest < std::numeric_limits<double>::infinity())) return false;
+  if (longest > 1.0) step /= longest;
+  u += step;
+  return (u.array() - 0.5).abs().maxCoeff() <= 2.0;
+}
+
+}  // namespace
+
+bool invert_trilinear_warm(const TrilinearMap& map, const Vec3d& target, Vec3d& u, double tolerance,
+                           Eigen::Matrix3d& jinv, bool& have_jinv, int max_iterations) {
+  // Chord steps while they contract (each at least halves the residual); the best point is kept.
+  Vec3d best = u;
+  double best_norm = std::numeric_limits<double>::infinity();
+  if (have_jinv) {
+    for (int it = 0; it < 6; ++it) {
+      const Vec3d residual = target - map_point(map, u);
+      if (!residual.allFinite()) return false;
+      const double norm = residual.norm();
+      if (norm <= tolerance) return true;
+      if (!(norm < 0.5 * best_norm)) break;
+      best = u;
+      best_norm = norm;
+      if (!take_step(jinv * residual, u)) break;
     }
-    const Vec3d residual = target - x;
+    u = best;
+  }
+  // Newton's method (as invert_trilinear), keeping its last Jacobian's inverse.
+  for (int it = 0; it <= max_iterations; ++it) {
+    const Vec3d residual = target - map_point(map, u);
     if (!residual.allFinite()) return false;
     if (residual.norm() <= tolerance) return true;
     if (it == max_iterations) break;
-    Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
-    for (int c = 0; c < 8; ++c) {
-      const int ix = c & 1, iy = (c >> 1) & 1, iz = (c >> 2) & 1;
-      const double f0 = wx[ix], f1 = wy[iy], f2 = wz[iz];
-      const double g0 = f1 * f2, g1 = f0 * f2, g2 = f0 * f1;
-      jacobian.col(0) += (ix ? g0 : -g0) * corners[c];
-      jacobian.col(1) += (iy ? g1 : -g1) * corners[c];
-      jacobian.col(2) += (iz ? g2 : -g2) * corners[c];
-    }
-    // Newton step, damped to at most one cell per axis; a flat or inverted map stops it.
-    const double scale = jacobian.cwiseAbs().maxCoeff();
-    const double det = jacobian.determinant();
-    if (!(scale > 0.0) || !(std::abs(det) > 1e-9 * scale * scale * scale)) return false;
-    Vec3d step = jacobian.inverse() * residual;
-    const double longest = step.cwiseAbs().maxCoeff();
-    if (!(longest < std::numeric_limits<double>::infinity())) return false;
-    if (longest > 1.0) step /= longest;
-    u += step;
-    if ((u.array() - 0.5).abs().maxCoeff() > 2.0) return false;
+    Eigen::Matrix3d inverse;
+    if (!invertible(map_jacobian(map, u), inverse)) return false;
+    jinv = inverse;
+    have_jinv = true;
+    if (!take_step(inverse * residual, u)) return false;
   }
   return false;
+}
+
+bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, double tolerance, int max_iterations) {
+  Eigen::Matrix3d jinv;
+  bool have_jinv = false;
+  return invert_trilinear_warm(trilinear_map(corners), target, u, tolerance, jinv, have_jinv, max_iterations);
 }
 
 // ---- Grid over deformed pieces ---------------------------------------------------------------
@@ -75,6 +122,10 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
   grid.box_hi.clear();
   grid.piece_lo.resize(pbd.pieces.size());
   grid.piece_hi.resize(pbd.pieces.size());
+  grid.piece_map.resize(pbd.pieces.size());
+  grid.piece_origin.resize(pbd.pieces.size());
+  grid.piece_jinv.resize(pbd.pieces.size());
+  grid.jinv_valid.resize(pbd.pieces.size());
   for (uint32_t slot = 0; slot < pbd.pieces.size(); ++slot) {
     if (pbd.pieces[slot].sim_voxel == kDeadIndex) continue;
     Vec3d lo = pbd.position[pbd.pieces[slot].particles[0]], hi = lo;
@@ -91,6 +142,11 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
       continue;
     }
     grid.candidates.push_back(slot);
+    Vec3d corners[8];
+    piece_corners(pbd, slot, corners);
+    grid.piece_map[slot] = trilinear_map(corners);
+    grid.piece_origin[slot] = piece_rest_origin(pbd, slot);
+    grid.jinv_valid[slot] = 0;
     grid.box_lo.push_back(lo.cwiseMax(lo_region));
     grid.box_hi.push_back(hi.cwiseMin(hi_region));
     lo_all = lo_all.cwiseMin(grid.box_lo.back());
@@ -151,12 +207,14 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
 
 namespace {
 
-// Inverts a piece's map at `world`: local coordinates u (from `start`), false when Newton fails.
-bool piece_local(const PbdState& pbd, uint32_t piece, const Vec3d& world, const Vec3d& start, Vec3d& u) {
-  Vec3d corners[8];
-  piece_corners(pbd, piece, corners);
+// Inverts a piece's map at `world` (a candidate of the grid): local coordinates u (from `start`),
+// false when Newton fails. Warm: chord steps with the inverse Jacobian of the piece's last inversion.
+bool piece_local(const PbdState& pbd, PieceGrid& grid, uint32_t piece, const Vec3d& world, const Vec3d& start, Vec3d& u) {
   u = start;
-  return invert_trilinear(corners, world, u, 1e-7 * pbd.sim_size);
+  bool have = grid.jinv_valid[piece] != 0;
+  const bool ok = invert_trilinear_warm(grid.piece_map[piece], world, u, 1e-7 * pbd.sim_size, grid.piece_jinv[piece], have);
+  grid.jinv_valid[piece] = have;
+  return ok;
 }
 
 // Whether `world` lies within a piece's deformed corner bounds grown by `slack`. The hexahedron lies
@@ -173,7 +231,7 @@ bool in_piece_bounds(const PieceGrid& grid, uint32_t slot, const Vec3d& world, d
 
 }  // namespace
 
-uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
+uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& grid, const Vec3d& world,
                        std::vector<RestHit>& out, uint32_t* tests, uint32_t near_begin, uint32_t near_end) {
   const size_t before = out.size();
   constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces
@@ -185,14 +243,14 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const Piece
     Vec3d start = Vec3d::Constant(0.5);
     for (uint32_t h = near_begin; h < near_end; ++h) {
       if (out[h].piece != slot) continue;
-      start = (out[h].rest - piece_rest_origin(pbd, slot)) / pbd.sim_size;
+      start = (out[h].rest - grid.piece_origin[slot]) / pbd.sim_size;
       break;
     }
     Vec3d u;
-    if (!piece_local(pbd, slot, world, start, u)) return;
+    if (!piece_local(pbd, grid, slot, world, start, u)) return;
     if (u.minCoeff() < -kInside || u.maxCoeff() > 1.0 + kInside) return;
     if (!piece_holds(model, pbd, slot, u)) return;
-    out.push_back({slot, piece_rest_origin(pbd, slot) + pbd.sim_size * u});
+    out.push_back({slot, grid.piece_origin[slot] + pbd.sim_size * u});
   });
   return uint32_t(out.size() - before);
 }
@@ -243,15 +301,15 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
 }
 
 // The rest image through `piece` of grid point k: its hit when it has one, else Newton from `start`.
-bool rest_through(const PbdState& pbd, const SweepMapper& m, uint32_t k, uint32_t piece, const Vec3d& start, Vec3d& rest) {
+bool rest_through(const PbdState& pbd, SweepMapper& m, uint32_t k, uint32_t piece, const Vec3d& start, Vec3d& rest) {
   for (uint32_t h = m.hit_begin[k]; h < m.hit_begin[k + 1]; ++h) {
     if (m.hits[h].piece != piece) continue;
     rest = m.hits[h].rest;
     return true;
   }
   Vec3d u;
-  if (!piece_local(pbd, piece, m.points[k], start, u)) return false;
-  rest = piece_rest_origin(pbd, piece) + pbd.sim_size * u;
+  if (!piece_local(pbd, m.grid, piece, m.points[k], start, u)) return false;
+  rest = m.grid.piece_origin[piece] + pbd.sim_size * u;
   return true;
 }
 
@@ -426,7 +484,7 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
           for (uint32_t x = m.hit_begin[corner]; x < m.hit_begin[corner + 1] && piece_count < 32; ++x) {
             const uint32_t p = m.hits[x].piece;
             if (std::find(pieces, pieces + piece_count, p) != pieces + piece_count) continue;
-            starts[piece_count] = (m.hits[x].rest - piece_rest_origin(pbd, p)) / pbd.sim_size;
+            starts[piece_count] = (m.hits[x].rest - m.grid.piece_origin[p]) / pbd.sim_size;
             pieces[piece_count++] = p;
           }
         }
@@ -484,11 +542,11 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
     query_piece_grid(m.grid, m.points[k], [&](uint32_t slot) {
       Vec3d u;
       if (m.carried_piece[i] != kDeadIndex || !in_piece_bounds(m.grid, slot, m.points[k], 1e-5 * pbd.sim_size) ||
-          !piece_local(pbd, slot, m.points[k], Vec3d::Constant(0.5), u)) {
+          !piece_local(pbd, m.grid, slot, m.points[k], Vec3d::Constant(0.5), u)) {
         return;
       }
       if (u.minCoeff() < 0.0 || u.maxCoeff() > 1.0) return;
-      m.carried[i] = piece_rest_origin(pbd, slot) + pbd.sim_size * u;
+      m.carried[i] = m.grid.piece_origin[slot] + pbd.sim_size * u;
       m.carried_piece[i] = slot;
     });
   }

@@ -8,7 +8,9 @@
 //
 // The pieces are found through a uniform grid over their deformed bounds (PieceGrid, rebuilt per use
 // over the region of interest: one pass over the pieces, no sort); the map is inverted by Newton's
-// method on the trilinear map (invert_trilinear). Contact uses both as well.
+// method on the trilinear map (invert_trilinear), warm along the sweep: each candidate piece's map in
+// monomial form, and chord steps with the inverse Jacobian of the piece's last inversion, Newton only
+// when they stop contracting (invert_trilinear_warm).
 //
 // The blade's sweep between two steps is sampled at fine-voxel spacing, along the blade and along
 // its motion. The sweep starts where the blade's previous samples are *now*: each sample that was in
@@ -37,6 +39,22 @@ Vec3d trilinear(const Vec3d corners[8], const Vec3d& u);
 // inverted hexahedron, or a target far outside: |u - 0.5| > 2 on an axis).
 bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, double tolerance, int max_iterations = 16);
 
+// A hexahedron's trilinear map in monomial form, x(u) = c[0] + c[1] u + c[2] v + c[3] w + c[4] uv +
+// c[5] uw + c[6] vw + c[7] uvw: a map and its Jacobian cost a third of the corner form's products,
+// and the mapping of a sweep evaluates one piece's map many times.
+struct TrilinearMap {
+  Vec3d c[8];
+};
+TrilinearMap trilinear_map(const Vec3d corners[8]);
+
+// The inversion of a piece's map, warm: `jinv` is an inverse Jacobian of the same map near the
+// answer (`have_jinv` false: none yet). Chord steps u += jinv (target - x(u)) need one map evaluation
+// each; when they stop contracting (or without jinv) Newton's method takes over from the best point,
+// and jinv becomes the inverse of its last Jacobian. Converges to the same tolerance as
+// invert_trilinear (the answer differs from its answer within it); false when Newton fails.
+bool invert_trilinear_warm(const TrilinearMap& map, const Vec3d& target, Vec3d& u, double tolerance,
+                           Eigen::Matrix3d& jinv, bool& have_jinv, int max_iterations = 16);
+
 // A uniform grid over the deformed bounds of the pieces that overlap a region.
 struct PieceGrid {
   Vec3d origin = Vec3d::Zero();
@@ -46,6 +64,12 @@ struct PieceGrid {
   std::vector<uint32_t> items;       // piece slots per cell
   std::vector<uint32_t> everywhere;  // pieces too large for the grid: tested by every query
   std::vector<Vec3d> piece_lo, piece_hi;  // (piece slots) deformed corner bounds, valid for the candidates
+  // (piece slots, valid for the candidates) each piece's map and rest origin, and an inverse Jacobian of it from an
+  // earlier inversion (jinv_valid), so a sweep's many points in one piece mostly need chord steps.
+  std::vector<TrilinearMap> piece_map;
+  std::vector<Vec3d> piece_origin;  // rest position of the piece's corner 0 (piece_rest_origin)
+  std::vector<Eigen::Matrix3d> piece_jinv;
+  std::vector<uint8_t> jinv_valid;
   // Scratch.
   std::vector<uint32_t> candidates;
   std::vector<int32_t> ranges;  // (candidates x 6) cell ranges
@@ -80,7 +104,7 @@ struct RestHit {
 };
 // `tests` (optional) counts the Newton inversions. out[near_begin, near_end) (optional): hits of a
 // neighbouring point; Newton starts from their local coordinates in the same piece (else the centre).
-uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, const PieceGrid& grid, const Vec3d& world,
+uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& grid, const Vec3d& world,
                        std::vector<RestHit>& out, uint32_t* tests = nullptr, uint32_t near_begin = 0, uint32_t near_end = 0);
 
 // A rest-space quad to cut: the sweep from one blade segment to another.

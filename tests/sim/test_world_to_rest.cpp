@@ -44,16 +44,21 @@ CutStepStats world_cut(Body& b, const BladePose& from, const BladePose& to) {
 
 int components(const Body& b) { return int(surface_stats(compact_surface(b.cut.surface)).components); }
 
+// A rotated, sheared and bent hexahedron.
+void bent_hexahedron(Vec3d corners[8]) {
+  const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Vec3d(1, 2, 3).normalized()).toRotationMatrix();
+  for (int c = 0; c < 8; ++c) {
+    const Vec3d u((c & 1), (c >> 1) & 1, (c >> 2) & 1);
+    corners[c] = Vec3d(3, 1, 2) + r * (Vec3d(2 * u.x() + 0.4 * u.y(), u.y(), u.z()) + 0.3 * u.x() * u.y() * Vec3d(0, 0, 1));
+  }
+}
+
 }  // namespace
 
 TEST_SUITE("world_to_rest") {
   TEST_CASE("Newton inverts the trilinear map of a rotated, sheared and bent hexahedron") {
-    const Eigen::Matrix3d r = Eigen::AngleAxisd(0.7, Vec3d(1, 2, 3).normalized()).toRotationMatrix();
     Vec3d corners[8];
-    for (int c = 0; c < 8; ++c) {
-      const Vec3d u((c & 1), (c >> 1) & 1, (c >> 2) & 1);
-      corners[c] = Vec3d(3, 1, 2) + r * (Vec3d(2 * u.x() + 0.4 * u.y(), u.y(), u.z()) + 0.3 * u.x() * u.y() * Vec3d(0, 0, 1));
-    }
+    bent_hexahedron(corners);
     for (const Vec3d& u : {Vec3d(0.1, 0.2, 0.3), Vec3d(0.9, 0.5, 0.01), Vec3d(1.1, -0.05, 0.5)}) {
       Vec3d found = Vec3d::Constant(0.5);
       REQUIRE(invert_trilinear(corners, trilinear(corners, u), found, 1e-12));
@@ -64,6 +69,44 @@ TEST_SUITE("world_to_rest") {
     for (int c = 0; c < 8; ++c) flat[c] = Vec3d((c & 1), 0.0, (c >> 2) & 1);
     Vec3d u = Vec3d::Constant(0.5);
     CHECK_FALSE(invert_trilinear(flat, Vec3d(0.5, 0.3, 0.5), u, 1e-9));
+  }
+
+  TEST_CASE("the warm inversion reaches Newton's tolerance from another point's inverse Jacobian, and falls back to Newton") {
+    // The bent hexahedron, in monomial form.
+    Vec3d corners[8];
+    bent_hexahedron(corners);
+    const TrilinearMap map = trilinear_map(corners);
+    for (const Vec3d& u : {Vec3d(0.1, 0.2, 0.3), Vec3d(0.9, 0.5, 0.01), Vec3d(0.5, 0.5, 0.5)}) {
+      CHECK((trilinear(corners, u) - (map.c[0] + u.x() * map.c[1] + u.y() * map.c[2] + u.z() * map.c[3] +
+                                      u.x() * u.y() * map.c[4] + u.x() * u.z() * map.c[5] + u.y() * u.z() * map.c[6] +
+                                      u.x() * u.y() * u.z() * map.c[7]))
+                .norm() < 1e-12);
+    }
+    // The first inversion runs Newton and keeps its inverse Jacobian; the next points, far from it
+    // in the bent map, converge with it to the same tolerance.
+    Eigen::Matrix3d jinv = Eigen::Matrix3d::Zero();
+    bool have = false;
+    Vec3d found = Vec3d::Constant(0.5);
+    REQUIRE(invert_trilinear_warm(map, trilinear(corners, Vec3d(0.2, 0.3, 0.4)), found, 1e-10, jinv, have));
+    CHECK(have);
+    CHECK((found - Vec3d(0.2, 0.3, 0.4)).norm() < 1e-8);
+    for (const Vec3d& u : {Vec3d(0.1, 0.2, 0.3), Vec3d(0.9, 0.5, 0.01), Vec3d(1.1, -0.05, 0.5), Vec3d(0.95, 0.95, 0.95)}) {
+      found = Vec3d::Constant(0.5);
+      REQUIRE(invert_trilinear_warm(map, trilinear(corners, u), found, 1e-10, jinv, have));
+      CHECK((trilinear(corners, found) - trilinear(corners, u)).norm() <= 1e-10);
+      CHECK((found - u).norm() < 1e-8);
+    }
+    // A useless inverse Jacobian (chord steps that do not contract): Newton takes over and replaces it.
+    jinv = -Eigen::Matrix3d::Identity();
+    found = Vec3d::Constant(0.5);
+    REQUIRE(invert_trilinear_warm(map, trilinear(corners, Vec3d(0.8, 0.1, 0.6)), found, 1e-10, jinv, have));
+    CHECK((found - Vec3d(0.8, 0.1, 0.6)).norm() < 1e-8);
+    CHECK(jinv != -Eigen::Matrix3d::Identity());
+    // A flattened hexahedron fails with or without one.
+    Vec3d flat[8];
+    for (int c = 0; c < 8; ++c) flat[c] = Vec3d((c & 1), 0.0, (c >> 2) & 1);
+    found = Vec3d::Constant(0.5);
+    CHECK_FALSE(invert_trilinear_warm(trilinear_map(flat), Vec3d(0.5, 0.3, 0.5), found, 1e-9, jinv, have));
   }
 
   TEST_CASE("a blade through the space a fallen piece left cuts nothing") {
