@@ -415,8 +415,9 @@ void figure_commands(std::ostringstream& s, const Plot& plot, const std::vector<
                      const std::string& out) {
   s << "reset\n";
   if (fs::path(out).extension() == ".png") {
-    s << "set terminal pngcairo size " << int(L.W * 1.5) << "," << int(L.H * 1.5)
-      << " font 'DejaVu Sans,10' fontscale 1.5 linewidth 1.5 background rgb 'white'\n";
+    const double k = plot.png_scale;
+    s << "set terminal pngcairo size " << int(L.W * k) << "," << int(L.H * k) << " font 'DejaVu Sans,10' fontscale "
+      << g(k) << " linewidth " << g(k) << " background rgb 'white'\n";
   } else {
     s << "set terminal svg size " << int(L.W) << "," << int(L.H) << " font 'DejaVu Sans," << kFontPx
       << "' background rgb 'white'\n";

@@ -194,6 +194,7 @@ void send_timings_plot(const std::string& recording, const std::vector<StepRepor
   plot.x_label = "step";
   plot.span_name = "steps that cut voxels";
   plot.same_y = true;
+  plot.png_scale = 1.0;  // the replay waits for it (plot.h)
   // A panel: the values against x (NaN: not a sample), their p50 / p99 and the two budgets.
   const auto panel = [&](const char* name, const char* colour, const char* over, const std::vector<double>& x,
                          const std::vector<double>& y) {

@@ -2159,16 +2159,21 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
 }
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
-// a run of such batches). Measured on the default recording (bench deform, callgrind): a stretch
-// constraint costs ~36 instructions, a shape-matching solve ~350 (a block of 8 ~2 800), a particle's
-// velocity + predict ~30, a contact ~400 (its group: a piece's contacts with the planes, or the
-// contacts between two pieces, often 10 or more). A barrier between two chunks costs about as much as
-// 100-200 stretch constraints (one cache-line round trip per particle line the other thread wrote),
-// so a stretch colour of a few hundred constraints is still split (A/B in bench contact, 2 workers).
-constexpr uint32_t kParticleGrain = 512;
-constexpr uint32_t kStretchGrain = 128;
-constexpr uint32_t kShapeGrain = 16 / kShapeLanes;  // blocks (two: a pair solved side by side, pbd_kernels.h)
-constexpr uint32_t kContactGrain = 4;
+// a run of such batches). Each grain is the items of about kChunkWork instructions, from the costs
+// measured on the default recording (callgrind): a stretch constraint ~36 instructions, a block of 8
+// shape-matching clusters ~2 800, a particle's velocity + predict ~30, a contact group (a piece's
+// contacts with the planes, or the contacts between two pieces, often 10 or more) ~4 000. A stage
+// shared by two threads costs a barrier plus the particle lines the other core wrote in the stage
+// before: ~5-8 µs a stage on the 2-core machine, so a chunk under ~10 µs of work loses. Measured
+// with 2 workers (issue 17, bench replay / bench deform, deform p50): with the former grains (chunks
+// of ~5 000-15 000 instructions) the default recording (bunny at 128, sim 16) ran 193 stages a
+// step and took 1.2-1.4 ms against 0.85-0.9 ms on one thread; with these it runs as one stage, and
+// liver at 64 with sim 32 (5 200 clusters) is within noise of the former grains (2.5 vs 2.1-2.5 ms).
+constexpr uint32_t kChunkWork = 40000;
+constexpr uint32_t kParticleGrain = kChunkWork / 30;
+constexpr uint32_t kStretchGrain = kChunkWork / 36;
+constexpr uint32_t kShapeGrain = kChunkWork / (kShapeLanes * 350);  // blocks
+constexpr uint32_t kContactGrain = kChunkWork / 4000;                // contact groups
 constexpr uint32_t kSerial = ~0u;
 
 // The batches of a whole step (all substeps: one TaskRunner job, one wake-up of the workers), in
