@@ -6,6 +6,7 @@
 #include "sim/voxelize.h"
 
 #include <chrono>
+#include <cstdlib>
 
 namespace dvx {
 namespace {
@@ -36,6 +37,16 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   if (physics) {
     s.pbd = std::make_unique<PbdState>();
     if (!init_pbd(s.model, s.cut, pbd_params(scene, dt), *s.pbd, error)) throw_input(scene.file, error);
+    // DIVVOX_CHUNK_WORK: the work per chunk of a step's shared batches (sim/pbd.h kDefaultChunkWork;
+    // lower splits smaller batches across the workers, the same bits either way).
+    if (const char* text = std::getenv("DIVVOX_CHUNK_WORK"); text != nullptr && *text != '\0') {
+      char* end = nullptr;
+      const unsigned long value = std::strtoul(text, &end, 10);
+      if (*end != '\0' || value == 0 || value > 0xffffffffu || text[0] == '-') {
+        throw_input("DIVVOX_CHUNK_WORK", std::string("must be a positive integer (instructions per chunk), not '") + text + "'");
+      }
+      s.pbd->chunk_work = uint32_t(value);
+    }
     s.pool = std::make_unique<TaskPool>(workers);
     s.initial_mass = total_mass(*s.pbd);
   }

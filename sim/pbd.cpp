@@ -2159,21 +2159,18 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
 }
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
-// a run of such batches). Each grain is the items of about kChunkWork instructions, from the costs
-// measured on the default recording (callgrind): a stretch constraint ~36 instructions, a block of 8
-// shape-matching clusters ~2 800, a particle's velocity + predict ~30, a contact group (a piece's
+// a run of such batches). Each grain is the items of about PbdData::chunk_work instructions, from the
+// costs measured on the default recording (callgrind): a stretch constraint ~36 instructions, a block
+// of 8 shape-matching clusters ~2 800, a particle's velocity + predict ~30, a contact group (a piece's
 // contacts with the planes, or the contacts between two pieces, often 10 or more) ~4 000. A stage
 // shared by two threads costs a barrier plus the particle lines the other core wrote in the stage
-// before: ~5-8 µs a stage on the 2-core machine, so a chunk under ~10 µs of work loses. Measured
-// with 2 workers (issue 17, bench replay / bench deform, deform p50): with the former grains (chunks
-// of ~5 000-15 000 instructions) the default recording (bunny at 128, sim 16) ran 193 stages a
-// step and took 1.2-1.4 ms against 0.85-0.9 ms on one thread; with these it runs as one stage, and
-// liver at 64 with sim 32 (5 200 clusters) is within noise of the former grains (2.5 vs 2.1-2.5 ms).
-constexpr uint32_t kChunkWork = 40000;
-constexpr uint32_t kParticleGrain = kChunkWork / 30;
-constexpr uint32_t kStretchGrain = kChunkWork / 36;
-constexpr uint32_t kShapeGrain = kChunkWork / (kShapeLanes * 350);  // blocks
-constexpr uint32_t kContactGrain = kChunkWork / 4000;                // contact groups
+// before: ~5-8 µs a stage on the 2-core machine, so a chunk under ~10 µs of work loses
+// (kDefaultChunkWork). Measured with 2 workers (issue 17, bench replay / bench deform, deform p50):
+// with the former grains (chunks of ~5 000-15 000 instructions) the default recording (bunny at 128,
+// sim 16) ran 193 stages a step and took 1.2-1.4 ms against 0.85-0.9 ms on one thread; with these it
+// runs as one stage, and liver at 64 with sim 32 (5 200 clusters) is within noise of the former
+// grains (2.5 against 2.1-2.5 ms).
+constexpr uint32_t kParticleCost = 30, kStretchCost = 36, kShapeBlockCost = kShapeLanes * 350, kContactGroupCost = 4000;
 constexpr uint32_t kSerial = ~0u;
 
 // The batches of a whole step (all substeps: one TaskRunner job, one wake-up of the workers), in
@@ -2192,22 +2189,25 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
     steps.push_back(StepBatch{kind, index});
     batches.push_back(TaskBatch{count, grain});
   };
+  const auto grain = [&](uint32_t cost) { return std::max<uint32_t>(1, s.chunk_work / cost); };
+  const uint32_t particle_grain = grain(kParticleCost), stretch_grain = grain(kStretchCost);
+  const uint32_t shape_grain = grain(kShapeBlockCost), contact_grain = grain(kContactGroupCost);
   const auto add_contacts = [&](uint8_t kind, const ContactSet& set) {
     for (uint32_t b = 0; b < contact_batches(set); ++b) {
       const bool serial = b == kOverflowColour || set.points.size() < 256;
-      add(kind, b, set.batch_begin[b + 1] - set.batch_begin[b], serial ? kSerial : kContactGrain);
+      add(kind, b, set.batch_begin[b + 1] - set.batch_begin[b], serial ? kSerial : contact_grain);
     }
   };
   const uint32_t n = uint32_t(s.position.size());
   if (n == 0) return;
   // The first substep: its predict, then the rest of its batches (the body).
-  add(StepBatch::kPredict, 0, n, kParticleGrain);
+  add(StepBatch::kPredict, 0, n, particle_grain);
   for (int it = 0; it < s.params.iterations; ++it) {
     for (int c = 0; stretch_on && c < kColourGroups; ++c) {
-      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : kStretchGrain);
+      add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : stretch_grain);
     }
     for (int c = 0; c < kColourGroups; ++c) {
-      add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : kShapeGrain);
+      add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : shape_grain);
     }
     if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) add(StepBatch::kGrab, 0, 1, kSerial);
     // Contact between pieces, then with the static planes, last so each iteration ends with the
@@ -2225,7 +2225,7 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
   // The other substeps: velocities fused with the next predict, then the body again.
   const size_t body = steps.size() - 1;
   for (int sub = 1; sub < substeps; ++sub) {
-    add(StepBatch::kVelocity, 1, n, kParticleGrain);
+    add(StepBatch::kVelocity, 1, n, particle_grain);
     for (size_t i = 1; i <= body; ++i) {
       const StepBatch step = steps[i];
       const TaskBatch batch = batches[i];
@@ -2233,7 +2233,7 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
       batches.push_back(batch);
     }
   }
-  add(StepBatch::kVelocity, 0, n, kParticleGrain);
+  add(StepBatch::kVelocity, 0, n, particle_grain);
 }
 
 // Grab: a compliant attachment of one particle to its target (XPBD, per axis).

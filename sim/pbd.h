@@ -246,6 +246,10 @@ struct StepBatch {
   uint32_t index;  // colour group, or contact batch; kVelocity: 1 when the next substep's predict follows in the pass
 };
 
+// Work of the smallest chunk a step's batch is split into across workers, in instructions (the
+// grains in pbd.cpp follow from it): a batch with less than two such chunks runs on one thread.
+constexpr uint32_t kDefaultChunkWork = 40000;
+
 // The dynamic state: what a step writes.
 struct PbdData {
   std::vector<Vec3d> position, velocity, previous;  // (particle slots)
@@ -283,6 +287,9 @@ struct PbdData {
   std::vector<EmbedRow> embed_rows;
   std::vector<uint32_t> embed_row_of;  // (surface vertex slots) index in embed_rows, ~0u: none
   uint64_t embed_revision = ~uint64_t(0), embed_updates = ~uint64_t(0);
+  // Work per chunk of a shared batch (kDefaultChunkWork). A solver setting, not physics: the results
+  // are the same bits for any value. Tests lower it so that small scenes split every batch.
+  uint32_t chunk_work = kDefaultChunkWork;
   // The batches of one step (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;

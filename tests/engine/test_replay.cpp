@@ -208,6 +208,9 @@ TEST_SUITE("replay") {
   }
 
   TEST_CASE("physics replay: recorded hashes match with 1 and with 2 workers, mass is conserved") {
+    // Every batch of a step split across the workers (a scene this small runs on one thread otherwise),
+    // so the task pool's parallel path is what the hashes compare (and what ThreadSanitizer sees).
+    const dvx_test::ScopedEnv chunks("DIVVOX_CHUNK_WORK", "1");
     TempDir dir;
     const std::string session = (dir.path / "session.jsonl").string();
     write_session(session, 32);
@@ -229,6 +232,23 @@ TEST_SUITE("replay") {
     const double m0 = summary["mass"]["initial"], m1 = summary["mass"]["final"];
     CHECK(std::abs(m1 - m0) <= 1e-12 * m0);
     CHECK(summary["cut"]["sim_voxels_divided"].get<int>() > 0);
+    CHECK(summary["pool"]["wakeups"].get<uint64_t>() > 0);  // the workers took part
+    CHECK(summary["pool"]["stages"].get<uint64_t>() > 10 * summary["steps"].get<uint64_t>());
+  }
+  TEST_CASE("a bad DIVVOX_CHUNK_WORK is refused naming the variable") {
+    TempDir dir;
+    const std::string session = (dir.path / "session.jsonl").string();
+    write_session(session, 32);
+    for (const char* bad : {"0", "-5", "12x", "99999999999"}) {
+      CAPTURE(bad);
+      const dvx_test::ScopedEnv chunks("DIVVOX_CHUNK_WORK", bad);
+      try {
+        run_replay(replay_of(session, dir.path / "out"));
+        FAIL("accepted");
+      } catch (const InputError& e) {
+        CHECK(std::string(e.what()).find("DIVVOX_CHUNK_WORK") != std::string::npos);
+      }
+    }
   }
   TEST_CASE("headless replay with frames: the bunny renders to PNGs showing the object") {
 #ifndef DIVVOX_HAS_RENDER

@@ -60,8 +60,10 @@ void sweep_steps(const dvx::VoxelModel& model, dvx::CutState& state, const dvx::
 // loop into `workers` chunks whatever the grain, so a test with 2 workers always runs concurrently.
 struct ThreadRunner {
   int workers = 2;
+  uint64_t splits = 0;  // batches run on several threads (a test that compares worker counts checks some were)
   static void run(void* context, uint32_t count, uint32_t /*grain*/, void (*fn)(uint32_t, uint32_t, void*), void* user) {
     const uint32_t workers = uint32_t(std::max(1, static_cast<ThreadRunner*>(context)->workers));
+    if (workers > 1 && count > 1) ++static_cast<ThreadRunner*>(context)->splits;
     const uint32_t chunk = std::max<uint32_t>(1, (count + workers - 1) / workers);
     std::vector<std::thread> threads;
     for (uint32_t begin = chunk; begin < count; begin += chunk) {

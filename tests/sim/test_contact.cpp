@@ -267,8 +267,10 @@ TEST_SUITE("contact") {
       Scene s;
       make_scene(s, Vec3d(0.003, 0.4, 0.001), Vec3d(0.5, 0.25, 0.5), Eigen::Matrix3d::Identity(), params);
       ThreadRunner runner{workers};
+      s.pbd.chunk_work = 1;  // every batch split across the threads
       run(s, 90, workers > 1 ? runner.runner() : TaskRunner{});
       CHECK(s.pbd.contacts.points.size() >= 256);  // enough contact points for the parallel path
+      CHECK((workers == 1 || runner.splits > 1000));
       Fnv1a f;
       for (const Vec3d& p : s.pbd.position) f.bytes(p.data(), 3 * sizeof(double));
       return f.value;
@@ -469,6 +471,7 @@ void box_drop(int workers, int resolution, uint64_t& hash) {
   make_boxes(s, {{Vec3d(0.003, -0.25, 0.002), Vec3d(0.5, 0.25, 0.5)}, {Vec3d(0.053, 0.55, 0.012), Vec3d(0.3, 0.15, 0.3)}},
              params, resolution);
   ThreadRunner runner{workers};
+  s.pbd.chunk_work = 1;  // every batch split across the threads
   const TaskRunner tasks = workers > 1 ? runner.runner() : TaskRunner{};
   const std::vector<uint32_t> of = particle_bodies(s.pbd);
   const std::vector<uint32_t> bodies = bodies_bottom_up(s.pbd, of);
@@ -497,6 +500,7 @@ void box_drop(int workers, int resolution, uint64_t& hash) {
   const double gap = (low - high) / fine_voxel(s);
   MESSAGE("top box: gap to the bottom box " << gap << " fine voxels, speed " << v1.norm()
                                             << ", vertices deeper than a fine voxel inside the other box: " << deep);
+  CHECK((workers == 1 || runner.splits > 1000));
   CHECK(deep == 0);
   CHECK(gap > -0.5);  // on top, not sunk in
   CHECK(gap < 0.5);   // landed

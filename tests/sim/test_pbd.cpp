@@ -250,12 +250,14 @@ TEST_SUITE("pbd") {
     make_scene(a, 24, 6, hanging(0.9));
     make_scene(b, 24, 6, hanging(0.9));
     ThreadRunner two;
+    b.pbd.chunk_work = 1;  // every batch split across the two threads (a scene this small runs on one otherwise)
     horizontal_cut(a, 0.137, -1.0, 0.2, 8);
     horizontal_cut(b, 0.137, -1.0, 0.2, 8);
     for (int i = 0; i < 60; ++i) {
       pbd_step(a.cut, a.pbd);
       pbd_step(b.cut, b.pbd, two.runner());
     }
+    CHECK(two.splits > 1000);
     CHECK(particle_hash(a.pbd) == particle_hash(b.pbd));
     CHECK(a.pbd.deformed == b.pbd.deformed);
   }
@@ -377,6 +379,7 @@ TEST_SUITE("pbd") {
     horizontal_cut(a, 0.137, -1.0, 1.0, 8);  // the lower part falls onto the tray
     horizontal_cut(b, 0.137, -1.0, 1.0, 8);
     ThreadRunner two;
+    b.pbd.chunk_work = 1;  // every batch split across the two threads
     grab_begin(a.pbd, Vec3d(0.4, 0.9, 0.4), 1e-4);
     grab_begin(b.pbd, Vec3d(0.4, 0.9, 0.4), 1e-4);
     grab_move(a.pbd, Vec3d(0.6, 1.0, 0.4));
@@ -386,6 +389,7 @@ TEST_SUITE("pbd") {
       pbd_step(b.cut, b.pbd, two.runner());
     }
     CHECK(a.pbd.contacts.points.size() > 0);
+    CHECK(two.splits > 1000);
     CHECK(particle_hash(a.pbd) == particle_hash(b.pbd));
     CHECK(a.pbd.deformed == b.pbd.deformed);
   }
