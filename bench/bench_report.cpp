@@ -294,6 +294,10 @@ std::string scaling_flatness(const json& scaling) {
       if (r["mesh"] != f["mesh"] || r["status"] != "ok" || (res != 256 && res != 512)) continue;
       out << "; p99 at " << res << ": " << num(get(r["step_ms"]["cut"], "p99")) << " ms (≤ " << (res == 256 ? 1 : 2) << ")";
     }
+    if (f.contains("cut_us_per_voxel_to")) {
+      out << "; per fine voxel cut: " << num(get(f, "cut_us_per_voxel_from")) << " µs at " << f["from"] << ", "
+          << num(get(f, "cut_us_per_voxel_to")) << " µs at " << f["to"];
+    }
     out << ".\n";
   }
   return out.str();

@@ -101,7 +101,7 @@ TEST_CASE("bench scaling: rows per resolution, an impossible resolution is a ref
   TempDir dir;
   BenchScalingOptions o;
   o.meshes = {source_path("assets/meshes/bunny_npm.obj")};
-  o.resolutions = {32, 1024};  // at 16-20 the lattice cannot hold the bunny's ear tips: they come apart
+  o.resolutions = {32, 64, 1024};  // at 16-20 the lattice cannot hold the bunny's ear tips: they come apart
   o.sim_resolution = 8;
   o.steps = 10;
   o.workers = 1;
@@ -110,14 +110,29 @@ TEST_CASE("bench scaling: rows per resolution, an impossible resolution is a ref
   bench_scaling(o);
   ::unsetenv("DIVVOX_MEMORY_LIMIT");
   const nlohmann::json j = read_json(dir.path / "bench_scaling.json");
-  REQUIRE(j["rows"].size() == 2);
-  const nlohmann::json& ok = j["rows"][0];
-  CHECK(ok["status"] == "ok");
-  CHECK(ok["components"] == 2);
-  CHECK(ok["boundary_edges"] == 0);
-  CHECK(ok["cutting_steps"].get<int>() > 0);
-  CHECK(ok["peak_rss_bytes"].get<uint64_t>() > 0);
-  const std::string refused = j["rows"][1]["status"];
+  REQUIRE(j["rows"].size() == 3);
+  for (int i : {0, 1}) {
+    const nlohmann::json& ok = j["rows"][i];
+    CHECK(ok["status"] == "ok");
+    CHECK(ok["components"] == 2);
+    CHECK(ok["boundary_edges"] == 0);
+    CHECK(ok["cutting_steps"].get<int>() > 0);
+    CHECK(ok["peak_rss_bytes"].get<uint64_t>() > 0);
+  }
+  // The flatness entry spans the two resolutions that ran (the refused one is left out); its time per
+  // fine voxel cut is every cutting step's cut time over the voxels cut, from the rows' own figures.
+  REQUIRE(j["cut_p99_flatness"].size() == 1);
+  const nlohmann::json& flat = j["cut_p99_flatness"][0];
+  CHECK(flat["from"] == 32);
+  CHECK(flat["to"] == 64);
+  const nlohmann::json& top = j["rows"][1];
+  const double top_cut_ms = top["step_ms"]["cut"]["mean"].get<double>() * top["step_ms"]["cut"]["count"].get<double>();
+  CHECK(flat["cut_us_per_voxel_to"].get<double>() ==
+        doctest::Approx(1000.0 * top_cut_ms / top["voxels_cut"].get<double>()));
+  CHECK(flat["cut_us_per_voxel_from"].get<double>() > 0.0);
+  CHECK(flat["cut_p99_ratio"].get<double>() ==
+        doctest::Approx(top["step_ms"]["cut"]["p99"].get<double>() / j["rows"][0]["step_ms"]["cut"]["p99"].get<double>()));
+  const std::string refused = j["rows"][2]["status"];
   CHECK(refused.rfind("skipped:", 0) == 0);
   CHECK(refused.find("needs about") != std::string::npos);  // the estimate is in the message
   CHECK(read_text(dir.path / "bench_scaling.csv").find("skipped:") != std::string::npos);
