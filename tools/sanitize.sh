@@ -62,7 +62,8 @@ command -v ninja >/dev/null 2>&1 || { echo "sanitize: 'ninja' not found on PATH 
 # build time. Callers may add options of their own in front (later options win, so ours are kept).
 export ASAN_OPTIONS="${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=1:abort_on_error=1"
 export UBSAN_OPTIONS="${UBSAN_OPTIONS:+$UBSAN_OPTIONS:}print_stacktrace=1:halt_on_error=1"
-export TSAN_OPTIONS="${TSAN_OPTIONS:+$TSAN_OPTIONS:}halt_on_error=1:second_deadlock_stack=1"
+# tools/tsan.supp: races inside Mesa's uninstrumented llvmpipe driver (see the file).
+export TSAN_OPTIONS="${TSAN_OPTIONS:+$TSAN_OPTIONS:}halt_on_error=1:second_deadlock_stack=1:suppressions=$here/tools/tsan.supp"
 
 # Configure once (a reconfigure happens by itself through Ninja when a CMakeLists.txt changes).
 if [[ ! -f "$build/CMakeCache.txt" || ! -f "$build/build.ninja" ]]; then
