@@ -83,7 +83,7 @@ std::string bench_contact(const BenchContactOptions& options) {
 
   std::ostringstream csv;
   csv << "case,contact,steps,deform_p50_ms,deform_p99_ms,step_p50_ms,step_p99_ms,plane_contacts_per_step,"
-         "piece_contacts_per_step,piece_pairs,points,point_pairs,contacts_per_piece_pair\n";
+         "piece_contacts_per_step,piece_pairs,points,point_pairs,contacts_per_piece_pair,contact_points_built\n";
   nlohmann::json rows = nlohmann::json::array();
   const auto add = [&](const std::string& name, bool contact, const ContactRun& run) {
     const double steps = double(std::max<size_t>(1, run.deform_ms.size()));
@@ -92,7 +92,8 @@ std::string bench_contact(const BenchContactOptions& options) {
     const double per_pair = double(run.counters.contacts) / double(std::max<uint64_t>(1, run.counters.contact_pairs));
     csv << name << ',' << (contact ? "on" : "off") << ',' << run.deform_ms.size() << ',' << p50 << ',' << p99 << ','
         << s50 << ',' << s99 << ',' << run.plane_contacts / steps << ',' << run.piece_contacts / steps << ','
-        << run.counters.piece_pairs << ',' << run.counters.points << ',' << run.counters.point_pairs << ',' << per_pair << '\n';
+        << run.counters.piece_pairs << ',' << run.counters.points << ',' << run.counters.point_pairs << ',' << per_pair << ','
+        << run.counters.reps_built << '\n';
     rows.push_back({{"case", name},
                     {"contact", contact},
                     {"steps", run.deform_ms.size()},
@@ -103,7 +104,8 @@ std::string bench_contact(const BenchContactOptions& options) {
                     {"piece_pairs", run.counters.piece_pairs},
                     {"points", run.counters.points},
                     {"point_pairs", run.counters.point_pairs},
-                    {"contacts_per_piece_pair", per_pair}});
+                    {"contacts_per_piece_pair", per_pair},
+                    {"contact_points_built", run.counters.reps_built}});
   };
 
   // The default recording, with its scene as recorded and without contact.

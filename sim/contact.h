@@ -311,15 +311,11 @@ struct ContactIndex {
   std::vector<uint8_t> mobile;        // (pieces) some corner particle is free (inverse mass > 0)
   std::vector<uint32_t> body_index;   // (pieces) bodies numbered 0.. (~0u: dead slot)
   uint32_t bodies = 0;
-  // The live triangles whose three corners are embedded, under each piece holding a corner
-  // (ascending): built on the first gather that needs normals after a rebuild.
-  bool triangles_ready = false;
-  std::vector<uint32_t> triangle_begin;  // (pieces + 1)
-  std::vector<uint32_t> piece_triangles;
   std::vector<uint32_t> scratch;         // fill cursors; body numbers by root particle
   std::vector<uint32_t> next_begin, next_slots;  // the incremental update's new piece_begin, piece_slots
   std::vector<uint64_t> arrivals;        // (piece << 32 | slot) of the slots that changed piece
   std::vector<uint32_t> changed;         // pieces whose slots changed
+  std::vector<uint32_t> flipped;         // slots that became embedded or stopped being so
 };
 
 // A contact point of a piece: a representative surface vertex slot (see "Contact points") and its
@@ -346,13 +342,19 @@ struct PieceContacts {
   ContactIndex index;                   // also read by the plane gather
   std::vector<SurfacePoint> points;
   // Contact points (see "Contact points"): each piece's representative surface vertices, built on a
-  // piece's first need after the index changed (what it was built from: `rep_key`).
-  uint64_t rep_key[5] = {~uint64_t(0), 0, 0, 0, 0};  // the index's revision, cut steps, slots, pieces, triangles
-  std::vector<uint32_t> rep_begin;      // (pieces) offset into reps, ~0u: not built yet
+  // piece's first need after a cut changed it; the index's update and the surface update they
+  // follow (a cut marks stale only the pieces it touched).
+  uint64_t rep_updates = ~uint64_t(0), rep_surface_changes = 0;
+  std::vector<uint32_t> rep_begin;      // (pieces) offset into reps, ~0u: to be built
   std::vector<uint16_t> rep_count;      // (pieces)
   std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
-  std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
+  std::vector<ContactRep> rep_kept;     // compaction scratch
+  std::vector<uint32_t> rep_voxels;     // simulation voxels whose pieces a cut made stale, scratch
   std::vector<Vec3d> rep_normal;        // (the piece's slots) rest normals, scratch
+  std::vector<uint32_t> rep_quads;      // the quads around the piece's slots, scratch
+  std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
+  std::vector<uint32_t> slot_marks, quad_marks;  // (vertex slots), (quad slots): stamps, scratch
+  uint32_t slot_stamp = 0, quad_stamp = 0;
   std::vector<Vec3d> region_lo, region_hi;  // a piece's partner regions (partner_regions), scratch
   std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)
@@ -367,6 +369,7 @@ struct PieceContacts {
     uint64_t point_pairs = 0;   // point pairs whose distance was compared (narrow phase)
     uint64_t contacts = 0;      // contacts made
     uint64_t contact_pairs = 0; // pairs of pieces with contacts (their groups)
+    uint64_t reps_built = 0;    // pieces whose contact points were (re)built
   } counters;
 };
 

@@ -291,9 +291,17 @@ uint32_t vertex_holding(const CutSurface& s, uint32_t voxel, int h) {
   return kDeadIndex;
 }
 
-bool free_quad(CutSurface& s, uint64_t key) {
+// Appends the corners of quad slot `quad`'s two triangles to `corners` (when given and live).
+void note_quad_corners(const CutSurface& s, uint32_t quad, std::vector<uint32_t>* corners) {
+  if (corners == nullptr || s.quad_half_edge[quad] == CutSurface::kFreeKey) return;
+  for (int t = 0; t < 2; ++t) corners->insert(corners->end(), s.triangles[2 * quad + t].begin(), s.triangles[2 * quad + t].end());
+}
+
+// Frees the quad of a half-edge; its corners go to `corners` (when given). Returns true when it had one.
+bool free_quad(CutSurface& s, uint64_t key, std::vector<uint32_t>* corners) {
   const uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) return false;
+  note_quad_corners(s, quad, corners);
   s.quad_of_half_edge.erase(key);
   s.quad_half_edge[quad] = CutSurface::kFreeKey;
   s.triangles[2 * quad] = s.triangles[2 * quad + 1] = Tri{kDeadIndex, kDeadIndex, kDeadIndex};
@@ -305,8 +313,9 @@ bool free_quad(CutSurface& s, uint64_t key) {
 
 // Writes the quad (v0 v1 v2 v3, counter-clockwise seen from outside) of a half-edge, split along
 // the shorter diagonal unless `diagonal` forces one (0: v0-v2, 1: v1-v3; -1: free). Returns true
-// when a slot changed.
-bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, int diagonal) {
+// when a slot changed; then its old and new corners go to `corners` (when given).
+bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, int diagonal,
+                std::vector<uint32_t>* corners) {
   uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) {
     if (!s.free_quads.empty()) {
@@ -333,6 +342,8 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, i
   }
   const uint8_t flag = on_cut ? 1 : 0;
   if (s.triangles[2 * quad] == t0 && s.triangles[2 * quad + 1] == t1 && s.triangle_cut[2 * quad] == flag) return false;
+  note_quad_corners(s, quad, corners);  // the old ones (a new slot holds dead triangles: none)
+  if (corners != nullptr) corners->insert(corners->end(), v, v + 4);
   s.triangles[2 * quad] = t0;
   s.triangles[2 * quad + 1] = t1;
   s.triangle_cut[2 * quad] = s.triangle_cut[2 * quad + 1] = flag;
@@ -904,7 +915,8 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
 // Recomputes pieces, patches, vertices and quads of the given voxels (sorted, unique) and of the
 // edges they hold; adds the voxels across their four-point faces (whose pairing may toggle with
 // them, see voxel_patches). Returns counts of changed slots through stats.
-void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats) {
+void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats,
+                    std::vector<uint32_t>* changed_corners) {
   const Lattice& l = model.lattice;
   CutSurface& s = state.surface;
   std::vector<uint32_t>& across = state.scratch_across;
@@ -978,8 +990,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       for (int side = 0; side < 2; ++side) {
         const uint64_t key = half_edge_key(edge, side);
         if (quads.exists[side]) {
-          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side])) stats.triangles_changed += 2;
-        } else if (free_quad(s, key)) {
+          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners)) {
+            stats.triangles_changed += 2;
+          }
+        } else if (free_quad(s, key, changed_corners)) {
           stats.triangles_changed += 2;
         }
       }
@@ -1273,6 +1287,7 @@ uint8_t voxel_material_joins(uint8_t corner_inside, uint16_t cut_edges) {
 void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params) {
   state = CutState{};
   state.contour = params;
+  state.lattice = model.lattice;
   // Every voxel around a sign-change edge holds a surface vertex.
   // (marked in a bitset and read back in order: no sort of four entries per crossing).
   std::vector<uint64_t> marked((model.lattice.voxel_count() + 63) / 64, 0);
@@ -1313,7 +1328,7 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state.fronts.reserve(state.front_of.capacity());
 
   CutStepStats stats;
-  refresh_voxels(model, state, voxels, stats);
+  refresh_voxels(model, state, voxels, stats, nullptr);  // the whole surface is new: no list of changes
   state.surface.clear_dirty();
 }
 
@@ -1387,7 +1402,14 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats) {
   state.changed_vertices.clear();
-  refresh_voxels(model, state, state.pending_voxels, stats);
+  std::vector<uint32_t>& corners = state.scratch_corners;
+  corners.clear();
+  refresh_voxels(model, state, state.pending_voxels, stats, &corners);
+  if (!state.changed_vertices.empty() || !corners.empty()) {
+    corners.insert(corners.end(), state.changed_vertices.begin(), state.changed_vertices.end());
+    state.touched_vertices.swap(corners);
+    ++state.surface_changes;
+  }
   state.changed_voxels.swap(state.pending_voxels);
   state.pending_voxels.clear();
   std::sort(state.pending_reshaped.begin(), state.pending_reshaped.end());  // a voxel's entries are equal
@@ -1402,6 +1424,35 @@ CutStepStats cut_step(const VoxelModel& model, CutState& state, const BladePose&
   cut_divide(model, state, from, to, stats);
   cut_update_surface(model, state, stats);
   return stats;
+}
+
+uint32_t vertex_quads(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexQuads]) {
+  const CutSurface& s = state.surface;
+  if (slot >= s.vertex_patch.size() || s.vertex_patch[slot] == CutSurface::kFreeKey) return 0;
+  const uint32_t voxel = uint32_t(s.vertex_patch[slot] / 16);
+  int32_t vc[3];
+  state.lattice.voxel_coords(voxel, vc);
+  uint32_t n = 0;
+  for (uint32_t bits = s.vertex_half_edges[slot]; bits; bits &= bits - 1) {
+    const int h = std::countr_zero(bits);  // 2 * voxel edge + side
+    const uint32_t quad = s.quad_of_half_edge.get(half_edge_key(voxel_edge_id(state.lattice, vc, h >> 1), h & 1));
+    if (quad != kDeadIndex) out[n++] = quad;  // none: the two quads of a slit edge that would coincide cancel
+  }
+  return n;
+}
+
+uint32_t vertex_triangles(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexTriangles]) {
+  uint32_t quads[kMaxVertexQuads];
+  const uint32_t count = vertex_quads(state, slot, quads);
+  uint32_t n = 0;
+  for (uint32_t q = 0; q < count; ++q) {
+    for (uint32_t t = 2 * quads[q]; t < 2 * quads[q] + 2; ++t) {
+      const Tri& tri = state.surface.triangles[t];
+      if (tri[0] == slot || tri[1] == slot || tri[2] == slot) out[n++] = t;
+    }
+  }
+  std::sort(out, out + n);
+  return n;
 }
 
 SurfaceMesh compact_surface(const CutSurface& s) {

@@ -148,6 +148,15 @@ struct CutState {
   std::vector<uint64_t> reshaped_voxels;
   std::vector<uint64_t> pending_reshaped;  // the same, as cut_divide finds them (unsorted, repeats)
   std::vector<uint32_t> changed_vertices;  // vertex slots the last step wrote or freed (unsorted)
+  // Of the last surface update that changed the surface (surface_changes counts them): the vertex
+  // slots it wrote or freed and the corners, old and new, of the triangles it wrote or freed
+  // (repeats): every vertex whose position or triangles changed, so the PBD model's contact points
+  // (sim/contact.h) are rebuilt only for the pieces the cut touched. An update that changes nothing
+  // (a blade moving through air) leaves both alone.
+  std::vector<uint32_t> touched_vertices;
+  uint64_t surface_changes = 0;
+  std::vector<uint32_t> scratch_corners;
+  Lattice lattice;                       // the fine lattice (vertex_triangles without the model)
   std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)
   FlatMap shape_of;                      // inside corners | cut edges << 8 | air edges << 20 -> index in shapes
   CutSurface surface;
@@ -186,6 +195,16 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
                 CutStepStats& stats);
 // Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (moves them to changed_voxels).
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats);
+
+// The live quads around vertex slot `slot`: those on the half-edges its patch holds (a quad joins the
+// patches holding its half-edge), in the order of its half-edges; each names the slot in one or both
+// of its triangles. None for a free slot. At most one per half-edge of a voxel.
+constexpr int kMaxVertexQuads = 24;
+uint32_t vertex_quads(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexQuads]);
+// The live triangles holding vertex slot `slot`, ascending, each once (a triangle names a vertex at
+// most once): those of its quads (vertex_quads) that name it.
+constexpr int kMaxVertexTriangles = 2 * kMaxVertexQuads;
+uint32_t vertex_triangles(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexTriangles]);
 
 // The surface as a compact mesh (live slots only; vertex_voxel filled).
 SurfaceMesh compact_surface(const CutSurface& surface);

@@ -1492,10 +1492,12 @@ void update_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
   x.slot_piece.resize(slots, kDeadIndex);
   x.arrivals.clear();
   x.changed.clear();
+  x.flipped.clear();
   x.scratch.assign(pieces, 0);  // new count minus old count, wrapping
   for (uint32_t slot : x.revisited) {
     const uint32_t now = embedded_piece(s, s.embedding[slot]), was = x.slot_piece[slot];
     if (now == was) continue;
+    if ((now == kDeadIndex) != (was == kDeadIndex)) x.flipped.push_back(slot);
     x.slot_piece[slot] = now;
     if (was != kDeadIndex) {
       --x.scratch[was];
@@ -1574,15 +1576,17 @@ void refresh_slots(const CutState& cut, PbdState& s) {
   x.slots = slots;
   x.pieces = pieces;
   x.triangle_count = uint32_t(cut.surface.triangles.size());
-  x.triangles_ready = false;
   ++x.updates;
 }
+
+void refresh_reps(const CutState& cut, PbdState& s);
 
 // Brings the contact index (sim/contact.h) up to date when a cut changed the model or the surface:
 // the piece of each vertex slot and the slots of each piece (refresh_slots), which pieces can move,
 // the bodies (O(pieces), from scratch).
 void refresh_index(const CutState& cut, PbdState& s) {
   refresh_slots(cut, s);
+  refresh_reps(cut, s);
   ContactIndex& x = s.piece_contacts.index;
   PieceContacts& pc = s.piece_contacts;
   if (x.bodies_updates == x.updates) return;
@@ -1612,35 +1616,6 @@ void refresh_index(const CutState& cut, PbdState& s) {
   }
 }
 
-// The index's triangles under each piece (built on first need after a rebuild): the live triangles
-// whose three corners are embedded, listed under each distinct piece of their corners, ascending.
-void index_triangles(const CutState& cut, PbdState& s) {
-  ContactIndex& x = s.piece_contacts.index;
-  if (x.triangles_ready) return;
-  x.triangles_ready = true;
-  const CutSurface& surface = cut.surface;
-  const uint32_t triangles = uint32_t(surface.triangles.size());
-  // Calls f(t, piece) for each distinct piece of each such triangle.
-  const auto for_pieces_of = [&](auto&& f) {
-    for (uint32_t t = 0; t < triangles; ++t) {
-      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
-      const Tri& tri = surface.triangles[t];
-      if (tri[0] >= x.slots || tri[1] >= x.slots || tri[2] >= x.slots) continue;
-      const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
-      if (p0 == kDeadIndex || p1 == kDeadIndex || p2 == kDeadIndex) continue;
-      f(t, p0);
-      if (p1 != p0) f(t, p1);
-      if (p2 != p0 && p2 != p1) f(t, p2);
-    }
-  };
-  x.triangle_begin.assign(x.pieces + 1, 0);
-  for_pieces_of([&](uint32_t, uint32_t piece) { ++x.triangle_begin[piece + 1]; });
-  for (uint32_t i = 0; i < x.pieces; ++i) x.triangle_begin[i + 1] += x.triangle_begin[i];
-  x.piece_triangles.resize(x.triangle_begin[x.pieces]);
-  x.scratch.assign(x.triangle_begin.begin(), x.triangle_begin.end() - 1);
-  for_pieces_of([&](uint32_t t, uint32_t piece) { x.piece_triangles[x.scratch[piece]++] = t; });
-}
-
 // How far each live piece may move in this step: (its fastest corner's speed + g dt) dt (what bounds
 // its contact reach: a piece's own, so a falling piece does not widen everyone's).
 void piece_motions(PbdState& s) {
@@ -1657,37 +1632,145 @@ void piece_motions(PbdState& s) {
   }
 }
 
-// The contact points of piece `piece` (sim/contact.h "Contact points"): of its surface vertex slots,
-// in each cell of a grid of contact_cells(ratio)^3 cells over its simulation voxel (in its rest frame)
-// and each of six normal directions (the dominant axis of the rest normal and its sign), the slot
-// nearest the cell's centre (ties: the lowest). Built on the piece's first need after the contact
-// index changed (a cut), so the choice never flickers between steps.
-std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState& s, uint32_t piece) {
+// A new stamp for `marks` (an entry equal to it was marked since): 1, 2, ... and all entries reset
+// when the count wraps.
+uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
+  if (++stamp == 0) {
+    std::fill(marks.begin(), marks.end(), 0u);
+    stamp = 1;
+  }
+  return stamp;
+}
+
+// Marks stale the contact points of the pieces whose points a cut may have changed, after the
+// contact index's update (refresh_slots): a piece's points follow from its slots, their rest
+// positions and the live triangles around them, so after one index update and one change of the
+// surface (CutState::touched_vertices) since the last call, only the pieces whose slots changed and the pieces of the simulation voxels around the
+// vertices it revisited, wrote or re-triangulated (a triangle around a vertex has its corners in
+// the fine voxels next to the vertex's) are rebuilt, on their next need; otherwise all are. The
+// points of the others stay where they are in `reps`, which is compacted when mostly stale.
+void refresh_reps(const CutState& cut, PbdState& s) {
   PieceContacts& pc = s.piece_contacts;
   const ContactIndex& x = pc.index;
-  const uint64_t key[5] = {x.revision, x.cut_steps, x.slots, x.pieces, x.triangle_count};
-  if (!std::equal(key, key + 5, pc.rep_key)) {
-    std::copy(key, key + 5, pc.rep_key);
+  if (pc.rep_updates == x.updates && pc.rep_surface_changes == cut.surface_changes) return;
+  const bool index_changed = pc.rep_updates != x.updates;
+  const bool incremental = pc.rep_updates != ~uint64_t(0) && (!index_changed || (pc.rep_updates + 1 == x.updates && !x.rebuilt)) &&
+                           cut.surface_changes - pc.rep_surface_changes <= 1 && pc.rep_begin.size() <= x.pieces;
+  pc.rep_updates = x.updates;
+  const bool surface_changed = pc.rep_surface_changes != cut.surface_changes;
+  pc.rep_surface_changes = cut.surface_changes;
+  if (!incremental) {
     pc.rep_begin.assign(x.pieces, ~0u);
     pc.rep_count.assign(x.pieces, 0);
     pc.reps.clear();
-    pc.rep_scratch.assign(x.slots, ~0u);
+    return;
   }
+  pc.rep_begin.resize(x.pieces, ~0u);
+  pc.rep_count.resize(x.pieces, 0);
+  const auto stale = [&](uint32_t piece) {
+    if (piece < x.pieces) pc.rep_begin[piece] = ~0u;
+  };
+  if (index_changed) {
+    for (uint32_t piece : x.changed) stale(piece);
+  }
+  // The simulation voxels within one fine voxel of a vertex (the vertex's own, and across the faces
+  // it is next to), consecutive repeats left out.
+  std::vector<uint32_t>& near = pc.rep_voxels;
+  near.clear();
+  const Lattice& l = cut.lattice;
+  const CutSurface& surface = cut.surface;
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  if (pc.slot_marks.size() < surface.vertex_patch.size()) pc.slot_marks.resize(surface.vertex_patch.size(), 0u);
+  const uint32_t stamp = next_stamp(pc.slot_marks, pc.slot_stamp);
+  const auto around = [&](uint32_t slot) {
+    if (slot >= surface.vertex_patch.size() || surface.vertex_patch[slot] == CutSurface::kFreeKey) return;
+    if (pc.slot_marks[slot] == stamp) return;  // a repeat (the lists name a vertex once per quad)
+    pc.slot_marks[slot] = stamp;
+    int32_t vc[3], lo[3], hi[3];
+    l.voxel_coords(uint32_t(surface.vertex_patch[slot] / 16), vc);
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::max(0, vc[a] - 1) / s.ratio;
+      hi[a] = std::min(dims[a] - 1, vc[a] + 1) / s.ratio;
+    }
+    for (int32_t k = lo[2]; k <= hi[2]; ++k) {
+      for (int32_t j = lo[1]; j <= hi[1]; ++j) {
+        for (int32_t i = lo[0]; i <= hi[0]; ++i) {
+          const uint32_t sv = sim_voxel_id(s, i, j, k);
+          if (near.empty() || near.back() != sv) near.push_back(sv);
+        }
+      }
+    }
+  };
+  // Slots that became embedded or stopped being so change their neighbours' normals; those that
+  // moved or were re-triangulated, theirs and their neighbours'.
+  if (index_changed) {
+    for (uint32_t slot : x.flipped) around(slot);
+  }
+  if (surface_changed) {
+    for (uint32_t slot : cut.touched_vertices) around(slot);
+  }
+  sorted_unique(near);
+  for (uint32_t sv : near) for_pieces(s, sv, stale);
+  // Compaction: the live pieces' points to the front, in piece order.
+  size_t live = 0;
+  for (uint32_t i = 0; i < x.pieces; ++i) live += pc.rep_begin[i] != ~0u ? pc.rep_count[i] : 0;
+  if (pc.reps.size() > 2 * live + 4096) {
+    std::vector<ContactRep>& kept = pc.rep_kept;
+    kept.clear();
+    for (uint32_t i = 0; i < x.pieces; ++i) {
+      if (pc.rep_begin[i] == ~0u) continue;
+      const uint32_t begin = uint32_t(kept.size());
+      kept.insert(kept.end(), pc.reps.begin() + pc.rep_begin[i], pc.reps.begin() + pc.rep_begin[i] + pc.rep_count[i]);
+      pc.rep_begin[i] = begin;
+    }
+    pc.reps.swap(kept);
+  }
+}
+
+// The contact points of piece `piece` (sim/contact.h "Contact points"): of its surface vertex slots,
+// in each cell of a grid of contact_cells(ratio)^3 cells over its simulation voxel (in its rest frame)
+// and each of six normal directions (the dominant axis of the rest normal and its sign), the slot
+// nearest the cell's centre (ties: the lowest). Built on the piece's first need after a cut changed
+// it (refresh_reps), so the choice never flickers between steps.
+std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState& s, uint32_t piece) {
+  PieceContacts& pc = s.piece_contacts;
+  const ContactIndex& x = pc.index;
   if (pc.rep_begin[piece] != ~0u) return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
-  index_triangles(cut, s);
-  // Rest normals of the piece's slots: area-weighted sums over the live triangles using them.
+  // Rest normals of the piece's slots: area-weighted sums over the live triangles holding each
+  // whose three corners are embedded, in ascending triangle order. The triangles are those of the
+  // quads around the piece's slots (vertex_quads), each quad once.
   const CutSurface& surface = cut.surface;
   const uint32_t first = x.piece_begin[piece], count = x.piece_begin[piece + 1] - first;
   std::vector<Vec3d>& normal = pc.rep_normal;
   normal.assign(count, Vec3d::Zero());
-  for (uint32_t n = 0; n < count; ++n) pc.rep_scratch[x.piece_slots[first + n]] = n;
-  for (uint32_t n = x.triangle_begin[piece]; n < x.triangle_begin[piece + 1]; ++n) {
-    const Tri& tri = surface.triangles[x.piece_triangles[n]];
-    const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
-                c = surface.positions[tri[2]].cast<double>();
-    const Vec3d area = (b - a).cross(c - a);
-    for (int k = 0; k < 3; ++k) {
-      if (x.slot_piece[tri[k]] == piece) normal[pc.rep_scratch[tri[k]]] += area;
+  std::vector<uint32_t>& quads = pc.rep_quads;
+  quads.clear();
+  if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
+  if (pc.quad_marks.size() < surface.quad_half_edge.size()) pc.quad_marks.resize(surface.quad_half_edge.size(), 0u);
+  const uint32_t stamp = next_stamp(pc.quad_marks, pc.quad_stamp);
+  for (uint32_t n = 0; n < count; ++n) {
+    const uint32_t slot = x.piece_slots[first + n];
+    pc.rep_scratch[slot] = n;
+    uint32_t around[kMaxVertexQuads];
+    const uint32_t found = vertex_quads(cut, slot, around);
+    for (uint32_t q = 0; q < found; ++q) {
+      if (pc.quad_marks[around[q]] == stamp) continue;  // a quad joins up to four of the slots
+      pc.quad_marks[around[q]] = stamp;
+      quads.push_back(around[q]);
+    }
+  }
+  std::sort(quads.begin(), quads.end());
+  for (const uint32_t quad : quads) {
+    for (uint32_t t = 2 * quad; t < 2 * quad + 2; ++t) {
+      const Tri& tri = surface.triangles[t];
+      if (tri[0] >= x.slots || tri[1] >= x.slots || tri[2] >= x.slots) continue;
+      if (x.slot_piece[tri[0]] == kDeadIndex || x.slot_piece[tri[1]] == kDeadIndex || x.slot_piece[tri[2]] == kDeadIndex) continue;
+      const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
+                  c = surface.positions[tri[2]].cast<double>();
+      const Vec3d area = (b - a).cross(c - a);
+      for (int k = 0; k < 3; ++k) {
+        if (x.slot_piece[tri[k]] == piece) normal[pc.rep_scratch[tri[k]]] += area;
+      }
     }
   }
   // The best slot of each (cell, direction): kContactCells^3 x 6 entries at most.
@@ -1721,6 +1804,7 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState&
       best_d[entry] = d;
     }
   }
+  ++pc.counters.reps_built;
   pc.rep_begin[piece] = uint32_t(pc.reps.size());
   uint32_t chosen[kEntries];
   for (uint32_t e = 0; e < used_count; ++e) chosen[e] = best[used[e]];

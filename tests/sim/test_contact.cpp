@@ -786,8 +786,8 @@ TEST_SUITE("contact") {
 namespace {
 
 // Checks the contact index (sim/contact.h ContactIndex) of `s` against the model as it is now: each
-// slot's piece, the slots of each piece, mobility, bodies, the triangles under each piece, and the
-// rest positions the allowances were refreshed from.
+// slot's piece, the slots of each piece, mobility, bodies, and the rest positions the allowances
+// were refreshed from.
 void check_index(const Scene& s) {
   const PbdState& pbd = s.pbd;
   const PieceContacts& pc = pbd.piece_contacts;
@@ -826,30 +826,6 @@ void check_index(const Scene& s) {
     CHECK(x.body_index[i] == first_of[root]);
   }
   CHECK(x.bodies == roots.size());
-  // Triangles (when built): each live triangle with three embedded corners under each of their pieces.
-  if (x.triangles_ready) {
-    const CutSurface& surface = s.cut.surface;
-    std::vector<std::vector<uint32_t>> fresh(x.pieces);
-    for (uint32_t t = 0; t < surface.triangles.size(); ++t) {
-      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
-      const Tri& tri = surface.triangles[t];
-      uint32_t p[3];
-      bool ok = true;
-      for (int k = 0; k < 3; ++k) {
-        p[k] = tri[k] < slots ? vertex_sim_piece(pbd, tri[k]) : kDeadIndex;
-        ok = ok && p[k] != kDeadIndex;
-      }
-      if (!ok) continue;
-      for (int k = 0; k < 3; ++k) {
-        if (fresh[p[k]].empty() || fresh[p[k]].back() != t) fresh[p[k]].push_back(t);
-      }
-    }
-    for (uint32_t i = 0; i < x.pieces; ++i) {
-      const std::vector<uint32_t> cached(x.piece_triangles.begin() + x.triangle_begin[i],
-                                         x.piece_triangles.begin() + x.triangle_begin[i + 1]);
-      CHECK(cached == fresh[i]);
-    }
-  }
   // Allowances were refreshed against the surface as it is (NaN: free slots).
   REQUIRE(pc.seen.size() == s.cut.surface.positions.size());
   uint32_t stale = 0;
@@ -887,6 +863,7 @@ TEST_SUITE("contact") {
       pbd_apply_cut(s.model, s.cut, twin);
       previous = next;
     };
+    uint64_t compared = 0;  // pieces whose kept points were compared
     const auto step = [&]() {
       pbd_step(s.cut, s.pbd);
       twin.piece_contacts.index.revision = ~uint64_t(0);  // rebuild
@@ -894,6 +871,18 @@ TEST_SUITE("contact") {
       pbd_step(s.cut, twin);
       check_index(s);
       CHECK(position_hash(s.pbd) == position_hash(twin));
+      // The contact points kept from before the cut equal those the twin built afresh.
+      const PieceContacts &kept = s.pbd.piece_contacts, &fresh = twin.piece_contacts;
+      for (uint32_t i = 0; i < kept.rep_begin.size(); ++i) {
+        if (kept.rep_begin[i] == ~0u || fresh.rep_begin[i] == ~0u) continue;
+        REQUIRE(kept.rep_count[i] == fresh.rep_count[i]);
+        ++compared;
+        for (uint32_t r = 0; r < kept.rep_count[i]; ++r) {
+          const ContactRep &a = kept.reps[kept.rep_begin[i] + r], &b = fresh.reps[fresh.rep_begin[i] + r];
+          CHECK(a.slot == b.slot);
+          CHECK(std::equal(a.normal, a.normal + 3, b.normal));
+        }
+      }
     };
     for (int i = 1; i <= 8; ++i) {
       const double x = -1.0 + 2.0 * i / 8;
@@ -913,6 +902,10 @@ TEST_SUITE("contact") {
     const std::vector<uint32_t> of = particle_bodies(s.pbd);
     CHECK(bodies_bottom_up(s.pbd, of).size() >= 3);  // the cuts made pieces
     CHECK(s.pbd.piece_contacts.counters.contacts > 0);  // that touched
-    CHECK(s.pbd.piece_contacts.index.triangles_ready);
+    // Each cut rebuilt only the contact points of the pieces it touched; the twin rebuilt every
+    // piece's it needed after each step.
+    CHECK(s.pbd.piece_contacts.counters.reps_built > 0);
+    CHECK(compared > s.pbd.piece_contacts.counters.reps_built);  // mostly points kept across cuts
+    CHECK(2 * s.pbd.piece_contacts.counters.reps_built < twin.piece_contacts.counters.reps_built);
   }
 }

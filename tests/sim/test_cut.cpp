@@ -383,3 +383,74 @@ TEST_SUITE("cut") {
     CHECK((s.positions.size() == positions_before.size() || s.dirty_vertex_end == s.positions.size()));
   }
 }
+
+TEST_SUITE("cut") {
+  TEST_CASE("vertex_triangles finds each vertex's live triangles; touched_vertices names every vertex a step moved or re-triangulated") {
+    // A box cut by a blade that turns as it goes down (partial cuts, a crossing of its own cut),
+    // then by a straight one across: after every step, each slot's triangles equal a scan of all
+    // live triangles, and the corners of each triangle slot that changed (old and new) are listed.
+    const VoxelModel model = voxelized(test_box(), 20);
+    CutState state;
+    init_cut_state(model, state);
+    BladePose previous{Vec3d(0.0, 0.0, -0.9), Vec3d(1.2, 0.0, -0.9)};
+    uint64_t changed_triangles = 0;
+    for (int step = 1; step <= 50; ++step) {
+      const double angle = 0.12 * step, z = -0.9 + 0.03 * step;
+      const Vec3d dir(std::cos(angle), std::sin(angle), 0.0);
+      const BladePose pose = step <= 40 ? BladePose{Vec3d(0, 0, z) - 0.3 * dir, Vec3d(0, 0, z) + 1.2 * dir}
+                                        : BladePose{Vec3d(-2, 0.1 * (step - 45), -2), Vec3d(-2, 0.1 * (step - 45), 2)};
+      const BladePose from = step == 41 ? BladePose{Vec3d(2, -0.5, -2), Vec3d(2, -0.5, 2)} : previous;
+      const std::vector<Tri> before = state.surface.triangles;
+      const std::vector<Vec3f> positions = state.surface.positions;
+      const std::vector<uint32_t> touched_before = state.touched_vertices;
+      const uint64_t changes = state.surface_changes;
+      cut_step(model, state, from, pose);
+      previous = pose;
+      const CutSurface& s = state.surface;
+      std::vector<uint8_t> listed(s.positions.size(), 0);
+      for (uint32_t v : state.touched_vertices) {
+        REQUIRE(v < listed.size());
+        listed[v] = 1;
+      }
+      // A step that changed the surface counts one change and lists what it touched; one that did
+      // not keeps the last list.
+      bool changed = !state.changed_vertices.empty();
+      for (uint32_t v : state.changed_vertices) CHECK(listed[v] == 1);
+      for (uint32_t v = 0; v < positions.size(); ++v) {
+        if (positions[v] != s.positions[v]) CHECK(listed[v] == 1);
+      }
+      for (uint32_t t = 0; t < s.triangles.size(); ++t) {
+        const Tri old = t < before.size() ? before[t] : Tri{kDeadIndex, kDeadIndex, kDeadIndex};
+        if (old == s.triangles[t]) continue;
+        changed = true;
+        ++changed_triangles;
+        for (const Tri& tri : {old, s.triangles[t]}) {
+          for (uint32_t v : tri) {
+            if (v != kDeadIndex) CHECK(listed[v] == 1);
+          }
+        }
+      }
+      CHECK(state.surface_changes == changes + (changed ? 1 : 0));
+      if (!changed) CHECK(state.touched_vertices == touched_before);
+      std::vector<std::vector<uint32_t>> scan(s.positions.size());
+      for (uint32_t t = 0; t < s.triangles.size(); ++t) {
+        if (s.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
+        for (uint32_t v : s.triangles[t]) scan[v].push_back(t);
+      }
+      uint32_t found[kMaxVertexTriangles];
+      for (uint32_t v = 0; v < s.positions.size(); ++v) {
+        const uint32_t n = vertex_triangles(state, v, found);
+        CHECK(std::vector<uint32_t>(found, found + n) == scan[v]);
+      }
+    }
+    CHECK(changed_triangles > 1000);
+    check_invariants(model, state);
+    // A blade through air changes nothing: no change counted, the last list kept.
+    const uint64_t changes = state.surface_changes;
+    const std::vector<uint32_t> touched = state.touched_vertices;
+    cut_step(model, state, {Vec3d(50, 50, -1), Vec3d(50, 50, 1)}, {Vec3d(51, 50, -1), Vec3d(51, 50, 1)});
+    CHECK(state.surface_changes == changes);
+    CHECK(state.touched_vertices == touched);
+    CHECK(!touched.empty());
+  }
+}
