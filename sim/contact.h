@@ -316,6 +316,11 @@ struct ContactIndex {
   std::vector<uint64_t> arrivals;        // (piece << 32 | slot) of the slots that changed piece
   std::vector<uint32_t> changed;         // pieces whose slots changed
   std::vector<uint32_t> flipped;         // slots that became embedded or stopped being so
+  // The live triangles whose three corners are embedded, under each piece holding a corner
+  // (ascending): built when many pieces' contact points are built at once (piece_reps).
+  bool triangles_ready = false;
+  std::vector<uint32_t> triangle_begin;  // (pieces + 1)
+  std::vector<uint32_t> piece_triangles;
 };
 
 // A contact point of a piece: a representative surface vertex slot (see "Contact points") and its
@@ -345,6 +350,7 @@ struct PieceContacts {
   // piece's first need after a cut changed it; the index's update and the surface update they
   // follow (a cut marks stale only the pieces it touched).
   uint64_t rep_updates = ~uint64_t(0), rep_surface_changes = 0;
+  uint64_t rep_slots_built = 0;         // slots of the pieces built since then
   std::vector<uint32_t> rep_begin;      // (pieces) offset into reps, ~0u: to be built
   std::vector<uint16_t> rep_count;      // (pieces)
   std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
