@@ -35,7 +35,10 @@ case "$mode" in
     sanitize="address;undefined"
     # The simulation core alone (voxelizer, cutting, dual contouring, PBD): the whole suite under
     # ASan does not fit CI's time; the parsers are covered by the fuzzers and `address`.
-    ctest_filter=(-R '^sim/')
+    # One test is left out: the fresh cut and box drop at 8 fine voxels per simulation voxel takes
+    # 11 s in the Release suite and 380-430 s here (-O1 with Eigen's asserts), the long pole of CI's
+    # time; its code paths (the same 2 x 2 x 2 contact cells) run here in the tests at 4.
+    ctest_filter=(-R '^sim/' -E 'at 8 fine voxels per simulation voxel')
     graphics=OFF
     engine=OFF
     cc=gcc cxx=g++
