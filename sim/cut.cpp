@@ -1441,20 +1441,6 @@ uint32_t vertex_quads(const CutState& state, uint32_t slot, uint32_t out[kMaxVer
   return n;
 }
 
-uint32_t vertex_triangles(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexTriangles]) {
-  uint32_t quads[kMaxVertexQuads];
-  const uint32_t count = vertex_quads(state, slot, quads);
-  uint32_t n = 0;
-  for (uint32_t q = 0; q < count; ++q) {
-    for (uint32_t t = 2 * quads[q]; t < 2 * quads[q] + 2; ++t) {
-      const Tri& tri = state.surface.triangles[t];
-      if (tri[0] == slot || tri[1] == slot || tri[2] == slot) out[n++] = t;
-    }
-  }
-  std::sort(out, out + n);
-  return n;
-}
-
 SurfaceMesh compact_surface(const CutSurface& s) {
   SurfaceMesh mesh;
   std::vector<uint32_t> remap(s.positions.size(), kDeadIndex);

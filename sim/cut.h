@@ -155,8 +155,7 @@ struct CutState {
   // (a blade moving through air) leaves both alone.
   std::vector<uint32_t> touched_vertices;
   uint64_t surface_changes = 0;
-  std::vector<uint32_t> scratch_corners;
-  Lattice lattice;                       // the fine lattice (vertex_triangles without the model)
+  Lattice lattice;                       // the fine lattice (vertex_quads without the model)
   std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)
   FlatMap shape_of;                      // inside corners | cut edges << 8 | air edges << 20 -> index in shapes
   CutSurface surface;
@@ -169,6 +168,7 @@ struct CutState {
   std::vector<double> scratch_params;
   std::vector<uint32_t> scratch_blade_voxels;  // the blade edge's points' voxels and points (update_front)
   std::vector<Vec3f> scratch_blade_points;
+  std::vector<uint32_t> scratch_corners;       // the next touched_vertices, as cut_update_surface fills it
 };
 
 // What one cut step did.
@@ -198,13 +198,10 @@ void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& 
 
 // The live quads around vertex slot `slot`: those on the half-edges its patch holds (a quad joins the
 // patches holding its half-edge), in the order of its half-edges; each names the slot in one or both
-// of its triangles. None for a free slot. At most one per half-edge of a voxel.
+// of its triangles, and every live triangle naming the slot is in one of them. None for a free slot.
+// At most one per half-edge of a voxel.
 constexpr int kMaxVertexQuads = 24;
 uint32_t vertex_quads(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexQuads]);
-// The live triangles holding vertex slot `slot`, ascending, each once (a triangle names a vertex at
-// most once): those of its quads (vertex_quads) that name it.
-constexpr int kMaxVertexTriangles = 2 * kMaxVertexQuads;
-uint32_t vertex_triangles(const CutState& state, uint32_t slot, uint32_t out[kMaxVertexTriangles]);
 
 // The surface as a compact mesh (live slots only; vertex_voxel filled).
 SurfaceMesh compact_surface(const CutSurface& surface);

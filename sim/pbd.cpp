@@ -1616,6 +1616,15 @@ void refresh_index(const CutState& cut, PbdState& s) {
   }
 }
 
+// Whether the three corners of a live triangle are embedded (slots the index knows, in a piece):
+// only such triangles give the contact points' rest normals.
+bool embedded_triangle(const ContactIndex& x, const Tri& tri) {
+  for (uint32_t v : tri) {
+    if (v >= x.slots || x.slot_piece[v] == kDeadIndex) return false;
+  }
+  return true;
+}
+
 // The index's triangles under each piece: the live triangles whose three corners are embedded,
 // listed under each distinct piece of their corners, ascending. One sequential pass over the whole
 // surface, built when piece_reps has many pieces to build at once (after a sever, or a rebuild):
@@ -1632,9 +1641,8 @@ void index_triangles(const CutState& cut, PbdState& s) {
     for (uint32_t t = 0; t < triangles; ++t) {
       if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
       const Tri& tri = surface.triangles[t];
-      if (tri[0] >= x.slots || tri[1] >= x.slots || tri[2] >= x.slots) continue;
+      if (!embedded_triangle(x, tri)) continue;
       const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
-      if (p0 == kDeadIndex || p1 == kDeadIndex || p2 == kDeadIndex) continue;
       f(t, p0);
       if (p1 != p0) f(t, p1);
       if (p2 != p0 && p2 != p1) f(t, p2);
@@ -1681,11 +1689,13 @@ uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
 
 // Marks stale the contact points of the pieces whose points a cut may have changed, after the
 // contact index's update (refresh_slots): a piece's points follow from its slots, their rest
-// positions and the live triangles around them, so after one index update and one change of the
-// surface (CutState::touched_vertices) since the last call, only the pieces whose slots changed and the pieces of the simulation voxels around the
-// vertices it revisited, wrote or re-triangulated (a triangle around a vertex has its corners in
-// the fine voxels next to the vertex's) are rebuilt, on their next need; otherwise all are. The
-// points of the others stay where they are in `reps`, which is compacted when mostly stale.
+// positions and the live triangles around them whose corners are embedded, so after one index
+// update and one change of the surface (CutState::touched_vertices) since the last call, only the
+// pieces whose slots changed and the pieces of the simulation voxels around the vertices the cut
+// moved or re-triangulated and the slots that became embedded or stopped being so (a triangle
+// around a vertex has its corners in the fine voxels next to the vertex's) are rebuilt, on their
+// next need; otherwise all are. The points of the others stay where they are in `reps`, which is
+// compacted when mostly stale.
 void refresh_reps(const CutState& cut, PbdState& s) {
   PieceContacts& pc = s.piece_contacts;
   const ContactIndex& x = pc.index;
@@ -1789,8 +1799,7 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState&
   for (uint32_t n = 0; n < count; ++n) pc.rep_scratch[x.piece_slots[first + n]] = n;
   const auto add_triangle = [&](uint32_t t) {
     const Tri& tri = surface.triangles[t];
-    if (tri[0] >= x.slots || tri[1] >= x.slots || tri[2] >= x.slots) return;
-    if (x.slot_piece[tri[0]] == kDeadIndex || x.slot_piece[tri[1]] == kDeadIndex || x.slot_piece[tri[2]] == kDeadIndex) return;
+    if (!embedded_triangle(x, tri)) return;
     const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
                 c = surface.positions[tri[2]].cast<double>();
     const Vec3d area = (b - a).cross(c - a);

@@ -385,7 +385,7 @@ TEST_SUITE("cut") {
 }
 
 TEST_SUITE("cut") {
-  TEST_CASE("vertex_triangles finds each vertex's live triangles; touched_vertices names every vertex a step moved or re-triangulated") {
+  TEST_CASE("vertex_quads finds each vertex's live triangles; touched_vertices names every vertex a step moved or re-triangulated") {
     // A box cut by a blade that turns as it goes down (partial cuts, a crossing of its own cut),
     // then by a straight one across: after every step, each slot's triangles equal a scan of all
     // live triangles, and the corners of each triangle slot that changed (old and new) are listed.
@@ -437,10 +437,19 @@ TEST_SUITE("cut") {
         if (s.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
         for (uint32_t v : s.triangles[t]) scan[v].push_back(t);
       }
-      uint32_t found[kMaxVertexTriangles];
+      // The triangles of a vertex's quads that name it, ascending.
       for (uint32_t v = 0; v < s.positions.size(); ++v) {
-        const uint32_t n = vertex_triangles(state, v, found);
-        CHECK(std::vector<uint32_t>(found, found + n) == scan[v]);
+        uint32_t quads[kMaxVertexQuads];
+        const uint32_t n = vertex_quads(state, v, quads);
+        std::vector<uint32_t> found;
+        for (uint32_t q = 0; q < n; ++q) {
+          for (uint32_t t = 2 * quads[q]; t < 2 * quads[q] + 2; ++t) {
+            const Tri& tri = s.triangles[t];
+            if (tri[0] == v || tri[1] == v || tri[2] == v) found.push_back(t);
+          }
+        }
+        std::sort(found.begin(), found.end());
+        CHECK(found == scan[v]);
       }
     }
     CHECK(changed_triangles > 1000);
