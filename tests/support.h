@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
 
 namespace dvx_test {
@@ -61,6 +62,12 @@ struct TempDir {
     return p.string();
   }
 };
+
+// A file's bytes ("" when it cannot be read).
+inline std::string read_text(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
 
 // Sets an environment variable for the scope of a test, then restores it (e.g. DIVVOX_GNUPLOT).
 struct ScopedEnv {

@@ -113,11 +113,7 @@ TEST_SUITE("pbd_recording") {
     char name[32];
     std::snprintf(name, sizeof name, "mesh_%05u.ply", cut_step);
     // final.ply is the last step's mesh, in the same format (world space, cut faces marked).
-    const auto bytes = [](const std::filesystem::path& path) {
-      std::ifstream in(path, std::ios::binary);
-      return std::string(std::istreambuf_iterator<char>(in), {});
-    };
-    CHECK(bytes(dir.path / "out" / "final.ply") == bytes(dir.path / "out" / "meshes" / name));
+    CHECK(dvx_test::read_text(dir.path / "out" / "final.ply") == dvx_test::read_text(dir.path / "out" / "meshes" / name));
     CutMesh m;
     REQUIRE(read_cut_mesh((dir.path / "out" / "meshes" / name).string(), m));
     // Bent: the far end of the bar points up.

@@ -21,12 +21,7 @@ namespace {
 const std::string kHeader =
     R"({"format":"divvox-recording","version":1,"scene":{"mesh":"m.obj","resolution":32},"dt":0.01})";
 
-std::string read_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using dvx_test::read_text;
 
 // The shipped bunny at a small resolution (seconds to voxelize), with or without the physics.
 void open_small_bunny(Session& session, bool physics) {

@@ -16,12 +16,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using dvx_test::read_text;
 
 // The values of the explicit ticks in a gnuplot `set Xtics ("label" value, ...)` line.
 std::vector<std::pair<std::string, double>> explicit_ticks(const std::string& script, const std::string& axis) {
