@@ -43,10 +43,10 @@ ContactRun run_case(const Scene& scene, double dt, int workers, uint32_t steps, 
     const StepReport report = session_step(session, commands(session, step));
     run.deform_ms.push_back(report.timings.deform_ms);
     run.step_ms.push_back(report.timings.total_ms);
-    run.plane_contacts += double(session.pbd->contacts.points.size());
-    run.piece_contacts += double(session.pbd->piece_contacts.set.points.size());
+    run.plane_contacts += double(session.state.pbd->contacts.points.size());
+    run.piece_contacts += double(session.state.pbd->piece_contacts.set.points.size());
   }
-  run.counters = session.pbd->piece_contacts.counters;
+  run.counters = session.state.pbd->piece_contacts.counters;
   return run;
 }
 
@@ -55,10 +55,10 @@ ContactRun run_case(const Scene& scene, double dt, int workers, uint32_t steps, 
 StepCommands liver_cut(const Session& session, uint32_t step, int cut_steps, Aabb& box) {
   if (step == 0) {
     box = Aabb{Vec3d::Constant(1e300), Vec3d::Constant(-1e300)};
-    for (size_t v = 0; v < session.cut.surface.positions.size(); ++v) {
-      if (session.cut.surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
-      box.min = box.min.cwiseMin(session.cut.surface.positions[v].cast<double>());
-      box.max = box.max.cwiseMax(session.cut.surface.positions[v].cast<double>());
+    for (size_t v = 0; v < session.state.cut.surface.positions.size(); ++v) {
+      if (session.state.cut.surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
+      box.min = box.min.cwiseMin(session.state.cut.surface.positions[v].cast<double>());
+      box.max = box.max.cwiseMax(session.state.cut.surface.positions[v].cast<double>());
     }
   }
   StepCommands c;

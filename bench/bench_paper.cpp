@@ -74,14 +74,14 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
     commands.has_blade = true;
     commands.blade = cut_pose(box, s, o.steps);
     commands.cutting = s > 0;
-    const SweepMapStats map_before = session.sweep_stats;
+    const SweepMapStats map_before = session.state.sweep_stats;
     const double map_ms_before = session.map_ms;
     const StepReport report = session_step(session, commands);
     all_steps.push_back(report.timings.total_ms);
     const PbdCutStats& p = report.pbd;
     steps.push_back({s, report.timings.cut_ms, report.timings.surface_ms, report.timings.deform_ms,
-                     session.map_ms - map_ms_before, session.sweep_stats.samples - map_before.samples,
-                     session.sweep_stats.piece_tests - map_before.piece_tests, session.sweep_stats.quads - map_before.quads,
+                     session.map_ms - map_ms_before, session.state.sweep_stats.samples - map_before.samples,
+                     session.state.sweep_stats.piece_tests - map_before.piece_tests, session.state.sweep_stats.quads - map_before.quads,
                      report.cut.voxels_cut, p.sim_voxels, p.span_relabels, p.local_relabels + p.block_relabels, p.spans,
                      p.nodes_searched, p.pieces_touched, p.corners});
     if (report.cut.voxels_cut == 0) continue;
@@ -91,16 +91,16 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
     deform.push_back(report.timings.deform_ms);
     total.push_back(report.timings.total_ms);
   }
-  const SurfaceStats stats = surface_stats(compact_surface(session.cut.surface));
-  const Lattice& l = session.model.lattice;
-  const uint64_t model_bytes = session.model.memory_bytes(), cut_bytes = cut_memory_bytes(session.cut);
+  const SurfaceStats stats = surface_stats(compact_surface(session.state.cut.surface));
+  const Lattice& l = session.world.voxels.lattice;
+  const uint64_t model_bytes = session.world.voxels.memory_bytes(), cut_bytes = cut_memory_bytes(session.state.cut);
   return {{"mesh", file_name(mesh_path)},
           {"resolution", resolution},
           {"sim_resolution", scene.pbd.sim_resolution},
           {"iterations", scene.pbd.iterations},
           {"workers", o.workers},
           {"lattice", {l.nx, l.ny, l.nz}},
-          {"occupied_voxels", session.model.occupied_voxels},
+          {"occupied_voxels", session.world.voxels.occupied_voxels},
           {"init_ms", session.init_ms},
           {"cutting_steps", total.size()},
           {"voxels_cut", voxels_cut},
@@ -108,16 +108,16 @@ nlohmann::json measure_scaling(const std::string& mesh_path, int resolution, con
                        {"total", percentiles_json(total)}, {"every_step", percentiles_json(all_steps)}}},
           {"model_bytes", model_bytes},
           {"cut_bytes", cut_bytes},
-          {"bytes_per_occupied_voxel", session.model.occupied_voxels
-                                           ? double(model_bytes + cut_bytes) / double(session.model.occupied_voxels)
+          {"bytes_per_occupied_voxel", session.world.voxels.occupied_voxels
+                                           ? double(model_bytes + cut_bytes) / double(session.world.voxels.occupied_voxels)
                                            : 0.0},
           {"peak_rss_bytes", peak_rss_bytes()},
-          {"world_to_rest", {{"samples", session.sweep_stats.samples},
-                             {"piece_tests", session.sweep_stats.piece_tests},
-                             {"rest_quads", session.sweep_stats.quads},
+          {"world_to_rest", {{"samples", session.state.sweep_stats.samples},
+                             {"piece_tests", session.state.sweep_stats.piece_tests},
+                             {"rest_quads", session.state.sweep_stats.quads},
                              {"ms", session.map_ms},
-                             {"us_per_sample", session.sweep_stats.samples
-                                                   ? 1000.0 * session.map_ms / double(session.sweep_stats.samples)
+                             {"us_per_sample", session.state.sweep_stats.samples
+                                                   ? 1000.0 * session.map_ms / double(session.state.sweep_stats.samples)
                                                    : 0.0}}},
           {"surface_triangles", stats.triangles},
           {"boundary_edges", stats.boundary_edges},

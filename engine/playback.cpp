@@ -160,8 +160,8 @@ void SessionRecorder::record(uint32_t step, const StepCommands& commands, const 
 void SessionRecorder::finish(const Session& session) {
   if (finished_) return;
   finished_ = true;
-  if (session.step == 0 || last_hash_step_ == int64_t(session.step) - 1) return;
-  writer_.write_hash(session.step - 1, hash_hex(session_hash(session)));
+  if (session.state.step == 0 || last_hash_step_ == int64_t(session.state.step) - 1) return;
+  writer_.write_hash(session.state.step - 1, hash_hex(session_hash(session)));
 }
 
 }  // namespace dvx

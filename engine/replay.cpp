@@ -53,8 +53,8 @@ void write_step_mesh(const ReplayOptions& options, Session& session, uint32_t st
   session_embed(session);
   char name[32];
   std::snprintf(name, sizeof(name), "mesh_%05u.ply", step);
-  write_cut_mesh_ply((std::filesystem::path(options.out_dir) / "meshes" / name).string(), session.cut.surface,
-                     session.pbd ? &session.pbd->deformed : nullptr);
+  write_cut_mesh_ply((std::filesystem::path(options.out_dir) / "meshes" / name).string(), session.state.cut.surface,
+                     session.state.pbd ? &session.state.pbd->deformed : nullptr);
   run.last_mesh = step;
 }
 
@@ -106,12 +106,12 @@ void simulate(const Playback& playback, const ReplayOptions& options, bool check
       const bool capture = options.frames_every > 0 && step % options.frames_every == 0;
       exchange->publish(
           [&](Snapshot& slot, uint64_t slot_sequence) {
-            fill_snapshot(slot, slot_sequence, session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr,
+            fill_snapshot(slot, slot_sequence, session.state.cut.surface, session.state.pbd ? &session.state.pbd->deformed : nullptr,
                           dirty_history, step, row.timings);
             publish_camera(slot, camera_on, camera);
           },
           capture);
-      session.cut.surface.clear_dirty();
+      session.state.cut.surface.clear_dirty();
     }
     run.steps_done = step + 1;
     if (options.meshes_every > 0 && (step % options.meshes_every == 0 || step == last)) {
@@ -284,10 +284,10 @@ struct FinalSurface {
 };
 FinalSurface final_surface(const Session& session) {
   FinalSurface f;
-  const SurfaceMesh rest = compact_surface(session.cut.surface);
+  const SurfaceMesh rest = compact_surface(session.state.cut.surface);
   f.stats = surface_stats(rest);
   for (const Vec3f& p : rest.positions) f.nonfinite += p.allFinite() ? 0 : 1;
-  if (const PbdState* pbd = session.pbd.get()) f.nonfinite += count_nonfinite(*pbd);
+  if (const PbdState* pbd = session.state.pbd ? &*session.state.pbd : nullptr) f.nonfinite += count_nonfinite(*pbd);
   return f;
 }
 
@@ -306,8 +306,8 @@ nlohmann::json pool_json(const TaskPoolStats& stats) {
 nlohmann::json summary_json(const ReplayOptions& options, const Playback& playback, const Session& session,
                             const ReplayResult& result, const ReplayRun& run, const PhaseSamples& phases,
                             const FrameSamples& frames, const FinalSurface& final) {
-  const CutState& state = session.cut;
-  const PbdState* pbd = session.pbd.get();
+  const CutState& state = session.state.cut;
+  const PbdState* pbd = session.state.pbd ? &*session.state.pbd : nullptr;
   nlohmann::json summary = {
       {"recording", options.recording},
       {"scene", scene_to_json(playback.scene)},
@@ -333,7 +333,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Playback& playba
       {"wall_s", run.wall_s},
       {"timing_note", "cut, surface, total: over steps whose blade sweep crossed lattice edges; deform and step: every step"},
       {"init_ms", session.init_ms},
-      {"lattice", {session.model.lattice.nx, session.model.lattice.ny, session.model.lattice.nz}},
+      {"lattice", {session.world.voxels.lattice.nx, session.world.voxels.lattice.ny, session.world.voxels.lattice.nz}},
       {"cut",
        {{"voxels_cut", run.voxels_cut},
         {"voxels_divided", state.divided.size()},
@@ -368,7 +368,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   // there, not every step.
   session.embed_surface = options.render || options.frames_every > 0;
   ReplayRun run;
-  run.initial_volume = surface_stats(compact_surface(session.cut.surface)).volume;
+  run.initial_volume = surface_stats(compact_surface(session.state.cut.surface)).volume;
   make_output_dir(options.out_dir);
   if (options.meshes_every > 0) make_output_dir((std::filesystem::path(options.out_dir) / "meshes").string());
   std::unique_ptr<SessionRecorder> recorder;
@@ -418,12 +418,12 @@ ReplayResult run_replay(const ReplayOptions& options) {
   // The outputs: the plot first (gnuplot draws it meanwhile), timings, frame timings, final surface,
   // then the plot waited for, and the summary.
   const std::filesystem::path out(options.out_dir);
-  send_timings_plot(options.recording, run.rows, frames, session.pbd != nullptr, out, plotter);
+  send_timings_plot(options.recording, run.rows, frames, session.state.pbd.has_value(), out, plotter);
   const FinalSurface final = final_surface(session);
-  const PhaseSamples phases = write_timings_csv(run.rows, session.pbd != nullptr, out);
+  const PhaseSamples phases = write_timings_csv(run.rows, session.state.pbd.has_value(), out);
   const FrameSamples frame_samples = write_frame_timings(frames, out);
   // The same binary PLY as the --meshes files (world space, cut faces marked).
-  write_cut_mesh_ply((out / "final.ply").string(), session.cut.surface, session.pbd ? &session.pbd->deformed : nullptr);
+  write_cut_mesh_ply((out / "final.ply").string(), session.state.cut.surface, session.state.pbd ? &session.state.pbd->deformed : nullptr);
   if (!plotter.finish(plot_error)) std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", plot_error.c_str());
   run.wall_s = std::chrono::duration<double>(Clock::now() - start).count();  // the steps and the outputs
   result.summary_path = (out / "summary.json").string();

@@ -8,57 +8,25 @@
 #include "engine/scene.h"
 #include "engine/task_pool.h"
 #include "engine/timing.h"
-#include "sim/cut.h"
-#include "sim/pbd.h"
-#include "sim/world_to_rest.h"
+#include "sim/world.h"
 
 #include <memory>
 #include <string>
 
 namespace dvx {
 
-// The grab tool's command for one step.
-struct GrabCommand {
-  enum Kind : uint8_t { kNone, kTarget, kRelease } kind = kNone;
-  Vec3d target = Vec3d::Zero();  // starts the grab at the nearest particle, or moves it
-  double compliance = 1e-4;
-};
-
-// Everything that applies at one step.
-struct StepCommands {
-  bool has_blade = false;  // a new blade pose (else the last one is kept)
-  BladePose blade;
-  bool cutting = false;    // with has_blade: the sweep into this pose cuts
-  GrabCommand grab;
-};
-
-// What one step did and how long each phase took.
-struct StepReport {
-  uint32_t step = 0;
-  bool cutting = false;
-  StepTimings timings;
-  CutStepStats cut;
-  uint32_t sim_voxels_cut = 0;
-  PbdCutStats pbd;  // what the PBD model update did (with physics)
-};
-
+// A running world: the scene it came from, its model and state (sim/world.h), and the worker
+// threads its steps run on. The engine's step (session_step) is world_step with the engine's pool
+// and clock.
 struct Session {
   Scene scene;
   double dt = 1.0 / 60.0;
   LoadedMesh input;
-  VoxelModel model;
-  CutState cut;
-  std::unique_ptr<PbdState> pbd;  // null without physics
+  WorldModel world;
+  WorldState state;
   std::unique_ptr<TaskPool> pool;
   double init_ms = 0.0, initial_mass = 0.0;
-  // The blade: its last pose in world space, and the sweep mapper carrying its samples' rest points
-  // from one cutting step to the next (so a still blade cuts tissue moving into it).
-  BladePose blade;
-  SweepMapper sweep;
-  SweepMapStats sweep_stats;  // accumulated over the session
-  double map_ms = 0.0;        // time spent mapping the blade to rest space, accumulated
-  bool have_blade = false, cutting = false;
-  uint32_t step = 0;  // the next step to run
+  double map_ms = 0.0;  // time spent mapping the blade to rest space, accumulated
   // Whether each step embeds the deformed surface (pbd->deformed). A headless replay that draws no
   // frames and writes no meshes turns it off (a quarter of a step's instructions on the default
   // recording) and calls session_embed before it reads the surface.
@@ -72,7 +40,7 @@ PbdParams pbd_params(const Scene& scene, double dt);
 // Throws InputError for bad input. With `progress`, loading the mesh reports on stderr.
 void open_session(const Scene& scene, double dt, bool physics, int workers, Session& session, bool progress = false);
 
-// Runs one step at the fixed dt: the blade's sweep (when cutting), the PBD update, the grab.
+// Runs one step at the fixed dt (world_step on the session's pool, timed by the engine's clock).
 StepReport session_step(Session& session, const StepCommands& commands);
 
 // Brings pbd->deformed up to date after steps that skipped the embedding (embed_surface false).

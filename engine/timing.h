@@ -3,6 +3,8 @@
 // frames, the window and the benchmarks.
 #pragma once
 
+#include "sim/step_timings.h"
+
 #include <chrono>
 
 namespace dvx {
@@ -13,11 +15,5 @@ using Clock = std::chrono::steady_clock;
 inline double ms_between(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double, std::milli>(b - a).count();
 }
-
-// What one simulation step's phases took: the cut (divide, fine and coarse), the surface update,
-// the deformation (PBD + embedding) and the whole step.
-struct StepTimings {
-  double cut_ms = 0, surface_ms = 0, deform_ms = 0, total_ms = 0;
-};
 
 }  // namespace dvx

@@ -558,24 +558,4 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
   }
 }
 
-void pbd_cut_divide(const VoxelModel& model, CutState& cut, const PbdState& pbd, const BladePose& from,
-                    const BladePose& to, SweepMapper& mapper, CutStepStats& stats, SweepMapStats* map_stats) {
-  map_sweep(model, pbd, from, to, mapper, map_stats);
-  uint32_t hits = 0;
-  for (const RestQuad& q : mapper.quads) {
-    cut_divide(model, cut, q.from, q.to, stats);
-    hits += stats.edges_hit;
-  }
-  stats.edges_hit = hits;
-}
-
-CutStepStats pbd_cut_step(const VoxelModel& model, CutState& cut, PbdState& pbd, const BladePose& from,
-                          const BladePose& to, SweepMapper& mapper) {
-  CutStepStats stats;
-  pbd_cut_divide(model, cut, pbd, from, to, mapper, stats);
-  cut_update_surface(model, cut, stats);
-  pbd_apply_cut(model, cut, pbd);
-  return stats;
-}
-
 }  // namespace dvx

@@ -161,13 +161,4 @@ void reset_sweep(SweepMapper& mapper);
 void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
                SweepMapper& mapper, SweepMapStats* stats = nullptr);
 
-// Phase 1 of a cut step with physics: maps the sweep and divides with every rest quad (cut_divide);
-// then the caller runs cut_update_surface and pbd_apply_cut.
-void pbd_cut_divide(const VoxelModel& model, CutState& cut, const PbdState& pbd, const BladePose& from,
-                    const BladePose& to, SweepMapper& mapper, CutStepStats& stats, SweepMapStats* map_stats = nullptr);
-
-// The whole cut step with physics: pbd_cut_divide, cut_update_surface, pbd_apply_cut.
-CutStepStats pbd_cut_step(const VoxelModel& model, CutState& cut, PbdState& pbd, const BladePose& from,
-                          const BladePose& to, SweepMapper& mapper);
-
 }  // namespace dvx

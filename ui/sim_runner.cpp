@@ -149,11 +149,11 @@ void SimRunner::publish(const StepTimings& timings, bool force) {
   }
   unpublished_ = false;
   Session& s = *session_;
-  const uint32_t step = s.step == 0 ? 0 : s.step - 1;
+  const uint32_t step = s.state.step == 0 ? 0 : s.state.step - 1;
   const bool normals = cpu_normals_.load();
   exchange_.publish(
       [&](Snapshot& slot, uint64_t slot_sequence) {
-        fill_snapshot(slot, slot_sequence, s.cut.surface, s.pbd ? &s.pbd->deformed : nullptr, history_, step, timings);
+        fill_snapshot(slot, slot_sequence, s.state.cut.surface, s.state.pbd ? &s.state.pbd->deformed : nullptr, history_, step, timings);
         const Clock::time_point t0 = Clock::now();
         if (normals) {
           split_vertex_normals(slot.positions, slot.triangles, slot.triangle_flags, slot.normals, slot.cut_normals);
@@ -165,7 +165,7 @@ void SimRunner::publish(const StepTimings& timings, bool force) {
       },
       false);
   ++published_;
-  s.cut.surface.clear_dirty();
+  s.state.cut.surface.clear_dirty();
 }
 
 void SimRunner::do_open(OpenRequest& request) {
@@ -219,7 +219,7 @@ void SimRunner::do_open(OpenRequest& request) {
   status_.play_last = playing_ ? playing_->last_step() : 0;
   status_.hash_checked = status_.hash_mismatched = 0;
   status_.final_hash.clear();
-  status_.occupied_voxels = session_->model.occupied_voxels;
+  status_.occupied_voxels = session_->world.voxels.occupied_voxels;
   status_.divided_voxels = 0;
   status_.voxels_cut = 0;
   undo_stack_.clear();
@@ -239,7 +239,7 @@ void SimRunner::do_open(OpenRequest& request) {
 
 void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   Session& s = *session_;
-  const uint32_t step = s.step;
+  const uint32_t step = s.state.step;
   // This step's commands: the played recording's, then every queued entry stamped up to it (later win).
   StepCommands commands;
   const PlaybackStep* recorded = playing_ ? next_commands(*playing_, play_cursor_, step) : nullptr;
@@ -276,15 +276,15 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   publish(report.timings, false);
 
   lock.lock();
-  next_step_.store(s.step);
-  status_.step = s.step;
+  next_step_.store(s.state.step);
+  status_.step = s.state.step;
   status_.timings.push_back(report.timings);
   if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
-  status_.divided_voxels = uint32_t(s.cut.divided.size());
+  status_.divided_voxels = uint32_t(s.state.cut.divided.size());
   status_.voxels_cut += report.cut.voxels_cut;
-  if (s.pbd) {
-    status_.sim_voxels_divided = uint32_t(sim_voxels_divided(*s.pbd));
-    status_.particles = uint32_t(s.pbd->position.size() - s.pbd->free_particles.size());
+  if (s.state.pbd) {
+    status_.sim_voxels_divided = uint32_t(sim_voxels_divided(*s.state.pbd));
+    status_.particles = uint32_t(s.state.pbd->position.size() - s.state.pbd->free_particles.size());
   }
   status_.recording = recorder_ != nullptr;
   status_.hash_checked += checks.checked;
@@ -330,17 +330,9 @@ void SimRunner::redo() {
 }
 
 SimRunner::KeptState SimRunner::kept_of_session() const {
-  const Session& s = *session_;
   KeptState k;
-  k.cut = s.cut;
-  if (s.pbd) k.pbd = std::make_unique<PbdState>(*s.pbd);
-  k.blade = s.blade;
-  k.sweep = s.sweep;
-  k.sweep_stats = s.sweep_stats;
-  k.have_blade = s.have_blade;
-  k.cutting = s.cutting;
-  k.step = s.step;
-  k.hash = session_hash(s);
+  k.state = session_->state;
+  k.hash = session_hash(*session_);
   return k;
 }
 
@@ -371,22 +363,8 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   // The current state goes on the other stack: moved out, not copied (it is replaced at once).
   KeptState now;
   now.hash = session_hash(s);
-  now.step = s.step;
-  now.cut = std::move(s.cut);
-  if (kept.pbd && s.pbd) now.pbd = std::move(s.pbd);
-  now.blade = s.blade;
-  now.sweep = std::move(s.sweep);
-  now.sweep_stats = s.sweep_stats;
-  now.have_blade = s.have_blade;
-  now.cutting = s.cutting;
-  s.cut = std::move(kept.cut);
-  if (kept.pbd) s.pbd = std::move(kept.pbd);
-  s.blade = kept.blade;
-  s.sweep = std::move(kept.sweep);
-  s.sweep_stats = kept.sweep_stats;
-  s.have_blade = kept.have_blade;
-  s.cutting = kept.cutting;
-  s.step = kept.step;
+  now.state = std::move(s.state);
+  s.state = std::move(kept.state);
   const uint64_t hash = session_hash(s);
   // A full upload of the restored surface (the renderer's slots no longer match).
   history_ = DirtyHistory();
@@ -394,21 +372,21 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   generation_first_sequence_.store(published_ + 1);
   publish(StepTimings(), true);
   const double ms = ms_between(t0, Clock::now());
-  std::printf("%s: back to step %u (hash %s, kept %s) in %.1f ms\n", what, s.step, hash_hex(hash).c_str(),
+  std::printf("%s: back to step %u (hash %s, kept %s) in %.1f ms\n", what, s.state.step, hash_hex(hash).c_str(),
               hash_hex(kept.hash).c_str(), ms);
   std::fflush(stdout);
   lock.lock();
   if (to.size() == kUndoLevels) to.erase(to.begin());
   to.push_back(std::move(now));
-  next_step_.store(s.step);
-  status_.step = s.step;
-  status_.divided_voxels = uint32_t(s.cut.divided.size());
+  next_step_.store(s.state.step);
+  status_.step = s.state.step;
+  status_.divided_voxels = uint32_t(s.state.cut.divided.size());
   status_.undo_levels = uint32_t(undo_stack_.size());
   status_.redo_levels = uint32_t(redo_stack_.size());
   ++status_.restores;
   status_.restore_ms = ms;
   char note[96];
-  std::snprintf(note, sizeof note, "%s: back to step %u (%.0f ms)", what, s.step, ms);
+  std::snprintf(note, sizeof note, "%s: back to step %u (%.0f ms)", what, s.state.step, ms);
   status_.undo_note = note;
   ++status_.undo_notes;
 }
@@ -452,10 +430,11 @@ void SimRunner::run() {
       s.scene.pbd.dt = req_dt_;
       s.scene.pbd.iterations = req_iterations_;
       s.scene.pbd.gravity = req_gravity_;
-      if (s.pbd) {
-        s.pbd->params.dt = req_dt_;
-        s.pbd->params.iterations = req_iterations_;
-        s.pbd->params.gravity = req_gravity_;
+      s.world.params = pbd_params(s.scene, req_dt_);
+      if (s.state.pbd) {
+        s.state.pbd->params.dt = req_dt_;
+        s.state.pbd->params.iterations = req_iterations_;
+        s.state.pbd->params.gravity = req_gravity_;
       }
       status_.dt = req_dt_;
       status_.scene = s.scene;
@@ -469,7 +448,7 @@ void SimRunner::run() {
       if (undo_stack_.size() == kUndoLevels) undo_stack_.erase(undo_stack_.begin());
       lock.unlock();
       KeptState kept = kept_of_session();
-      std::printf("undo: kept step %u (hash %s)\n", kept.step, hash_hex(kept.hash).c_str());
+      std::printf("undo: kept step %u (hash %s)\n", kept.state.step, hash_hex(kept.hash).c_str());
       std::fflush(stdout);
       lock.lock();
       undo_stack_.push_back(std::move(kept));

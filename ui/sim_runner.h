@@ -127,14 +127,9 @@ class SimRunner {
   void publish(const StepTimings& timings, bool force);
   void finish_recording();
   // Undo (sim_runner.cpp, the section "Undo").
+  // A kept state is a copy of the world's state (sim/world.h) and its hash.
   struct KeptState {
-    CutState cut;
-    std::unique_ptr<PbdState> pbd;
-    BladePose blade;
-    SweepMapper sweep;
-    SweepMapStats sweep_stats;
-    bool have_blade = false, cutting = false;
-    uint32_t step = 0;
+    WorldState state;
     uint64_t hash = 0;
   };
   static constexpr size_t kUndoLevels = 8;

@@ -153,11 +153,11 @@ TEST_SUITE("pbd_recording") {
       }
       session_step(s, commands);
     }
-    const PbdState& pbd = *s.pbd;
+    const PbdState& pbd = *s.state.pbd;
     std::string error;
-    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, pbd, error), error);
+    REQUIRE_MESSAGE(check_pbd_state(s.world.voxels, s.state.cut, pbd, error), error);
     // Surface components (vertex slots joined by triangles).
-    const CutSurface& surface = s.cut.surface;
+    const CutSurface& surface = s.state.cut.surface;
     std::vector<uint32_t> component(surface.positions.size());
     std::iota(component.begin(), component.end(), 0u);
     for (const Tri& t : surface.triangles) {
@@ -221,7 +221,7 @@ TEST_SUITE("pbd_recording") {
     // front of the body (the cut slopes down to -x), not on the stump or inside the body.
     REQUIRE(recording.scene.pbd.planes.size() == 1);
     const double tray_y = recording.scene.pbd.planes[0].point.y();
-    const double half_voxel = 0.5 * s.model.lattice.voxel_size;
+    const double half_voxel = 0.5 * s.world.voxels.lattice.voxel_size;
     MESSAGE("head top: mean drop " << head_drop / double(head_vertices) << ", lowest point " << head_min_y
                                    << " (tray at " << tray_y << "), right end x " << head_max_x
                                    << "; body's left end x " << rest_min_x);

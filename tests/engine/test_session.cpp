@@ -40,8 +40,8 @@ TEST_SUITE("session") {
       CAPTURE(i);
       REQUIRE(session_hash(one) == session_hash(three));
     }
-    CHECK(one.step == 13);
-    CHECK(one.cut.divided.size() > 0);
+    CHECK(one.state.step == 13);
+    CHECK(one.state.cut.divided.size() > 0);
   }
 
   TEST_CASE("a step without a blade keeps the last pose and cuts nothing, only a cutting sweep cuts") {
@@ -52,11 +52,11 @@ TEST_SUITE("session") {
     session_step(s, blade_command(-6.0, false));
     session_step(s, blade_command(6.0, false));
     CHECK(session_hash(s) == uncut);
-    CHECK(s.cut.divided.empty());
+    CHECK(s.state.cut.divided.empty());
     // Steps without a command keep the pose (and the cutting flag): no sweep, no cut.
     StepReport idle = session_step(s, StepCommands());
-    CHECK(s.have_blade);
-    CHECK(s.blade.a.x() == 6.0);
+    CHECK(s.state.have_blade);
+    CHECK(s.state.blade.a.x() == 6.0);
     CHECK(idle.cut.voxels_cut == 0);
     // A cutting sweep back across the body cuts.
     const StepReport cut = session_step(s, blade_command(-6.0, true));
@@ -69,7 +69,7 @@ TEST_SUITE("session") {
     CHECK(still.cutting);
     CHECK(still.cut.voxels_cut == 0);
     CHECK(session_hash(s) == after);
-    CHECK(s.step == 5);
+    CHECK(s.state.step == 5);
   }
 
   TEST_CASE("the PBD parameters come from the scene and the time step") {

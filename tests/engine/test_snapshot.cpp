@@ -60,17 +60,17 @@ TEST_SUITE("snapshot") {
       const uint64_t sequence = step + 1;
       Snapshot full;
       DirtyHistory fresh;
-      fill_snapshot(full, 0, s.cut.surface, nullptr, fresh, step, r.timings);
+      fill_snapshot(full, 0, s.state.cut.surface, nullptr, fresh, step, r.timings);
       for (size_t k = 1; k < slots.size(); ++k) {
         if (sequence % k != 0 && step + 1 < 40) continue;
         // Slot 1 adds each publish's range to the shared history; the others fill from a copy without
         // that last range (fill_snapshot adds it back), each as if it were this publish's slot.
         if (k == 1) {
-          fill_snapshot(slots[k], slot_sequence[k], s.cut.surface, nullptr, history, step, r.timings);
+          fill_snapshot(slots[k], slot_sequence[k], s.state.cut.surface, nullptr, history, step, r.timings);
         } else {
           DirtyHistory copy = history;
           copy.ranges.pop_back();
-          fill_snapshot(slots[k], slot_sequence[k], s.cut.surface, nullptr, copy, step, r.timings);
+          fill_snapshot(slots[k], slot_sequence[k], s.state.cut.surface, nullptr, copy, step, r.timings);
         }
         slot_sequence[k] = sequence;
         CAPTURE(step);
@@ -78,9 +78,9 @@ TEST_SUITE("snapshot") {
         CHECK(same_surface(slots[k], full));
         CHECK(slots[k].step == step);
       }
-      s.cut.surface.clear_dirty();
+      s.state.cut.surface.clear_dirty();
     }
-    CHECK(s.cut.divided.size() > 0);
+    CHECK(s.state.cut.divided.size() > 0);
   }
 
   TEST_CASE("the exchange hands out the newest snapshot once, and finished() only when drained") {

@@ -4,7 +4,7 @@
 #include "engine/mesh_io.h"
 #include "sim/cut.h"
 #include "sim/pbd.h"
-#include "sim/world_to_rest.h"
+#include "sim/world.h"
 #include "sim/random.h"
 #include "sim/surface_metrics.h"
 #include "sim/voxelize.h"
@@ -49,8 +49,6 @@ void random_session(int steps, bool piece_contact) {
     vp.resolution = 32;
     std::string error;
     REQUIRE(voxelize(input.mesh, vp, model, error));
-    CutState cut;
-    init_cut_state(model, cut);
     PbdParams params;
     params.resolution = 32;
     params.sim_resolution = 8;
@@ -63,16 +61,23 @@ void random_session(int steps, bool piece_contact) {
     anchor.max.y() += 1.0;
     anchor.max.z() += 1.0;
     params.fixed.push_back(anchor);
-    PbdState pbd;
-    REQUIRE(init_pbd(model, cut, params, pbd, error));
+    // The world the product steps (sim/world.h): the voxel model and the parameters, and its state.
+    WorldModel world;
+    world.voxels = std::move(model);
+    world.params = params;
+    WorldState state;
+    REQUIRE_MESSAGE(world_init(world, state, error), error);
+    const VoxelModel& model_ref = world.voxels;
+    CutState& cut = state.cut;
+    PbdState& pbd = *state.pbd;
     const double mass = total_mass(pbd);
     const double scale = box.extent().maxCoeff();
 
     Random random(20261122);
     uint64_t memory_after_cutting = 0;
     BladePose blade{random.point(box), random.point(box)};
-    SweepMapper sweep;
     int cutting_left = 0;
+    bool placed = false;
     bool grabbing = false;
     for (int step = 1; step <= steps; ++step) {
       // A new random blade every so often (cutting stops for the last fifth: memory must then stay flat).
@@ -82,27 +87,34 @@ void random_session(int steps, bool piece_contact) {
         const Vec3d c = random.point(box), d = Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1));
         blade = {c - 0.6 * scale * d, c + 0.6 * scale * d};
         cutting_left = int(random.uniform(5, 30));
-        reset_sweep(sweep);
+        placed = false;
       }
-      if (cutting_left > 0) {
+      // A new blade is first placed (not cutting), then moves cutting; cutting stops when it is done.
+      StepCommands commands;
+      if (cutting_left > 0 && !placed) {
+        commands = {true, blade, false, {}};
+        placed = true;
+      } else if (cutting_left > 0) {
         const Vec3d move = 0.02 * scale * Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1));
-        const BladePose next{blade.a + move, blade.b + move + 0.005 * scale * Vec3d(random.uniform(-1, 1), 0, 0)};
-        pbd_cut_step(model, cut, pbd, blade, next, sweep);
-        blade = next;
+        blade = {blade.a + move, blade.b + move + 0.005 * scale * Vec3d(random.uniform(-1, 1), 0, 0)};
+        commands = {true, blade, true, {}};
         --cutting_left;
+      } else if (state.cutting) {
+        commands = {true, blade, false, {}};
       }
       // Grabs: start, drag, release.
       if (!grabbing && random.uniform(0, 1) < 0.005) {
-        grab_begin(pbd, random.point(box), 1e-5);
+        commands.grab = {GrabCommand::kTarget, random.point(box), 1e-5};
         grabbing = true;
       } else if (grabbing) {
-        grab_move(pbd, pbd.grab_target + 0.01 * scale * Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1)));
+        commands.grab = {GrabCommand::kTarget,
+                         pbd.grab_target + 0.01 * scale * Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1)), 1e-5};
         if (random.uniform(0, 1) < 0.01) {
-          grab_end(pbd);
+          commands.grab.kind = GrabCommand::kRelease;
           grabbing = false;
         }
       }
-      pbd_step(cut, pbd);
+      world_step(world, state, commands, StepContext());
       if (step % 1000 == 0) {
         CAPTURE(step);
         const SurfaceStats stats = surface_stats(compact_surface(cut.surface));
@@ -132,7 +144,7 @@ void random_session(int steps, bool piece_contact) {
 #endif
     if (!kAddressSanitizer) CHECK(memory_end <= memory_after_cutting + (1u << 20));
     std::string problem;
-    CHECK_MESSAGE(check_cut_state(model, cut, problem), problem);
+    CHECK_MESSAGE(check_cut_state(model_ref, cut, problem), problem);
     MESSAGE("resident memory: " << memory_after_cutting / 1024 << " KiB when cutting stopped, " << memory_end / 1024
                                 << " KiB at the end; kinetic energy " << kinetic_energy(pbd) << ", mass "
                                 << total_mass(pbd) << " (initial " << mass << ")");

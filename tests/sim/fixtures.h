@@ -4,6 +4,7 @@
 #include "sim/cut.h"
 #include "sim/pbd.h"
 #include "sim/voxelize.h"
+#include "sim/world.h"
 
 #include <doctest/doctest.h>
 
@@ -40,6 +41,46 @@ inline void make_pbd_scene(PbdScene& scene, const dvx::TriMesh& mesh, int resolu
   params.sim_resolution = sim_resolution;
   std::string error;
   REQUIRE_MESSAGE(dvx::init_pbd(scene.model, scene.cut, params, scene.pbd, error), error);
+}
+
+// A voxelized mesh as the product steps it (sim/world.h): the world's model and its state.
+struct WorldScene {
+  dvx::WorldModel model;
+  dvx::WorldState state;
+  dvx::PbdState& pbd() { return *state.pbd; }
+  const dvx::VoxelModel& voxels() const { return model.voxels; }
+};
+
+// Voxelizes `mesh` at `resolution` and builds the world's state with the physics at `sim_resolution`.
+inline void make_world(WorldScene& scene, const dvx::TriMesh& mesh, int resolution, int sim_resolution, dvx::PbdParams params) {
+  scene.model.voxels = voxelized(mesh, resolution);
+  params.resolution = resolution;
+  params.sim_resolution = sim_resolution;
+  scene.model.params = params;
+  scene.model.physics = true;
+  std::string error;
+  REQUIRE_MESSAGE(dvx::world_init(scene.model, scene.state, error), error);
+}
+
+// One world step that sweeps the blade from `from` to `to`, cutting: a blade elsewhere (or none) is
+// first moved to `from` without cutting, keeping what the sweep carries when it is already there.
+inline dvx::StepReport world_cut_step(const dvx::WorldModel& model, dvx::WorldState& state, const dvx::BladePose& from,
+                                      const dvx::BladePose& to, const dvx::TaskRunner& tasks = {}) {
+  if (!state.have_blade || !(state.blade.a == from.a && state.blade.b == from.b)) {
+    state.blade = from;
+    state.have_blade = true;
+    dvx::reset_sweep(state.sweep);
+  }
+  state.cutting = true;
+  dvx::StepCommands commands;
+  commands.has_blade = true;
+  commands.blade = to;
+  commands.cutting = true;
+  dvx::StepContext context;
+  context.tasks = tasks;
+  dvx::StepReport report;
+  dvx::world_step(model, state, commands, context, &report);
+  return report;
 }
 
 // Moves the blade from `from` to `to` in `steps` equal cut steps, calling after(step) after each.

@@ -284,25 +284,31 @@ TEST_SUITE("pbd") {
     CHECK(a.pbd.deformed == b.pbd.deformed);
   }
   TEST_CASE("a blade in world space cuts a block that has fallen away from its rest place") {
-    Scene s;
+    // The product's step (world_step): the block falls, is stopped where it is, and a blade at its
+    // current middle is mapped to rest space through the deformed pieces and cuts it.
+    dvx_test::WorldScene w;
     PbdParams free_fall;
     free_fall.damping = 0.0;
-    make_scene(s, 24, 6, free_fall);
-    for (int i = 0; i < 30; ++i) pbd_step(s.cut, s.pbd);  // falls about 1.2 below its rest place
-    const double drop = centre_below(s.pbd, 5.0).y();
+    const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1);
+    dvx_test::make_world(w, box, 24, 6, free_fall);
+    for (int i = 0; i < 30; ++i) world_step(w.model, w.state, StepCommands(), StepContext());  // falls about 1.2
+    const double drop = centre_below(w.pbd(), 5.0).y();
     REQUIRE(drop < -1.0);
-    // A horizontal blade at the block's current middle, mapped to rest space before it cuts.
+    // Stopped there (no gravity, no velocity), so the blade's plane stays at its middle.
+    w.pbd().params.gravity = Vec3d::Zero();
+    for (Vec3d& v : w.pbd().velocity) v.setZero();
     const double y = drop + 0.0137;
     BladePose previous{Vec3d(-1.0, y, -2), Vec3d(-1.0, y, 2)};
-    SweepMapper sweep;
     for (int i = 1; i <= 10; ++i) {
       const double x = -1.0 + 2.0 * i / 10;
       const BladePose next{Vec3d(x, y, -2), Vec3d(x, y, 2)};
-      pbd_cut_step(s.model, s.cut, s.pbd, previous, next, sweep);
-      require_consistent(s);
+      dvx_test::world_cut_step(w.model, w.state, previous, next);
+      std::string error;
+      REQUIRE_MESSAGE(check_cut_state(w.voxels(), w.state.cut, error), error);
+      REQUIRE_MESSAGE(check_pbd_state(w.voxels(), w.state.cut, w.pbd(), error), error);
       previous = next;
     }
-    CHECK(surface_stats(compact_surface(s.cut.surface)).components == 2);
+    CHECK(surface_stats(compact_surface(w.state.cut.surface)).components == 2);
   }
 }
 

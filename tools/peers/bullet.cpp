@@ -88,13 +88,13 @@ Shape run_divvox(const Session& session, const PbdState& initial, int iterations
   s.params.piece_contact = false;
   for (int i = 0; i < steps; ++i) {
     const double t0 = thread_ms();
-    pbd_step(session.cut, s);
+    pbd_step(session.state.cut, s);
     step_ms.push_back(thread_ms() - t0);
   }
   // The embedding alone (pbd_step ends with it), for the PBD-only share.
   for (int i = 0; i < 10; ++i) {
     const double t0 = thread_ms();
-    pbd_embed(session.cut, s);
+    pbd_embed(session.state.cut, s);
     embed_ms.push_back(thread_ms() - t0);
   }
   Shape shape;
@@ -157,7 +157,7 @@ std::string run_bullet(const BulletOptions& options) {
   const double dt = scene.pbd.dt;
   Session session;
   open_session(scene, dt, true, 1, session);
-  const PbdState initial = *session.pbd;
+  const PbdState initial = *session.state.pbd;
   const std::vector<uint32_t> live = live_slots(initial);
   const int steps = std::max(1, int(std::lround(options.seconds / dt)));
 

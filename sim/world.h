@@ -1,0 +1,98 @@
+// The simulation step: the one way a step happens. The window, the headless replay, every test that
+// checks a cut step and every benchmark call world_step (DESIGN §3 "Decisions of turn 3").
+//
+// Like MuJoCo's mj_step(const mjModel*, mjData*): an immutable WorldModel (the voxel model built once
+// from the mesh, the parameters) and a mutable WorldState (the cut record and its surface, the
+// simulation topology and dynamic state, the blade and the sweep it carries) passed apart. Undo is a
+// copy of the WorldState. sim/ reads no clock: a caller that wants phase timings passes a StepClock.
+#pragma once
+
+#include "sim/blade_sweep.h"
+#include "sim/cut.h"
+#include "sim/pbd.h"
+#include "sim/step_timings.h"
+#include "sim/voxel_model.h"
+#include "sim/world_to_rest.h"
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+namespace dvx {
+
+// What never changes while the world runs: the fine lattice voxelized from the mesh, the parameters.
+struct WorldModel {
+  VoxelModel voxels;
+  PbdParams params;      // resolution, simulation level, material, solver budget, dt
+  bool physics = true;   // false: cutting only (the surface stays at rest)
+};
+
+// The grab tool's command for one step.
+struct GrabCommand {
+  enum Kind : uint8_t { kNone, kTarget, kRelease } kind = kNone;
+  Vec3d target = Vec3d::Zero();  // starts the grab at the nearest particle, or moves it
+  double compliance = 1e-4;
+};
+
+// Everything that applies at one step (the same for a live session and a replay).
+struct StepCommands {
+  bool has_blade = false;  // a new blade pose (else the last one is kept)
+  BladePose blade;
+  bool cutting = false;    // with has_blade: the sweep into this pose cuts
+  GrabCommand grab;
+};
+
+// Everything a step changes. Copyable: undo keeps copies of it.
+struct WorldState {
+  CutState cut;                 // the cut record and its dual-contoured surface
+  std::optional<PbdState> pbd;  // simulation topology and dynamic state; empty without physics
+  // The blade: its last pose in world space, and the sweep mapper carrying its samples' rest points
+  // from one cutting step to the next (so a still blade cuts tissue moving into it).
+  BladePose blade;
+  bool have_blade = false, cutting = false;
+  SweepMapper sweep;
+  SweepMapStats sweep_stats;  // accumulated over the run
+  uint32_t step = 0;          // the next step to run
+};
+
+// What one step did.
+struct StepReport {
+  uint32_t step = 0;
+  bool cutting = false;
+  StepTimings timings;
+  CutStepStats cut;
+  uint32_t sim_voxels_cut = 0;
+  PbdCutStats pbd;  // what the PBD model update did (with physics)
+};
+
+// A clock the caller lends the step for its report (sim/ reads none): milliseconds since any origin.
+struct StepClock {
+  void* context = nullptr;
+  double (*now_ms)(void* context) = nullptr;
+  double now() const { return now_ms ? now_ms(context) : 0.0; }
+};
+
+// How the caller runs a step: its workers, its clock, and whether the deformed surface is embedded
+// every step (a headless replay that draws nothing turns it off and calls world_embed before reading).
+struct StepContext {
+  TaskRunner tasks;
+  StepClock clock;
+  bool embed_surface = true;
+};
+
+// Builds the uncut state (and, with physics, the PBD model) of `model`. Returns false with a reason
+// when the parameters do not fit the lattice (sim_resolution not dividing it into 2^l blocks).
+bool world_init(const WorldModel& model, WorldState& state, std::string& error);
+
+// One step at the fixed dt: the grab, the blade's sweep mapped to rest space and cut (when cutting),
+// the surface update, the PBD model update, then the PBD step. Fills `report` when given.
+void world_step(const WorldModel& model, WorldState& state, const StepCommands& commands, const StepContext& context,
+                StepReport* report = nullptr);
+
+// Brings pbd->deformed up to date after steps that skipped the embedding (embed_surface false).
+void world_embed(const WorldModel& model, WorldState& state, const TaskRunner& tasks = {});
+
+// State hash: the cut surface, and the live particles when the physics runs.
+uint64_t world_hash(const WorldState& state);
+
+}  // namespace dvx
