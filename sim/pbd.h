@@ -56,10 +56,18 @@
 
 namespace dvx {
 
+// The elastic model of the pieces. kPaper: the paper's stretch + shape matching (solver knobs: it
+// stiffens with every iteration); kNeoHookean: a material (E, nu) whose stiffness does not depend
+// on the solver's budget (issue 30).
+enum class ElasticModel : uint8_t { kPaper, kNeoHookean };
+
 struct PbdParams {
   int resolution = 128;              // fine voxels along the longest axis (the scene's resolution)
   int sim_resolution = 16;           // simulation voxels along the longest axis of the object
-  double density = 1000.0;
+  ElasticModel elastic = ElasticModel::kPaper;
+  double youngs_modulus = 5000.0;    // Pa (kNeoHookean)
+  double poisson_ratio = 0.45;       // (kNeoHookean)
+  double density = 1000.0;           // kg/m^3 (lengths in metres: scene units x metres_per_unit)
   double stretch_compliance = 1e-6;  // XPBD compliance of the edge constraints (inverse stiffness)
   double shape_stiffness = 1.0;      // shape-matching stiffness in [0, 1]
   double dt = 1.0 / 60.0;
