@@ -7,7 +7,6 @@
 #include "engine/plot.h"
 #include "engine/scene.h"
 #include "engine/stats.h"
-#include "sim/pbd_kernels.h"
 
 #include <nlohmann/json.hpp>
 

@@ -22,7 +22,7 @@
 // independent, and the chunk bounds depend only on the batch and the worker count.
 #pragma once
 
-#include "sim/colouring.h"
+#include "sim/tasks.h"
 
 #include <atomic>
 #include <condition_variable>

@@ -3,14 +3,16 @@
 # naming the file and the include, when a folder includes one above it (so engine/, render/ and sim/
 # never include ui/ or bench/), when a layer's CMakeLists.txt links a library above it, or when a
 # render/ header includes or names sim/ types other than the plain mesh arrays (sim/mesh.h,
-# sim/surface_mesh.h).
+# sim/surface_mesh.h), when a layer above sim/ includes a sim/ internal, or when engine/, ui/ or app/
+# call a stage of the step instead of world_step.
 #   tests/layers_test.sh [SOURCE_DIR]
 #   tests/layers_test.sh --self-test [SOURCE_DIR]   (a copy with one violation of each kind must fail)
 set -uo pipefail
 script="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)/$(basename "${BASH_SOURCE[0]}")"
 
 # Self-test: the check must see an include of ui/ from engine/, of bench/ from sim/, a sim/ type named
-# in a render/ header and a higher library linked from engine/'s CMakeLists.txt (four failures).
+# in a render/ header, a higher library linked from engine/'s CMakeLists.txt, a sim/ internal included
+# by engine/ and a stage of the step called by engine/ (six failures).
 if [[ "${1:-}" == --self-test ]]; then
   src="${2:-$(cd "$(dirname "$script")/.." && pwd)}"
   copy="$(mktemp -d)"
@@ -22,10 +24,12 @@ if [[ "${1:-}" == --self-test ]]; then
   echo '#include "bench/bench.h"' >>"$copy/sim/mesh.h"
   echo 'struct CutSurface;  // a forward declaration hides the include' >>"$copy/render/camera.h"
   echo 'target_link_libraries(divvox_engine PUBLIC $<$<TARGET_EXISTS:divvox_ui>:divvox_ui>)' >>"$copy/engine/CMakeLists.txt"
+  echo '#include "sim/pbd_kernels.h"' >>"$copy/engine/errors.h"
+  printf 'void f(dvx::Session& s) { pbd_step(s.state.cut, *s.state.pbd); }\n' >>"$copy/engine/errors.cpp"
   output="$(bash "$script" "$copy")" && { echo "layers self-test: the violations passed"; exit 1; }
   echo "$output"
-  [[ $(grep -v 'against the layer order' <<<"$output" | grep -c '^layers: ') == 4 ]] || { echo "layers self-test: expected 4 failures"; exit 1; }
-  echo "layers self-test: ok (4 violations found)"
+  [[ $(grep -v 'against the layer order' <<<"$output" | grep -c '^layers: ') == 6 ]] || { echo "layers self-test: expected 6 failures"; exit 1; }
+  echo "layers self-test: ok (6 violations found)"
   exit 0
 fi
 
@@ -97,6 +101,38 @@ for layer in sim render engine bench ui app; do
   done < <(sed -E 's/#.*$//' "$layer/CMakeLists.txt" | tr '\n' ' ' | grep -oE 'target_link_libraries\([^)]*\)' |
            grep -oE '\bdivvox_[a-z]+\b' | sort -u | sed "s|^|$layer:|")
 done
+
+# sim/'s internals (the solver's kernels, colouring, its containers) stay inside sim/: the layers above
+# include only its public headers.
+sim_internal="sim/pbd_kernels.h sim/pbd_kernels_lanes.inc sim/colouring.h sim/flat_map.h sim/union_find.h"
+for layer in engine render bench ui app; do
+  [[ -d $layer ]] || continue
+  while IFS= read -r hit; do
+    target="$(sed -E 's/.*"([^"]+)".*/\1/' <<<"$hit")"
+    if [[ " $sim_internal " == *" $target "* ]]; then
+      echo "layers: ${hit%%:*} includes $target (a sim/ internal: include sim/'s public headers, e.g. sim/world.h)"
+      failures=$((failures + 1))
+    fi
+  done < <(grep -rnE '^[[:space:]]*#[[:space:]]*include[[:space:]]*"sim/' --include='*.h' --include='*.cpp' "$layer")
+done
+
+# One step: the engine, the window and the command line step the world through world_step (sim/world.h)
+# only, never by calling its stages themselves; and only sim/world.cpp maps a sweep to rest space for a
+# cut (the tests of the mapping itself excepted).
+stages='\b(map_sweep|cut_divide|cut_update_surface|pbd_apply_cut|pbd_step)[[:space:]]*\('
+for layer in engine ui app; do
+  [[ -d $layer ]] || continue
+  while IFS= read -r hit; do
+    echo "layers: ${hit%%:*} calls a stage of the step ($(grep -oE "$stages" <<<"${hit#*:}" | head -1 | tr -d '( ')): call world_step"
+    failures=$((failures + 1))
+  done < <(grep -rnE "$stages" --include='*.h' --include='*.cpp' "$layer" | grep -vE '^[^:]+:[0-9]+:[[:space:]]*//')
+done
+while IFS= read -r hit; do
+  echo "layers: ${hit%%:*} maps a sweep itself (map_sweep): a cut step goes through world_step"
+  failures=$((failures + 1))
+done < <(grep -rnE '\bmap_sweep[[:space:]]*\(' --include='*.cpp' sim bench tests 2>/dev/null |
+         grep -vE '^(sim/world\.cpp|sim/world_to_rest\.cpp|tests/sim/test_world_to_rest\.cpp):' |
+         grep -vE '^[^:]+:[0-9]+:[[:space:]]*//')
 
 if ((failures > 0)); then
   echo "layers: $failures include(s), sim/ type name(s) or link(s) against the layer order"

@@ -24,17 +24,18 @@ void count_range(uint32_t begin, uint32_t end, void* user) {
 }
 
 // A phased job: batch b writes value[b][i] = 1 + (sum of batch b - 1's values), so an item that started
-// before every item of the batch before it finished writes a wrong value.
+// before every item of the batch before it finished writes a wrong value. The sums grow geometrically
+// over many batches: unsigned, so they wrap (defined) instead of overflowing.
 struct Phased {
   std::vector<TaskBatch> batches;
-  std::vector<std::vector<std::atomic<int64_t>>> value;
+  std::vector<std::vector<std::atomic<uint64_t>>> value;
   std::atomic<int> calls_out_of_range{0};
   explicit Phased(const std::vector<TaskBatch>& b) : batches(b), value(b.size()) {
-    for (size_t i = 0; i < b.size(); ++i) value[i] = std::vector<std::atomic<int64_t>>(b[i].count);
+    for (size_t i = 0; i < b.size(); ++i) value[i] = std::vector<std::atomic<uint64_t>>(b[i].count);
   }
-  int64_t sum(uint32_t batch) const {
-    int64_t total = 0;
-    for (const std::atomic<int64_t>& v : value[batch]) total += v.load();
+  uint64_t sum(uint32_t batch) const {
+    uint64_t total = 0;
+    for (const std::atomic<uint64_t>& v : value[batch]) total += v.load();
     return total;
   }
 };
@@ -48,17 +49,17 @@ void phased_chunk(uint32_t batch, uint32_t begin, uint32_t end, void* user) {
   // The first chunk of a batch sleeps, so that another thread reaches the next batch before this
   // one is done (a missing barrier shows as a wrong sum).
   if (begin == 0 && end < p.batches[batch].count) std::this_thread::sleep_for(std::chrono::microseconds(300));
-  const int64_t before = batch == 0 ? 0 : p.sum(batch - 1);
+  const uint64_t before = batch == 0 ? 0 : p.sum(batch - 1);
   for (uint32_t i = begin; i < end; ++i) p.value[batch][i].fetch_add(1 + before);
 }
 
 // What a correct run of the job writes: batch b's items are 1 + sum of batch b - 1 (skipping nothing:
 // an empty batch sums to 0).
-std::vector<int64_t> expected_sums(const std::vector<TaskBatch>& batches) {
-  std::vector<int64_t> sums;
-  int64_t previous = 0;
+std::vector<uint64_t> expected_sums(const std::vector<TaskBatch>& batches) {
+  std::vector<uint64_t> sums;
+  uint64_t previous = 0;
   for (const TaskBatch& b : batches) {
-    sums.push_back(int64_t(b.count) * (1 + previous));
+    sums.push_back(uint64_t(b.count) * (1 + previous));
     previous = sums.back();
   }
   return sums;
@@ -101,7 +102,7 @@ TEST_SUITE("task_pool") {
     // Big parallel batches, one-chunk batches (merged into runs), empty batches, a serial overflow.
     const std::vector<TaskBatch> job = {{1000, 16}, {3, 1024}, {0, 16}, {5, 1024}, {257, 8}, {1, ~0u},
                                         {64, 1},   {0, 1},    {2, 1024}, {4099, 64}, {7, 1}};
-    const std::vector<int64_t> want = expected_sums(job);
+    const std::vector<uint64_t> want = expected_sums(job);
     for (int workers : {1, 2, 4}) {
       TaskPool pool(workers);
       const TaskRunner runner = pool.runner();
@@ -139,7 +140,7 @@ TEST_SUITE("task_pool") {
 
   TEST_CASE("run_batches through the sim helper without run_batches (parallel_for per batch) and serially") {
     const std::vector<TaskBatch> job = {{100, 8}, {0, 8}, {9, 1}, {1, 1}, {300, 1000}};
-    const std::vector<int64_t> want = expected_sums(job);
+    const std::vector<uint64_t> want = expected_sums(job);
     TaskPool pool(3);
     TaskRunner only_parallel_for = pool.runner();
     only_parallel_for.run_batches = nullptr;
