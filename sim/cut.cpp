@@ -1,4 +1,5 @@
 #include "sim/cut.h"
+#include "sim/id_pool.h"
 
 #include "sim/contour.h"
 #include "sim/surface_metrics.h"
@@ -20,13 +21,6 @@ bool sharing_pieces(const VoxelModel& model, const CutState& state, uint32_t edg
                     const uint32_t voxels[4], const uint8_t lower_corner[4], uint8_t pieces[4]);
 
 namespace {
-
-// One of the 12 edges of a voxel: its two corners and its axis.
-struct VoxelEdge {
-  uint8_t c0, c1, axis;
-};
-constexpr VoxelEdge kVoxelEdges[12] = {{0, 1, 0}, {2, 3, 0}, {4, 5, 0}, {6, 7, 0}, {0, 2, 1}, {1, 3, 1},
-                                       {4, 6, 1}, {5, 7, 1}, {0, 4, 2}, {1, 5, 2}, {2, 6, 2}, {3, 7, 2}};
 
 // Index in kVoxelEdges of the edge along `axis` starting at corner c0 (c0 has bit `axis` clear).
 constexpr std::array<std::array<int8_t, 8>, 3> make_edge_index() {
@@ -254,10 +248,7 @@ uint32_t ensure_vertex(CutSurface& s, uint64_t key, bool& created) {
   uint32_t slot = s.vertex_of_patch.get(key);
   created = slot == kDeadIndex;
   if (!created) return slot;
-  if (!s.free_vertices.empty()) {
-    slot = s.free_vertices.back();
-    s.free_vertices.pop_back();
-  } else {
+  if (!take_free_slot(s.free_vertices, slot)) {
     slot = uint32_t(s.positions.size());
     s.positions.emplace_back(Vec3f::Zero());
     s.vertex_piece.push_back(CutSurface::kFreeKey);
@@ -318,10 +309,7 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, i
                 std::vector<uint32_t>* corners) {
   uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) {
-    if (!s.free_quads.empty()) {
-      quad = s.free_quads.back();
-      s.free_quads.pop_back();
-    } else {
+    if (!take_free_slot(s.free_quads, quad)) {
       quad = uint32_t(s.quad_half_edge.size());
       s.quad_half_edge.push_back(CutSurface::kFreeKey);
       s.triangles.resize(s.triangles.size() + 2);

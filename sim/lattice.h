@@ -14,6 +14,15 @@
 
 namespace dvx {
 
+// The 12 edges of a voxel (or of a simulation voxel's hexahedron): its two corners (corner c = dx |
+// dy << 1 | dz << 2) and its axis; x edges 0-3, y edges 4-7, z edges 8-11. The one edge table of the
+// cutter and the simulation pieces.
+struct VoxelEdge {
+  uint8_t c0, c1, axis;
+};
+constexpr VoxelEdge kVoxelEdges[12] = {{0, 1, 0}, {2, 3, 0}, {4, 5, 0}, {6, 7, 0}, {0, 2, 1}, {1, 3, 1},
+                                       {4, 6, 1}, {5, 7, 1}, {0, 4, 2}, {1, 5, 2}, {2, 6, 2}, {3, 7, 2}};
+
 struct Lattice {
   Vec3d origin = Vec3d::Zero();  // position of node (0,0,0)
   double voxel_size = 1.0;       // edge length of the cubic voxels

@@ -1,5 +1,7 @@
 #include "sim/pbd.h"
+#include "sim/id_pool.h"
 
+#include "sim/pbd_internal.h"
 #include "sim/pbd_kernels.h"
 #include "sim/union_find.h"
 
@@ -10,13 +12,12 @@
 #include <limits>
 
 namespace dvx {
+using namespace pbd_internal;
 namespace {
 
 constexpr uint8_t kMaxSimPieces = 250;  // labels are uint8; more components than this merge into the last
 constexpr uint32_t kLabelSlots = 256;   // piece slots per divided simulation voxel
 
-constexpr int kCubeEdges[12][2] = {{0, 1}, {2, 3}, {4, 5}, {6, 7}, {0, 2}, {1, 3},
-                                   {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}};
 
 // ---- Fine lattice access -------------------------------------------------------------------
 
@@ -28,9 +29,6 @@ bool fine_inside(const VoxelModel& model, int32_t i, int32_t j, int32_t k) {
 
 // ---- Simulation grid -----------------------------------------------------------------------
 
-uint32_t sim_voxel_id(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
-  return uint32_t(I) + uint32_t(s.sx) * (uint32_t(J) + uint32_t(s.sy) * uint32_t(K));
-}
 
 void sim_voxel_coords(const PbdModel& s, uint32_t v, int32_t c[3]) {
   c[0] = int32_t(v % uint32_t(s.sx));
@@ -55,7 +53,6 @@ Vec3d corner_rest(const PbdModel& s, int32_t I, int32_t J, int32_t K) {
   return s.origin + s.sim_size * Vec3d(I, J, K);
 }
 
-bool has_pieces(const PbdModel& s, uint32_t sv) { return s.pieces_in_voxel[sv] != 0; }
 
 // Label of a fine node given by its block index in simulation voxel sv (kNoPiece: no material).
 uint8_t label_at(const VoxelModel& model, const PbdModel& s, uint32_t sv, const int32_t svc[3], uint32_t b,
@@ -74,12 +71,6 @@ uint8_t node_label(const VoxelModel& model, const PbdModel& s, uint32_t sv, cons
   return label_at(model, s, sv, svc, b, i, j, k);
 }
 
-uint32_t slot_of_label(const PbdModel& s, uint32_t sv, uint8_t label) {
-  if (label == kNoPiece || label >= s.pieces_in_voxel[sv]) return kDeadIndex;
-  const uint32_t d = s.voxel_divided[sv];
-  if (d == kDeadIndex) return label == 0 ? s.voxel_piece[sv] : kDeadIndex;
-  return s.label_slots[s.divided[d].first_slot + label];
-}
 
 // ---- Labelling -----------------------------------------------------------------------------
 
@@ -180,10 +171,7 @@ void label_eighths(const VoxelModel& model, const PbdModel& s, uint32_t sv, cons
 // Arguments by value: they may point into the arrays this grows.
 uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const Vec3d velocity) {
   uint32_t p;
-  if (!s.free_particles.empty()) {
-    p = s.free_particles.back();
-    s.free_particles.pop_back();
-  } else {
+  if (!take_free_slot(s.free_particles, p)) {
     p = uint32_t(s.rest.size());
     s.position.emplace_back();
     s.velocity.emplace_back();
@@ -213,10 +201,7 @@ uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const
 
 uint32_t new_piece(PbdState& s, uint32_t sv, uint8_t label) {
   uint32_t slot;
-  if (!s.free_pieces.empty()) {
-    slot = s.free_pieces.back();
-    s.free_pieces.pop_back();
-  } else {
+  if (!take_free_slot(s.free_pieces, slot)) {
     slot = uint32_t(s.pieces.size());
     s.pieces.emplace_back();
     s.rotation.push_back(Eigen::Quaterniond::Identity());
@@ -258,10 +243,7 @@ void add_stretch(PbdState& s, uint32_t a, uint32_t b) {
     return;
   }
   uint32_t handle;
-  if (!s.free_stretch_handles.empty()) {
-    handle = s.free_stretch_handles.back();
-    s.free_stretch_handles.pop_back();
-  } else {
+  if (!take_free_slot(s.free_stretch_handles, handle)) {
     handle = uint32_t(s.stretch_handles.size());
     s.stretch_handles.emplace_back();
   }
@@ -306,7 +288,7 @@ void attach_piece(PbdState& s, uint32_t slot) {
     ++s.refs[p];
     s.mass_eighths[p] += piece.eighths;
   }
-  for (const auto& e : kCubeEdges) add_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
+  for (const VoxelEdge& e : kVoxelEdges) add_stretch(s, piece.particles[e.c0], piece.particles[e.c1]);
   piece.colour = take_colour(s.shape_busy.data(), piece.particles, 8);
   piece.colour_slot = uint32_t(s.piece_groups[piece.colour].size());
   s.piece_groups[piece.colour].push_back(slot);
@@ -320,7 +302,7 @@ void detach_piece(PbdState& s, uint32_t slot) {
     s.mass_eighths[p] -= piece.eighths;
   }
   release_colour(s.shape_busy.data(), piece.particles, 8, piece.colour);
-  for (const auto& e : kCubeEdges) remove_stretch(s, piece.particles[e[0]], piece.particles[e[1]]);
+  for (const VoxelEdge& e : kVoxelEdges) remove_stretch(s, piece.particles[e.c0], piece.particles[e.c1]);
   std::vector<uint32_t>& group = s.piece_groups[piece.colour];
   const uint32_t last = uint32_t(group.size() - 1);
   if (piece.colour_slot != last) {
@@ -332,10 +314,6 @@ void detach_piece(PbdState& s, uint32_t slot) {
 }
 
 // Runs f(slot) for each piece of simulation voxel sv.
-template <typename F>
-void for_pieces(const PbdModel& s, uint32_t sv, F&& f) {
-  for (uint8_t p = 0; p < s.pieces_in_voxel[sv]; ++p) f(slot_of_label(s, sv, p));
-}
 
 // ---- Corner particles ----------------------------------------------------------------------
 
@@ -845,9 +823,9 @@ constexpr std::array<bool, 256> make_edge_connected() {
     int seen = bits & -bits;
     for (bool grew = true; grew;) {
       grew = false;
-      for (const auto& e : kCubeEdges) {
+      for (const VoxelEdge& e : kVoxelEdges) {
         for (int k = 0; k < 2; ++k) {
-          const int a = e[k], b = e[1 - k];
+          const int a = k == 0 ? e.c0 : e.c1, b = k == 0 ? e.c1 : e.c0;
           if (((seen >> a) & 1) && ((bits >> b) & 1) && !((seen >> b) & 1)) {
             seen |= 1 << b;
             grew = true;
@@ -946,7 +924,7 @@ void note_cut_voxel(const VoxelModel& model, PbdModel& s, const DividedVoxel& dv
   rows[uint32_t(y + r * z)] |= uint64_t(1) << x;
   for (int e = 0; e < 12; ++e) {
     if (!((dv.cut_edges >> e) & 1u)) continue;
-    const int c0 = kCubeEdges[e][0], axis = e / 4;  // kCubeEdges: x edges 0-3, y 4-7, z 8-11 (cut.h's order)
+    const int c0 = kVoxelEdges[e].c0, axis = kVoxelEdges[e].axis;
     const int32_t row = (y + ((c0 >> 1) & 1)) + n * (z + ((c0 >> 2) & 1));
     rows[uint32_t(r * r + axis * n * n + row)] |= uint64_t(1) << (x + (c0 & 1));
   }
@@ -1276,14 +1254,6 @@ void embed_vertex(const VoxelModel& model, const CutState& cut, PbdState& s, uin
   }
 }
 
-// The piece slot an embedding names (kDeadIndex: none).
-uint32_t embedded_piece(const PbdModel& s, const VertexEmbedding& e) {
-  if (e.sim_voxel == kDeadIndex || !has_pieces(s, e.sim_voxel)) return kDeadIndex;
-  const uint32_t d = s.voxel_divided[e.sim_voxel];
-  if (d == kDeadIndex) return s.voxel_piece[e.sim_voxel];
-  const uint8_t label = s.labels[s.divided[d].first_label + e.node];
-  return label == kNoPiece ? kDeadIndex : s.label_slots[s.divided[d].first_slot + label];
-}
 
 // Grows the embedding with the surface's vertex slots. Capacity follows the surface's own (it keeps
 // headroom for cuts): growing past a capacity copies every slot, a p99 spike of the cut step.
@@ -1317,11 +1287,6 @@ void corner_coords(const PbdModel& s, uint64_t id, int32_t& I, int32_t& J, int32
   K = int32_t(id / (uint64_t(s.sx + 1) * uint64_t(s.sy + 1)));
 }
 
-template <typename T>
-void sorted_unique(std::vector<T>& v) {
-  std::sort(v.begin(), v.end());
-  v.erase(std::unique(v.begin(), v.end()), v.end());
-}
 
 // ---- Edits (PbdModel::edits) --------------------------------------------------------------
 
@@ -1337,40 +1302,8 @@ void reserve_edits(PbdEdits& e) {
   e.particles.reserve(2 * kEditEntries);
 }
 
-// The state (revision, cut steps) after record number n (n == edits.first: the base).
-void edit_state(const PbdEdits& e, uint64_t n, uint64_t& revision, uint64_t& cut_steps) {
-  if (n == e.first) {
-    revision = e.base_revision;
-    cut_steps = e.base_cut_steps;
-  } else {
-    revision = e.records[n - e.first - 1].revision;
-    cut_steps = e.records[n - e.first - 1].cut_steps;
-  }
-}
 
-// Whether a cache built at (revision, cut_steps) that has seen `seen` records can replay the rest to
-// be current: the records it missed are kept, it matches the state after the last it saw, and
-// nothing changed the model (or, with `surface`, the cut) since the last record.
-bool edits_replayable(const PbdState& s, const CutState& cut, uint64_t seen, uint64_t revision, uint64_t cut_steps,
-                      bool surface) {
-  const PbdEdits& e = s.edits;
-  if (seen < e.first || seen > e.count()) return false;
-  uint64_t r, c, now_r, now_c;
-  edit_state(e, seen, r, c);
-  edit_state(e, e.count(), now_r, now_c);
-  if (r != revision || now_r != s.revision) return false;
-  return !surface || (c == cut_steps && now_c == cut.steps);
-}
 
-// Offsets into the edit lists where the records after `seen` begin.
-struct EditRange {
-  uint32_t slots = 0, voxels = 0, particles = 0;
-};
-EditRange edits_after(const PbdEdits& e, uint64_t seen) {
-  if (seen == e.first) return {};
-  const PbdEdits::Record& r = e.records[seen - e.first - 1];
-  return {r.slots_end, r.voxels_end, r.particles_end};
-}
 
 // Drops the first n records.
 void drop_edits(PbdEdits& e, uint64_t n) {
@@ -1413,666 +1346,6 @@ void record_edits(const CutState& cut, PbdState& s, const std::vector<uint32_t>&
   }
   e.records.push_back({s.revision, cut.steps, uint32_t(e.slots.size()), uint32_t(e.voxels.size()),
                        uint32_t(e.particles.size())});
-}
-
-// ---- Contact hook (sim/contact.h) ----------------------------------------------------------
-
-// The corner positions of a piece (corner c = dx | dy<<1 | dz<<2), read once for all its points.
-void piece_corner_positions(const PbdState& s, uint32_t piece, Vec3d corners[8]) {
-  for (int c = 0; c < 8; ++c) corners[c] = s.position[s.pieces[piece].particles[c]];
-}
-
-// The deformed position of a surface point at rest coordinates `local` in its piece (corner
-// positions `corners`), and its trilinear weights: weights[c] = (f_x f_y) f_z, f_a = u_a or 1 - u_a
-// by the corner's side (each f_x f_y formed once).
-void slot_point(const Vec3d corners[8], const Vec3f& local, Vec3d& point, double weights[8]) {
-  const double u = local.x(), v = local.y(), w = local.z();
-  const double fu[2] = {1.0 - u, u}, fv[2] = {1.0 - v, v}, fw[2] = {1.0 - w, w};
-  double fuv[4];
-  for (int c = 0; c < 4; ++c) fuv[c] = fu[c & 1] * fv[c >> 1];
-  Vec3d sum = Vec3d::Zero();  // not summed in `point`, which may alias the corners for the compiler
-  for (int c = 0; c < 8; ++c) {
-    weights[c] = fuv[c & 3] * fw[c >> 2];
-    sum += weights[c] * corners[c];
-  }
-  point = sum;
-}
-
-// The slots of each piece from scratch (counting sort: ascending within a piece).
-void build_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
-  ContactIndex& x = s.piece_contacts.index;
-  x.slot_piece.resize(slots);
-  x.piece_begin.assign(pieces + 1, 0);
-  for (uint32_t slot = 0; slot < slots; ++slot) {
-    const uint32_t piece = embedded_piece(s, s.embedding[slot]);
-    x.slot_piece[slot] = piece;
-    if (piece != kDeadIndex) ++x.piece_begin[piece + 1];
-  }
-  for (uint32_t i = 0; i < pieces; ++i) x.piece_begin[i + 1] += x.piece_begin[i];
-  x.piece_slots.resize(x.piece_begin[pieces]);
-  x.scratch.assign(x.piece_begin.begin(), x.piece_begin.end() - 1);
-  for (uint32_t slot = 0; slot < slots; ++slot) {
-    if (x.slot_piece[slot] != kDeadIndex) x.piece_slots[x.scratch[x.slot_piece[slot]]++] = slot;
-  }
-}
-
-// The slots whose piece the recorded cuts may have changed: the re-embedded ones, the new ones, and
-// those of the relabelled voxels' pieces -- before (a vertex keeps its node, whose label may now name
-// another piece slot) and after. Their pieces before are the current pieces of the voxels relabelled
-// since (a piece slot is made only by a relabel) and the slots freed since.
-void collect_revisited(const PbdState& s, uint32_t slots, ContactIndex& x) {
-  const PbdEdits& e = s.edits;
-  const EditRange from = edits_after(e, x.edits);
-  std::vector<uint32_t>& out = x.revisited;
-  out.clear();
-  out.insert(out.end(), e.slots.begin() + from.slots, e.slots.end());
-  for (uint32_t slot = x.slots; slot < slots; ++slot) out.push_back(slot);
-  const auto add_piece = [&](uint32_t piece) {
-    if (piece < x.pieces) out.insert(out.end(), x.piece_slots.begin() + x.piece_begin[piece], x.piece_slots.begin() + x.piece_begin[piece + 1]);
-  };
-  for (size_t v = from.voxels; v < e.voxels.size(); ++v) {
-    const uint32_t sv = e.voxels[v];
-    if (v > from.voxels && e.voxels[v - 1] == sv) continue;
-    for_pieces(s, sv, add_piece);
-  }
-  if (from.voxels != e.voxels.size()) {
-    for (uint32_t i = 0; i < x.pieces; ++i) {
-      if (s.pieces[i].sim_voxel == kDeadIndex) add_piece(i);
-    }
-  }
-  sorted_unique(out);
-}
-
-// Brings the slots of each piece up to date from the recorded cuts: looks up the revisited slots'
-// pieces, then copies the piece lists that did not change and merges the others (the same arrays a
-// build from scratch makes).
-void update_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
-  ContactIndex& x = s.piece_contacts.index;
-  collect_revisited(s, slots, x);
-  x.slot_piece.resize(slots, kDeadIndex);
-  x.arrivals.clear();
-  x.changed.clear();
-  x.flipped.clear();
-  x.scratch.assign(pieces, 0);  // new count minus old count, wrapping
-  for (uint32_t slot : x.revisited) {
-    const uint32_t now = embedded_piece(s, s.embedding[slot]), was = x.slot_piece[slot];
-    if (now == was) continue;
-    if ((now == kDeadIndex) != (was == kDeadIndex)) x.flipped.push_back(slot);
-    x.slot_piece[slot] = now;
-    if (was != kDeadIndex) {
-      --x.scratch[was];
-      x.changed.push_back(was);
-    }
-    if (now != kDeadIndex) {
-      ++x.scratch[now];
-      x.changed.push_back(now);
-      x.arrivals.push_back(uint64_t(now) << 32 | slot);
-    }
-  }
-  sorted_unique(x.changed);
-  std::sort(x.arrivals.begin(), x.arrivals.end());
-  // New offsets.
-  const auto old_count = [&](uint32_t i) { return i < x.pieces ? x.piece_begin[i + 1] - x.piece_begin[i] : 0u; };
-  x.next_begin.resize(pieces + 1);
-  x.next_begin[0] = 0;
-  for (uint32_t i = 0; i < pieces; ++i) x.next_begin[i + 1] = x.next_begin[i] + old_count(i) + x.scratch[i];
-  x.next_slots.resize(x.next_begin[pieces]);
-  // Unchanged pieces between changed ones: one copy per run; changed ones: old slots still there
-  // merged with the arrivals (both ascending).
-  uint32_t next = 0;  // first piece not yet written
-  size_t a = 0;
-  const auto copy_run = [&](uint32_t end) {
-    const uint32_t stop = std::min(end, x.pieces);
-    if (next < stop) {
-      std::copy(x.piece_slots.begin() + x.piece_begin[next], x.piece_slots.begin() + x.piece_begin[stop],
-                x.next_slots.begin() + x.next_begin[next]);
-    }
-  };
-  for (uint32_t i : x.changed) {
-    copy_run(i);
-    uint32_t* out = x.next_slots.data() + x.next_begin[i];
-    const uint32_t* old = i < x.pieces ? x.piece_slots.data() + x.piece_begin[i] : nullptr;
-    const uint32_t* old_end = old ? x.piece_slots.data() + x.piece_begin[i + 1] : nullptr;
-    while (a < x.arrivals.size() && uint32_t(x.arrivals[a] >> 32) == i) {
-      const uint32_t slot = uint32_t(x.arrivals[a]);
-      for (; old != old_end && *old < slot; ++old) {
-        if (x.slot_piece[*old] == i) *out++ = *old;
-      }
-      *out++ = slot;
-      ++a;
-    }
-    for (; old != old_end; ++old) {
-      if (x.slot_piece[*old] == i) *out++ = *old;
-    }
-    next = i + 1;
-  }
-  copy_run(pieces);
-  x.piece_begin.swap(x.next_begin);
-  x.piece_slots.swap(x.next_slots);
-}
-
-// Brings the slots of each piece (ContactIndex: slot_piece, piece_begin, piece_slots) up to date
-// with the model and the surface: from the recorded cuts when it can, else from scratch.
-void refresh_slots(const CutState& cut, PbdState& s) {
-  ContactIndex& x = s.piece_contacts.index;
-  const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
-  const uint32_t pieces = uint32_t(s.pieces.size());
-  if (x.revision == s.revision && x.cut_steps == cut.steps && x.slots == slots && x.pieces == pieces &&
-      x.triangle_count == cut.surface.triangles.size()) {
-    x.edits = s.edits.count();  // records without a change (a cut step that cut nothing)
-    return;
-  }
-  x.rebuilt = !(edits_replayable(s, cut, x.edits, x.revision, x.cut_steps, true) && slots >= x.slots && pieces >= x.pieces);
-  if (x.rebuilt) {
-    x.revisited.clear();
-    build_slots(s, slots, pieces);
-  } else {
-    update_slots(s, slots, pieces);
-  }
-  x.revisited_since = x.cut_steps;
-  x.revision = s.revision;
-  x.cut_steps = cut.steps;
-  x.edits = s.edits.count();
-  x.slots = slots;
-  x.pieces = pieces;
-  x.triangle_count = uint32_t(cut.surface.triangles.size());
-  ++x.updates;
-}
-
-void refresh_reps(const CutState& cut, PbdState& s);
-
-// Brings the contact index (sim/contact.h) up to date when a cut changed the model or the surface:
-// the piece of each vertex slot and the slots of each piece (refresh_slots), which pieces can move,
-// the bodies (O(pieces), from scratch).
-void refresh_index(const CutState& cut, PbdState& s) {
-  refresh_slots(cut, s);
-  refresh_reps(cut, s);
-  ContactIndex& x = s.piece_contacts.index;
-  PieceContacts& pc = s.piece_contacts;
-  if (x.bodies_updates == x.updates) return;
-  x.bodies_updates = x.updates;
-  const uint32_t pieces = x.pieces, particles = uint32_t(s.position.size());
-  // Live pieces, their corners, whether they can move (a piece pinned at every corner cannot be pushed).
-  pc.corners.resize(size_t(pieces) * 8);
-  pc.live.assign(pieces, 0);
-  x.mobile.assign(pieces, 0);
-  for (uint32_t i = 0; i < pieces; ++i) {
-    if (s.pieces[i].sim_voxel == kDeadIndex) continue;  // free slot
-    pc.live[i] = 1;
-    std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, pc.corners.begin() + 8 * size_t(i));
-    for (uint32_t p : s.pieces[i].particles) x.mobile[i] = x.mobile[i] || s.inv_mass[p] > 0.0;
-  }
-  // Bodies (only piece-piece contact needs them), numbered in order of their first piece.
-  x.bodies = 0;
-  x.body_index.assign(pieces, ~0u);
-  if (!s.params.piece_contact) return;
-  find_bodies(pc.corners.data(), pc.live.data(), pieces, particles, pc.body, pc.scratch);
-  x.scratch.assign(particles, ~0u);
-  for (uint32_t i = 0; i < pieces; ++i) {
-    if (!pc.live[i]) continue;
-    uint32_t& number = x.scratch[pc.body[i]];
-    if (number == ~0u) number = x.bodies++;
-    x.body_index[i] = number;
-  }
-}
-
-// Whether the three corners of a live triangle are embedded (slots the index knows, in a piece):
-// only such triangles give the contact points' rest normals.
-bool embedded_triangle(const ContactIndex& x, const Tri& tri) {
-  for (uint32_t v : tri) {
-    if (v >= x.slots || x.slot_piece[v] == kDeadIndex) return false;
-  }
-  return true;
-}
-
-// The index's triangles under each piece: the live triangles whose three corners are embedded,
-// listed under each distinct piece of their corners, ascending. One sequential pass over the whole
-// surface, built when piece_reps has many pieces to build at once (after a sever, or a rebuild):
-// there it is cheaper than finding each piece's quads through the half-edge map, whose lookups
-// miss the cache (bunny at 256: the sever step's PBD 25-28 ms with it, 47-50 ms without).
-void index_triangles(const CutState& cut, PbdState& s) {
-  ContactIndex& x = s.piece_contacts.index;
-  if (x.triangles_ready) return;
-  x.triangles_ready = true;
-  const CutSurface& surface = cut.surface;
-  const uint32_t triangles = uint32_t(surface.triangles.size());
-  // Calls f(t, piece) for each distinct piece of each such triangle.
-  const auto for_pieces_of = [&](auto&& f) {
-    for (uint32_t t = 0; t < triangles; ++t) {
-      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
-      const Tri& tri = surface.triangles[t];
-      if (!embedded_triangle(x, tri)) continue;
-      const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
-      f(t, p0);
-      if (p1 != p0) f(t, p1);
-      if (p2 != p0 && p2 != p1) f(t, p2);
-    }
-  };
-  x.triangle_begin.assign(x.pieces + 1, 0);
-  for_pieces_of([&](uint32_t, uint32_t piece) { ++x.triangle_begin[piece + 1]; });
-  for (uint32_t i = 0; i < x.pieces; ++i) x.triangle_begin[i + 1] += x.triangle_begin[i];
-  x.piece_triangles.resize(x.triangle_begin[x.pieces]);
-  x.scratch.assign(x.triangle_begin.begin(), x.triangle_begin.end() - 1);
-  for_pieces_of([&](uint32_t t, uint32_t piece) { x.piece_triangles[x.scratch[piece]++] = t; });
-}
-
-// How far each live piece may move in this step: (its fastest corner's speed + g dt) dt (what bounds
-// its contact reach: a piece's own, so a falling piece does not widen everyone's).
-void piece_motions(PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
-  const double dt = s.params.dt, fall = s.params.gravity.norm() * dt;
-  pc.motion.assign(s.pieces.size(), 0.0);
-  for (uint32_t i = 0; i < s.pieces.size(); ++i) {
-    if (s.pieces[i].sim_voxel == kDeadIndex) continue;
-    double speed2 = 0.0;
-    for (uint32_t p : s.pieces[i].particles) {
-      if (s.inv_mass[p] > 0.0) speed2 = std::max(speed2, s.velocity[p].squaredNorm());
-    }
-    pc.motion[i] = (std::sqrt(speed2) + fall) * dt;
-  }
-}
-
-// piece_reps builds the triangle index once the slots it built since the last cut exceed the
-// surface's triangles / kRepSlotsPerIndex (a slot's ~5 half-edge lookups, mostly cache misses,
-// against the index's sequential pass over every triangle).
-constexpr uint32_t kRepSlotsPerIndex = 128;
-
-// A new stamp for `marks` (an entry equal to it was marked since): 1, 2, ... and all entries reset
-// when the count wraps.
-uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
-  if (++stamp == 0) {
-    std::fill(marks.begin(), marks.end(), 0u);
-    stamp = 1;
-  }
-  return stamp;
-}
-
-// Marks stale the contact points of the pieces whose points a cut may have changed, after the
-// contact index's update (refresh_slots): a piece's points follow from its slots, their rest
-// positions and the live triangles around them whose corners are embedded, so after one index
-// update and one change of the surface (CutState::touched_vertices) since the last call, only the
-// pieces whose slots changed and the pieces of the simulation voxels around the vertices the cut
-// moved or re-triangulated and the slots that became embedded or stopped being so (a triangle
-// around a vertex has its corners in the fine voxels next to the vertex's) are rebuilt, on their
-// next need; otherwise all are. The points of the others stay where they are in `reps`, which is
-// compacted when mostly stale.
-void refresh_reps(const CutState& cut, PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
-  const ContactIndex& x = pc.index;
-  if (pc.rep_updates == x.updates && pc.rep_surface_changes == cut.surface_changes) return;
-  const bool index_changed = pc.rep_updates != x.updates;
-  const bool incremental = pc.rep_updates != ~uint64_t(0) && (!index_changed || (pc.rep_updates + 1 == x.updates && !x.rebuilt)) &&
-                           cut.surface_changes - pc.rep_surface_changes <= 1 && pc.rep_begin.size() <= x.pieces;
-  pc.rep_updates = x.updates;
-  pc.index.triangles_ready = false;  // the surface or the pieces changed
-  pc.rep_slots_built = 0;
-  const bool surface_changed = pc.rep_surface_changes != cut.surface_changes;
-  pc.rep_surface_changes = cut.surface_changes;
-  if (!incremental) {
-    pc.rep_begin.assign(x.pieces, ~0u);
-    pc.rep_count.assign(x.pieces, 0);
-    pc.reps.clear();
-    return;
-  }
-  pc.rep_begin.resize(x.pieces, ~0u);
-  pc.rep_count.resize(x.pieces, 0);
-  const auto stale = [&](uint32_t piece) {
-    if (piece < x.pieces) pc.rep_begin[piece] = ~0u;
-  };
-  if (index_changed) {
-    for (uint32_t piece : x.changed) stale(piece);
-  }
-  // The simulation voxels within one fine voxel of a vertex (the vertex's own, and across the faces
-  // it is next to), consecutive repeats left out.
-  std::vector<uint32_t>& near = pc.rep_voxels;
-  near.clear();
-  const Lattice& l = cut.lattice;
-  const CutSurface& surface = cut.surface;
-  const int32_t dims[3] = {l.nx, l.ny, l.nz};
-  if (pc.slot_marks.size() < surface.vertex_patch.size()) pc.slot_marks.resize(surface.vertex_patch.size(), 0u);
-  const uint32_t stamp = next_stamp(pc.slot_marks, pc.slot_stamp);
-  const auto around = [&](uint32_t slot) {
-    if (slot >= surface.vertex_patch.size() || surface.vertex_patch[slot] == CutSurface::kFreeKey) return;
-    if (pc.slot_marks[slot] == stamp) return;  // a repeat (the lists name a vertex once per quad)
-    pc.slot_marks[slot] = stamp;
-    int32_t vc[3], lo[3], hi[3];
-    l.voxel_coords(uint32_t(surface.vertex_patch[slot] / 16), vc);
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::max(0, vc[a] - 1) / s.ratio;
-      hi[a] = std::min(dims[a] - 1, vc[a] + 1) / s.ratio;
-    }
-    for (int32_t k = lo[2]; k <= hi[2]; ++k) {
-      for (int32_t j = lo[1]; j <= hi[1]; ++j) {
-        for (int32_t i = lo[0]; i <= hi[0]; ++i) {
-          const uint32_t sv = sim_voxel_id(s, i, j, k);
-          if (near.empty() || near.back() != sv) near.push_back(sv);
-        }
-      }
-    }
-  };
-  // Slots that became embedded or stopped being so change their neighbours' normals; those that
-  // moved or were re-triangulated, theirs and their neighbours'.
-  if (index_changed) {
-    for (uint32_t slot : x.flipped) around(slot);
-  }
-  if (surface_changed) {
-    for (uint32_t slot : cut.touched_vertices) around(slot);
-  }
-  sorted_unique(near);
-  for (uint32_t sv : near) for_pieces(s, sv, stale);
-  // Compaction: the live pieces' points to the front, in piece order.
-  size_t live = 0;
-  for (uint32_t i = 0; i < x.pieces; ++i) live += pc.rep_begin[i] != ~0u ? pc.rep_count[i] : 0;
-  if (pc.reps.size() > 2 * live + 4096) {
-    std::vector<ContactRep>& kept = pc.rep_kept;
-    kept.clear();
-    for (uint32_t i = 0; i < x.pieces; ++i) {
-      if (pc.rep_begin[i] == ~0u) continue;
-      const uint32_t begin = uint32_t(kept.size());
-      kept.insert(kept.end(), pc.reps.begin() + pc.rep_begin[i], pc.reps.begin() + pc.rep_begin[i] + pc.rep_count[i]);
-      pc.rep_begin[i] = begin;
-    }
-    pc.reps.swap(kept);
-  }
-}
-
-// The contact points of piece `piece` (sim/contact.h "Contact points"): of its surface vertex slots,
-// in each cell of a grid of contact_cells(ratio)^3 cells over its simulation voxel (in its rest frame)
-// and each of six normal directions (the dominant axis of the rest normal and its sign), the slot
-// nearest the cell's centre (ties: the lowest). Built on the piece's first need after a cut changed
-// it (refresh_reps), so the choice never flickers between steps.
-std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState& s, uint32_t piece) {
-  PieceContacts& pc = s.piece_contacts;
-  const ContactIndex& x = pc.index;
-  if (pc.rep_begin[piece] != ~0u) return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
-  // Rest normals of the piece's slots: area-weighted sums over the live triangles holding each
-  // whose three corners are embedded, in ascending triangle order (the same bits either way): the
-  // triangles of the quads around the piece's slots (vertex_quads, each quad once) when few slots
-  // are to be built since the last cut, else the index's triangles under the piece.
-  const CutSurface& surface = cut.surface;
-  const uint32_t first = x.piece_begin[piece], count = x.piece_begin[piece + 1] - first;
-  pc.rep_slots_built += count;
-  if (!x.triangles_ready && pc.rep_slots_built > x.triangle_count / kRepSlotsPerIndex) index_triangles(cut, s);
-  std::vector<Vec3d>& normal = pc.rep_normal;
-  normal.assign(count, Vec3d::Zero());
-  if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
-  for (uint32_t n = 0; n < count; ++n) pc.rep_scratch[x.piece_slots[first + n]] = n;
-  const auto add_triangle = [&](uint32_t t) {
-    const Tri& tri = surface.triangles[t];
-    if (!embedded_triangle(x, tri)) return;
-    const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
-                c = surface.positions[tri[2]].cast<double>();
-    const Vec3d area = (b - a).cross(c - a);
-    for (int k = 0; k < 3; ++k) {
-      if (x.slot_piece[tri[k]] == piece) normal[pc.rep_scratch[tri[k]]] += area;
-    }
-  };
-  if (x.triangles_ready) {
-    for (uint32_t n = x.triangle_begin[piece]; n < x.triangle_begin[piece + 1]; ++n) add_triangle(x.piece_triangles[n]);
-  } else {
-    std::vector<uint32_t>& quads = pc.rep_quads;
-    quads.clear();
-    if (pc.quad_marks.size() < surface.quad_half_edge.size()) pc.quad_marks.resize(surface.quad_half_edge.size(), 0u);
-    const uint32_t stamp = next_stamp(pc.quad_marks, pc.quad_stamp);
-    for (uint32_t n = 0; n < count; ++n) {
-      uint32_t around[kMaxVertexQuads];
-      const uint32_t found = vertex_quads(cut, x.piece_slots[first + n], around);
-      for (uint32_t q = 0; q < found; ++q) {
-        if (pc.quad_marks[around[q]] == stamp) continue;  // a quad joins up to four of the slots
-        pc.quad_marks[around[q]] = stamp;
-        quads.push_back(around[q]);
-      }
-    }
-    std::sort(quads.begin(), quads.end());
-    for (const uint32_t quad : quads) {
-      add_triangle(2 * quad);
-      add_triangle(2 * quad + 1);
-    }
-  }
-  // The best slot of each (cell, direction): kContactCells^3 x 6 entries at most.
-  const int cells = contact_cells(s.ratio);
-  constexpr int kEntries = kContactCells * kContactCells * kContactCells * 6;
-  uint32_t best[kEntries];
-  double best_d[kEntries];
-  uint16_t used[kEntries];  // the entries taken, in order of first use
-  uint32_t used_count = 0;
-  std::fill(best, best + kEntries, ~0u);
-  for (uint32_t n = 0; n < count; ++n) {
-    const uint32_t slot = x.piece_slots[first + n];
-    pc.rep_scratch[slot] = ~0u;
-    const double length = normal[n].norm();
-    if (!(length > 0.0)) continue;  // on no live triangle: no normal
-    const Vec3f& local = s.embedding[slot].local;
-    int entry = 0;
-    double d = 0.0;
-    for (int a = 2; a >= 0; --a) {
-      const int c = std::max(0, std::min(cells - 1, int(std::floor(double(local[a]) * cells))));
-      entry = entry * cells + c;
-      const double off = double(local[a]) * cells - (c + 0.5);
-      d += off * off;
-    }
-    int axis = 0;
-    normal[n].cwiseAbs().maxCoeff(&axis);
-    entry = entry * 6 + 2 * axis + (normal[n][axis] < 0.0);
-    if (best[entry] == ~0u) used[used_count++] = uint16_t(entry);
-    if (best[entry] == ~0u || d < best_d[entry]) {  // slots ascending: ties keep the lowest
-      best[entry] = n;
-      best_d[entry] = d;
-    }
-  }
-  ++pc.counters.reps_built;
-  pc.rep_begin[piece] = uint32_t(pc.reps.size());
-  uint32_t chosen[kEntries];
-  for (uint32_t e = 0; e < used_count; ++e) chosen[e] = best[used[e]];
-  std::sort(chosen, chosen + used_count);  // by slot (ascending within the piece)
-  for (uint32_t e = 0; e < used_count; ++e) {
-    const Vec3d n = normal[chosen[e]].normalized();
-    pc.reps.push_back(ContactRep{x.piece_slots[first + chosen[e]], {float(n.x()), float(n.y()), float(n.z())}});
-  }
-  pc.rep_count[piece] = uint16_t(pc.reps.size() - pc.rep_begin[piece]);
-  return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
-}
-
-// The deformed normal of a contact point of a piece (corner positions `corners`): its rest normal
-// under the piece's trilinear map at the point (cofactor of the map's Jacobian J = [a b c]: (b x c,
-// c x a, a x b) n). Column a sums, over the corners in order, the corner times its weight's derivative
-// along axis a: the product of the other two factors (lower axis first), negated on the low side.
-Vec3d deformed_normal(const Vec3d corners[8], const Vec3f& local, const float rest[3]) {
-  const double u[3] = {local.x(), local.y(), local.z()};
-  const double f[3][2] = {{1.0 - u[0], u[0]}, {1.0 - u[1], u[1]}, {1.0 - u[2], u[2]}};
-  Vec3d column[3] = {Vec3d::Zero(), Vec3d::Zero(), Vec3d::Zero()};
-  for (int c = 0; c < 8; ++c) {
-    const int h0 = c & 1, h1 = (c >> 1) & 1, h2 = (c >> 2) & 1;
-    const double d0 = f[1][h1] * f[2][h2], d1 = f[0][h0] * f[2][h2], d2 = f[0][h0] * f[1][h1];
-    column[0] += (h0 ? d0 : -d0) * corners[c];
-    column[1] += (h1 ? d1 : -d1) * corners[c];
-    column[2] += (h2 ? d2 : -d2) * corners[c];
-  }
-  return column[1].cross(column[2]) * double(rest[0]) + column[2].cross(column[0]) * double(rest[1]) +
-         column[0].cross(column[1]) * double(rest[2]);
-}
-
-// Gathers this step's contact points: the surface vertices that may reach a plane within the step,
-// grouped by piece. A piece is skipped when even its lowest corner particle (every embedded point is a
-// convex combination of the corners) stays out of reach.
-void gather_plane_contacts(const CutState& cut, PbdState& s) {
-  ContactSet& set = s.contacts;
-  contacts_clear(set);
-  const std::vector<ContactPlane>& planes = s.params.planes;
-  if (planes.empty()) return;
-  const ContactIndex& x = s.piece_contacts.index;
-  const uint32_t plane_count = uint32_t(std::min<size_t>(planes.size(), 32));
-  for (uint32_t i = 0; i < x.pieces; ++i) {
-    if (!x.mobile[i]) continue;  // free slot, or pinned at every corner
-    const double reach = 2.0 * s.piece_contacts.motion[i] + 2.0 * s.sim_size / s.ratio;
-    uint32_t near = 0;           // bit k: may reach plane k
-    for (uint32_t k = 0; k < plane_count; ++k) {
-      double lowest = 1e300;
-      for (uint32_t p : s.pieces[i].particles) lowest = std::min(lowest, plane_distance(planes[k], s.position[p]));
-      if (lowest < reach) near |= 1u << k;
-    }
-    if (near == 0) continue;
-    const uint32_t* particles = s.pieces[i].particles;
-    const auto [reps, count] = piece_reps(cut, s, i);
-    Vec3d corners[8];
-    piece_corner_positions(s, i, corners);
-    for (uint32_t r = 0; r < count; ++r) {
-      double weights[8], mobility = 0.0;
-      Vec3d point;
-      slot_point(corners, s.embedding[reps[r].slot].local, point, weights);
-      for (int c = 0; c < 8; ++c) mobility += weights[c] * weights[c] * s.inv_mass[particles[c]];
-      if (mobility == 0.0) continue;  // interpolates anchored particles only
-      for (uint32_t k = 0; k < plane_count; ++k) {
-        if (((near >> k) & 1u) && plane_distance(planes[k], point) < reach) {
-          contacts_add(set, s.pieces[i].colour, i, plane_contact(planes[k], particles, weights));
-        }
-      }
-    }
-  }
-  contacts_finish(set);
-}
-
-// Marks the vertex slots a cut made or moved since the last step as fresh (allowance = infinity).
-// After one cut step only the slots it wrote (CutState::changed_vertices) can have moved; after none,
-// none; otherwise every slot is compared.
-void refresh_allowances(const CutState& cut, PieceContacts& pc) {
-  const size_t slots = cut.surface.positions.size();
-  const bool first = pc.seen.empty();
-  if (first) {  // the first step: the surface as built is not fresh
-    pc.seen = cut.surface.positions;
-    pc.allowance.assign(slots, 0.0f);
-  }
-  const size_t before = std::min(pc.seen.size(), slots);
-  pc.allowance.resize(slots, 0.0f);
-  pc.seen.resize(slots, Vec3f::Constant(std::numeric_limits<float>::quiet_NaN()));
-  const auto refresh = [&](size_t v) {
-    if (pc.seen[v] == cut.surface.positions[v]) return;  // NaN never compares equal: new and freed slots too
-    pc.seen[v] = cut.surface.positions[v];
-    pc.allowance[v] = std::numeric_limits<float>::infinity();
-  };
-  const ContactIndex& x = pc.index;
-  if (!first && cut.steps != pc.seen_steps && !x.rebuilt && x.cut_steps == cut.steps && x.revisited_since == pc.seen_steps) {
-    // The index's last update followed the cuts since: the slots it revisited hold every slot they
-    // re-embedded (one cut step may run several cut_divide calls, so CutState::steps moves by more
-    // than one).
-    for (uint32_t v : x.revisited) {
-      if (v < slots) refresh(v);
-    }
-    for (size_t v = before; v < slots; ++v) refresh(v);
-  } else if (!first && cut.steps == pc.seen_steps + 1) {
-    for (uint32_t v : cut.changed_vertices) {
-      if (v < slots) refresh(v);
-    }
-    for (size_t v = before; v < slots; ++v) refresh(v);
-  } else if (first || cut.steps != pc.seen_steps) {
-    for (size_t v = 0; v < slots; ++v) refresh(v);
-  } else {
-    for (size_t v = before; v < slots; ++v) refresh(v);
-  }
-  pc.seen_steps = cut.steps;
-}
-
-// The contact points of the exposed pieces within reach of a partner (by piece, then slot), with
-// their allowances and deformed normals.
-void gather_surface_points(const CutState& cut, PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
-  const ContactIndex& x = pc.index;
-  pc.points.clear();
-  pc.gathered.clear();
-  for (uint32_t i = 0; i < x.pieces; ++i) {
-    if (!pc.exposed[i]) continue;
-    const auto [reps, count] = piece_reps(cut, s, i);
-    partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, pc.region_lo, pc.region_hi);
-    Vec3d corners[8];
-    piece_corner_positions(s, i, corners);
-    for (uint32_t r = 0; r < count; ++r) {
-      const uint32_t slot = reps[r].slot;
-      const Vec3f& local = s.embedding[slot].local;
-      SurfacePoint sp;
-      sp.allowance = pc.allowance[slot];
-      sp.slot = slot;
-      slot_point(corners, local, sp.position, sp.weights);
-      if (!in_regions(pc.region_lo, pc.region_hi, sp.position)) {
-        pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
-        continue;
-      }
-      const Vec3d normal = deformed_normal(corners, local, reps[r].normal);
-      const double length = normal.norm();
-      pc.gathered.push_back(slot);
-      if (!(length > 0.0)) continue;  // a degenerate map: no normal (no allowance, see the caller)
-      sp.normal = normal / length;
-      std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, sp.particles);
-      sp.body = x.body_index[i];
-      sp.piece = i;
-      sp.reach = float(pc.reach[i]);
-      pc.points.push_back(sp);
-    }
-  }
-}
-
-// Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
-// vertices with deformed normals, the nearest facing vertex of another body.
-void collect_piece_contacts(const CutState& cut, PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
-  contacts_clear(pc.set);
-  pc.exposed_pieces = 0;
-  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
-  if (!s.params.piece_contact || pieces == 0) return;
-  refresh_allowances(cut, pc);  // every step, so a cut is fresh when its sides first touch
-  const ContactIndex& x = pc.index;
-  if (x.bodies < 2) return;  // one body: nothing to collide with
-  // Reach: two fine voxels (the two faces of a cut can sit a voxel apart at its rim) or a contact
-  // cell (the spacing of the contact points), whichever is larger, plus twice what the piece moves
-  // in a step; capped at a simulation voxel. A pair of pieces touches within the larger reach.
-  const double fine = s.sim_size / s.ratio;
-  const double base = std::max(2.0 * fine, s.sim_size / contact_cells(s.ratio));
-  pc.lo.resize(pieces);
-  pc.hi.resize(pieces);
-  pc.reach.assign(pieces, 0.0);
-  for (uint32_t i = 0; i < pieces; ++i) {
-    if (!pc.live[i]) continue;
-    pc.reach[i] = std::min(s.sim_size, base + 2.0 * pc.motion[i]);
-    pc.lo[i] = pc.hi[i] = s.position[s.pieces[i].particles[0]];
-    for (uint32_t p : s.pieces[i].particles) {
-      pc.lo[i] = pc.lo[i].cwiseMin(s.position[p]);
-      pc.hi[i] = pc.hi[i].cwiseMax(s.position[p]);
-    }
-  }
-  // Bodies near another body, then their pieces near another body's pieces.
-  if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.live.data(), x.body_index.data(), x.bodies,
-                            pieces, pc.scratch) == 0) {
-    return;
-  }
-  // Through the pair cache (sim/contact.h PairCache), kept while the pieces and bodies stay (the
-  // index's updates) and no candidate moves more than a margin of a quarter simulation voxel from
-  // where it was (a margin of a contact cell, half a simulation voxel at 8 fine voxels per simulation
-  // voxel, cost the default recording's broad phase 0.62 M instructions a step instead of 0.54).
-  pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
-                                                 0.25 * s.sim_size, x.updates, pc.exposed, pc.scratch,
-                                                 &pc.counters.piece_pairs);
-  if (pc.exposed_pieces == 0) return;
-  gather_surface_points(cut, s);
-  ++pc.counters.gathers;
-  pc.counters.points += pc.points.size();
-  pc.counters.contacts += gather_piece_contacts(pc.points.data(), uint32_t(pc.points.size()), s.position[0].data(), particles,
-                                                kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch,
-                                                &pc.counters.point_pairs);
-  contacts_finish(pc.set);
-  pc.counters.contact_pairs += pc.set.group_begin.size() - 1;
-  for (const uint32_t slot : pc.gathered) pc.allowance[slot] = 0.0f;  // dropped (no normal): no allowance
-  for (const SurfacePoint& sp : pc.points) pc.allowance[sp.slot] = sp.allowance;
-}
-
-// This step's contacts with the planes and between pieces, from one index and the pieces' motions.
-void gather_contacts(const CutState& cut, PbdState& s) {
-  contacts_clear(s.contacts);
-  contacts_clear(s.piece_contacts.set);
-  s.piece_contacts.exposed_pieces = 0;
-  if (s.params.planes.empty() && !s.params.piece_contact) return;
-  refresh_index(cut, s);
-  piece_motions(s);
-  gather_plane_contacts(cut, s);
-  collect_piece_contacts(cut, s);
 }
 
 // ---- Embedding rows ---------------------------------------------------------------------------
@@ -2957,9 +2230,9 @@ bool check_constraints(const PbdState& s, std::string& error) {
   FlatMap expected;
   for (const SimPiece& piece : s.pieces) {
     if (piece.sim_voxel == kDeadIndex) continue;
-    for (const auto& e : kCubeEdges) {
-      const uint64_t key = pair_key(std::min(piece.particles[e[0]], piece.particles[e[1]]),
-                                    std::max(piece.particles[e[0]], piece.particles[e[1]]));
+    for (const VoxelEdge& e : kVoxelEdges) {
+      const uint64_t key = pair_key(std::min(piece.particles[e.c0], piece.particles[e.c1]),
+                                    std::max(piece.particles[e.c0], piece.particles[e.c1]));
       expected.set(key, expected.get(key, 0) + 1);
     }
   }
