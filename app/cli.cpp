@@ -1,6 +1,7 @@
 #include "app/cli.h"
 
 #include "engine/errors.h"
+#include "engine/options.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
 #include "engine/resources.h"
@@ -431,6 +432,7 @@ int run_command(const CliCommand& c) {
 
 int run_cli(int argc, char** argv) {
   try {
+    read_env_options();  // a malformed DIVVOX_* switch exits 2 before any work (nothing is lost later)
     return run_command(parse_cli(argc, argv));
   } catch (...) {
     return exit_for_current_exception("divvox");

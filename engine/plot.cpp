@@ -1,4 +1,5 @@
 #include "engine/plot.h"
+#include "engine/options.h"
 
 #include <sys/utsname.h>
 #include <csignal>
@@ -463,8 +464,8 @@ std::string plot_script(const Plot& plot, const std::vector<std::string>& output
 
 // The gnuplot executable: $DIVVOX_GNUPLOT (a path or a name), else `gnuplot`, looked up on PATH.
 std::string find_gnuplot(std::string& error) {
-  const char* env = std::getenv("DIVVOX_GNUPLOT");
-  const std::string exe = env != nullptr && *env != '\0' ? env : "gnuplot";
+  const std::string configured = read_env_options().gnuplot;
+  const std::string exe = configured.empty() ? "gnuplot" : configured;
   if (exe.find('/') != std::string::npos) {
     if (access(exe.c_str(), X_OK) == 0) return exe;
     error = "DIVVOX_GNUPLOT=" + exe + " is not an executable";

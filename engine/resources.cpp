@@ -1,4 +1,5 @@
 #include "engine/resources.h"
+#include "engine/options.h"
 
 #include <sys/resource.h>
 #include <unistd.h>
@@ -44,8 +45,7 @@ std::string format_bytes(uint64_t bytes) {
 
 bool stderr_is_tty() {
   // DIVVOX_PROGRESS=1 asks for progress lines on a pipe too (logs, tests).
-  const char* forced = std::getenv("DIVVOX_PROGRESS");
-  if (forced != nullptr && std::string(forced) == "1") return true;
+  if (read_env_options().progress) return true;
   return isatty(STDERR_FILENO) == 1;
 }
 

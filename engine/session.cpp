@@ -1,4 +1,5 @@
 #include "engine/session.h"
+#include "engine/options.h"
 
 #include "engine/errors.h"
 #include "engine/voxelize_job.h"
@@ -40,14 +41,7 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   if (physics) {
     // DIVVOX_CHUNK_WORK: the work per chunk of a step's shared batches (sim/pbd.h kDefaultChunkWork;
     // lower splits smaller batches across the workers, the same bits either way).
-    if (const char* text = std::getenv("DIVVOX_CHUNK_WORK"); text != nullptr && *text != '\0') {
-      char* end = nullptr;
-      const unsigned long value = std::strtoul(text, &end, 10);
-      if (*end != '\0' || value == 0 || value > 0xffffffffu || text[0] == '-') {
-        throw_input("DIVVOX_CHUNK_WORK", std::string("must be a positive integer (instructions per chunk), not '") + text + "'");
-      }
-      s.state.pbd->chunk_work = uint32_t(value);
-    }
+    if (const uint32_t chunk_work = read_env_options().chunk_work; chunk_work != 0) s.state.pbd->chunk_work = chunk_work;
     s.pool = std::make_unique<TaskPool>(workers);
     s.initial_mass = total_mass(*s.state.pbd);
   }

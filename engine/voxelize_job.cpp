@@ -1,4 +1,5 @@
 #include "engine/voxelize_job.h"
+#include "engine/options.h"
 
 #include "engine/errors.h"
 #include "engine/resources.h"
@@ -37,15 +38,9 @@ void check_voxelize_memory(const std::string& file, const Aabb& box, uint64_t tr
   // Budget: 80 % of the memory available now, or DIVVOX_MEMORY_LIMIT (bytes, or with a K/M/G suffix).
   uint64_t budget = available_memory_bytes() / 10 * 8;
   std::string budget_name = "80% of available memory";
-  if (const char* limit = std::getenv("DIVVOX_MEMORY_LIMIT")) {
-    char* end = nullptr;
-    double value = std::strtod(limit, &end);
-    const char suffix = end != nullptr ? char(std::toupper(static_cast<unsigned char>(*end))) : '\0';
-    value *= suffix == 'K' ? 1024.0 : suffix == 'M' ? 1048576.0 : suffix == 'G' ? 1073741824.0 : 1.0;
-    if (value > 0.0) {
-      budget = uint64_t(value);
-      budget_name = "DIVVOX_MEMORY_LIMIT";
-    }
+  if (const uint64_t limit = read_env_options().memory_limit; limit != 0) {
+    budget = limit;
+    budget_name = "DIVVOX_MEMORY_LIMIT";
   }
   if (budget != 0 && needed > budget) {
     throw_input(file, "resolution " + std::to_string(resolution) + " needs about " + format_bytes(needed) +

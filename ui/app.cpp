@@ -1,6 +1,7 @@
 #include "ui/app.h"
 
 #include "engine/errors.h"
+#include "engine/options.h"
 #include "engine/playback.h"
 #include "engine/render_snapshot.h"
 #include "engine/scene.h"
@@ -858,10 +859,9 @@ bool init_graphics(AppState& app, WindowContext& w) {
   // rasteriser's CPU time per frame (28 -> 79 ms at 896x720 on the bunny at 128). Without it, the
   // scene cache (WindowContext::cache_scene; DIVVOX_SCENE_CACHE=0: off), or else the view drawn
   // straight into the window's back buffer (no offscreen image to copy, but a full redraw per frame).
-  int samples = w.software ? 0 : 4;
-  if (const char* msaa = std::getenv("DIVVOX_MSAA")) samples = std::clamp(std::atoi(msaa), 0, 16);
-  const char* cache_env = std::getenv("DIVVOX_SCENE_CACHE");
-  w.cache_scene = samples == 0 && (cache_env == nullptr || std::string(cache_env) != "0");
+  const EnvOptions env = read_env_options();
+  const int samples = env.msaa >= 0 ? env.msaa : w.software ? 0 : 4;
+  w.cache_scene = samples == 0 && env.scene_cache;
   std::string error;
   if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples,
                      samples == 0 && !w.cache_scene)) {
@@ -871,8 +871,7 @@ bool init_graphics(AppState& app, WindowContext& w) {
     return false;
   }
   renderer_place(w.renderer, app.view_x, 0);
-  const char* split_env = std::getenv("DIVVOX_SPLIT_FRAMES");
-  if (w.cache_scene && w.software && (split_env == nullptr || std::string(split_env) != "0")) {
+  if (w.cache_scene && w.software && env.split_frames) {
     w.split_frames = renderer_double_buffer(w.renderer, error);
     if (!w.split_frames && !error.empty()) {
       std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
@@ -893,16 +892,14 @@ bool init_graphics(AppState& app, WindowContext& w) {
   ImGui_ImplOpenGL3_Init("#version 330 core");
   // DIVVOX_FRAME_PROFILE=1: glFinish after each phase, so the phase times are the GPU's too (costs
   // some pipelining; for measuring only).
-  const char* profile_env = std::getenv("DIVVOX_FRAME_PROFILE");
-  w.profile = profile_env != nullptr && std::string(profile_env) == "1";
+  w.profile = env.frame_profile;
   w.stats.profiled = w.profile;
   w.stats.gl_renderer = w.gl_renderer;
   w.stats.scene_cache = w.cache_scene;
   // Normals on the GPU, except on a software rasteriser (there its compute passes run on the same
   // CPU cores, ~40x slower than the plain loop, which then runs on the simulation thread, once per
   // snapshot the renderer takes); DIVVOX_GPU_NORMALS=0/1 overrides.
-  w.gpu_normals = !w.software;
-  if (const char* g = std::getenv("DIVVOX_GPU_NORMALS")) w.gpu_normals = std::string(g) == "1";
+  w.gpu_normals = env.gpu_normals >= 0 ? env.gpu_normals == 1 : !w.software;
   w.sim.set_cpu_normals(!w.gpu_normals);
   w.stats.normals_where = w.gpu_normals ? "GPU passes on the render thread" : "CPU, on the simulation thread";
   app.sim = &w.sim;
@@ -911,7 +908,7 @@ bool init_graphics(AppState& app, WindowContext& w) {
   app.draw.cull_back_faces = true;
   app.draw.surface_pieces = w.software ? 4 : 1;  // DrawOptions::surface_pieces
   // DIVVOX_SHADOWS=0: start with the tray's shadow off (View panel: "shadow on the tray").
-  if (const char* sh = std::getenv("DIVVOX_SHADOWS")) app.draw.shadows = std::string(sh) != "0";
+  if (env.shadows >= 0) app.draw.shadows = env.shadows == 1;
   return true;
 }
 
@@ -1248,8 +1245,7 @@ int run_window(const WindowOptions& options) {
   // (Xvfb) a frame that reuses the scene cache takes a few ms, and every frame shown costs this
   // thread the copy and the panels and the X server a copy of the window: the time a faster frame
   // rate would spend goes to the simulation thread instead.
-  double max_fps = 60.0;
-  if (const char* m = std::getenv("DIVVOX_MAX_FPS")) max_fps = std::clamp(std::atof(m), 0.0, 1000.0);
+  const double max_fps = read_env_options().max_fps;
   Clock::time_point frame_start = Clock::now();
   int exit_code = kExitOk;
   while (!glfwWindowShouldClose(w.window)) {

@@ -1,6 +1,7 @@
 #include "ui/sim_runner.h"
 
 #include "engine/errors.h"
+#include "engine/options.h"
 #include "engine/timing.h"
 #include "render/normals.h"
 #include "sim/state_hash.h"
@@ -36,8 +37,7 @@ int default_workers() {
 }  // namespace
 
 SimRunner::SimRunner() {
-  const char* every = std::getenv("DIVVOX_SNAPSHOT_EVERY_STEP");
-  every_step_ = every != nullptr && std::string(every) == "1";
+  every_step_ = read_env_options().snapshot_every_step;
   thread_ = std::thread([this] { run(); });
 }
 
@@ -396,8 +396,7 @@ void SimRunner::run() {
   // rasteriser threads when the cores are short: on a software rasteriser they share the same cores,
   // and a frame that waits behind a step shows as a stutter, while a step that waits a little only
   // slows the simulated time. DIVVOX_SIM_NICE=N sets the niceness (default 4; 0: none).
-  int nice_value = 4;
-  if (const char* n = std::getenv("DIVVOX_SIM_NICE")) nice_value = std::clamp(std::atoi(n), 0, 19);
+  const int nice_value = read_env_options().sim_nice;
   if (nice_value > 0) setpriority(PRIO_PROCESS, id_t(syscall(SYS_gettid)), nice_value);
   std::unique_lock<std::mutex> lock(mutex_);
   Clock::time_point next_time = Clock::now();
