@@ -447,7 +447,7 @@ void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_
 // Assigns particles at coarse corner (I,J,K): one per material group of the pieces around it.
 // Existing particles are kept where possible (the smallest not yet claimed by another group).
 void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, int32_t K, CornerMembers& m) {
-  corner_groups(model, s, I, J, K, m, s.face_cache);
+  corner_groups(model, s, I, J, K, m, s.scratch.face_cache);
   uint32_t claimed[CornerMembers::kMax];
   int claimed_count = 0;
   for (int g = 0; g < m.count; ++g) {
@@ -477,7 +477,7 @@ void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, i
 // outlives a cut step: only the 6 faces of each relabelled voxel are forgotten. Their old pairs stay
 // in the data until it is cleared whole (rarely: it grows by the faces a step recomputes).
 void forget_faces(PbdModel& s, const std::vector<uint32_t>& relabelled) {
-  FaceCache& cache = s.face_cache;
+  FaceCache& cache = s.scratch.face_cache;
   if (cache.data.size() > (size_t(1) << 16)) {
     cache.clear();
     return;
@@ -667,7 +667,7 @@ bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   const int32_t r = s.ratio, n = r + 1;
   int32_t c[3];
   sim_voxel_coords(s, sv, c);
-  LocalSearch& w = s.search;
+  LocalSearch& w = s.scratch.search;
   w.owner.resize(block_nodes(s), kDeadIndex);
   w.queue.clear();
   w.visited.clear();
@@ -790,16 +790,16 @@ bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, ui
 // Relabels a whole (labelled) block; new pieces inherit from the old piece of the same node.
 void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv) {
   const uint32_t nodes = block_nodes(s);
-  s.scratch_labels.resize(2 * size_t(nodes));
-  s.scratch_old_slots.resize(kLabelSlots);
+  s.scratch.labels.resize(2 * size_t(nodes));
+  s.scratch.old_slots.resize(kLabelSlots);
   const SimDivided& div = s.divided[s.voxel_divided[sv]];
-  uint8_t* old = s.scratch_labels.data() + nodes;
+  uint8_t* old = s.scratch.labels.data() + nodes;
   const uint8_t old_count = s.pieces_in_voxel[sv];
   std::copy(s.labels.begin() + div.first_label, s.labels.begin() + div.first_label + nodes, old);
   std::copy(s.label_slots.begin() + div.first_slot, s.label_slots.begin() + div.first_slot + kLabelSlots,
-            s.scratch_old_slots.begin());
-  const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent2, s.scratch_labels.data());
-  set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, old, s.scratch_old_slots.data(), old_count);
+            s.scratch.old_slots.begin());
+  const uint8_t count = label_block(model, cut, s, sv, s.scratch.parent2, s.scratch.labels.data());
+  set_voxel_pieces(model, s, sv, s.scratch.labels.data(), count, old, s.scratch.old_slots.data(), old_count);
 }
 
 // ---- Span relabelling ----------------------------------------------------------------------
@@ -1157,7 +1157,7 @@ bool keeps_components(const VoxelModel& model, const CutState& cut, const PbdMod
 template <typename BeforeWrite>
 bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats,
                    BeforeWrite&& before_write) {
-  SpanScratch& w = s.spans;
+  SpanScratch& w = s.scratch.spans;
   build_spans(model, cut, s, sv, w);
   const Lattice& l = model.lattice;
   const int32_t r = s.ratio, n = r + 1;
@@ -1692,10 +1692,10 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   // Pieces: the material components of every block (cuts made before init included).
   warm_block_arrays(s, true);
   for (const DividedVoxel& dv : cut.divided) note_cut_voxel(model, s, dv);
-  s.scratch_labels.resize(block_nodes(s));
+  s.scratch.labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
-    const uint8_t count = label_block(model, cut, s, sv, s.scratch_parent, s.scratch_labels.data());
-    if (count > 0) set_voxel_pieces(model, s, sv, s.scratch_labels.data(), count, nullptr, nullptr, 0);
+    const uint8_t count = label_block(model, cut, s, sv, s.scratch.parent, s.scratch.labels.data());
+    if (count > 0) set_voxel_pieces(model, s, sv, s.scratch.labels.data(), count, nullptr, nullptr, 0);
   }
   // Particles: one per material group at every coarse corner.
   CornerMembers members;
@@ -1704,7 +1704,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
       for (int32_t I = 0; I <= s.sx; ++I) assign_corner(model, s, I, J, K, members);
     }
   }
-  s.face_cache = FaceCache{};
+  s.scratch.face_cache = FaceCache{};
   // Constraints, colours and masses.
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
     if (s.pieces[slot].sim_voxel != kDeadIndex) attach_piece(s, slot);
@@ -1728,8 +1728,8 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   // sorted); beyond it the local search needs the changed fine voxels of each, sorted by simulation
   // voxel (sim voxel << 32 | fine voxel).
   const bool spans = s.ratio <= kSpanRatio;
-  std::vector<uint64_t>& changed = s.scratch_changed;
-  std::vector<uint32_t>& affected = s.scratch_sim;
+  std::vector<uint64_t>& changed = s.scratch.changed;
+  std::vector<uint32_t>& affected = s.scratch.sim;
   changed.clear();
   affected.clear();
   for (uint32_t i = 0; i < cut.reshaped_voxels.size(); ++i) {
@@ -1753,10 +1753,10 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   // change, the pieces that may change particles with them (its own and its neighbours') are
   // detached, remembering the particles they used; a voxel whose components did not change touches
   // nothing.
-  std::vector<uint32_t>& near = s.scratch_near;
-  std::vector<uint32_t>& relabelled = s.scratch_relabelled;  // the voxels whose components changed
-  std::vector<uint64_t>& touched = s.scratch_corners;
-  std::vector<uint8_t>& detached = s.scratch_mark;  // (sim voxels) in `near`
+  std::vector<uint32_t>& near = s.scratch.near;
+  std::vector<uint32_t>& relabelled = s.scratch.relabelled;  // the voxels whose components changed
+  std::vector<uint64_t>& touched = s.scratch.corners;
+  std::vector<uint8_t>& detached = s.scratch.mark;  // (sim voxels) in `near`
   near.clear();
   relabelled.clear();
   touched.clear();
@@ -1783,7 +1783,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
       }
     }
   };
-  std::vector<uint32_t>& fine = s.scratch_parent;
+  std::vector<uint32_t>& fine = s.scratch.parent;
   for (size_t i = 0; i < changed.size();) {
     const uint32_t sv = uint32_t(changed[i] >> 32);
     fine.clear();
@@ -1803,7 +1803,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
     if (!local) relabel_block(model, cut, s, sv);
     if (stats) {
-      stats->nodes_searched += s.search.visited.size();
+      stats->nodes_searched += s.scratch.search.visited.size();
       ++(local ? stats->local_relabels : stats->block_relabels);
     }
   }
@@ -1814,7 +1814,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     sorted_unique(near);
     sorted_unique(relabelled);
     // Corner particles of the relabelled voxels.
-    std::vector<uint64_t>& corners = s.scratch_corner_ids;
+    std::vector<uint64_t>& corners = s.scratch.corner_ids;
     corners.clear();
     for (uint32_t sv : relabelled) {
       int32_t c[3];

@@ -150,6 +150,24 @@ struct SpanScratch {
   std::vector<uint64_t> weight;     // (ratio + 2) prefix sums of the eighths per node along x
 };
 
+// Scratch of the model's updates after a cut, reused from step to step so a cut step allocates
+// nothing in steady state. Not state: copying a PbdModel (undo keeps copies of the world's state)
+// copies none of it, and no hash reads it.
+struct PbdScratch {
+  std::vector<uint32_t> parent, parent2, sim, near, old_slots, relabelled;
+  std::vector<uint8_t> labels, mark;
+  std::vector<uint64_t> corners;
+  FaceCache face_cache;
+  LocalSearch search;
+  SpanScratch spans;
+  std::vector<uint64_t> changed, corner_ids;
+  PbdScratch() = default;
+  PbdScratch(const PbdScratch&) {}
+  PbdScratch& operator=(const PbdScratch&) { return *this; }
+  PbdScratch(PbdScratch&&) = default;
+  PbdScratch& operator=(PbdScratch&&) = default;
+};
+
 // What one pbd_apply_cut did (counters for the benchmarks).
 struct PbdCutStats {
   uint32_t sim_voxels = 0;       // simulation voxels relabelled
@@ -226,14 +244,8 @@ struct PbdModel {
 
   PbdParams params;
 
-  // Scratch reused between cut steps (no allocation in steady state).
-  std::vector<uint32_t> scratch_parent, scratch_parent2, scratch_sim, scratch_near, scratch_old_slots, scratch_relabelled;
-  std::vector<uint8_t> scratch_labels, scratch_mark;
-  std::vector<uint64_t> scratch_corners;
-  FaceCache face_cache;
-  LocalSearch search;
-  SpanScratch spans;
-  std::vector<uint64_t> scratch_changed, scratch_corner_ids;
+  // Scratch reused between cut steps (no allocation in steady state); never copied (PbdScratch).
+  PbdScratch scratch;
   // Cuts per simulation voxel (ratio <= 32): its divided fine voxels (one 64-bit mask per (y, z)
   // voxel row) and its cut lattice edges (one mask per node row and axis), so a relabel finds the
   // block's cuts without looking up each fine voxel; with the block's inside nodes and corner
