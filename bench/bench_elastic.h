@@ -62,6 +62,7 @@ ElasticReference solve_reference(const ElasticCase& c, double timeout_seconds = 
 struct ElasticRun {
   int sim_resolution = 16, substeps = 5, iterations = 2;
   ElasticModel model = ElasticModel::kNeoHookean;
+  double stretch_compliance = 1e-6, shape_stiffness = 1.0;  // the paper model's knobs (kPaper only)
   int workers = 1;
 };
 

@@ -670,6 +670,9 @@ void elastic_section(Results& in, std::ostream& md, std::ostream& head) {
         md << "| " << name << " | " << model << " | " << elastic_setting(*row) << (row == pick.chosen ? " **(chosen)**" : "")
            << " | " << num(get(*row, "step_p50_ms")) << " | " << pct(get(*row, "rms_error")) << " |\n";
       }
+      if (!pick.chosen && !rows.empty()) {
+        md << "| " << name << " | " << model << " | no setting within 10 % RMS | | |\n";
+      }
       if (pick.shipped) {
         head << "- Elasticity (" << name << ", " << model << ", shipped solver): " << pct(get(*pick.shipped, "rms_error"))
              << " RMS error to CalculiX at " << num(get(*pick.shipped, "step_p50_ms")) << " ms per step\n";
