@@ -170,6 +170,13 @@ void step_world(const ElasticCase& c, CaseWorld& w, const StepContext& context) 
   world_step(w.model, w.state, commands, context);
 }
 
+// Whether a simulation resolution divides the fine one by a power of two (what world_init accepts).
+bool fits(int resolution, int sim) {
+  if (sim < 1 || resolution % sim != 0) return false;
+  const int ratio = resolution / sim;
+  return (ratio & (ratio - 1)) == 0;
+}
+
 }  // namespace
 
 std::vector<std::string> elastic_case_names() {
@@ -400,6 +407,9 @@ FrequencyMeasure measure_frequency(const ElasticCase& bar, const ElasticRun& run
 }
 
 std::string bench_elastic(const BenchElasticOptions& options) {
+  if (find_ccx().empty()) {
+    throw std::runtime_error("bench elastic: ccx (CalculiX) not found: install calculix-ccx (tools/setup.sh) or set DIVVOX_CCX");
+  }
   make_output_dir(options.out_dir);
   const fs::path out(options.out_dir);
   const std::vector<std::string> cases = options.cases.empty() ? elastic_case_names() : options.cases;
@@ -442,7 +452,11 @@ std::string bench_elastic(const BenchElasticOptions& options) {
     std::vector<std::pair<ElasticRun, std::string>> runs;
     for (ElasticModel model : models) {
       for (int sim : options.sim_resolutions) {
-        if (c.resolution % sim != 0) continue;
+        if (!fits(c.resolution, sim)) {
+          std::fprintf(stderr, "divvox: bench elastic: %s: sim %d skipped (resolution %d is not sim x 2^l)\n",
+                       name.c_str(), sim, c.resolution);
+          continue;
+        }
         ElasticRun d;
         d.model = model;
         d.sim_resolution = sim;
@@ -493,7 +507,7 @@ std::string bench_elastic(const BenchElasticOptions& options) {
     const ElasticCase bar = make_elastic_case("cantilever", options.resolution, options.ref_scale);
     for (ElasticModel model : models) {
       for (int sim : options.sim_resolutions) {
-        if (bar.resolution % sim != 0) continue;
+        if (!fits(bar.resolution, sim)) continue;
         ElasticRun run;
         run.model = model;
         run.sim_resolution = sim;

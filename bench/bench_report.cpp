@@ -586,7 +586,8 @@ void deform_section(Results& in, std::ostream& md, std::ostream&) {
      << (default_rows.empty() ? std::string(" (not measured in this run)") : " (" + default_rows + ")")
      << ". With shape stiffness 1 the model's converged limit is rigid (every cluster keeps its rest shape), so "
         "the reference is itself an effort-dependent solution and these errors rank settings against that run, "
-        "not against a physical limit; at a coarser level they also hold that level's own model error.\n\n"
+        "not against a physical limit; at a coarser level they also hold that level's own model error. The error "
+        "against physics (CalculiX, the same geometry and material) is the next section's (`bench elastic`).\n\n"
      << budget_table(deform, defaults)
      << in.plot("bench_deform.svg", deform_plot(deform), "physics speed against error")
      << "\n";
