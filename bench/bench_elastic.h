@@ -66,7 +66,8 @@ struct ElasticRun {
   int workers = 1;
 };
 
-// One divvox run compared with the reference on the surface: relative RMS displacement error
+// One divvox run compared with the reference on the surface (the displacement averaged over the run's
+// last quarter: settled by the damping of either model, or the equilibrium it swings about): relative RMS displacement error
 // (|u - u_ref| over |u_ref|, RMS over the live surface vertices) and the max-displacement error
 // (|max |u| - max |u_ref|| / max |u_ref|).
 struct ElasticMeasure {
