@@ -5,6 +5,7 @@
 // and only once the solver's stiffness follows E.
 #include "bench/bench_elastic.h"
 #include "bench/ccx.h"
+#include "engine/scene.h"
 #include "sim/shapes.h"
 #include "support.h"
 
@@ -212,30 +213,65 @@ TEST_CASE("divvox against CalculiX end to end on a tiny cantilever: finite error
 }
 }
 
-// The bounds the material model is meant to meet (issue 30): asserted once the solver's stiffness
-// follows E (the tip sag halves when E doubles); until then the paper model runs under the
-// kNeoHookean name and the test says so.
-TEST_CASE("ccx: Neo-Hookean cantilever tip sag within 5 % of CalculiX at sim 16 (once the solver uses E)") {
-  if (!have_ccx()) return;
-  ElasticCase c = make_elastic_case("cantilever", 64);
+// The bounds the material model is meant to meet (issue 30), at the shipped liver scene's solver
+// budget (substeps x iterations): asserted once the solver's stiffness follows E (a tiny cantilever's
+// sag changes when E doubles; the paper model's does not move a bit). Until then the paper model runs
+// under the kNeoHookean name and the tests say so.
+namespace {
+
+// The shipped scene's solver budget.
+PbdParams shipped_solver() { return load_scene(dvx_test::source_path("assets/scenes/liver.json")).pbd; }
+
+bool material_model_in_build() {
+  ElasticCase c = make_elastic_case("cantilever", 16);
+  c.seconds = 0.5;
+  const ElasticReference ref = solve_reference(c);
+  REQUIRE_MESSAGE(ref.result.ok, ref.result.error);
+  ElasticRun run;
+  run.model = ElasticModel::kNeoHookean;
+  run.sim_resolution = 4;
+  const ElasticMeasure soft = measure_elastic(c, ref, run);
+  c.youngs_modulus *= 2.0;
+  const ElasticMeasure hard = measure_elastic(c, ref, run);
+  const double ratio = soft.tip.y() / hard.tip.y();
+  if (ratio > 1.05) return true;
+  MESSAGE("skipped: the kNeoHookean solver's sag does not follow E (ratio " << ratio
+          << " for 2x E): the material model is not in this build; bound not asserted");
+  return false;
+}
+
+}  // namespace
+
+TEST_CASE("ccx: Neo-Hookean cantilever tip sag within 5 % of CalculiX at sim 16, shipped budget (once the solver uses E)") {
+  if (!have_ccx() || !material_model_in_build()) return;
+  const PbdParams shipped = shipped_solver();
+  const ElasticCase c = make_elastic_case("cantilever", 64);
   ElasticRun run;
   run.model = ElasticModel::kNeoHookean;
   run.sim_resolution = 16;
-  run.substeps = 5;
-  run.iterations = 2;
+  run.substeps = shipped.substeps;
+  run.iterations = shipped.iterations;
   const ElasticReference ref = solve_reference(c);
   REQUIRE_MESSAGE(ref.result.ok, ref.result.error);
-  const ElasticMeasure soft = measure_elastic(c, ref, run);
-  ElasticCase stiff = c;
-  stiff.youngs_modulus *= 2.0;
-  const ElasticMeasure hard = measure_elastic(stiff, ref, run);
-  const double ratio = soft.tip.y() / hard.tip.y();
-  if (!(ratio > 1.5)) {
-    MESSAGE("skipped: the kNeoHookean solver's sag does not follow E (ratio " << ratio
-            << " for 2x E): the material model is not in this build; bound not asserted");
-    return;
-  }
-  MESSAGE("tip sag " << soft.tip.y() << " m, CalculiX " << soft.ref_tip.y() << " m, RMS error " << soft.rms_error);
-  CHECK(soft.tip.y() == doctest::Approx(soft.ref_tip.y()).epsilon(0.05));
-  CHECK(soft.rms_error < 0.10);
+  const ElasticMeasure m = measure_elastic(c, ref, run);
+  MESSAGE("tip sag " << m.tip.y() << " m, CalculiX " << m.ref_tip.y() << " m, RMS error " << m.rms_error << " at "
+                     << run.substeps << " x " << run.iterations);
+  CHECK(m.tip.y() == doctest::Approx(m.ref_tip.y()).epsilon(0.05));
+}
+
+TEST_CASE("ccx: Neo-Hookean hanging liver within 10 % RMS of CalculiX at sim 16, shipped budget (once the solver uses E)") {
+  if (!have_ccx() || !material_model_in_build()) return;
+  const PbdParams shipped = shipped_solver();
+  const ElasticCase c = make_elastic_case("liver", 64);
+  ElasticRun run;
+  run.model = ElasticModel::kNeoHookean;
+  run.sim_resolution = 16;
+  run.substeps = shipped.substeps;
+  run.iterations = shipped.iterations;
+  const ElasticReference ref = solve_reference(c);
+  REQUIRE_MESSAGE(ref.result.ok, ref.result.error);
+  const ElasticMeasure m = measure_elastic(c, ref, run);
+  MESSAGE("liver RMS error " << m.rms_error << ", max-displacement error " << m.max_error << " at " << run.substeps
+                             << " x " << run.iterations);
+  CHECK(m.rms_error < 0.10);
 }
