@@ -42,7 +42,7 @@ struct RawFlags {
 // The subcommands, to tell which one was parsed.
 struct Subcommands {
   CLI::App *voxelize = nullptr, *replay = nullptr;
-  CLI::App *bench_voxelize = nullptr, *bench_cut = nullptr, *bench_deform = nullptr, *bench_scaling = nullptr,
+  CLI::App *bench_voxelize = nullptr, *bench_cut = nullptr, *bench_deform = nullptr, *bench_elastic = nullptr, *bench_scaling = nullptr,
            *bench_cut_length = nullptr, *bench_quality = nullptr, *bench_replay = nullptr, *bench_report = nullptr,
            *bench_contact = nullptr;
 };
@@ -145,8 +145,9 @@ void add_bench_geometry(CLI::App& bench, CliCommand& c, RawFlags& raw, Subcomman
 
   BenchDeformOptions& d = c.bench_deform;
   sub.bench_deform = bench.add_subcommand(
-      "deform", "Speed against error of the PBD deformation: simulation resolution x iterations on a liver anchored\n"
-                "on one side (and a through-cut copy); plus the per-step time of PBD + embedding on a large surface.");
+      "deform", "Speed against a self-referenced error of the PBD deformation (the error is the distance to the same\n"
+                "solver's most refined run, not to physics: see `bench elastic`): simulation resolution x iterations on a\n"
+                "liver anchored on one side (and a through-cut copy); plus the per-step time of PBD + embedding on a large surface.");
   sub.bench_deform->add_option("--mesh", d.mesh, "Mesh (default: liver from ../shared/assets)");
   sub.bench_deform->add_option("--resolution", d.resolution, "Fine resolution")->capture_default_str();
   sub.bench_deform->add_option("--sim-resolutions", d.sim_resolutions, "Simulation resolutions")->delimiter(',')->capture_default_str();
@@ -160,6 +161,30 @@ void add_bench_geometry(CLI::App& bench, CliCommand& c, RawFlags& raw, Subcomman
   sub.bench_deform->add_option("--target-mesh", d.target_mesh, "Mesh of the speed target (default: armadillo)");
   sub.bench_deform->add_option("--target-resolution", d.target_resolution, "Resolution of the speed target")->capture_default_str();
   sub.bench_deform->add_option("--out,-o", d.out_dir, "Output folder")->capture_default_str();
+
+  BenchElasticOptions& e = c.bench_elastic;
+  sub.bench_elastic = bench.add_subcommand(
+      "elastic", "Speed against error, for real: divvox's elasticity against CalculiX (ccx, Debian calculix-ccx) on the\n"
+                 "same geometry, anchors, gravity and material, over models x simulation resolution x substeps x\n"
+                 "iterations. Cases: cantilever (small strain), soft_bar (NLGEOM), cube, liver (0.2 m, E 5.4 kPa),\n"
+                 "bar_cut_half, bar_cut_through; plus the cantilever's first frequency against Euler-Bernoulli.\n"
+                 "Writes DIR/bench_elastic.csv, .json and .svg/.png (Pareto front, shipped and chosen settings marked).");
+  sub.bench_elastic->add_option("--cases", e.cases, "Cases (default: all)")->delimiter(',')
+      ->check(CLI::IsMember(elastic_case_names()));
+  sub.bench_elastic->add_option("--sweep-cases", e.sweep_cases, "Cases swept over substeps x iterations (the others: shipped solver only)")
+      ->delimiter(',')->check(CLI::IsMember(elastic_case_names()))->capture_default_str();
+  sub.bench_elastic->add_option("--models", e.models, "Elastic models")->delimiter(',')
+      ->check(CLI::IsMember({"neo_hookean", "paper"}))->capture_default_str();
+  sub.bench_elastic->add_option("--sim-resolutions", e.sim_resolutions, "Simulation resolutions")->delimiter(',')
+      ->check(CLI::Range(1, 1024))->capture_default_str();
+  sub.bench_elastic->add_option("--substeps", e.substeps, "Substeps")->delimiter(',')->check(CLI::Range(1, 1000))->capture_default_str();
+  sub.bench_elastic->add_option("--iterations", e.iterations, "Iterations")->delimiter(',')->check(CLI::Range(1, 10000))->capture_default_str();
+  sub.bench_elastic->add_option("--resolution", e.resolution, "Fine resolution of every case (0: each case's, 64; cube 32)")
+      ->check(CLI::Range(0, 1024))->capture_default_str();
+  sub.bench_elastic->add_option("--ref-scale", e.ref_scale, "Reference cells per axis x this")->check(CLI::Range(0.25, 8.0))->capture_default_str();
+  sub.bench_elastic->add_option("--workers", e.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
+  sub.bench_elastic->add_option("--keep-ccx", e.keep_ccx, "Keep each case's CalculiX deck, .dat and log in DIR/CASE");
+  sub.bench_elastic->add_option("--out,-o", e.out_dir, "Output folder")->capture_default_str();
 }
 
 // divvox bench scaling, cut-length, quality (the paper's experiments 1, 2 and Fig. 13)
@@ -243,7 +268,7 @@ void add_bench_replay_report(CLI::App& bench, CliCommand& c, Subcommands& sub) {
 void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
   // Typed for every command (the defaults are valid): only the parsed one runs.
   for (bool* progress : {&c.replay.progress, &c.bench_voxelize.progress, &c.bench_cut.progress,
-                         &c.bench_deform.progress, &c.bench_scaling.progress, &c.bench_cut_length.progress,
+                         &c.bench_deform.progress, &c.bench_elastic.progress, &c.bench_scaling.progress, &c.bench_cut_length.progress,
                          &c.bench_quality.progress, &c.bench_replay.progress, &c.bench_contact.progress}) {
     *progress = stderr_is_tty();
   }
@@ -257,7 +282,7 @@ void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
   const std::pair<const CLI::App*, CliCommand::Kind> commands[] = {
       {sub.voxelize, CliCommand::kVoxelize},           {sub.replay, CliCommand::kReplay},
       {sub.bench_voxelize, CliCommand::kBenchVoxelize}, {sub.bench_cut, CliCommand::kBenchCut},
-      {sub.bench_deform, CliCommand::kBenchDeform},     {sub.bench_scaling, CliCommand::kBenchScaling},
+      {sub.bench_deform, CliCommand::kBenchDeform},     {sub.bench_elastic, CliCommand::kBenchElastic},     {sub.bench_scaling, CliCommand::kBenchScaling},
       {sub.bench_cut_length, CliCommand::kBenchCutLength}, {sub.bench_quality, CliCommand::kBenchQuality},
       {sub.bench_replay, CliCommand::kBenchReplay},     {sub.bench_contact, CliCommand::kBenchContact},     {sub.bench_report, CliCommand::kBenchReport}};
   c.kind = CliCommand::kWindow;  // no subcommand
@@ -371,7 +396,7 @@ void parse_size(const std::string& flag, const std::string& text, int& width, in
 
 CliCommand parse_cli(int argc, char** argv) {
   CliCommand c;
-  for (std::string* out : {&c.bench_voxelize.out_dir, &c.bench_cut.out_dir, &c.bench_deform.out_dir,
+  for (std::string* out : {&c.bench_voxelize.out_dir, &c.bench_cut.out_dir, &c.bench_deform.out_dir, &c.bench_elastic.out_dir,
                            &c.bench_scaling.out_dir, &c.bench_cut_length.out_dir, &c.bench_quality.out_dir,
                            &c.bench_replay.out_dir, &c.bench_contact.out_dir}) {
     *out = "out/bench";
@@ -420,6 +445,7 @@ int run_command(const CliCommand& c) {
     case CliCommand::kBenchVoxelize: return wrote(bench_voxelize(c.bench_voxelize));
     case CliCommand::kBenchCut: return wrote(bench_cut(c.bench_cut));
     case CliCommand::kBenchDeform: return wrote(bench_deform(c.bench_deform));
+    case CliCommand::kBenchElastic: return wrote(bench_elastic(c.bench_elastic));
     case CliCommand::kBenchScaling: return wrote(bench_scaling(c.bench_scaling));
     case CliCommand::kBenchCutLength: return wrote(bench_cut_length(c.bench_cut_length));
     case CliCommand::kBenchQuality: return wrote(bench_quality(c.bench_quality));

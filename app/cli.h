@@ -5,6 +5,7 @@
 
 #include "bench/bench.h"
 #include "bench/bench_contact.h"
+#include "bench/bench_elastic.h"
 #include "engine/replay.h"
 #include "ui/app.h"
 
@@ -33,6 +34,7 @@ struct CliCommand {
     kBenchVoxelize,
     kBenchCut,
     kBenchDeform,
+    kBenchElastic,
     kBenchScaling,
     kBenchCutLength,
     kBenchQuality,
@@ -47,6 +49,7 @@ struct CliCommand {
   BenchVoxelizeOptions bench_voxelize;
   BenchCutOptions bench_cut;
   BenchDeformOptions bench_deform;
+  BenchElasticOptions bench_elastic;
   BenchScalingOptions bench_scaling;
   BenchCutLengthOptions bench_cut_length;
   BenchQualityOptions bench_quality;

@@ -10,13 +10,15 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 # Packages (DESIGN §6). libgl1-mesa-dri is the software rasterizer; xvfb-run needs xauth; xdotool
 # drives the window test's real mouse input; gnuplot-nox
-# draws the plots (timings.svg, the benchmark report; without it they are skipped, never fatal).
+# draws the plots (timings.svg, the benchmark report; without it they are skipped, never fatal);
+# calculix-ccx is the finite-element reference of `bench elastic` and its tests (ccx).
 packages=(
   build-essential cmake pkg-config ninja-build
   libeigen3-dev libassimp-dev nlohmann-json3-dev libcli11-dev doctest-dev
   libglfw3-dev libimgui-dev libstb-dev libglvnd-dev libegl-dev libegl-mesa0 libgl1-mesa-dri
   xvfb xauth xdotool
   gnuplot-nox
+  calculix-ccx
 )
 
 only=0
