@@ -102,9 +102,9 @@ for layer in sim render engine bench ui app; do
            grep -oE '\bdivvox_[a-z]+\b' | sort -u | sed "s|^|$layer:|")
 done
 
-# sim/'s internals (the solver's kernels, colouring, its containers) stay inside sim/: the layers above
+# sim/'s internals (the solver's kernels, colouring, the pieces' shared internals) stay inside sim/: the layers above
 # include only its public headers.
-sim_internal="sim/pbd_kernels.h sim/pbd_kernels_lanes.inc sim/colouring.h sim/flat_map.h sim/union_find.h"
+sim_internal="sim/pbd_kernels.h sim/pbd_kernels_lanes.inc sim/colouring.h sim/pbd_internal.h"
 for layer in engine render bench ui app; do
   [[ -d $layer ]] || continue
   while IFS= read -r hit; do
