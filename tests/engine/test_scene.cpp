@@ -1,5 +1,6 @@
 #include "engine/errors.h"
 #include "engine/scene.h"
+#include "engine/session.h"
 #include "support.h"
 
 #include <doctest/doctest.h>
@@ -187,5 +188,40 @@ TEST_SUITE("scene") {
     CHECK(units({{"metres_per_unit", -1}}).find("units.metres_per_unit") != std::string::npos);
     CHECK(units({{"metre_per_unit", 1}}).find("units.metre_per_unit: unknown key") != std::string::npos);
     CHECK(units({{"scene_lengths", "feet"}}).find("units.scene_lengths") != std::string::npos);
+  }
+
+  TEST_CASE("the liver is a human liver in SI units: ~0.2 m, ~1-2 kg, it hangs from its box onto its tray") {
+    const Scene scene = load_scene(dvx_test::source_path("assets/scenes/liver.json"));
+    CHECK(scene.pbd.elastic == ElasticModel::kNeoHookean);
+    Session session;
+    open_session(scene, scene.pbd.dt, true, 1, session);
+    const PbdState& s = *session.state.pbd;
+    const Aabb bounds = mesh_bounds(session.input.mesh);
+    MESSAGE("liver " << bounds.extent().transpose() << " m, " << total_mass(s) << " kg");
+    CHECK(bounds.extent().maxCoeff() == doctest::Approx(0.2).epsilon(0.02));
+    CHECK(total_mass(s) > 1.0);
+    CHECK(total_mass(s) < 2.0);
+    const double mass = total_mass(s);
+    for (int i = 0; i < 60; ++i) session_step(session, StepCommands());
+    CHECK(count_nonfinite(s) == 0);
+    CHECK(total_mass(s) == mass);
+    // The anchored particles stay; the rest sags (down, not away) and stays above the tray, within a
+    // few millimetres (the contact's resting offset).
+    const double tray = scene.pbd.planes[0].point.y();
+    double lowest = 1e30, sag = 0.0, moving = 0.0;
+    for (size_t p = 0; p < s.position.size(); ++p) {
+      if (s.refs[p] == 0) continue;
+      if (s.inv_mass[p] == 0.0) {
+        CHECK(s.position[p] == s.rest[p]);
+        continue;
+      }
+      lowest = std::min(lowest, s.position[p].y());
+      sag += s.mass[p] * (s.rest[p].y() - s.position[p].y());
+      moving += s.mass[p];
+    }
+    MESSAGE("mean sag " << sag / moving << " m, lowest particle " << lowest - tray << " m above the tray");
+    CHECK(sag / moving > 0.001);
+    CHECK(sag / moving < 0.05);
+    CHECK(lowest > tray - 0.01);
   }
 }

@@ -213,32 +213,29 @@ TEST_SUITE("elastic") {
     CHECK(std::abs(centre_of_mass(w.pbd()).x() - c0.x()) < 1e-9);
   }
 
-  TEST_CASE("cantilever: tip sag against Timoshenko at sim 8 and 16, not stiffening with the budget") {
-    // Measured (docs/material.md): 1 element through the thickness locks to ~0.63 of the true sag,
-    // 2 elements to ~0.80 (full integration of trilinear hexahedra; DESIGN §3).
+  TEST_CASE("cantilever: tip sag against Timoshenko at sim 8, not stiffening with the budget") {
+    // One element through the thickness locks (full integration of trilinear hexahedra, DESIGN §3:
+    // 36-64 % of the true sag); measured 0.630 of Timoshenko at sim 8, 0.80 at sim 16 (docs/material.md,
+    // where the resolution study is: sim 16 and 32 need seconds to minutes, too slow for this suite).
     const double exact = timoshenko_sag(kE, kNu);
     SagRun r;
     r.sim = 8;
     r.substeps = 200;
     r.iterations = 4;
-    const double sag8 = cantilever_sag(r);
+    r.steps = 90;
+    r.ramp = 45;
+    const double sag = cantilever_sag(r);
     r.iterations = 8;
-    const double sag8_iterations = cantilever_sag(r);
+    const double sag_iterations = cantilever_sag(r);
     r.iterations = 4;
     r.substeps = 400;
-    const double sag8_substeps = cantilever_sag(r);
-    MESSAGE("sim 8: " << sag8 / exact << ", iterations x2: " << sag8_iterations / exact << ", substeps x2: " << sag8_substeps / exact);
-    CHECK(sag8 / exact > 0.5);
-    CHECK(sag8 / exact < 0.75);
-    CHECK(std::abs(sag8_iterations / sag8 - 1.0) < 0.01);
-    CHECK(std::abs(sag8_substeps / sag8 - 1.0) < 0.02);
-    r.sim = 16;
-    r.substeps = 200;
-    const double sag16 = cantilever_sag(r);
-    MESSAGE("sim 16: " << sag16 / exact);
-    CHECK(sag16 > sag8);  // converging from below as the resolution grows
-    CHECK(sag16 / exact > 0.7);
-    CHECK(sag16 / exact < 1.0);
+    const double sag_substeps = cantilever_sag(r);
+    MESSAGE("sim 8: " << sag / exact << " of Timoshenko; iterations x2: " << sag_iterations / exact
+                      << ", substeps x2: " << sag_substeps / exact);
+    CHECK(sag / exact > 0.55);
+    CHECK(sag / exact < 0.7);
+    CHECK(std::abs(sag_iterations / sag - 1.0) < 0.01);  // measured 0.003 %
+    CHECK(std::abs(sag_substeps / sag - 1.0) < 0.02);    // measured 1.3 %
   }
 
   TEST_CASE("a column on a frictionless floor: its volume change under its own weight follows nu") {
@@ -267,7 +264,7 @@ TEST_SUITE("elastic") {
       }
       const double expected = -(1.0 - 2.0 * nu) * rho * kG * H / (2.0 * E);
       MESSAGE("nu " << nu << ": volume change " << change << ", expected " << expected);
-      CHECK(change == doctest::Approx(expected).epsilon(0.15));
+      CHECK(change == doctest::Approx(expected).epsilon(0.1));  // measured within 4 / 1.3 / 6 %
     }
   }
 
