@@ -77,7 +77,8 @@ struct PbdParams {
   int substeps = 1;
   int iterations = 10;
   Vec3d gravity = Vec3d(0.0, -9.81, 0.0);
-  double damping = 0.01;             // fraction of velocity removed per time step dt ((1-d)^(1/substeps) per substep)
+  double damping = 0.01;             // fraction of velocity removed per time step dt ((1-d)^(1/substeps) per
+                                     // substep); kPaper only (it slows rigid motion; kNeoHookean damps strains)
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
   std::vector<ContactPlane> planes;  // static contact planes (sim/contact.h)
   bool piece_contact = true;         // pieces of different bodies do not interpenetrate (sim/contact.h)

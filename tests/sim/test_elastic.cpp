@@ -209,6 +209,7 @@ TEST_SUITE("elastic") {
     const Vec3d c0 = centre_of_mass(w.pbd());
     for (int i = 0; i < 60; ++i) world_step(w.model, w.state, StepCommands(), StepContext());
     const double drop = c0.y() - centre_of_mass(w.pbd()).y();
+    MESSAGE("fell " << drop << " m in 1 s; g t^2 / 2 = " << 0.5 * 9.81);
     // Symplectic Euler over n = 600 substeps falls g t^2 / 2 (1 + 1/n): 0.17 % more.
     CHECK(drop == doctest::Approx(0.5 * 9.81).epsilon(0.005));
     CHECK(std::abs(centre_of_mass(w.pbd()).x() - c0.x()) < 1e-9);
