@@ -98,7 +98,8 @@ std::vector<ContactPlane> parse_planes(const Reader& r, const json& planes) {
 Scene parse_scene(const json& root, const std::string& file) {
   const Reader r{file};
   r.check_keys(root, "",
-               {"mesh", "resolution", "sim_resolution", "material", "solver", "gravity", "fixed", "scalpel", "planes", "contact"});
+               {"mesh", "resolution", "sim_resolution", "units", "material", "solver", "gravity", "fixed", "scalpel", "planes",
+                "contact"});
   Scene scene;
   scene.file = file;
 
@@ -124,10 +125,64 @@ Scene parse_scene(const json& root, const std::string& file) {
                                  std::to_string(pbd.sim_resolution) + ")");
   }
 
+  // Length unit: the mesh's (and, unless they are metres already, the scene's lengths').
+  double scale = 1.0;
+  if (root.contains("units")) {
+    const json& u = root["units"];
+    r.check_keys(u, "units", {"metres_per_unit", "scene_lengths"});
+    if (u.contains("metres_per_unit")) {
+      scene.metres_per_unit = r.number(u["metres_per_unit"], "units.metres_per_unit", 1e-9, 1e9);
+    }
+    scale = scene.metres_per_unit;
+    if (u.contains("scene_lengths")) {
+      const json& l = u["scene_lengths"];
+      if (!l.is_string() || (l != "mesh" && l != "metres")) r.fail("units.scene_lengths", "must be \"mesh\" or \"metres\"");
+      if (l == "metres") scale = 1.0;
+    }
+  }
+
+  // Material: physical (E, nu, rho: the corotated hexahedra) or the paper's solver knobs.
   if (root.contains("material")) {
     const json& m = root["material"];
-    r.check_keys(m, "material", {"density", "stretch_compliance", "shape_stiffness"});
+    r.check_keys(m, "material",
+                 {"model", "density", "youngs_modulus", "poisson_ratio", "stiffness_damping", "stretch_compliance",
+                  "shape_stiffness"});
+    const bool physical_keys = m.contains("youngs_modulus") || m.contains("poisson_ratio") || m.contains("stiffness_damping");
+    const bool paper_keys = m.contains("stretch_compliance") || m.contains("shape_stiffness");
+    pbd.elastic = physical_keys ? ElasticModel::kNeoHookean : ElasticModel::kPaper;
+    if (m.contains("model")) {
+      const json& model = m["model"];
+      if (!model.is_string() || (model != "neo_hookean" && model != "paper")) {
+        r.fail("material.model", "must be \"neo_hookean\" or \"paper\"");
+      }
+      pbd.elastic = model == "paper" ? ElasticModel::kPaper : ElasticModel::kNeoHookean;
+    }
+    const bool physical = pbd.elastic == ElasticModel::kNeoHookean;
+    if (physical && paper_keys) {
+      r.fail(m.contains("stretch_compliance") ? "material.stretch_compliance" : "material.shape_stiffness",
+             "belongs to the paper's model, not to a physical material (youngs_modulus, poisson_ratio)");
+    }
+    if (!physical && physical_keys) {
+      r.fail(m.contains("youngs_modulus") ? "material.youngs_modulus"
+             : m.contains("poisson_ratio") ? "material.poisson_ratio"
+                                            : "material.stiffness_damping",
+             "needs \"model\": \"neo_hookean\" (the paper's model has no Young's modulus)");
+    }
     if (m.contains("density")) pbd.density = r.number(m["density"], "material.density", 1e-9, 1e9);
+    if (m.contains("youngs_modulus")) {
+      pbd.youngs_modulus = r.number(m["youngs_modulus"], "material.youngs_modulus", 1e-3, 1e12);
+      if (!(pbd.youngs_modulus > 0.0)) r.fail("material.youngs_modulus", "must be positive (Pa)");
+    }
+    if (m.contains("poisson_ratio")) {
+      // nu < 0 (auxetic) is not modelled: the volume term's lambda would be negative.
+      pbd.poisson_ratio = r.number(m["poisson_ratio"], "material.poisson_ratio", 0.0, 0.5);
+      if (!(pbd.poisson_ratio < 0.5)) {
+        r.fail("material.poisson_ratio", "must be below 0.5 (0.5 is incompressible: use 0.45-0.499 for tissue)");
+      }
+    }
+    if (m.contains("stiffness_damping")) {
+      pbd.stiffness_damping = r.number(m["stiffness_damping"], "material.stiffness_damping", 0.0, 10.0);
+    }
     if (m.contains("stretch_compliance")) {
       pbd.stretch_compliance = r.number(m["stretch_compliance"], "material.stretch_compliance", 0.0, 1e6);
     }
@@ -174,6 +229,15 @@ Scene parse_scene(const json& root, const std::string& file) {
     }
     if (c.contains("friction")) pbd.piece_friction = r.number(c["friction"], "contact.friction", 0.0, 1e3);
   }
+  // Every length into metres (gravity is m/s^2 whatever the unit).
+  if (scale != 1.0) {
+    for (Aabb& b : pbd.fixed) {
+      b.min *= scale;
+      b.max *= scale;
+    }
+    for (ContactPlane& p : pbd.planes) p.point *= scale;
+    scene.scalpel.length *= scale;
+  }
   return scene;
 }
 
@@ -208,15 +272,22 @@ json scene_to_json(const Scene& scene) {
              {"resolution", pbd.resolution},
              {"sim_resolution", pbd.sim_resolution},
              {"material",
-              {{"density", pbd.density},
-               {"stretch_compliance", pbd.stretch_compliance},
-               {"shape_stiffness", pbd.shape_stiffness}}},
+              pbd.elastic == ElasticModel::kNeoHookean
+                  ? json{{"model", "neo_hookean"},
+                         {"density", pbd.density},
+                         {"youngs_modulus", pbd.youngs_modulus},
+                         {"poisson_ratio", pbd.poisson_ratio},
+                         {"stiffness_damping", pbd.stiffness_damping}}
+                  : json{{"density", pbd.density},
+                         {"stretch_compliance", pbd.stretch_compliance},
+                         {"shape_stiffness", pbd.shape_stiffness}}},
              {"solver", {{"dt", pbd.dt}, {"substeps", pbd.substeps}, {"iterations", pbd.iterations},
                          {"damping", pbd.damping}}},
              {"gravity", {pbd.gravity.x(), pbd.gravity.y(), pbd.gravity.z()}},
              {"fixed", fixed},
              {"scalpel", {{"length", scene.scalpel.length}}}};
   // Absent when empty / default: older recordings keep their header.
+  if (scene.metres_per_unit != 1.0) out["units"] = {{"metres_per_unit", scene.metres_per_unit}, {"scene_lengths", "metres"}};
   if (!pbd.planes.empty()) out["planes"] = planes;
   if (!pbd.piece_contact || pbd.piece_friction != PbdParams{}.piece_friction) {
     out["contact"] = {{"pieces", pbd.piece_contact}, {"friction", pbd.piece_friction}};

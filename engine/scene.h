@@ -14,18 +14,25 @@ namespace dvx {
 
 // A scene: the mesh, the PBD parameters it is simulated with (sim/pbd.h's PbdParams, the one source
 // of truth: the session hands them to the model, with the recording's dt), and the scalpel. Keys of
-// the file: "resolution", "sim_resolution", "material" (density, stretch_compliance,
-// shape_stiffness), "solver" (dt, substeps, iterations, damping), "gravity", "fixed" (anchor boxes),
-// "planes" (static contact planes: point, normal, friction = kinetic, static_friction) and "contact"
-// (pieces = piece_contact, friction = piece_friction) all fill `pbd`.
+// the file: "resolution", "sim_resolution", "material", "solver" (dt, substeps, iterations, damping),
+// "gravity", "fixed" (anchor boxes), "planes" (static contact planes: point, normal, friction =
+// kinetic, static_friction) and "contact" (pieces = piece_contact, friction = piece_friction) all
+// fill `pbd`. "material" is either a physical one, {"youngs_modulus": Pa, "poisson_ratio": nu,
+// "density": kg/m^3, "stiffness_damping": s} (ElasticModel::kNeoHookean, docs/material.md), or the
+// paper's solver knobs {"density", "stretch_compliance", "shape_stiffness"} (kPaper); "model":
+// "neo_hookean" | "paper" names it explicitly. "units": {"metres_per_unit": s} is the mesh's length
+// unit: the mesh, the anchor boxes, the planes' points and the scalpel's length are scaled by s into
+// metres at load (gravity is m/s^2 already); "scene_lengths": "metres" says the scene's own lengths are
+// metres already (scene_to_json writes them so, so a recording's header reads back exactly).
 struct Scene {
   std::string file;        // the scene file ("" when built in code)
   std::string mesh;        // mesh path as written in the file (relative to the scene file)
   std::string mesh_path;   // mesh path resolved against the scene file's folder
   PbdParams pbd;           // resolution, sim_resolution (resolution / sim_resolution = 2^l), material, solver, ...
   struct Scalpel {
-    double length = 0.5;
+    double length = 0.5;   // metres (scaled like every length)
   } scalpel;
+  double metres_per_unit = 1.0;  // the mesh file's length unit (the session scales the mesh by it)
 };
 
 // Bounds on values a scene may hold (also used by the CLI for --resolution).

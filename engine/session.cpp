@@ -28,6 +28,10 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   s.scene = scene;
   s.dt = dt;
   s.input = load_mesh(scene.mesh_path, progress);
+  // The mesh's unit into metres (the scene's lengths are scaled already: scene.h).
+  if (scene.metres_per_unit != 1.0) {
+    for (Vec3d& p : s.input.mesh.positions) p *= scene.metres_per_unit;
+  }
   check_voxelize_memory(scene.mesh_path, mesh_bounds(s.input.mesh), s.input.mesh.triangles.size(), scene.pbd.resolution);
   VoxelizeParams params;
   params.resolution = scene.pbd.resolution;

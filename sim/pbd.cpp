@@ -1566,6 +1566,27 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
         std::sort(rows.begin(), rows.end(), [](const StretchRow& x, const StretchRow& y) { return x.a != y.a ? x.a < y.a : x.b < y.b; });
       }
     }
+    // The hexahedra of the material model (kNeoHookean): each colour's pieces in their group's order
+    // (a parallel colour's rows share no particle, so their order does not change the bits).
+    const bool elastic = s.params.elastic == ElasticModel::kNeoHookean;
+    const double eighth = s.fine_size * s.fine_size * s.fine_size / 8.0;
+    for (int c = 0; c < kColourGroups; ++c) {
+      std::vector<ElasticRow>& rows = s.elastic_rows[c];
+      rows.clear();
+      for (const uint32_t slot : s.piece_groups[c]) {
+        if (!elastic) break;
+        const SimPiece& piece = s.pieces[slot];
+        ElasticRow row;
+        row.piece = slot;
+        for (int a = 0; a < 8; ++a) {
+          row.p[a] = piece.particles[a];
+          row.w[a] = s.inv_mass[piece.particles[a]];
+        }
+        row.volume = double(piece.eighths) * eighth;
+        rows.push_back(row);
+      }
+      s.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
+    }
     s.blocks_revision = s.revision;
   }
   s.blocks_edits = s.edits.count();
@@ -1584,6 +1605,7 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
 // runs as one stage, and liver at 64 with sim 32 (5 200 clusters) is within noise of the former
 // grains (2.5 against 2.1-2.5 ms).
 constexpr uint32_t kParticleCost = 30, kStretchCost = 36, kShapeBlockCost = kShapeLanes * 350, kContactGroupCost = 4000;
+constexpr uint32_t kElasticCost = 2500;  // a hexahedron's 9 constraints (estimated from its operations)
 constexpr uint32_t kSerial = ~0u;
 
 // The batches of a whole step (all substeps: one TaskRunner job, one wake-up of the workers), in
@@ -1605,6 +1627,8 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
   const auto grain = [&](uint32_t cost) { return std::max<uint32_t>(1, s.chunk_work / cost); };
   const uint32_t particle_grain = grain(kParticleCost), stretch_grain = grain(kStretchCost);
   const uint32_t shape_grain = grain(kShapeBlockCost), contact_grain = grain(kContactGroupCost);
+  const uint32_t elastic_grain = grain(kElasticCost);
+  const bool elastic = s.params.elastic == ElasticModel::kNeoHookean;
   const auto add_contacts = [&](uint8_t kind, const ContactSet& set) {
     for (uint32_t b = 0; b < contact_batches(set); ++b) {
       const bool serial = b == kOverflowColour || set.points.size() < 256;
@@ -1616,10 +1640,14 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
   // The first substep: its predict, then the rest of its batches (the body).
   add(StepBatch::kPredict, 0, n, particle_grain);
   for (int it = 0; it < s.params.iterations; ++it) {
-    for (int c = 0; stretch_on && c < kColourGroups; ++c) {
+    // The material's hexahedra (kNeoHookean), or the paper's stretch and shape matching.
+    for (int c = 0; elastic && stretch_on && c < kColourGroups; ++c) {
+      add(StepBatch::kElastic, uint32_t(c), uint32_t(s.elastic_rows[c].size()), c == kOverflowColour ? kSerial : elastic_grain);
+    }
+    for (int c = 0; !elastic && stretch_on && c < kColourGroups; ++c) {
       add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : stretch_grain);
     }
-    for (int c = 0; c < kColourGroups; ++c) {
+    for (int c = 0; !elastic && c < kColourGroups; ++c) {
       add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : shape_grain);
     }
     if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) add(StepBatch::kGrab, 0, 1, kSerial);
@@ -1899,14 +1927,20 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
   // Damping per unit time: `damping` of the velocity goes per time step dt whatever the substeps.
-  const double keep = substeps == 1 ? 1.0 - params.damping : std::pow(1.0 - params.damping, 1.0 / substeps);
+  // The material model damps through its constraints instead (strain rates only, not rigid motion).
+  const bool elastic = params.elastic == ElasticModel::kNeoHookean;
+  const double keep = elastic ? 1.0 : substeps == 1 ? 1.0 - params.damping : std::pow(1.0 - params.damping, 1.0 / substeps);
+  const ElasticConstants material = elastic && h > 0.0 ? elastic_constants(params.youngs_modulus, params.poisson_ratio,
+                                                                           params.stiffness_damping, s.sim_size, h)
+                                                       : ElasticConstants{};
   gather_contacts(cut, s);  // contact (sim/contact.h)
-  build_step_batches(s, stretch_on, substeps);
+  build_step_batches(s, elastic ? h > 0.0 : stretch_on, substeps);
   double grab_lambda[3] = {0, 0, 0};
   // A substep starts with zero multipliers (the first chunk of its predict pass resets them; nothing
   // else reads them then).
   const auto begin_substep = [&] {
     for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    for (std::vector<double>& lambda : s.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     contacts_begin_substep(s.contacts);
     contacts_begin_substep(s.piece_contacts.set);
     for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
@@ -1966,6 +2000,11 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         // Two blocks at once where a colour shares no particle (pbd_kernels.h); the overflow's in order.
         solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data(),
                            b.index != kOverflowColour);
+        break;
+      case StepBatch::kElastic:
+        // One colour's hexahedra share no particle; the overflow's in order (pbd_elastic.h).
+        solve_elastic_rows(x, s.previous[0].data(), s.elastic_rows[b.index].data(), s.elastic_lambda[b.index].data(), begin,
+                           end, material, s.rotation.data());
         break;
       case StepBatch::kGrab:
         solve_grab(s, h, grab_lambda);

@@ -45,6 +45,7 @@
 #include "sim/contact.h"
 #include "sim/cut.h"
 #include "sim/flat_map.h"
+#include "sim/pbd_elastic.h"
 #include "sim/pbd_kernels.h"
 #include "sim/voxel_model.h"
 
@@ -58,7 +59,7 @@ namespace dvx {
 
 // The elastic model of the pieces. kPaper: the paper's stretch + shape matching (solver knobs: it
 // stiffens with every iteration); kNeoHookean: a material (E, nu) whose stiffness does not depend
-// on the solver's budget (issue 30).
+// on the solver's budget (issue 30; the energy is corotated elasticity: sim/pbd_elastic.h says why).
 enum class ElasticModel : uint8_t { kPaper, kNeoHookean };
 
 struct PbdParams {
@@ -67,6 +68,8 @@ struct PbdParams {
   ElasticModel elastic = ElasticModel::kPaper;
   double youngs_modulus = 5000.0;    // Pa (kNeoHookean)
   double poisson_ratio = 0.45;       // (kNeoHookean)
+  double stiffness_damping = 0.0;    // s: Rayleigh stiffness-proportional damping of the strains (kNeoHookean;
+                                     // a rigid motion is not slowed: `damping` below is kPaper's only)
   double density = 1000.0;           // kg/m^3 (lengths in metres: scene units x metres_per_unit)
   double stretch_compliance = 1e-6;  // XPBD compliance of the edge constraints (inverse stiffness)
   double shape_stiffness = 1.0;      // shape-matching stiffness in [0, 1]
@@ -74,7 +77,8 @@ struct PbdParams {
   int substeps = 1;
   int iterations = 10;
   Vec3d gravity = Vec3d(0.0, -9.81, 0.0);
-  double damping = 0.01;             // fraction of velocity removed per time step dt ((1-d)^(1/substeps) per substep)
+  double damping = 0.01;             // fraction of velocity removed per time step dt ((1-d)^(1/substeps) per
+                                     // substep); kPaper only (it slows rigid motion; kNeoHookean damps strains)
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
   std::vector<ContactPlane> planes;  // static contact planes (sim/contact.h)
   bool piece_contact = true;         // pieces of different bodies do not interpenetrate (sim/contact.h)
@@ -261,7 +265,7 @@ struct PbdModel {
 
 // One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
 struct StepBatch {
-  enum Kind : uint8_t { kPredict, kStretch, kShape, kGrab, kPieceContact, kPlaneContact, kVelocity };
+  enum Kind : uint8_t { kPredict, kStretch, kShape, kElastic, kGrab, kPieceContact, kPlaneContact, kVelocity };
   uint8_t kind;
   uint32_t index;  // colour group, or contact batch; kVelocity: 1 when the next substep's predict follows in the pass
 };
@@ -298,6 +302,10 @@ struct PbdData {
   std::vector<uint8_t> blocks_mark;    // (particles) scratch: changed by the recorded cuts
   std::vector<uint32_t> blocks_dirty;  // scratch: pieces whose clusters join again
   std::vector<StretchRow> stretch_rows[kColourGroups];  // parallel to stretch_groups
+  // kNeoHookean: the hexahedra of each colour group (parallel to piece_groups, rebuilt with the blocks)
+  // and their multipliers (kElasticConstraints per row, reset every substep).
+  std::vector<ElasticRow> elastic_rows[kColourGroups];
+  std::vector<double> elastic_lambda[kColourGroups];
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
   // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position, in
   // no particular order (each row writes its own slot), so a step without a cut looks up no labels.

@@ -1,5 +1,6 @@
 #include "engine/errors.h"
 #include "engine/scene.h"
+#include "engine/session.h"
 #include "support.h"
 
 #include <doctest/doctest.h>
@@ -131,5 +132,100 @@ TEST_SUITE("scene") {
     CHECK(again.pbd.sim_resolution == 8);
     CHECK(again.pbd.fixed.size() == 1);
     CHECK(again.pbd.dt == scene.pbd.dt);
+  }
+
+  TEST_CASE("a physical material selects the material model; units scale every length into metres") {
+    const Scene scene = parse_scene(json{{"mesh", "m.obj"},
+                                         {"units", {{"metres_per_unit", 0.01}}},
+                                         {"material", {{"youngs_modulus", 5400}, {"poisson_ratio", 0.47}, {"density", 1060}}},
+                                         {"fixed", {{{"box", {{0, 0, 0}, {10, 20, 30}}}}}},
+                                         {"scalpel", {{"length", 50}}},
+                                         {"planes", {{{"point", {0, 100, 0}}, {"normal", {0, 1, 0}}}}}},
+                                    "s.json");
+    CHECK(scene.pbd.elastic == ElasticModel::kNeoHookean);
+    CHECK(scene.pbd.youngs_modulus == 5400);
+    CHECK(scene.pbd.poisson_ratio == 0.47);
+    CHECK(scene.pbd.density == 1060);
+    CHECK(scene.metres_per_unit == 0.01);
+    CHECK(scene.pbd.fixed[0].max.z() == doctest::Approx(0.3));
+    CHECK(scene.scalpel.length == doctest::Approx(0.5));
+    CHECK(scene.pbd.planes[0].point.y() == doctest::Approx(1.0));
+    CHECK(scene.pbd.gravity.y() == doctest::Approx(-9.81));  // m/s^2 whatever the unit
+    // The paper's keys keep the paper's model; "model" names either explicitly.
+    CHECK(parse_scene(json{{"mesh", "m.obj"}, {"material", {{"shape_stiffness", 0.5}}}}, "s.json").pbd.elastic ==
+          ElasticModel::kPaper);
+    CHECK(parse_scene(json{{"mesh", "m.obj"}, {"material", {{"model", "neo_hookean"}}}}, "s.json").pbd.elastic ==
+          ElasticModel::kNeoHookean);
+    // The round trip keeps the model, the material and the lengths (written in metres) exactly.
+    const Scene again = parse_scene(scene_to_json(scene), "s.json");
+    CHECK(again.pbd.elastic == ElasticModel::kNeoHookean);
+    CHECK(again.pbd.youngs_modulus == 5400);
+    CHECK(again.metres_per_unit == 0.01);
+    CHECK(again.pbd.fixed[0].max == scene.pbd.fixed[0].max);
+    CHECK(again.pbd.planes[0].point == scene.pbd.planes[0].point);
+    CHECK(again.scalpel.length == scene.scalpel.length);
+    // A paper scene's JSON has no units and the paper's keys (recorded headers stay as they were).
+    const json paper = scene_to_json(parse_scene(json{{"mesh", "m.obj"}}, "s.json"));
+    CHECK_FALSE(paper.contains("units"));
+    CHECK(paper["material"].contains("shape_stiffness"));
+    CHECK_FALSE(paper["material"].contains("model"));
+  }
+
+  TEST_CASE("bad material values and units are errors naming the key") {
+    const auto material = [](json m) { return parse_error(json{{"mesh", "m.obj"}, {"material", m}}); };
+    CHECK(material({{"poisson_ratio", 0.5}}).find("material.poisson_ratio") != std::string::npos);
+    CHECK(material({{"poisson_ratio", -0.2}}).find("material.poisson_ratio") != std::string::npos);
+    CHECK(material({{"poisson_ratio", "0.3"}}).find("material.poisson_ratio: must be a number") != std::string::npos);
+    CHECK(material({{"youngs_modulus", 0}}).find("material.youngs_modulus") != std::string::npos);
+    CHECK(material({{"youngs_modulus", -5}}).find("material.youngs_modulus") != std::string::npos);
+    CHECK(material({{"youngs_modulus", 1e15}}).find("material.youngs_modulus") != std::string::npos);
+    CHECK(material({{"stiffness_damping", -1}}).find("material.stiffness_damping") != std::string::npos);
+    CHECK(material({{"model", "rubber"}}).find("material.model") != std::string::npos);
+    CHECK(material({{"youngs_modulus", 5000}, {"shape_stiffness", 0.2}}).find("material.shape_stiffness") != std::string::npos);
+    CHECK(material({{"model", "paper"}, {"youngs_modulus", 5000}}).find("material.youngs_modulus") != std::string::npos);
+    const auto units = [](json u) { return parse_error(json{{"mesh", "m.obj"}, {"units", u}}); };
+    CHECK(units({{"metres_per_unit", 0}}).find("units.metres_per_unit") != std::string::npos);
+    CHECK(units({{"metres_per_unit", -1}}).find("units.metres_per_unit") != std::string::npos);
+    CHECK(units({{"metre_per_unit", 1}}).find("units.metre_per_unit: unknown key") != std::string::npos);
+    CHECK(units({{"scene_lengths", "feet"}}).find("units.scene_lengths") != std::string::npos);
+  }
+
+  TEST_CASE("the liver is a human liver in SI units: ~0.2 m, ~1-2 kg, it hangs from its box onto its tray") {
+    const Scene scene = load_scene(dvx_test::source_path("assets/scenes/liver.json"));
+    CHECK(scene.pbd.elastic == ElasticModel::kNeoHookean);
+    Session session;
+    open_session(scene, scene.pbd.dt, true, 1, session);
+    const PbdState& s = *session.state.pbd;
+    const Aabb bounds = mesh_bounds(session.input.mesh);
+    MESSAGE("liver " << bounds.extent().transpose() << " m, " << total_mass(s) << " kg");
+    CHECK(bounds.extent().maxCoeff() == doctest::Approx(0.2).epsilon(0.02));
+    CHECK(total_mass(s) > 1.0);
+    CHECK(total_mass(s) < 2.0);
+    const double mass = total_mass(s);
+    for (int i = 0; i < 60; ++i) session_step(session, StepCommands());
+    CHECK(count_nonfinite(s) == 0);
+    CHECK(total_mass(s) == mass);
+    // The anchored particles stay; the rest sags (down, not away), and the surface stays on the tray
+    // (its lowest vertex within a millimetre of it: the contact's resting offset).
+    double sag = 0.0, moving = 0.0;
+    for (size_t p = 0; p < s.position.size(); ++p) {
+      if (s.refs[p] == 0) continue;
+      if (s.inv_mass[p] == 0.0) {
+        CHECK(s.position[p] == s.rest[p]);
+        continue;
+      }
+      sag += s.mass[p] * (s.rest[p].y() - s.position[p].y());
+      moving += s.mass[p];
+    }
+    const double tray = scene.pbd.planes[0].point.y();
+    double lowest = 1e30;
+    for (size_t v = 0; v < s.embedding.size() && v < s.deformed.size(); ++v) {
+      if (s.embedding[v].sim_voxel != kDeadIndex) lowest = std::min(lowest, double(s.deformed[v].y()));
+    }
+    MESSAGE("mean sag " << sag / moving << " m, lowest surface vertex " << lowest - tray << " m above the tray");
+    CHECK(sag / moving > 0.001);
+    CHECK(sag / moving < 0.05);
+    CHECK(lowest > tray - 0.001);
+    CHECK(lowest < tray + 0.005);  // it reached the tray
   }
 }

@@ -1,0 +1,69 @@
+// Elasticity of a material (issue 30, DESIGN §3 "A material, not solver knobs"): each simulation piece
+// is a trilinear hexahedron on its 8 corner particles with XPBD constraints whose energy is the
+// corotated elastic one, Psi = mu |F - R|^2 + lambda / 2 (J - 1)^2:
+//
+//   shear       C_g = |F_g - R|_F   at each of the 2x2x2 Gauss points g, compliance 1 / (2 mu V_g)
+//   volume      C_H = det F - 1     at the centre,                       compliance 1 / (lambda V)
+//
+// F = sum_a x_a (x) grad N_a: the rest hexahedron is the piece's simulation voxel, an axis-aligned cube
+// of edge sim_size, so the shape-function gradients are one table for every piece. R is the rotation
+// of F at the centre (extract_rotation_step, warm-started from the piece's previous rotation, so
+// flattened and inverted pieces come back). mu and lambda are Lamé's (E, nu): the energy linearises
+// to mu |eps|^2 + lambda / 2 tr(eps)^2, small-strain elasticity exactly. The volume term at one point
+// does not lock as nu -> 0.5; the shear terms at 8 points leave no hourglass modes. V is the piece's
+// material volume (its exact eighths), V_g = V / 8: a partly filled or cut piece is as stiff as the
+// material it holds (uniformly over its octants).
+//
+// Why not Stable Neo-Hookean's constraints (Macklin & Müller 2021: sqrt(tr(F^T F)) and det F - gamma)?
+// Measured: their rest state balances two large opposite multipliers (sqrt(3) / alpha each), which an
+// XPBD solve rebuilds from zero every substep; in the stiff regime (a 1 m beam at E 100 MPa) a
+// cantilever's sag fell as 1 / (substeps x iterations), to 1 % of the true sag: stiffening with the
+// budget. Every constraint here is zero at rest.
+//
+// XPBD (Macklin et al. 2016): multipliers per constraint, reset at each substep, compliance
+// alpha / h^2, so the stiffness is the material's whatever the iterations or substeps (fewer of them
+// are softer, never stiffer). Damping is stiffness-proportional (Rayleigh beta, seconds) through the
+// constraints (XPBD eq. 26): it acts on the rate of the strains only, so a rigid motion is not slowed.
+#pragma once
+
+#include <Eigen/Geometry>
+
+#include <cstdint>
+
+namespace dvx {
+
+// The material's constants as the constraint kernel reads them (per substep of length h).
+struct ElasticConstants {
+  double inv_edge = 1.0;     // 1 / sim_size (the rest hexahedron's edge)
+  double alpha_dev = 0.0;    // 1 / (2 mu h^2): shear compliance per unit volume
+  double alpha_vol = 0.0;    // 1 / (lambda h^2): volume compliance per unit volume (lambda > 0)
+  bool volume = true;        // lambda > 0 (nu > 0): the volume constraint acts
+  double damping = 0.0;      // beta / h (XPBD constraint damping; beta: Rayleigh stiffness damping in s)
+};
+
+// Lamé constants of (E, nu) and the kernel's constants for a substep h.
+ElasticConstants elastic_constants(double youngs_modulus, double poisson_ratio, double beta, double sim_size, double h);
+
+// One piece as the solver reads it: its corner particles (corner c = dx | dy<<1 | dz<<2), their inverse
+// masses (copied once per model revision), and its material volume.
+struct ElasticRow {
+  uint32_t p[8];
+  uint32_t piece;  // slot of the piece (its rotation's warm start)
+  double w[8];
+  double volume;  // material volume of the piece (m^3)
+};
+
+// Number of constraints (multipliers) of a row: 8 shear, 1 volume.
+constexpr int kElasticConstraints = 9;
+
+// Solves rows [begin, end) in order, each one's 9 constraints in turn (Gauss-Seidel), with their
+// multipliers (kElasticConstraints per row). x: positions (3 per particle); previous: positions at
+// the substep's start (for the damping); rotation: per piece slot, warm start updated in place.
+void solve_elastic_rows(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
+                        uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation);
+
+// The deformation gradient of a hexahedron at local point xi in [-1,1]^3 (F row-major), from its 8
+// corners (3 doubles each) and inv_edge: for tests and diagnostics.
+void hex_deformation_gradient(const double* corners, const double xi[3], double inv_edge, double F[9]);
+
+}  // namespace dvx
