@@ -4,6 +4,8 @@
 #include "sim/surface_metrics.h"
 #include "sim/union_find.h"
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <array>
 #include <bit>
@@ -1025,6 +1027,52 @@ bool on_ambiguous_face(const VoxelModel& model, uint32_t edge) {
   return false;
 }
 
+// Whether `edge` is the last link of inside node n to another node: every other lattice edge of n
+// leads outside or is cut, and no ambiguous face joins n to its diagonal corner (voxel_material_joins:
+// a face none of whose edges is cut or crossed in the air). Cutting it would make n a component of
+// its own, a closed bit smaller than one fine voxel (the organ's surface lies within a voxel of the
+// cut on n's side): a crumb below the lattice's resolution. The divide leaves such an edge uncut, so
+// the node's material stays with the other side (the mass is unchanged: nothing is dropped). A slit
+// re-cut anywhere along it crosses only edges cut already or edges like this one: it sheds nothing.
+bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
+  const Lattice& l = model.lattice;
+  int32_t c[3];
+  l.node_coords(n, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  const auto severed = [&](uint32_t e) { return state.edge_cut_of.contains(e) || state.air_edges.contains(e); };
+  // The node's six edges: a link is an uncut edge to an inside neighbour.
+  for (int a = 0; a < 3; ++a) {
+    const uint32_t step = node_stride(l, a);
+    if (c[a] < dims[a]) {
+      const uint32_t e = Lattice::edge(n, a);
+      if (e != edge && model.is_inside(n + step) && !state.edge_cut_of.contains(e)) return false;
+    }
+    if (c[a] > 0) {
+      const uint32_t e = Lattice::edge(n - step, a);
+      if (e != edge && model.is_inside(n - step) && !state.edge_cut_of.contains(e)) return false;
+    }
+  }
+  // Ambiguous faces at n: n and its diagonal corner inside, the other two outside, no edge severed.
+  for (int a = 0; a < 3; ++a) {
+    for (int b = a + 1; b < 3; ++b) {
+      for (int sa = -1; sa <= 1; sa += 2) {
+        for (int sb = -1; sb <= 1; sb += 2) {
+          if (c[a] + sa < 0 || c[a] + sa > dims[a] || c[b] + sb < 0 || c[b] + sb > dims[b]) continue;
+          const uint32_t na = sa > 0 ? n + node_stride(l, a) : n - node_stride(l, a);
+          const uint32_t nb = sb > 0 ? n + node_stride(l, b) : n - node_stride(l, b);
+          const uint32_t nd = sb > 0 ? na + node_stride(l, b) : na - node_stride(l, b);
+          if (!model.is_inside(nd) || model.is_inside(na) || model.is_inside(nb)) continue;
+          // The face's edges, each from its lower node.
+          const uint32_t e0 = Lattice::edge(sa > 0 ? n : na, a), e1 = Lattice::edge(sb > 0 ? n : nb, b);
+          const uint32_t e2 = Lattice::edge(sb > 0 ? na : nd, b), e3 = Lattice::edge(sa > 0 ? nb : nd, a);
+          if (!severed(e0) && !severed(e1) && !severed(e2) && !severed(e3)) return false;
+        }
+      }
+    }
+  }
+  return true;
+}
+
 // What one blade crossing did to its edge.
 enum class EdgeChange { kNone, kCut, kAir };
 
@@ -1049,6 +1097,11 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
   }
   const uint32_t i = state.edge_cut_of.get(hit.edge);
   if (i == kDeadIndex) {
+    // No crumbs: a first cut of a material edge that would leave one of its nodes joined to no other
+    // node is not made (the node stays with the other end: see last_material_link).
+    if (in0 && in1 && (last_material_link(model, state, n0, hit.edge) || last_material_link(model, state, n1, hit.edge))) {
+      return EdgeChange::kNone;
+    }
     state.edge_cut_of.set(hit.edge, uint32_t(state.edge_cuts.size()));
     state.edge_cuts.push_back(EdgeCut{hit.edge, hit.t, hit.t, hit.normal, hit.normal});
     return EdgeChange::kCut;
@@ -1455,6 +1508,36 @@ SurfaceMesh compact_surface(const CutSurface& s) {
     mesh.triangles.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
   }
   return mesh;
+}
+
+std::vector<double> component_volumes(const SurfaceMesh& mesh) {
+  const uint32_t n = uint32_t(mesh.positions.size());
+  std::vector<uint32_t> parent(n);
+  for (uint32_t v = 0; v < n; ++v) parent[v] = v;
+  for (const Tri& t : mesh.triangles) {
+    uf_unite(parent.data(), t[0], t[1]);
+    uf_unite(parent.data(), t[0], t[2]);
+  }
+  // Components numbered by their root (the lowest vertex); the signed volume of each, by the
+  // divergence theorem over its triangles.
+  std::vector<uint32_t> index(n, kDeadIndex);
+  std::vector<double> volume;
+  for (const Tri& t : mesh.triangles) {
+    const uint32_t root = uf_find(parent.data(), t[0]);
+    if (index[root] == kDeadIndex) index[root] = 0;  // marked: used by a triangle
+  }
+  for (uint32_t v = 0; v < n; ++v) {
+    if (index[v] == 0 && uf_find(parent.data(), v) == v) {
+      index[v] = uint32_t(volume.size());
+      volume.push_back(0.0);
+    }
+  }
+  for (const Tri& t : mesh.triangles) {
+    const Vec3d a = mesh.positions[t[0]].cast<double>(), b = mesh.positions[t[1]].cast<double>();
+    const Vec3d c = mesh.positions[t[2]].cast<double>();
+    volume[index[uf_find(parent.data(), t[0])]] += a.dot(b.cross(c)) / 6.0;
+  }
+  return volume;
 }
 
 namespace {
