@@ -260,6 +260,8 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& 
 void reset_sweep(SweepMapper& mapper) {
   mapper.carried.clear();
   mapper.carried_piece.clear();
+  mapper.carried_outside.clear();
+  mapper.carried_near.clear();
 }
 
 namespace {
@@ -286,10 +288,16 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
     // The piece that held it, while it is live and still spans that rest point; else the material there.
     uint32_t piece = m.carried_piece[i];
     Vec3d u = Vec3d::Constant(-1.0);
+    bool live = false;
     if (piece < pbd.pieces.size() && pbd.pieces[piece].sim_voxel != kDeadIndex) {
       u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
+      live = true;
     }
-    if (!(u.minCoeff() >= -1e-6 && u.maxCoeff() <= 1.0 + 1e-6)) {
+    // A sample outside every piece was carried with a neighbour's piece, its map extrapolated: it
+    // moves with that piece while the piece lives (so the strip's end in the air follows the tissue
+    // as its samples in material do, and the sweep's first row maps back to where the last ended).
+    const bool extrapolated = live && m.carried_outside[i];
+    if (!extrapolated && !(u.minCoeff() >= -1e-6 && u.maxCoeff() <= 1.0 + 1e-6)) {
       piece = piece_at_rest(model, pbd, m.carried[i]);
       if (piece == kDeadIndex) continue;
       u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
@@ -532,6 +540,8 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
   // that piece: the material closing in on it is then cut by the relative motion.
   m.carried.assign(nu + 1, Vec3d::Constant(std::numeric_limits<double>::quiet_NaN()));
   m.carried_piece.assign(nu + 1, kDeadIndex);
+  m.carried_outside.assign(nu + 1, 0);
+  m.carried_near.assign(nu + 1, kDeadIndex);
   for (uint32_t i = 0; i <= nu; ++i) {
     const uint32_t k = nv * row + i;
     if (m.hit_begin[k] < m.hit_begin[k + 1]) {
@@ -549,6 +559,36 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
       m.carried[i] = m.grid.piece_origin[slot] + pbd.sim_size * u;
       m.carried_piece[i] = slot;
     });
+  }
+  // The samples in no piece: carried through the piece of the nearest sample along the blade that has
+  // one (its map extrapolated, as the cells' quads map them), so they move with the tissue too.
+  for (int pass = 0; pass < 2; ++pass) {
+    uint32_t near = kDeadIndex;
+    for (uint32_t x = 0; x <= nu; ++x) {
+      const uint32_t i = pass == 0 ? x : nu - x;
+      if (m.carried_piece[i] != kDeadIndex && !m.carried_outside[i]) {
+        near = i;
+        continue;
+      }
+      if (near == kDeadIndex) continue;
+      const uint32_t slot = m.carried_piece[near];
+      const uint32_t distance = near > i ? near - i : i - near;
+      // The nearer neighbour wins (the first pass, from below, holds the ties).
+      if (m.carried_piece[i] != kDeadIndex) {
+        const uint32_t before = m.carried_near[i] > i ? m.carried_near[i] - i : i - m.carried_near[i];
+        if (before <= distance) continue;
+      }
+      const uint32_t k = nv * row + i;
+      Vec3d u;
+      if (m.grid.jinv_valid.size() <= slot ||
+          !piece_local(pbd, m.grid, slot, m.points[k], (m.carried[near] - m.grid.piece_origin[slot]) / pbd.sim_size, u)) {
+        continue;
+      }
+      m.carried[i] = m.grid.piece_origin[slot] + pbd.sim_size * u;
+      m.carried_piece[i] = slot;
+      m.carried_outside[i] = 1;
+      m.carried_near[i] = near;
+    }
   }
   if (stats) {
     stats->samples += count;

@@ -118,6 +118,9 @@ struct SweepMapper {
   // (or, in a slit or a gap, whose hexahedron) held it; NaN: in no piece.
   std::vector<Vec3d> carried;
   std::vector<uint32_t> carried_piece;
+  // (blade samples) 1: in no piece, carried through the piece of sample carried_near (extrapolated).
+  std::vector<uint8_t> carried_outside;
+  std::vector<uint32_t> carried_near;
   PieceGrid grid;
   std::vector<Vec3d> from_world, to_world, points;
   std::vector<uint32_t> hit_begin;

@@ -85,6 +85,15 @@ SweepResult sweep(Body& b, const BladePose& from, const BladePose& to, int steps
     if (grab) c.grab = grab(i);
     StepReport report;
     world_step(b.model, b.state, c, context, &report);
+    if (getenv("DUMPQ")) {
+      for (const RestQuad& q : b.state.sweep.quads) {
+        const Vec3d* pts[4] = {&q.from.a, &q.from.b, &q.to.a, &q.to.b};
+        bool near = false;
+        for (const Vec3d* p : pts) near |= std::abs(p->x() + 0.22) < 0.1 && std::abs(p->z() + 0.5) < 0.12;
+        if (!near) continue;
+        MESSAGE("step " << i << " quad from " << q.from.a.transpose() << " | " << q.from.b.transpose() << "  to " << q.to.a.transpose() << " | " << q.to.b.transpose());
+      }
+    }
     r.edges_cut += report.cut.edges_cut;
     std::string error;
     REQUIRE_MESSAGE(check_cut_state(b.voxels(), b.state.cut, error), error);
@@ -157,6 +166,56 @@ TEST_SUITE("sever") {
       MESSAGE("0.2-unit body, steps " << steps << ": components " << r.components << ", p95 " << r.p95());
       CHECK(r.components == 2);
       CHECK(r.p95() <= 1.0);
+    }
+  }
+}
+
+TEST_CASE("debug gap" * doctest::skip(true)) {
+  Body b;
+  hanging_bar(b, 1.0, 200);
+  settle(b, 10);
+  SweepResult r = sweep(b, blade_at(-1.2, -0.2137, 2.0), blade_at(1.2, -0.2137, 2.0), 40);
+  const Lattice& l = b.voxels().lattice;
+  for (int32_t k = 0; k <= l.nz; ++k) {
+    std::string line;
+    for (int32_t i = 0; i <= l.nx; ++i) {
+      int inside = 0, cut = 0;
+      for (int32_t j = 0; j < l.ny; ++j) {
+        const uint32_t n = l.node(i, j, k);
+        if (!b.voxels().is_inside(n)) continue;
+        ++inside;
+        if (b.state.cut.edge_cut_of.contains(Lattice::edge(n, 1))) cut = j;
+      }
+      line += inside == 0 ? ' ' : cut == 0 ? 'X' : char('a' + cut - 10);
+    }
+    MESSAGE(line);
+  }
+  // Cut heights per column, then the uncut horizontal edges between columns of different heights.
+  const auto height = [&](int32_t i, int32_t k) {
+    for (int32_t j = 0; j < l.ny; ++j) {
+      const uint32_t n = l.node(i, j, k);
+      if (b.voxels().is_inside(n) && b.state.cut.edge_cut_of.contains(Lattice::edge(n, 1))) return j;
+    }
+    return -1;
+  };
+  for (int32_t k = 0; k <= l.nz; ++k) {
+    for (int32_t i = 0; i <= l.nx; ++i) {
+      const int32_t h0 = height(i, k);
+      if (h0 < 0) continue;
+      for (int a : {0, 2}) {
+        const int32_t i1 = a == 0 ? i + 1 : i, k1 = a == 2 ? k + 1 : k;
+        if (i1 > l.nx || k1 > l.nz) continue;
+        const int32_t h1 = height(i1, k1);
+        if (h1 < 0 || h1 == h0) continue;
+        for (int32_t j = std::min(h0, h1) + 1; j <= std::max(h0, h1); ++j) {
+          const uint32_t n = l.node(i, j, k);
+          const uint32_t e = Lattice::edge(n, a);
+          if (!b.state.cut.edge_cut_of.contains(e)) {
+            const Vec3d p = l.node_position(i, j, k);
+            MESSAGE("bridge axis " << a << " at " << i << "," << j << "," << k << " rest " << p.transpose() << " heights " << h0 << " " << h1);
+          }
+        }
+      }
     }
   }
 }
