@@ -5,7 +5,6 @@
 #include "sim/union_find.h"
 
 #include <Eigen/Geometry>
-#include <cstdlib>
 
 #include <algorithm>
 #include <array>
@@ -1100,7 +1099,7 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
   if (i == kDeadIndex) {
     // No crumbs: a first cut of a material edge that would leave one of its nodes joined to no other
     // node is not made (the node stays with the other end: see last_material_link).
-    if (!getenv("NOCRUMB") && in0 && in1 && (last_material_link(model, state, n0, hit.edge) || last_material_link(model, state, n1, hit.edge))) {
+    if (in0 && in1 && (last_material_link(model, state, n0, hit.edge) || last_material_link(model, state, n1, hit.edge))) {
       return EdgeChange::kNone;
     }
     state.edge_cut_of.set(hit.edge, uint32_t(state.edge_cuts.size()));
