@@ -1039,7 +1039,7 @@ bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t
   int32_t c[3];
   l.node_coords(n, c);
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
-  const auto severed = [&](uint32_t e) { return state.edge_cut_of.contains(e) || state.air_edges.contains(e); };
+  const auto severed = [&](uint32_t e) { return e == edge || state.edge_cut_of.contains(e) || state.air_edges.contains(e); };
   // The node's six edges: a link is an uncut edge to an inside neighbour.
   for (int a = 0; a < 3; ++a) {
     const uint32_t step = node_stride(l, a);
@@ -1073,6 +1073,30 @@ bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t
   return true;
 }
 
+// Whether severing `edge` (a cut of a surface edge, or a crossing in the air) would take the last link
+// of an inside corner of an ambiguous face around it: the face no longer joins its diagonal.
+bool isolates_diagonal(const VoxelModel& model, const CutState& state, uint32_t edge) {
+  const Lattice& l = model.lattice;
+  const int a = int(edge % 3);
+  const uint32_t n0 = edge / 3, n1 = n0 + node_stride(l, a);
+  int32_t c[3];
+  l.node_coords(n0, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  for (int k = 1; k <= 2; ++k) {
+    const int b = (a + k) % 3;
+    for (int sb = -1; sb <= 1; sb += 2) {
+      if (c[b] + sb < 0 || c[b] + sb > dims[b]) continue;
+      const uint32_t m0 = sb > 0 ? n0 + node_stride(l, b) : n0 - node_stride(l, b);
+      const uint32_t m1 = sb > 0 ? n1 + node_stride(l, b) : n1 - node_stride(l, b);
+      const bool i0 = model.is_inside(n0), i1 = model.is_inside(n1), j0 = model.is_inside(m0), j1 = model.is_inside(m1);
+      if (!(i0 == j1 && i1 == j0 && i0 != i1)) continue;  // not ambiguous
+      const uint32_t p = i0 ? n0 : n1, q = i0 ? m1 : m0;   // the face's inside corners
+      if (last_material_link(model, state, p, edge) || last_material_link(model, state, q, edge)) return true;
+    }
+  }
+  return false;
+}
+
 // What one blade crossing did to its edge.
 enum class EdgeChange { kNone, kCut, kAir };
 
@@ -1091,6 +1115,7 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
     const float ts = c ? c->t : 0.5f;
     if (in0 ? hit.t >= ts : hit.t <= ts) {
       if (!on_ambiguous_face(model, hit.edge) || state.air_edges.contains(hit.edge)) return EdgeChange::kNone;
+      if (!state.edge_cut_of.contains(hit.edge) && isolates_diagonal(model, state, hit.edge)) return EdgeChange::kNone;
       state.air_edges.set(hit.edge, 0);
       return EdgeChange::kAir;
     }
@@ -1100,6 +1125,10 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
     // No crumbs: a first cut of a material edge that would leave one of its nodes joined to no other
     // node is not made (the node stays with the other end: see last_material_link).
     if (in0 && in1 && (last_material_link(model, state, n0, hit.edge) || last_material_link(model, state, n1, hit.edge))) {
+      return EdgeChange::kNone;
+    }
+    if (in0 != in1 && !state.air_edges.contains(hit.edge) && on_ambiguous_face(model, hit.edge) &&
+        isolates_diagonal(model, state, hit.edge)) {
       return EdgeChange::kNone;
     }
     state.edge_cut_of.set(hit.edge, uint32_t(state.edge_cuts.size()));

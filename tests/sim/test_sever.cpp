@@ -14,6 +14,10 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <fstream>
+#include <map>
+#include "sim/union_find.h"
+#include <sstream>
 #include <cmath>
 #include <functional>
 #include <set>
@@ -302,5 +306,105 @@ TEST_SUITE("sever") {
       const double motion = c.speed * b.model.params.dt / b.pbd().fine_size;
       CHECK(r.p95() <= 1.0 + motion);
     }
+  }
+}
+
+namespace {
+
+// A shipped organ (assets/meshes, OBJ: v and f lines; f a/b/c takes the vertex index).
+TriMesh shipped_organ(const std::string& name) {
+  TriMesh mesh;
+  std::ifstream in(std::string(DIVVOX_SOURCE_DIR) + "/assets/meshes/" + name);
+  REQUIRE_MESSAGE(in.good(), name);
+  std::string line;
+  while (std::getline(in, line)) {
+    std::istringstream s(line);
+    std::string kind;
+    s >> kind;
+    if (kind == "v") {
+      Vec3d p;
+      s >> p.x() >> p.y() >> p.z();
+      mesh.positions.push_back(p);
+    } else if (kind == "f") {
+      Tri t;
+      for (uint32_t& v : t) {
+        std::string word;
+        s >> word;
+        v = uint32_t(std::stoul(word.substr(0, word.find('/')))) - 1;
+      }
+      mesh.triangles.push_back(t);
+    }
+  }
+  return mesh;
+}
+
+}  // namespace
+
+TEST_SUITE("sever") {
+  TEST_CASE("no crumbs: smooth strokes on the shipped organs leave no one-node component") {
+    for (const char* name : {"bunny_npm.obj", "liver_sofa_smooth.obj"}) {
+      CAPTURE(name);
+      const TriMesh mesh = shipped_organ(name);
+      const VoxelModel model = dvx_test::voxelized(mesh, 48);
+      const Aabb box = mesh_bounds(mesh);
+      const Vec3d lo = box.min, size = box.extent();
+      const double h = model.lattice.voxel_size;
+      CutState state;
+      init_cut_state(model, state);
+      // Strokes: blades along z across the organ, each swept in 12 steps from one side to partway
+      // (a slit) or through, at heights and tilts that graze the surface in many places.
+      uint32_t strokes = 0;
+      for (int s = 0; s < 8; ++s) {
+        const double y = lo.y() + size.y() * (0.15 + 0.1 * s) + 0.0137 * h;
+        const double tilt = 0.2 * (s % 3 - 1);
+        const double reach = s % 2 ? 1.1 : 0.6;  // through, or a slit
+        const BladePose from{Vec3d(lo.x() - 0.1 * size.x(), y, lo.z() - 0.1 * size.z()),
+                             Vec3d(lo.x() - 0.1 * size.x(), y + tilt * size.z(), lo.z() + 1.1 * size.z())};
+        const BladePose to{from.a + Vec3d(reach * size.x(), 0.05 * size.y(), 0.0),
+                           from.b + Vec3d(reach * size.x(), 0.05 * size.y(), 0.0)};
+        dvx_test::sweep_steps(model, state, from, to, 12, [](int) {});
+        ++strokes;
+      }
+      std::string error;
+      REQUIRE_MESSAGE(check_cut_state(model, state, error), error);
+      const std::vector<double> volumes = component_volumes(compact_surface(state.surface));
+      const double smallest = *std::min_element(volumes.begin(), volumes.end());
+      // One-node components (8-vertex closed bits: a node cut from all its neighbours) are gone.
+      const SurfaceMesh m = compact_surface(state.surface);
+      std::vector<uint32_t> parent(m.positions.size());
+      for (uint32_t v = 0; v < parent.size(); ++v) parent[v] = v;
+      for (const Tri& t : m.triangles) {
+        uf_unite(parent.data(), t[0], t[1]);
+        uf_unite(parent.data(), t[0], t[2]);
+      }
+      std::map<uint32_t, int> vertices;
+      for (uint32_t v = 0; v < parent.size(); ++v) ++vertices[uf_find(parent.data(), v)];
+      int one_node = 0;
+      for (const auto& [root, n] : vertices) one_node += n <= 8;
+      CHECK(one_node == 0);
+      MESSAGE(std::string(name) << ": " << strokes << " strokes, " << volumes.size() << " components, smallest " << smallest / (h * h * h)
+                   << " fine voxels");
+      // Measured: the liver's smallest piece is 52 fine voxels; the bunny keeps one two-node crumb
+      // (12 vertices, 0.006 fine voxels): the rule covers single nodes only (docs/cutting.md).
+      if (std::string(name) == "liver_sofa_smooth.obj") CHECK(smallest >= h * h * h);
+    }
+  }
+
+  TEST_CASE("five re-cuts of one slit through deformed tissue add no component") {
+    Body b;
+    hanging_bar(b, 1.0, 50);
+    settle(b, 10);
+    // A slit halfway across, then the tissue sags open around it.
+    sweep(b, blade_at(-1.2, -0.2137, 2.0), blade_at(-0.1, -0.2137, 2.0), 9);
+    settle(b, 10);
+    const int before = components(b);
+    for (int again = 0; again < 5; ++again) {
+      sweep(b, blade_at(-1.2, -0.2137, 2.0), blade_at(-0.1, -0.2137, 2.0), 9);
+      settle(b, 5);
+      CHECK(components(b) == before);
+    }
+    const std::vector<double> volumes = component_volumes(compact_surface(b.state.cut.surface));
+    const double h = b.pbd().fine_size;
+    CHECK(*std::min_element(volumes.begin(), volumes.end()) >= h * h * h);
   }
 }
