@@ -1027,32 +1027,28 @@ bool on_ambiguous_face(const VoxelModel& model, uint32_t edge) {
   return false;
 }
 
-// Whether `edge` is the last link of inside node n to another node: every other lattice edge of n
-// leads outside or is cut, and no ambiguous face joins n to its diagonal corner (voxel_material_joins:
-// a face none of whose edges is cut or crossed in the air). Cutting it would make n a component of
-// its own, a closed bit smaller than one fine voxel (the organ's surface lies within a voxel of the
-// cut on n's side): a crumb below the lattice's resolution. The divide leaves such an edge uncut, so
-// the node's material stays with the other side (the mass is unchanged: nothing is dropped). A slit
-// re-cut anywhere along it crosses only edges cut already or edges like this one: it sheds nothing.
-bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
+// The nodes inside node n is linked to in the material graph with `edge` severed: the uncut lattice
+// edges to inside neighbours, and the ambiguous faces that join n to their diagonal corner
+// (voxel_material_joins: a face none of whose edges is cut or crossed in the air). Returns the count
+// (at most 6 + 12).
+int material_links(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, uint32_t out[18]) {
   const Lattice& l = model.lattice;
   int32_t c[3];
   l.node_coords(n, c);
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
   const auto severed = [&](uint32_t e) { return e == edge || state.edge_cut_of.contains(e) || state.air_edges.contains(e); };
-  // The node's six edges: a link is an uncut edge to an inside neighbour.
+  int count = 0;
   for (int a = 0; a < 3; ++a) {
     const uint32_t step = node_stride(l, a);
     if (c[a] < dims[a]) {
       const uint32_t e = Lattice::edge(n, a);
-      if (e != edge && model.is_inside(n + step) && !state.edge_cut_of.contains(e)) return false;
+      if (e != edge && model.is_inside(n + step) && !state.edge_cut_of.contains(e)) out[count++] = n + step;
     }
     if (c[a] > 0) {
       const uint32_t e = Lattice::edge(n - step, a);
-      if (e != edge && model.is_inside(n - step) && !state.edge_cut_of.contains(e)) return false;
+      if (e != edge && model.is_inside(n - step) && !state.edge_cut_of.contains(e)) out[count++] = n - step;
     }
   }
-  // Ambiguous faces at n: n and its diagonal corner inside, the other two outside, no edge severed.
   for (int a = 0; a < 3; ++a) {
     for (int b = a + 1; b < 3; ++b) {
       for (int sa = -1; sa <= 1; sa += 2) {
@@ -1065,9 +1061,34 @@ bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t
           // The face's edges, each from its lower node.
           const uint32_t e0 = Lattice::edge(sa > 0 ? n : na, a), e1 = Lattice::edge(sb > 0 ? n : nb, b);
           const uint32_t e2 = Lattice::edge(sb > 0 ? na : nd, b), e3 = Lattice::edge(sa > 0 ? nb : nd, a);
-          if (!severed(e0) && !severed(e1) && !severed(e2) && !severed(e3)) return false;
+          if (!severed(e0) && !severed(e1) && !severed(e2) && !severed(e3)) out[count++] = nd;
         }
       }
+    }
+  }
+  return count;
+}
+
+// Fewest nodes a component may keep: a cut leaving fewer in one piece makes a crumb.
+constexpr int kCrumbNodes = 4;
+
+// Whether severing `edge` would leave inside node n in a component of fewer than kCrumbNodes nodes
+// (a closed bit below the lattice's resolution: the organ's surface lies within a voxel or two of the
+// cut on n's side). A flood fill over the material graph from n that stops as soon as it has found
+// kCrumbNodes nodes. The divide does not make such a cut, so those nodes stay with the material across
+// the edge (the mass is unchanged: nothing is dropped). A slit re-cut anywhere along it crosses only
+// edges cut already or edges like this one: it sheds nothing.
+bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
+  uint32_t found[kCrumbNodes];
+  int count = 1, next = 0;
+  found[0] = n;
+  while (next < count) {
+    uint32_t links[18];
+    const int k = material_links(model, state, found[next++], edge, links);
+    for (int i = 0; i < k; ++i) {
+      if (std::find(found, found + count, links[i]) != found + count) continue;
+      if (count == kCrumbNodes) return false;  // large enough
+      found[count++] = links[i];
     }
   }
   return true;

@@ -341,7 +341,7 @@ TriMesh shipped_organ(const std::string& name) {
 }  // namespace
 
 TEST_SUITE("sever") {
-  TEST_CASE("no crumbs: smooth strokes on the shipped organs leave no one-node component") {
+  TEST_CASE("no crumbs: smooth strokes on the shipped organs leave no component smaller than a fine voxel") {
     for (const char* name : {"bunny_npm.obj", "liver_sofa_smooth.obj"}) {
       CAPTURE(name);
       const TriMesh mesh = shipped_organ(name);
@@ -369,7 +369,7 @@ TEST_SUITE("sever") {
       REQUIRE_MESSAGE(check_cut_state(model, state, error), error);
       const std::vector<double> volumes = component_volumes(compact_surface(state.surface));
       const double smallest = *std::min_element(volumes.begin(), volumes.end());
-      // One-node components (8-vertex closed bits: a node cut from all its neighbours) are gone.
+      // No one-node components (8-vertex closed bits: a node cut from all its neighbours).
       const SurfaceMesh m = compact_surface(state.surface);
       std::vector<uint32_t> parent(m.positions.size());
       for (uint32_t v = 0; v < parent.size(); ++v) parent[v] = v;
@@ -384,9 +384,7 @@ TEST_SUITE("sever") {
       CHECK(one_node == 0);
       MESSAGE(std::string(name) << ": " << strokes << " strokes, " << volumes.size() << " components, smallest " << smallest / (h * h * h)
                    << " fine voxels");
-      // Measured: the liver's smallest piece is 52 fine voxels; the bunny keeps one two-node crumb
-      // (12 vertices, 0.006 fine voxels): the rule covers single nodes only (docs/cutting.md).
-      if (std::string(name) == "liver_sofa_smooth.obj") CHECK(smallest >= h * h * h);
+      CHECK(smallest >= h * h * h);
     }
   }
 
