@@ -262,6 +262,8 @@ void reset_sweep(SweepMapper& mapper) {
   mapper.carried_piece.clear();
   mapper.carried_outside.clear();
   mapper.carried_near.clear();
+  mapper.ended.clear();
+  mapper.ended_begin.clear();
 }
 
 namespace {
@@ -306,6 +308,16 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
     piece_corners(pbd, piece, corners);
     m.from_world[i] = trilinear(corners, u);
   }
+}
+
+// The rest point the last step's quads through `piece` ended on at blade sample i (false: none).
+bool ended_through(const SweepMapper& m, uint32_t i, uint32_t piece, Vec3d& rest) {
+  for (uint32_t x = m.ended_begin[i]; x < m.ended_begin[i + 1]; ++x) {
+    if (m.ended[x].piece != piece) continue;
+    rest = m.ended[x].rest;
+    return true;
+  }
+  return false;
 }
 
 // The rest image through `piece` of grid point k: its hit when it has one, else Newton from `start`.
@@ -471,6 +483,9 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
   m.hit_begin[count] = uint32_t(m.hits.size());
 
   // Cells: one rest quad per piece holding one of the cell's corners.
+  const bool carry = m.ended_begin.size() == size_t(nu) + 2;
+  m.ending.clear();
+  m.ending_sample.clear();
   m.open.clear();
   m.rungs.clear();
   m.merged_away.clear();
@@ -508,8 +523,18 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
         for (int p = 0; p < piece_count; ++p) {
           Vec3d r[4];
           bool ok = true;
-          for (int c = 0; c < 4 && ok; ++c) ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
+          for (int c = 0; c < 4 && ok; ++c) {
+            // The first row starts where the last step's quads through this piece ended.
+            if (c < 2 && j == 0 && carry && ended_through(m, i + uint32_t(c), pieces[p], r[c])) continue;
+            ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
+          }
           if (!ok) continue;
+          if (j + 1 == nv) {
+            m.ending.push_back({pieces[p], r[2]});
+            m.ending_sample.push_back(i);
+            m.ending.push_back({pieces[p], r[3]});
+            m.ending_sample.push_back(i + 1);
+          }
           const RestQuad q{{r[0], r[1]}, {r[2], r[3]}};
           // A neighbour piece sharing the cell's corners maps it the same way: cut it once.
           bool same = false;
@@ -534,6 +559,16 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
       if (!m.merged_away[x]) m.quads[kept++] = m.quads[x];
     }
     m.quads.resize(kept);
+  }
+  // Where this step's quads ended, per sample (a counting sort; lookups take the first entry of a
+  // (sample, piece)). A step without motion cut nothing: the strip still ends where it ended.
+  if (motion > 1e-9 * h || !carry) {
+    m.ended_begin.assign(size_t(nu) + 2, 0);
+    for (uint32_t x : m.ending_sample) ++m.ended_begin[x + 1];
+    for (uint32_t i = 0; i <= nu; ++i) m.ended_begin[i + 1] += m.ended_begin[i];
+    m.ended.resize(m.ending.size());
+    m.ended_fill.assign(m.ended_begin.begin(), m.ended_begin.end() - 1);
+    for (size_t x = 0; x < m.ending.size(); ++x) m.ended[m.ended_fill[m.ending_sample[x]]++] = m.ending[x];
   }
   // The samples of `to` that are in material, carried to the next step.
   // In a slit or a gap (inside a piece's hexahedron, outside its material) a sample is carried with

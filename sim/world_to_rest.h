@@ -118,6 +118,12 @@ struct SweepMapper {
   // (or, in a slit or a gap, whose hexahedron) held it; NaN: in no piece.
   std::vector<Vec3d> carried;
   std::vector<uint32_t> carried_piece;
+  // The rest points the last step's final row of quads ended on, per blade sample and piece
+  // (ended[ended_begin[i], ended_begin[i + 1]) for sample i): the next step's first row starts from
+  // exactly these through the same piece, so its strip meets the last one in rest space even where
+  // two pieces around a sample no longer agree (the sides of a cut move apart).
+  std::vector<RestHit> ended, ending;
+  std::vector<uint32_t> ended_begin, ending_sample, ended_fill;
   // (blade samples) 1: in no piece, carried through the piece of sample carried_near (extrapolated).
   std::vector<uint8_t> carried_outside;
   std::vector<uint32_t> carried_near;

@@ -5,6 +5,7 @@
 // one piece afterwards has gaps in its cut.
 #include "sim/cut.h"
 #include "sim/pbd.h"
+#include "sim/random.h"
 #include "sim/shapes.h"
 #include "sim/surface_metrics.h"
 #include "sim/world.h"
@@ -406,3 +407,27 @@ TEST_SUITE("sever") {
     CHECK(*std::min_element(volumes.begin(), volumes.end()) >= h * h * h);
   }
 }
+
+TEST_SUITE("sever") {
+  TEST_CASE("a hanging bar is severed at any height (fixed seeds)") {
+    dvx::SplitMix64 rng{29};
+    int severed = 0, runs = 0;
+    for (int run = 0; run < 24; ++run) {
+      const double y = -0.6 + 1.2 * rng.uniform();
+      const double g = run % 2 ? 200.0 : 50.0;
+      const int steps = run % 3 == 0 ? 40 : run % 3 == 1 ? 20 : 9;
+      CAPTURE(y);
+      CAPTURE(g);
+      CAPTURE(steps);
+      Body b;
+      hanging_bar(b, 1.0, g);
+      settle(b, run % 5);
+      SweepResult r = sweep(b, blade_at(-1.2, y, 2.0), blade_at(1.2, y + 0.1 * (rng.uniform() - 0.5), 2.0), steps);
+      ++runs;
+      severed += r.components == 2;
+      CHECK(r.components == 2);
+    }
+    MESSAGE(severed << " of " << runs << " severed");
+  }
+}
+
