@@ -409,18 +409,6 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
     app.hover_hit = pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
                                  app.camera.z_near, app.hover, &app.pick_scratch);
   }
-  // The far side of the tissue under the cursor: the next surface the ray crosses after the entry,
-  // where it leaves the tissue (the same faces skipped as for the entry).
-  app.through_depth = 0.0f;
-  if (app.hover_hit) {
-    const uint8_t skip = app.left_down ? kTriangleCut : 0;
-    const float after = app.hover.t + 0.5f * app.voxel_size;
-    if (pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, skip, after,
-                     app.exit_hit, &app.pick_scratch)) {
-      // Along the tilted blade (scalpel_pose's default tilt), a voxel past the far side.
-      app.through_depth = (app.exit_hit.t - app.hover.t) / std::cos(0.35f) + app.voxel_size;
-    }
-  }
   if (app.hover_hit) {
     app.entry_t = app.hover.t;
   } else if (!app.left_down || app.entry_t <= 0.0f) {
@@ -434,8 +422,20 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
     const Vec3f d = delta.x() * camera_right(app.camera) - delta.y() * camera_up(app.camera);
     app.edge_dir = d.normalized();
   }
-  // The stroke cuts what it crosses: the blade reaches at least through the tissue under the cursor
-  // (a drag that leaves the tissue keeps the last reach).
+  // The far side of the tissue under the cursor: from the entry along the blade's direction, the
+  // first surface it crosses (where the blade leaves the tissue; the same faces skipped as for the
+  // entry). The stroke cuts what it crosses: the blade reaches at least a voxel past it (a drag that
+  // leaves the tissue keeps the last reach).
+  app.through_depth = 0.0f;
+  if (app.hover_hit) {
+    const BladePose aim = scalpel_pose(app.camera, ray, entry, 1.0, 0.0);
+    const Ray inward{entry, (aim.b - aim.a).cast<float>().normalized()};
+    const uint8_t skip = app.left_down ? kTriangleCut : 0;
+    if (pick_surface(inward, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
+                     0.5f * app.voxel_size, app.exit_hit, &app.pick_scratch)) {
+      app.through_depth = app.exit_hit.t + app.voxel_size;
+    }
+  }
   if (app.hover_hit) app.reach_depth = std::max(app.cut_depth, app.through_depth);
   if (!app.left_down && !app.hover_hit) app.reach_depth = app.cut_depth;
   app.blade_pose = scalpel_pose(app.camera, ray, entry, std::max(app.cut_depth, app.reach_depth), 2.0 * app.voxel_size);
