@@ -1069,13 +1069,13 @@ int material_links(const VoxelModel& model, const CutState& state, uint32_t n, u
   return count;
 }
 
-// Fewest nodes a component may keep: a cut leaving fewer in one piece makes a crumb.
+// Most nodes of a crumb: a cut leaving a component of this many nodes or fewer makes a crumb.
 constexpr int kCrumbNodes = 4;
 
-// Whether severing `edge` would leave inside node n in a component of fewer than kCrumbNodes nodes
+// Whether severing `edge` would leave inside node n in a component of at most kCrumbNodes nodes
 // (a closed bit below the lattice's resolution: the organ's surface lies within a voxel or two of the
-// cut on n's side). A flood fill over the material graph from n that stops as soon as it has found
-// kCrumbNodes nodes. The divide does not make such a cut, so those nodes stay with the material across
+// cut on n's side). A flood fill over the material graph from n that stops as soon as it finds a
+// node past kCrumbNodes. The divide does not make such a cut, so those nodes stay with the material across
 // the edge (the mass is unchanged: nothing is dropped). A slit re-cut anywhere along it crosses only
 // edges cut already or edges like this one: it sheds nothing.
 bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
