@@ -18,6 +18,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -46,7 +47,28 @@ struct ReplayRun {
   double initial_volume = 0.0;  // of the uncut surface
   double wall_s = 0.0;          // from the first step to the last output written
   int64_t last_mesh = -1;       // step of the last DIR/meshes file written (-1: none)
+  // Cutting strokes (runs of steps whose blade cuts): the surface's components after each, so
+  // summary.json reports the pieces each stroke took off and the smallest piece (docs/cutting.md).
+  struct Stroke {
+    uint32_t first_step, last_step;
+    uint32_t components;    // after the stroke
+    int64_t created;        // components after minus before
+    double smallest_volume;  // of the smallest component after the stroke (rest space)
+  };
+  std::vector<Stroke> strokes;
+  bool in_stroke = false;
+  uint32_t stroke_first = 0, components = 0;  // components before the stroke under way
 };
+
+// Closes the stroke under way (its last step `last`): the components of the surface now.
+void end_stroke(const Session& session, uint32_t last, ReplayRun& run) {
+  const std::vector<double> volumes = component_volumes(compact_surface(session.state.cut.surface));
+  const double smallest = volumes.empty() ? 0.0 : *std::min_element(volumes.begin(), volumes.end());
+  run.strokes.push_back({run.stroke_first, last, uint32_t(volumes.size()),
+                         int64_t(volumes.size()) - int64_t(run.components), smallest});
+  run.components = uint32_t(volumes.size());
+  run.in_stroke = false;
+}
 
 // --meshes: DIR/meshes/mesh_NNNNN.ply, the deformed surface in world space with its cut faces marked.
 void write_step_mesh(const ReplayOptions& options, Session& session, uint32_t step, ReplayRun& run) {
@@ -96,6 +118,12 @@ void simulate(const Playback& playback, const ReplayOptions& options, bool check
     const StepReport row = session_step(session, commands);
     run.voxels_cut += row.cut.voxels_cut;
     run.rows.push_back(row);
+    if (row.cutting && !run.in_stroke) {
+      run.in_stroke = true;
+      run.stroke_first = step;
+    } else if (!row.cutting && run.in_stroke) {
+      end_stroke(session, step - 1, run);
+    }
 
     // Determinism: compare with the recorded hash; record what was applied.
     if (recorded && check_hashes) check_hash(*recorded, session, run.checks);
@@ -119,6 +147,7 @@ void simulate(const Playback& playback, const ReplayOptions& options, bool check
     }
     if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
   }
+  if (run.in_stroke && run.steps_done > 0) end_stroke(session, run.steps_done - 1, run);
 }
 
 // The simulation on its own thread and the EGL render thread here (EGL contexts belong to the thread
@@ -344,6 +373,19 @@ nlohmann::json summary_json(const ReplayOptions& options, const Playback& playba
       {"nonfinite_values", final.nonfinite},
   };
   summary["surface"]["initial_volume"] = run.initial_volume;
+  // The pieces: components of the final surface, the smallest one's volume, and what each cutting
+  // stroke created (docs/cutting.md).
+  {
+    const std::vector<double> volumes = component_volumes(compact_surface(state.surface));
+    summary["pieces"] = {{"components", volumes.size()},
+                         {"smallest_volume", volumes.empty() ? 0.0 : *std::min_element(volumes.begin(), volumes.end())}};
+    nlohmann::json strokes = nlohmann::json::array();
+    for (const ReplayRun::Stroke& s : run.strokes) {
+      strokes.push_back({{"first_step", s.first_step}, {"last_step", s.last_step}, {"components", s.components},
+                         {"created", s.created}, {"smallest_volume", s.smallest_volume}});
+    }
+    summary["strokes"] = strokes;
+  }
   if (pbd) {
     summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(*pbd)}};
     summary["kinetic_energy"] = kinetic_energy(*pbd);
@@ -369,6 +411,7 @@ ReplayResult run_replay(const ReplayOptions& options) {
   session.embed_surface = options.render || options.frames_every > 0;
   ReplayRun run;
   run.initial_volume = surface_stats(compact_surface(session.state.cut.surface)).volume;
+  run.components = uint32_t(component_volumes(compact_surface(session.state.cut.surface)).size());
   make_output_dir(options.out_dir);
   if (options.meshes_every > 0) make_output_dir((std::filesystem::path(options.out_dir) / "meshes").string());
   std::unique_ptr<SessionRecorder> recorder;

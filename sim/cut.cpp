@@ -5,6 +5,8 @@
 #include "sim/surface_metrics.h"
 #include "sim/union_find.h"
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <array>
 #include <bit>
@@ -1013,6 +1015,97 @@ bool on_ambiguous_face(const VoxelModel& model, uint32_t edge) {
   return false;
 }
 
+// The nodes inside node n is linked to in the material graph with `edge` severed: the uncut lattice
+// edges to inside neighbours, and the ambiguous faces that join n to their diagonal corner
+// (voxel_material_joins: a face none of whose edges is cut or crossed in the air). Returns the count
+// (at most 6 + 12).
+int material_links(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, uint32_t out[18]) {
+  const Lattice& l = model.lattice;
+  int32_t c[3];
+  l.node_coords(n, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  const auto severed = [&](uint32_t e) { return e == edge || state.edge_cut_of.contains(e) || state.air_edges.contains(e); };
+  int count = 0;
+  for (int a = 0; a < 3; ++a) {
+    const uint32_t step = node_stride(l, a);
+    if (c[a] < dims[a]) {
+      const uint32_t e = Lattice::edge(n, a);
+      if (e != edge && model.is_inside(n + step) && !state.edge_cut_of.contains(e)) out[count++] = n + step;
+    }
+    if (c[a] > 0) {
+      const uint32_t e = Lattice::edge(n - step, a);
+      if (e != edge && model.is_inside(n - step) && !state.edge_cut_of.contains(e)) out[count++] = n - step;
+    }
+  }
+  for (int a = 0; a < 3; ++a) {
+    for (int b = a + 1; b < 3; ++b) {
+      for (int sa = -1; sa <= 1; sa += 2) {
+        for (int sb = -1; sb <= 1; sb += 2) {
+          if (c[a] + sa < 0 || c[a] + sa > dims[a] || c[b] + sb < 0 || c[b] + sb > dims[b]) continue;
+          const uint32_t na = sa > 0 ? n + node_stride(l, a) : n - node_stride(l, a);
+          const uint32_t nb = sb > 0 ? n + node_stride(l, b) : n - node_stride(l, b);
+          const uint32_t nd = sb > 0 ? na + node_stride(l, b) : na - node_stride(l, b);
+          if (!model.is_inside(nd) || model.is_inside(na) || model.is_inside(nb)) continue;
+          // The face's edges, each from its lower node.
+          const uint32_t e0 = Lattice::edge(sa > 0 ? n : na, a), e1 = Lattice::edge(sb > 0 ? n : nb, b);
+          const uint32_t e2 = Lattice::edge(sb > 0 ? na : nd, b), e3 = Lattice::edge(sa > 0 ? nb : nd, a);
+          if (!severed(e0) && !severed(e1) && !severed(e2) && !severed(e3)) out[count++] = nd;
+        }
+      }
+    }
+  }
+  return count;
+}
+
+// Most nodes of a crumb: a cut leaving a component of this many nodes or fewer makes a crumb.
+constexpr int kCrumbNodes = 4;
+
+// Whether severing `edge` would leave inside node n in a component of at most kCrumbNodes nodes
+// (a closed bit below the lattice's resolution: the organ's surface lies within a voxel or two of the
+// cut on n's side). A flood fill over the material graph from n that stops as soon as it finds a
+// node past kCrumbNodes. The divide does not make such a cut, so those nodes stay with the material across
+// the edge (the mass is unchanged: nothing is dropped). A slit re-cut anywhere along it crosses only
+// edges cut already or edges like this one: it sheds nothing.
+bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
+  uint32_t found[kCrumbNodes];
+  int count = 1, next = 0;
+  found[0] = n;
+  while (next < count) {
+    uint32_t links[18];
+    const int k = material_links(model, state, found[next++], edge, links);
+    for (int i = 0; i < k; ++i) {
+      if (std::find(found, found + count, links[i]) != found + count) continue;
+      if (count == kCrumbNodes) return false;  // large enough
+      found[count++] = links[i];
+    }
+  }
+  return true;
+}
+
+// Whether severing `edge` (a cut of a surface edge, or a crossing in the air) would take the last link
+// of an inside corner of an ambiguous face around it: the face no longer joins its diagonal.
+bool isolates_diagonal(const VoxelModel& model, const CutState& state, uint32_t edge) {
+  const Lattice& l = model.lattice;
+  const int a = int(edge % 3);
+  const uint32_t n0 = edge / 3, n1 = n0 + node_stride(l, a);
+  int32_t c[3];
+  l.node_coords(n0, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  for (int k = 1; k <= 2; ++k) {
+    const int b = (a + k) % 3;
+    for (int sb = -1; sb <= 1; sb += 2) {
+      if (c[b] + sb < 0 || c[b] + sb > dims[b]) continue;
+      const uint32_t m0 = sb > 0 ? n0 + node_stride(l, b) : n0 - node_stride(l, b);
+      const uint32_t m1 = sb > 0 ? n1 + node_stride(l, b) : n1 - node_stride(l, b);
+      const bool i0 = model.is_inside(n0), i1 = model.is_inside(n1), j0 = model.is_inside(m0), j1 = model.is_inside(m1);
+      if (!(i0 == j1 && i1 == j0 && i0 != i1)) continue;  // not ambiguous
+      const uint32_t p = i0 ? n0 : n1, q = i0 ? m1 : m0;   // the face's inside corners
+      if (last_material_link(model, state, p, edge) || last_material_link(model, state, q, edge)) return true;
+    }
+  }
+  return false;
+}
+
 // What one blade crossing did to its edge.
 enum class EdgeChange { kNone, kCut, kAir };
 
@@ -1031,12 +1124,22 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
     const float ts = c ? c->t : 0.5f;
     if (in0 ? hit.t >= ts : hit.t <= ts) {
       if (!on_ambiguous_face(model, hit.edge) || state.air_edges.contains(hit.edge)) return EdgeChange::kNone;
+      if (!state.edge_cut_of.contains(hit.edge) && isolates_diagonal(model, state, hit.edge)) return EdgeChange::kNone;
       state.air_edges.set(hit.edge, 0);
       return EdgeChange::kAir;
     }
   }
   const uint32_t i = state.edge_cut_of.get(hit.edge);
   if (i == kDeadIndex) {
+    // No crumbs: a first cut of a material edge that would leave one of its nodes joined to no other
+    // node is not made (the node stays with the other end: see last_material_link).
+    if (in0 && in1 && (last_material_link(model, state, n0, hit.edge) || last_material_link(model, state, n1, hit.edge))) {
+      return EdgeChange::kNone;
+    }
+    if (in0 != in1 && !state.air_edges.contains(hit.edge) && on_ambiguous_face(model, hit.edge) &&
+        isolates_diagonal(model, state, hit.edge)) {
+      return EdgeChange::kNone;
+    }
     state.edge_cut_of.set(hit.edge, uint32_t(state.edge_cuts.size()));
     state.edge_cuts.push_back(EdgeCut{hit.edge, hit.t, hit.t, hit.normal, hit.normal});
     return EdgeChange::kCut;
@@ -1443,6 +1546,36 @@ SurfaceMesh compact_surface(const CutSurface& s) {
     mesh.triangles.push_back({remap[t[0]], remap[t[1]], remap[t[2]]});
   }
   return mesh;
+}
+
+std::vector<double> component_volumes(const SurfaceMesh& mesh) {
+  const uint32_t n = uint32_t(mesh.positions.size());
+  std::vector<uint32_t> parent(n);
+  for (uint32_t v = 0; v < n; ++v) parent[v] = v;
+  for (const Tri& t : mesh.triangles) {
+    uf_unite(parent.data(), t[0], t[1]);
+    uf_unite(parent.data(), t[0], t[2]);
+  }
+  // Components numbered by their root (the lowest vertex); the signed volume of each, by the
+  // divergence theorem over its triangles.
+  std::vector<uint32_t> index(n, kDeadIndex);
+  std::vector<double> volume;
+  for (const Tri& t : mesh.triangles) {
+    const uint32_t root = uf_find(parent.data(), t[0]);
+    if (index[root] == kDeadIndex) index[root] = 0;  // marked: used by a triangle
+  }
+  for (uint32_t v = 0; v < n; ++v) {
+    if (index[v] == 0 && uf_find(parent.data(), v) == v) {
+      index[v] = uint32_t(volume.size());
+      volume.push_back(0.0);
+    }
+  }
+  for (const Tri& t : mesh.triangles) {
+    const Vec3d a = mesh.positions[t[0]].cast<double>(), b = mesh.positions[t[1]].cast<double>();
+    const Vec3d c = mesh.positions[t[2]].cast<double>();
+    volume[index[uf_find(parent.data(), t[0])]] += a.dot(b.cross(c)) / 6.0;
+  }
+  return volume;
 }
 
 namespace {

@@ -206,6 +206,11 @@ uint32_t vertex_quads(const CutState& state, uint32_t slot, uint32_t out[kMaxVer
 // The surface as a compact mesh (live slots only; vertex_voxel filled).
 SurfaceMesh compact_surface(const CutSurface& surface);
 
+// The enclosed volume of each connected component (triangles sharing a vertex) of a surface, in the
+// order of each component's lowest vertex: the pieces a cut made and how small the smallest is (the
+// crumb rule, docs/cutting.md; summary.json "strokes").
+std::vector<double> component_volumes(const SurfaceMesh& mesh);
+
 // Faces of a voxel: the 4 corners of face f (x=0, x=1, y=0, y=1, z=0, z=1) in cyclic order.
 extern const uint8_t kVoxelFaceCorners[6][4];
 

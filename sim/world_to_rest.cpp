@@ -260,6 +260,10 @@ uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& 
 void reset_sweep(SweepMapper& mapper) {
   mapper.carried.clear();
   mapper.carried_piece.clear();
+  mapper.carried_outside.clear();
+  mapper.carried_near.clear();
+  mapper.ended.clear();
+  mapper.ended_begin.clear();
 }
 
 namespace {
@@ -286,10 +290,16 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
     // The piece that held it, while it is live and still spans that rest point; else the material there.
     uint32_t piece = m.carried_piece[i];
     Vec3d u = Vec3d::Constant(-1.0);
+    bool live = false;
     if (piece < pbd.pieces.size() && pbd.pieces[piece].sim_voxel != kDeadIndex) {
       u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
+      live = true;
     }
-    if (!(u.minCoeff() >= -1e-6 && u.maxCoeff() <= 1.0 + 1e-6)) {
+    // A sample outside every piece was carried with a neighbour's piece, its map extrapolated: it
+    // moves with that piece while the piece lives (so the strip's end in the air follows the tissue
+    // as its samples in material do, and the sweep's first row maps back to where the last ended).
+    const bool extrapolated = live && m.carried_outside[i];
+    if (!extrapolated && !(u.minCoeff() >= -1e-6 && u.maxCoeff() <= 1.0 + 1e-6)) {
       piece = piece_at_rest(model, pbd, m.carried[i]);
       if (piece == kDeadIndex) continue;
       u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
@@ -298,6 +308,16 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
     piece_corners(pbd, piece, corners);
     m.from_world[i] = trilinear(corners, u);
   }
+}
+
+// The rest point the last step's quads through `piece` ended on at blade sample i (false: none).
+bool ended_through(const SweepMapper& m, uint32_t i, uint32_t piece, Vec3d& rest) {
+  for (uint32_t x = m.ended_begin[i]; x < m.ended_begin[i + 1]; ++x) {
+    if (m.ended[x].piece != piece) continue;
+    rest = m.ended[x].rest;
+    return true;
+  }
+  return false;
 }
 
 // The rest image through `piece` of grid point k: its hit when it has one, else Newton from `start`.
@@ -463,6 +483,9 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
   m.hit_begin[count] = uint32_t(m.hits.size());
 
   // Cells: one rest quad per piece holding one of the cell's corners.
+  const bool carry = m.ended_begin.size() == size_t(nu) + 2;
+  m.ending.clear();
+  m.ending_sample.clear();
   m.open.clear();
   m.rungs.clear();
   m.merged_away.clear();
@@ -500,8 +523,18 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
         for (int p = 0; p < piece_count; ++p) {
           Vec3d r[4];
           bool ok = true;
-          for (int c = 0; c < 4 && ok; ++c) ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
+          for (int c = 0; c < 4 && ok; ++c) {
+            // The first row starts where the last step's quads through this piece ended.
+            if (c < 2 && j == 0 && carry && ended_through(m, i + uint32_t(c), pieces[p], r[c])) continue;
+            ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
+          }
           if (!ok) continue;
+          if (j + 1 == nv) {
+            m.ending.push_back({pieces[p], r[2]});
+            m.ending_sample.push_back(i);
+            m.ending.push_back({pieces[p], r[3]});
+            m.ending_sample.push_back(i + 1);
+          }
           const RestQuad q{{r[0], r[1]}, {r[2], r[3]}};
           // A neighbour piece sharing the cell's corners maps it the same way: cut it once.
           bool same = false;
@@ -527,11 +560,23 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
     }
     m.quads.resize(kept);
   }
+  // Where this step's quads ended, per sample (a counting sort; lookups take the first entry of a
+  // (sample, piece)). A step without motion cut nothing: the strip still ends where it ended.
+  if (motion > 1e-9 * h || !carry) {
+    m.ended_begin.assign(size_t(nu) + 2, 0);
+    for (uint32_t x : m.ending_sample) ++m.ended_begin[x + 1];
+    for (uint32_t i = 0; i <= nu; ++i) m.ended_begin[i + 1] += m.ended_begin[i];
+    m.ended.resize(m.ending.size());
+    m.ended_fill.assign(m.ended_begin.begin(), m.ended_begin.end() - 1);
+    for (size_t x = 0; x < m.ending.size(); ++x) m.ended[m.ended_fill[m.ending_sample[x]]++] = m.ending[x];
+  }
   // The samples of `to` that are in material, carried to the next step.
   // In a slit or a gap (inside a piece's hexahedron, outside its material) a sample is carried with
   // that piece: the material closing in on it is then cut by the relative motion.
   m.carried.assign(nu + 1, Vec3d::Constant(std::numeric_limits<double>::quiet_NaN()));
   m.carried_piece.assign(nu + 1, kDeadIndex);
+  m.carried_outside.assign(nu + 1, 0);
+  m.carried_near.assign(nu + 1, kDeadIndex);
   for (uint32_t i = 0; i <= nu; ++i) {
     const uint32_t k = nv * row + i;
     if (m.hit_begin[k] < m.hit_begin[k + 1]) {
@@ -549,6 +594,36 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
       m.carried[i] = m.grid.piece_origin[slot] + pbd.sim_size * u;
       m.carried_piece[i] = slot;
     });
+  }
+  // The samples in no piece: carried through the piece of the nearest sample along the blade that has
+  // one (its map extrapolated, as the cells' quads map them), so they move with the tissue too.
+  for (int pass = 0; pass < 2; ++pass) {
+    uint32_t near = kDeadIndex;
+    for (uint32_t x = 0; x <= nu; ++x) {
+      const uint32_t i = pass == 0 ? x : nu - x;
+      if (m.carried_piece[i] != kDeadIndex && !m.carried_outside[i]) {
+        near = i;
+        continue;
+      }
+      if (near == kDeadIndex) continue;
+      const uint32_t slot = m.carried_piece[near];
+      const uint32_t distance = near > i ? near - i : i - near;
+      // The nearer neighbour wins (the first pass, from below, holds the ties).
+      if (m.carried_piece[i] != kDeadIndex) {
+        const uint32_t before = m.carried_near[i] > i ? m.carried_near[i] - i : i - m.carried_near[i];
+        if (before <= distance) continue;
+      }
+      const uint32_t k = nv * row + i;
+      Vec3d u;
+      if (m.grid.jinv_valid.size() <= slot ||
+          !piece_local(pbd, m.grid, slot, m.points[k], (m.carried[near] - m.grid.piece_origin[slot]) / pbd.sim_size, u)) {
+        continue;
+      }
+      m.carried[i] = m.grid.piece_origin[slot] + pbd.sim_size * u;
+      m.carried_piece[i] = slot;
+      m.carried_outside[i] = 1;
+      m.carried_near[i] = near;
+    }
   }
   if (stats) {
     stats->samples += count;

@@ -16,7 +16,10 @@
 // its motion. The sweep starts where the blade's previous samples are *now*: each sample that was in
 // material is carried with the material (its rest point mapped forward through the current
 // deformation), so a still blade cuts tissue moving into it, and a blade moving with the tissue cuts
-// nothing new. Each cell of the sampled sweep becomes one rest-space quad per piece that holds one of
+// nothing new; a sample in no piece is carried through its nearest neighbour's piece (extrapolated),
+// and each piece's quads of a step start from the rest points that piece's quads of the last step
+// ended on (SweepMapper::ended): the cut sheet is continuous in rest space from step to step
+// (docs/cutting.md; a sweep whose world surface spans a moving body's cross-section severs it). Each cell of the sampled sweep becomes one rest-space quad per piece that holds one of
 // its corners (the other corners mapped through the same piece, extrapolating its map a little);
 // the quads that continue one flat, straight strip are merged before cutting — along the blade (each
 // piece's strip, also where a piece boundary runs along the sweep) and across the sweep's rows — so
@@ -118,6 +121,15 @@ struct SweepMapper {
   // (or, in a slit or a gap, whose hexahedron) held it; NaN: in no piece.
   std::vector<Vec3d> carried;
   std::vector<uint32_t> carried_piece;
+  // The rest points the last step's final row of quads ended on, per blade sample and piece
+  // (ended[ended_begin[i], ended_begin[i + 1]) for sample i): the next step's first row starts from
+  // exactly these through the same piece, so its strip meets the last one in rest space even where
+  // two pieces around a sample no longer agree (the sides of a cut move apart).
+  std::vector<RestHit> ended, ending;
+  std::vector<uint32_t> ended_begin, ending_sample, ended_fill;
+  // (blade samples) 1: in no piece, carried through the piece of sample carried_near (extrapolated).
+  std::vector<uint8_t> carried_outside;
+  std::vector<uint32_t> carried_near;
   PieceGrid grid;
   std::vector<Vec3d> from_world, to_world, points;
   std::vector<uint32_t> hit_begin;

@@ -241,7 +241,23 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
     const Vec3f d = delta.x() * camera_right(app.camera) - delta.y() * camera_up(app.camera);
     app.edge_dir = d.normalized();
   }
-  app.blade_pose = scalpel_pose(app.camera, ray, entry, app.cut_depth, 2.0 * app.voxel_size);
+  // The far side of the tissue under the cursor: from the entry along the blade's direction, the
+  // first surface it crosses (where the blade leaves the tissue; the same faces skipped as for the
+  // entry). The stroke cuts what it crosses: the blade reaches at least a voxel past it (a drag that
+  // leaves the tissue keeps the last reach).
+  app.through_depth = 0.0f;
+  if (app.hover_hit) {
+    const BladePose aim = scalpel_pose(app.camera, ray, entry, 1.0, 0.0);
+    const Ray inward{entry, (aim.b - aim.a).cast<float>().normalized()};
+    const uint8_t skip = app.left_down ? kTriangleCut : 0;
+    if (pick_surface(inward, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
+                     0.5f * app.voxel_size, app.exit_hit, &app.pick_scratch)) {
+      app.through_depth = app.exit_hit.t + app.voxel_size;
+    }
+  }
+  if (app.hover_hit) app.reach_depth = std::max(app.cut_depth, app.through_depth);
+  if (!app.left_down && !app.hover_hit) app.reach_depth = app.cut_depth;
+  app.blade_pose = scalpel_pose(app.camera, ray, entry, std::max(app.cut_depth, app.reach_depth), 2.0 * app.voxel_size);
 }
 
 void scalpel_mouse(AppState& app, bool left, bool free_mouse) {
@@ -459,7 +475,11 @@ void cursor_label(AppState& app) {
   if (app.tool != Tool::kScalpel || !app.cursor_in_view || app.status.playing) return;
   char text[96];
   if (app.hover_hit || app.left_down) {
-    std::snprintf(text, sizeof text, "depth %.2f", app.cut_depth);
+    if (app.reach_depth > app.cut_depth) {
+      std::snprintf(text, sizeof text, "depth %.2f (through %.2f)", app.cut_depth, app.reach_depth);
+    } else {
+      std::snprintf(text, sizeof text, "depth %.2f", app.cut_depth);
+    }
   } else {
     std::snprintf(text, sizeof text, "no tissue here");
   }

@@ -55,6 +55,11 @@ struct AppState {
   std::vector<Eigen::Vector2f> pick_scratch;  // pick_surface's per-vertex buffer, kept between frames
   float entry_t = 0.0f;      // eye distance of the blade's entry (kept while a drag leaves the object)
   float cut_depth = 1.0f;    // scene units, set live (ctrl+wheel, [ and ], the Tools slider)
+  // The blade reaches through the tissue under the cursor: the depth along the blade to the far side
+  // of that tissue (where the blade's line leaves it) and a voxel; 0: none found.
+  float through_depth = 0.0f;
+  SurfaceHit exit_hit;  // where the blade's line leaves the tissue it entered
+  float reach_depth = 0.0f;  // the blade's depth now: cut_depth, or through_depth when deeper
   BladePose blade_pose;      // the pose under the cursor now
   Vec3f edge_dir = Vec3f(1, 0, 0);  // world direction the blade's edge faces (the drag's direction)
   bool blade_sent = false, last_cutting = false;

@@ -267,7 +267,7 @@ TEST_SUITE("replay") {
       DVX_SKIP_OR_FAIL_WITHOUT_GL(e.what());
       return;
     }
-    CHECK(r.frames_written == 4);  // steps 0, 130, 260, 390 (482 steps)
+    CHECK(r.frames_written == 5);  // steps 0, 130, 260, 390, 520 (582 steps)
     CHECK(r.hash_mismatched == 0);  // rendering does not change the simulation
     for (const char* name : {"frame_00000.png", "frame_00130.png", "frame_00260.png", "frame_00390.png"}) {
       CAPTURE(name);
@@ -289,7 +289,7 @@ TEST_SUITE("replay") {
       CHECK(coverage < 0.95);
     }
     const nlohmann::json summary = nlohmann::json::parse(read_file(dir.path / "summary.json"));
-    CHECK(summary["frames"]["written"] == 4);
+    CHECK(summary["frames"]["written"] == 5);
     CHECK(summary["timing_ms"]["render"]["count"].get<int>() >= 4);
     CHECK(fs::exists(dir.path / "timings.svg"));
     CHECK(fs::exists(dir.path / "frame_timings.csv"));
