@@ -70,6 +70,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(model.voxels, s.cut, *s.pbd, &report.pbd);
     report.timings.cut_ms = (t1 - t0) + (clock.now() - t2);  // map, divide, fine and coarse
     report.timings.surface_ms = t2 - t1;
+    if (context.after_cut) context.after_cut(model, s, context.after_cut_user);
   }
   if (s.pbd) {
     const double t3 = clock.now();

@@ -78,6 +78,11 @@ struct StepContext {
   TaskRunner tasks;
   StepClock clock;
   bool embed_surface = true;
+  // Called in a step that cut, after the cut and the model's update and before the dynamics: an
+  // observer (the tests measure the new cut faces at the deformation they were cut in). It may read
+  // the state and embed the surface (world_embed); it must change nothing else.
+  void (*after_cut)(const WorldModel& model, WorldState& state, void* user) = nullptr;
+  void* after_cut_user = nullptr;
 };
 
 // Builds the uncut state (and, with physics, the PBD model) of `model`. Returns false with a reason

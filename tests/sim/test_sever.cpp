@@ -90,26 +90,29 @@ SweepResult sweep(Body& b, const BladePose& from, const BladePose& to, int steps
     c.blade = {from.a + f * (to.a - from.a), from.b + f * (to.b - from.b)};
     c.cutting = true;
     if (grab) c.grab = grab(i);
-    // The faces this step cuts, at the deformation they are cut in: the step's cut phase (as
-    // world_step runs it) on a copy, before its PBD step moves them.
-    WorldState cut_time = b.state;
-    map_sweep(b.voxels(), *cut_time.pbd, cut_time.blade, c.blade, cut_time.sweep);
-    CutStepStats cut_stats;
-    for (const RestQuad& q : cut_time.sweep.quads) cut_divide(b.voxels(), cut_time.cut, q.from, q.to, cut_stats);
-    cut_update_surface(b.voxels(), cut_time.cut, cut_stats);
-    pbd_apply_cut(b.voxels(), cut_time.cut, *cut_time.pbd);
-    pbd_embed(cut_time.cut, *cut_time.pbd);
-    const CutSurface& s = cut_time.cut.surface;
-    for (size_t t = 0; t < s.triangles.size(); ++t) {
-      if (s.triangles[t][0] == kDeadIndex || !s.triangle_cut[t]) continue;
-      if (!seen.insert(face_key(s, t)).second) continue;
-      Vec3d centre = Vec3d::Zero();
-      for (uint32_t v : s.triangles[t]) centre += cut_time.pbd->deformed[v].cast<double>() / 3.0;
-      r.distance.push_back(std::abs(normal.dot(centre - from.a)) / b.pbd().fine_size);
-    }
-    // The step itself.
+    // The step, with the faces it cuts measured at the deformation they are cut in (after the cut,
+    // before the dynamics move them).
+    struct Measure {
+      std::set<FaceKey>* seen;
+      SweepResult* r;
+      Vec3d normal, origin;
+    } measure{&seen, &r, normal, from.a};
+    StepContext cut_context = context;
+    cut_context.after_cut_user = &measure;
+    cut_context.after_cut = [](const WorldModel& model, WorldState& state, void* user) {
+      Measure& m = *static_cast<Measure*>(user);
+      world_embed(model, state);
+      const CutSurface& s = state.cut.surface;
+      for (size_t t = 0; t < s.triangles.size(); ++t) {
+        if (s.triangles[t][0] == kDeadIndex || !s.triangle_cut[t]) continue;
+        if (!m.seen->insert(face_key(s, t)).second) continue;
+        Vec3d centre = Vec3d::Zero();
+        for (uint32_t v : s.triangles[t]) centre += state.pbd->deformed[v].cast<double>() / 3.0;
+        m.r->distance.push_back(std::abs(m.normal.dot(centre - m.origin)) / state.pbd->fine_size);
+      }
+    };
     StepReport report;
-    world_step(b.model, b.state, c, context, &report);
+    world_step(b.model, b.state, c, cut_context, &report);
     r.edges_cut += report.cut.edges_cut;
     std::string error;
     REQUIRE_MESSAGE(check_cut_state(b.voxels(), b.state.cut, error), error);
