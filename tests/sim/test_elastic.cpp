@@ -211,7 +211,7 @@ TEST_SUITE("elastic") {
     const double drop = c0.y() - centre_of_mass(w.pbd()).y();
     MESSAGE("fell " << drop << " m in 1 s; g t^2 / 2 = " << 0.5 * 9.81);
     // Symplectic Euler over n = 600 substeps falls g t^2 / 2 (1 + 1/n): 0.17 % more.
-    CHECK(drop == doctest::Approx(0.5 * 9.81).epsilon(0.005));
+    CHECK(std::abs(drop / (0.5 * 9.81) - 1.0) < 0.005);  // measured +0.17 %
     CHECK(std::abs(centre_of_mass(w.pbd()).x() - c0.x()) < 1e-9);
   }
 
@@ -224,8 +224,9 @@ TEST_SUITE("elastic") {
     r.sim = 8;
     r.substeps = 200;
     r.iterations = 4;
-    r.steps = 90;
-    r.ramp = 45;
+    r.steps = 60;
+    r.ramp = 30;
+    r.average = 20;
     const double sag = cantilever_sag(r);
     r.iterations = 8;
     const double sag_iterations = cantilever_sag(r);
@@ -266,11 +267,11 @@ TEST_SUITE("elastic") {
       }
       const double expected = -(1.0 - 2.0 * nu) * rho * kG * H / (2.0 * E);
       MESSAGE("nu " << nu << ": volume change " << change << ", expected " << expected);
-      CHECK(change == doctest::Approx(expected).epsilon(0.1));  // measured within 4 / 1.3 / 6 %
+      CHECK(std::abs(change / expected - 1.0) < 0.1);  // measured within 4 / 1.3 / 6 %
     }
   }
 
-  TEST_CASE("mass is exact and stays exact through cuts; one and two workers give the same bits") {
+  TEST_CASE("mass is exact and stays exact through cuts, and one and two workers give the same bits") {
     dvx_test::WorldScene a, b;
     dvx_test::make_world(a, liver_block(), 32, 8, hanging_liver());
     dvx_test::make_world(b, liver_block(), 32, 8, hanging_liver());
