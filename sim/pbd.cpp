@@ -2344,11 +2344,15 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
           row.w[a] = s.inv_mass[piece.particles[a]];
         }
         row.volume = double(piece.eighths) * eighth;
-        // Each Gauss point's share of it (its octant's; uniform if the octants were not counted).
+        // Each Gauss point's share of it: half uniform, half its octant's material. Octant weights
+        // alone leave a partly filled piece's empty octants without a shear term, and its corners
+        // there without stiffness (zero-energy modes: measured, the liver's surface wrinkled); the
+        // uniform half keeps every mode stiff, the other half puts stiffness where the material is.
         uint64_t counted = 0;
         for (int g = 0; g < 8; ++g) counted += piece.octants[g];
         for (int g = 0; g < 8; ++g) {
-          row.octant[g] = counted > 0 ? row.volume * (double(piece.octants[g]) / double(counted)) : 0.125 * row.volume;
+          const double share = counted > 0 ? double(piece.octants[g]) / double(counted) : 0.125;
+          row.octant[g] = row.volume * (0.5 * 0.125 + 0.5 * share);
         }
         rows.push_back(row);
       }
