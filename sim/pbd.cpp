@@ -213,6 +213,7 @@ uint32_t new_piece(PbdState& s, uint32_t sv, uint8_t label) {
   piece.colour_slot = kDeadIndex;
   std::fill(piece.particles, piece.particles + 8, kDeadIndex);
   piece.eighths = 0;
+  std::fill(piece.octants, piece.octants + 8, 0u);
   s.rotation[slot] = Eigen::Quaterniond::Identity();
   return slot;
 }
@@ -314,6 +315,39 @@ void detach_piece(PbdState& s, uint32_t slot) {
 }
 
 // Runs f(slot) for each piece of simulation voxel sv.
+
+// Material of each octant of the pieces of simulation voxel sv (SimPiece::octants), from their labels:
+// each inside node's eighths (one per block voxel around it, as label_eighths counts them) go to the
+// octant holding the point halfway between the node and that voxel's centre (for ratio 1, the node's
+// own corner octant). The octants of a piece sum to its eighths.
+void piece_octants(const VoxelModel& model, PbdState& s, uint32_t sv) {
+  for_pieces(s, sv, [&](uint32_t slot) { std::fill(s.pieces[slot].octants, s.pieces[slot].octants + 8, 0u); });
+  int32_t c[3];
+  sim_voxel_coords(s, sv, c);
+  const Lattice& l = model.lattice;
+  const int32_t r = s.ratio, n[3] = {l.nx, l.ny, l.nz};
+  for (int32_t z = 0; z <= r; ++z) {
+    for (int32_t y = 0; y <= r; ++y) {
+      for (int32_t x = 0; x <= r; ++x) {
+        const int32_t node[3] = {x, y, z};
+        const uint8_t label = label_at(model, s, sv, c, block_index(s, x, y, z), c[0] * r + x, c[1] * r + y, c[2] * r + z);
+        const uint32_t slot = slot_of_label(s, sv, label);
+        if (slot == kDeadIndex) continue;
+        for (int q = 0; q < 8; ++q) {
+          int octant = 0;
+          bool inside = true;
+          for (int e = 0; e < 3 && inside; ++e) {
+            const int up = (q >> e) & 1;  // the voxel above the node along e, else below
+            const int32_t v = node[e] - 1 + up;
+            inside = v >= 0 && v < r && c[e] * r + v < n[e];
+            if (4 * node[e] + (up ? 1 : -1) >= 2 * r) octant |= 1 << e;
+          }
+          if (inside) ++s.pieces[slot].octants[octant];
+        }
+      }
+    }
+  }
+}
 
 // ---- Corner particles ----------------------------------------------------------------------
 
@@ -1583,6 +1617,16 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
           row.w[a] = s.inv_mass[piece.particles[a]];
         }
         row.volume = double(piece.eighths) * eighth;
+        // Each Gauss point's share of it: half uniform, half its octant's material. Octant weights
+        // alone leave a partly filled piece's empty octants without a shear term, and its corners
+        // there without stiffness (zero-energy modes: measured, the liver's surface wrinkled); the
+        // uniform half keeps every mode stiff, the other half puts stiffness where the material is.
+        uint64_t counted = 0;
+        for (int g = 0; g < 8; ++g) counted += piece.octants[g];
+        for (int g = 0; g < 8; ++g) {
+          const double share = counted > 0 ? double(piece.octants[g]) / double(counted) : 0.125;
+          row.octant[g] = row.volume * (0.5 * 0.125 + 0.5 * share);
+        }
         rows.push_back(row);
       }
       s.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
@@ -1725,6 +1769,10 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
     const uint8_t count = label_block(model, cut, s, sv, s.scratch.parent, s.scratch.labels.data());
     if (count > 0) set_voxel_pieces(model, s, sv, s.scratch.labels.data(), count, nullptr, nullptr, 0);
   }
+  // Octants of every piece (the material model's quadrature weights).
+  for (uint32_t sv = 0; sv < voxels; ++sv) {
+    if (has_pieces(s, sv)) piece_octants(model, s, sv);
+  }
   // Particles: one per material group at every coarse corner.
   CornerMembers members;
   for (int32_t K = 0; K <= s.sz; ++K) {
@@ -1857,7 +1905,9 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
       corner_coords(s, id, I, J, K);
       assign_corner(model, s, I, J, K, members);
     }
-    // Re-attach; masses of every particle involved; unused particles go to the free list.
+    // The relabelled voxels' octants; re-attach; masses of every particle involved; unused particles
+    // go to the free list.
+    for (uint32_t sv : relabelled) piece_octants(model, s, sv);
     for (uint32_t sv : near) {
       for_pieces(s, sv, [&](uint32_t slot) {
         attach_piece(s, slot);

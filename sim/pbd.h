@@ -93,6 +93,8 @@ struct SimPiece {
   uint32_t colour_slot;    // index in its colour group
   uint32_t particles[8];   // corner particles (corner c = dx | dy<<1 | dz<<2)
   uint64_t eighths;        // material volume in eighths of a fine voxel (exact)
+  uint32_t octants[8];     // the same per octant of the block (octant c at corner c): the material
+                           // model's quadrature weights (Gauss point c lies in octant c)
 };
 
 // A simulation voxel whose material has several components: labels of its fine nodes and the piece

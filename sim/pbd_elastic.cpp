@@ -122,9 +122,10 @@ void solve_elastic_rows(double* x, const double* previous, const ElasticRow* row
     Eigen::Quaterniond& q = rotation[row.piece];
     q = extract_rotation_step(Fc, q, kShapeRotationIterations);
     const Eigen::Matrix3d R = q.toRotationMatrix();
-    // Shear: |F_g - R| at each Gauss point; gradient (F_g - R) G_a / C.
-    const double alpha_dev = k.alpha_dev / (0.125 * row.volume);
+    // Shear: |F_g - R| at each Gauss point holding material; gradient (F_g - R) G_a / C.
     for (int g = 0; g < 8; ++g) {
+      if (!(row.octant[g] > 0.0)) continue;
+      const double alpha_dev = k.alpha_dev / row.octant[g];
       const double (*G)[3] = kGrad.g[g];
       deformation_gradient(xs, G, k.inv_edge, F);
       double c2 = 0.0;

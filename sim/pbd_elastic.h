@@ -11,8 +11,10 @@
 // flattened and inverted pieces come back). mu and lambda are Lamé's (E, nu): the energy linearises
 // to mu |eps|^2 + lambda / 2 tr(eps)^2, small-strain elasticity exactly. The volume term at one point
 // does not lock as nu -> 0.5; the shear terms at 8 points leave no hourglass modes. V is the piece's
-// material volume (its exact eighths), V_g = V / 8: a partly filled or cut piece is as stiff as the
-// material it holds (uniformly over its octants).
+// material volume (its exact eighths); V_g is half V / 8 and half the material in Gauss point g's
+// octant of the block: a partly filled or cut piece is as stiff as the material it holds, more so where
+// it holds it (octant weights alone leave an empty octant's corners with no stiffness: the liver's
+// surface wrinkled).
 //
 // Why not Stable Neo-Hookean's constraints (Macklin & Müller 2021: sqrt(tr(F^T F)) and det F - gamma)?
 // Measured: their rest state balances two large opposite multipliers (sqrt(3) / alpha each), which an
@@ -50,7 +52,8 @@ struct ElasticRow {
   uint32_t p[8];
   uint32_t piece;  // slot of the piece (its rotation's warm start)
   double w[8];
-  double volume;  // material volume of the piece (m^3)
+  double volume;     // material volume of the piece (m^3)
+  double octant[8];  // its share at each Gauss point (V_g, sim/pbd.cpp refresh_blocks; point c lies in octant c)
 };
 
 // Number of constraints (multipliers) of a row: 8 shear, 1 volume.
