@@ -27,7 +27,9 @@ TEST_SUITE("options") {
         {"DIVVOX_MEMORY_LIMIT", "lots"}, {"DIVVOX_MEMORY_LIMIT", "0"},  {"DIVVOX_MEMORY_LIMIT", "5MB"},
         {"DIVVOX_SIM_NICE", "20"},       {"DIVVOX_MSAA", "4x"},         {"DIVVOX_SHADOWS", "yes"},
         {"DIVVOX_MAX_FPS", "-1"},        {"DIVVOX_CHUNK_WORK", "0"},    {"DIVVOX_PROGRESS", "2"}};
-    for (const auto& [name, value] : bad) {
+    for (const auto& entry : bad) {
+      const char* name = entry.first;  // not a structured binding: clang 14 cannot capture one (CAPTURE)
+      const char* value = entry.second;
       CAPTURE(name);
       CAPTURE(value);
       const dvx_test::ScopedEnv env(name, value);
