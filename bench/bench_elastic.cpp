@@ -266,21 +266,19 @@ ElasticCase make_elastic_case(const std::string& name, int resolution, double re
     return c;
   }
   if (name == "liver") {
-    // The SOFA liver scaled to 0.2 m across, hanging from the liver scene's fixed box (scaled alike):
-    // rho 1060 kg/m^3, E 5.4 kPa (shear modulus 1.8 kPa), nu 0.45 (DESIGN §3 "Liver facts").
+    // The window's liver scene (assets/scenes/liver.json) as it ships: its mesh in its units (0.2 m
+    // across), its anchors (ligaments and the posterior surface), its material (E, nu, rho).
+    const Scene scene = load_scene((fs::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/scenes/liver.json").string());
     ElasticCase c;
     c.name = name;
     c.resolution = resolution > 0 ? resolution : 64;
     c.mesh = load_mesh(liver_path()).mesh;
-    const double scale = 0.2 / mesh_bounds(c.mesh).extent().maxCoeff();
-    for (Vec3d& p : c.mesh.positions) p *= scale;
-    Aabb box;
-    box.min = scale * Vec3d(-1.5, 4.3, -2.0);
-    box.max = scale * Vec3d(1.8, 5.3, 0.6);
-    c.fixed = {box};
-    c.ref_fixed = {box};
-    c.youngs_modulus = 5400.0;
-    c.poisson_ratio = 0.45;
+    for (Vec3d& p : c.mesh.positions) p *= scene.metres_per_unit;
+    c.fixed = scene.pbd.fixed;
+    c.ref_fixed = scene.pbd.fixed;
+    c.youngs_modulus = scene.pbd.youngs_modulus;
+    c.poisson_ratio = scene.pbd.poisson_ratio;
+    c.density = scene.pbd.density;
     c.nlgeom = true;
     c.seconds = 4.0;
     c.ref_from_lattice = true;
