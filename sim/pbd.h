@@ -137,7 +137,7 @@ struct FaceCache {
   }
 };
 
-// Scratch of the local relabelling (sim/pbd.cpp relabel_local).
+// Scratch of the local relabelling (sim/pbd_labels.cpp relabel_local).
 struct LocalSearch {
   std::vector<uint32_t> owner;    // (block nodes) search group of a visited node, kDeadIndex otherwise
   std::vector<uint32_t> queue, visited, parent, pending;
@@ -145,10 +145,10 @@ struct LocalSearch {
   int32_t active[256] = {};       // per label: groups still running
 };
 
-// Scratch of the span relabelling (sim/pbd.cpp relabel_spans): a block's fine nodes as runs along x
-// ("spans", one 64-bit mask per node row), united across rows where material joins them.
+// Scratch of the span relabelling (sim/pbd_internal.h relabel_spans): a block's fine nodes as runs
+// along x ("spans", one 64-bit mask per node row), united across rows where material joins them.
 struct SpanScratch {
-  std::vector<uint64_t> record;     // the cut record (sim/pbd.cpp record_rows) of a block without one
+  std::vector<uint64_t> record;     // the cut record (sim/pbd_labels.cpp record_rows) of a block without one
   std::vector<uint32_t> row_begin;  // (node rows + 1) first span of each row
   std::vector<uint64_t> mask;       // (spans) nodes of the span
   std::vector<uint32_t> parent;     // (spans) union-find

@@ -1,5 +1,5 @@
 // The PBD model update after a cut relabels only blocks whose material components a cut can split,
-// and a slit still joined around its front leaves the pieces untouched (sim/pbd.cpp keeps_components).
+// and a slit still joined around its front leaves the pieces untouched (sim/pbd_labels.cpp keeps_components).
 #include "fixtures.h"
 
 #include "sim/pbd.h"
