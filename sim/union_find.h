@@ -1,5 +1,5 @@
 // The one union-find labeller of small integer ids (a voxel's corners, its half-edge slots, the
-// fine nodes of a simulation block), used by the cut surface (sim/cut.cpp) and the PBD labelling
+// fine nodes of a simulation block), used by the cut surface (sim/cut*.cpp) and the PBD labelling
 // (sim/pbd_labels.cpp, sim/pbd_internal.h CornerMembers). Plain arrays of parents, no allocation:
 // path halving on find, and a union keeps the smaller root, so every root is the lowest id of its set
 // and numbering the sets in id order is one pass (a root is met before its members).
