@@ -270,13 +270,10 @@ TEST_CASE("ccx: the stiff cantilever converges towards CalculiX as the budget gr
   CHECK(previous < 0.35);  // measured 0.24: one element through the thickness locks (DESIGN §3: 36-64 % of the sag)
 }
 
-// The issue's bound is 10 % RMS; not met. The liver as the scene ships it (anchored along its top and
-// its posterior surface) measures 14.5 % RMS here, against the 616-element reference this test can
-// afford (1 s of ccx), and 11.7 % against a reference with 8x the elements (`bench elastic --cases liver
-// --ref-scale 2`, 22 s of ccx): the two references differ by 10 % in their largest displacement, so most
-// of the gap is the coarse reference's. The error stays at 11.5-12 % with any larger budget and at
-// sim 8 (the discretisation, not the solver). Asserted at 16 % so a regression shows.
-TEST_CASE("ccx: the hanging liver within 16 % RMS of CalculiX at the scene's defaults (sim 16, 5 x 2)") {
+// The issue's bound is 10 % RMS; measured 10.5 % at the scene's defaults (sim 16, 5 x 2; 11-12 % with
+// larger budgets: the discretisation, not the solver). Asserted at 12 % so a regression shows; the
+// 10 % goal is not met.
+TEST_CASE("ccx: the hanging liver within 12 % RMS of CalculiX at the scene's defaults (sim 16, 5 x 2)") {
   if (!have_ccx() || !material_model_in_build()) return;
   const PbdParams shipped = shipped_solver();
   const ElasticCase c = make_elastic_case("liver", 64);
@@ -290,5 +287,5 @@ TEST_CASE("ccx: the hanging liver within 16 % RMS of CalculiX at the scene's def
   const ElasticMeasure m = measure_elastic(c, ref, run);
   MESSAGE("liver RMS error " << m.rms_error << ", max-displacement error " << m.max_error << " at " << run.substeps
                              << " x " << run.iterations);
-  CHECK(m.rms_error < 0.16);
+  CHECK(m.rms_error < 0.12);
 }
