@@ -73,7 +73,7 @@ struct DividedVoxel {
   uint8_t corner_piece[8];  // piece of each corner node (corner c = dx | dy<<1 | dz<<2), kNoPiece outside
   uint8_t piece_count;
   uint8_t partial_mask;     // bit p: piece p holds both ends of a cut edge (the voxel is partly cut)
-  uint16_t cut_edges;       // bit e: voxel edge e (see kVoxelEdges in cut.cpp) is cut
+  uint16_t cut_edges;       // bit e: voxel edge e (see kVoxelEdges in sim/lattice.h) is cut
   uint16_t air_edges;       // bit e: surface edge e crossed by the blade outside the material only
 };
 
@@ -216,7 +216,7 @@ extern const uint8_t kVoxelFaceCorners[6][4];
 
 // The one rule for which inside corners of a voxel are joined (its material graph), shared by the
 // surface (patches) and the PBD model (through voxel_pieces). Two inside corners are joined
-//  - along a voxel edge the blade has not cut (cut_edges bit e, edges as in kVoxelEdges of cut.cpp:
+//  - along a voxel edge the blade has not cut (cut_edges bit e, edges as in kVoxelEdges of sim/lattice.h:
 //    x edges 0-3, y edges 4-7, z edges 8-11), and
 //  - across an *ambiguous* face (its two inside corners diagonal, the other two outside) when the
 //    blade has cut none of that face's edges: a thin ridge crossing the face diagonally is one
