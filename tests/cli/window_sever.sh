@@ -5,6 +5,9 @@
 # cursor. The --record file replays headless with one more surface component than the uncut liver
 # (summary.json "pieces", "strokes"), its hashes matching; a screenshot after the lobe has fallen is
 # left in OUTDIR (lobe.png) to look at.
+# Not in ctest: it fails today (issue 29 open): the drag cuts 7 000-9 000 voxels and gapes, but the lobe
+# stays one piece, from the default view and from above, with the blade reaching 1 or 4 voxels past the
+# far surface (measured 2026-12-05; tools: the --meshes PLYs of the replay against the recorded blade).
 # Usage: xvfb-run -a -s "-screen 0 1280x720x24" bash window_sever.sh DIVVOX REPO OUTDIR
 set -u
 divvox=$1
