@@ -15,6 +15,10 @@ using namespace cut_internal;
 
 namespace {
 
+// The cosine of the largest angle between the blade normals of one voxel's cuts for cut_close_seams
+// to take them as one plane (a seam between two strips of one stroke: nearly parallel).
+constexpr double kSeamPlanarity = 0.8;
+
 // The same for a vector whose first `sorted` elements are sorted and unique already (the pending
 // voxels of earlier cut_divide calls in a step, one call per rest quad): the tail is sorted, its
 // repeats and the values the prefix holds already (binary search) dropped, and only a tail left
@@ -164,6 +168,53 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state.surface.clear_dirty();
 }
 
+namespace {
+
+// Records one crossed edge's cut and queues the voxels around it for dividing (new divided voxels
+// start with the pieces of the uncut voxel; the reshaped list keeps their pieces before the step).
+void divide_at(const VoxelModel& model, CutState& state, const EdgeHit& hit, CutStepStats& stats) {
+  const Lattice& l = model.lattice;
+  std::vector<uint32_t>& voxels = state.pending_voxels;
+  const EdgeChange change = record_cut(model, state, hit);
+  if (change == EdgeChange::kNone) return;
+  stats.edges_cut += change == EdgeChange::kCut;
+  uint32_t around[4];
+  uint8_t corners[4];
+  voxels_around_edge(l, hit.edge, around, corners);
+  const int axis = int(hit.edge % 3);
+  for (int q = 0; q < 4; ++q) {
+    const uint32_t v = around[q];
+    if (v == kDeadIndex) continue;
+    voxels.push_back(v);
+    uint32_t d = state.divided_of.get(v);
+    if (d == kDeadIndex) {
+      d = uint32_t(state.divided.size());
+      state.divided_of.set(v, d);
+      DividedVoxel dv{};
+      dv.voxel = v;
+      dv.piece_count = 8;  // unknown until refreshed: visit every piece slot once
+      // Its pieces until refreshed: those of the uncut voxel (one of all inside corners).
+      int32_t vc[3];
+      l.voxel_coords(v, vc);
+      const uint8_t inside = corner_inside_bits(model, vc);
+      for (int c = 0; c < 8; ++c) dv.corner_piece[c] = (inside >> c) & 1u ? 0 : kNoPiece;
+      state.divided.push_back(dv);
+    }
+    const uint16_t bit = uint16_t(1u << voxel_edge_index(axis, corners[q]));
+    DividedVoxel& dv = state.divided[d];
+    uint16_t& edges = change == EdgeChange::kCut ? dv.cut_edges : dv.air_edges;
+    if (!(edges & bit)) {
+      // Its pieces before the step (not refreshed yet within it), 4 bits per corner.
+      uint32_t before = 0;
+      for (int c = 0; c < 8; ++c) before |= uint32_t(dv.corner_piece[c] == kNoPiece ? 0xF : dv.corner_piece[c] & 7) << (4 * c);
+      state.pending_reshaped.push_back(uint64_t(v) << 32 | before);
+    }
+    edges |= bit;
+  }
+}
+
+}  // namespace
+
 void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to,
                 CutStepStats& stats) {
   const Lattice& l = model.lattice;
@@ -177,44 +228,7 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   // Divide: record the cuts; the voxels around each changed edge are (re)divided.
   std::vector<uint32_t>& voxels = state.pending_voxels;
   const size_t pending_before = voxels.size();  // sorted and unique (several calls per step with physics)
-  for (const EdgeHit& hit : hits) {
-    const EdgeChange change = record_cut(model, state, hit);
-    if (change == EdgeChange::kNone) continue;
-    stats.edges_cut += change == EdgeChange::kCut;
-    uint32_t around[4];
-    uint8_t corners[4];
-    voxels_around_edge(l, hit.edge, around, corners);
-    const int axis = int(hit.edge % 3);
-    for (int q = 0; q < 4; ++q) {
-      const uint32_t v = around[q];
-      if (v == kDeadIndex) continue;
-      voxels.push_back(v);
-      uint32_t d = state.divided_of.get(v);
-      if (d == kDeadIndex) {
-        d = uint32_t(state.divided.size());
-        state.divided_of.set(v, d);
-        DividedVoxel dv{};
-        dv.voxel = v;
-        dv.piece_count = 8;  // unknown until refreshed: visit every piece slot once
-        // Its pieces until refreshed: those of the uncut voxel (one of all inside corners).
-        int32_t vc[3];
-        l.voxel_coords(v, vc);
-        const uint8_t inside = corner_inside_bits(model, vc);
-        for (int c = 0; c < 8; ++c) dv.corner_piece[c] = (inside >> c) & 1u ? 0 : kNoPiece;
-        state.divided.push_back(dv);
-      }
-      const uint16_t bit = uint16_t(1u << voxel_edge_index(axis, corners[q]));
-      DividedVoxel& dv = state.divided[d];
-      uint16_t& edges = change == EdgeChange::kCut ? dv.cut_edges : dv.air_edges;
-      if (!(edges & bit)) {
-        // Its pieces before the step (not refreshed yet within it), 4 bits per corner.
-        uint32_t before = 0;
-        for (int c = 0; c < 8; ++c) before |= uint32_t(dv.corner_piece[c] == kNoPiece ? 0xF : dv.corner_piece[c] & 7) << (4 * c);
-        state.pending_reshaped.push_back(uint64_t(v) << 32 | before);
-      }
-      edges |= bit;
-    }
-  }
+  for (const EdgeHit& hit : hits) divide_at(model, state, hit, stats);
   merge_sorted_unique(voxels, pending_before);
   stats.voxels_cut = uint32_t(voxels.size());
 
@@ -232,6 +246,72 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   ++state.steps;
 }
 
+void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& stats) {
+  const Lattice& l = model.lattice;
+  std::vector<uint32_t>& stroke = state.stroke_voxels;
+  sorted_unique(stroke);
+  std::vector<uint32_t>& voxels = state.pending_voxels;
+  const size_t pending_before = voxels.size();
+  for (const uint32_t v : stroke) {
+    const uint32_t d = state.divided_of.get(v);
+    if (d == kDeadIndex || state.divided[d].partial_mask == 0) continue;
+    const DividedVoxel dv = state.divided[d];  // a copy: divide_at may grow state.divided
+    int32_t vc[3];
+    l.voxel_coords(v, vc);
+    const auto corner_node = [&](int c) { return l.node(vc[0] + (c & 1), vc[1] + ((c >> 1) & 1), vc[2] + ((c >> 2) & 1)); };
+    // The plane of the voxel's cuts: through their crossings, normal to their mean blade normal; a
+    // voxel cut along two directions (crossing strokes, a corner) has no one plane and is left alone.
+    Vec3d centre = Vec3d::Zero(), normal = Vec3d::Zero();
+    int points = 0;
+    bool planar = true;
+    Vec3d first = Vec3d::Zero();
+    for (int e = 0; e < 12 && planar; ++e) {
+      if (!((dv.cut_edges >> e) & 1u)) continue;
+      const uint32_t edge = Lattice::edge(corner_node(kVoxelEdges[e].c0), kVoxelEdges[e].axis);
+      const uint32_t i = state.edge_cut_of.get(edge);
+      if (i == kDeadIndex) continue;
+      const EdgeCut& cut = state.edge_cuts[i];
+      const Vec3d p0 = l.node_position(vc[0] + (kVoxelEdges[e].c0 & 1), vc[1] + ((kVoxelEdges[e].c0 >> 1) & 1),
+                                       vc[2] + ((kVoxelEdges[e].c0 >> 2) & 1));
+      const Vec3d along = l.voxel_size * Vec3d::Unit(kVoxelEdges[e].axis);
+      for (int side = 0; side < 2; ++side) {
+        Vec3d n = (side ? cut.normal_hi : cut.normal_lo).cast<double>();
+        if (points == 0) first = n;
+        if (n.dot(first) < 0.0) n = -n;
+        planar = n.dot(first) >= kSeamPlanarity;
+        normal += n;
+        centre += p0 + double(side ? cut.t_hi : cut.t_lo) * along;
+        ++points;
+      }
+    }
+    if (!planar || points == 0 || !(normal.squaredNorm() > 0.0)) continue;
+    centre /= points;
+    normal.normalize();
+    // The voxel's material edges that plane crosses and no sweep did.
+    for (int e = 0; e < 12; ++e) {
+      if ((dv.cut_edges >> e) & 1u) continue;
+      const uint32_t n0 = corner_node(kVoxelEdges[e].c0), n1 = corner_node(kVoxelEdges[e].c1);
+      if (!model.is_inside(n0) || !model.is_inside(n1)) continue;
+      int32_t c0[3], c1[3];
+      l.node_coords(n0, c0);
+      l.node_coords(n1, c1);
+      const double d0 = normal.dot(l.node_position(c0[0], c0[1], c0[2]) - centre);
+      const double d1 = normal.dot(l.node_position(c1[0], c1[1], c1[2]) - centre);
+      if ((d0 > 0.0) == (d1 > 0.0) || d0 == d1) continue;
+      const EdgeHit hit{Lattice::edge(n0, kVoxelEdges[e].axis), float(std::clamp(d0 / (d0 - d1), 0.0, 1.0)),
+                        normal.cast<float>()};
+      divide_at(model, state, hit, stats);
+      ++stats.seam_edges;
+    }
+  }
+  merge_sorted_unique(voxels, pending_before);
+  stats.voxels_cut = uint32_t(voxels.size());
+  stats.voxels_divided = uint32_t(state.divided.size());
+  stroke.clear();
+  state.stroke_voxels_unique = 0;
+}
+
+
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats) {
   state.changed_vertices.clear();
   std::vector<uint32_t>& corners = state.scratch_corners;
@@ -241,6 +321,13 @@ void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& 
     corners.insert(corners.end(), state.changed_vertices.begin(), state.changed_vertices.end());
     state.touched_vertices.swap(corners);
     ++state.surface_changes;
+  }
+  // The stroke's voxels (for cut_close_seams), their repeats dropped as they pile up.
+  std::vector<uint32_t>& stroke = state.stroke_voxels;
+  stroke.insert(stroke.end(), state.pending_voxels.begin(), state.pending_voxels.end());
+  if (stroke.size() >= 2 * state.stroke_voxels_unique + 1024) {
+    sorted_unique(stroke);
+    state.stroke_voxels_unique = stroke.size();
   }
   state.changed_voxels.swap(state.pending_voxels);
   state.pending_voxels.clear();

@@ -47,11 +47,17 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
   report.cutting = s.cutting;
   if (s.pbd) apply_grab(*s.pbd, commands.grab);
   if (!(s.cutting && had_blade)) reset_sweep(s.sweep);  // a new cut starts from the blade where it is
+  // A stroke through moving tissue that ends (the blade stops cutting) has its seams closed.
+  const bool stroke_ends = s.pbd && s.stroke_cutting && !(s.cutting && had_blade);
+  s.stroke_cutting = s.cutting && had_blade;
 
   const double t0 = clock.now();
   // With physics the blade moves relative to the tissue even when it stands still.
-  if (s.cutting && had_blade && (s.pbd || !same_pose(previous, s.blade))) {
-    if (s.pbd) {
+  const bool sweeps = s.cutting && had_blade && (s.pbd || !same_pose(previous, s.blade));
+  if (sweeps || stroke_ends) {
+    if (stroke_ends) {
+      cut_close_seams(model.voxels, s.cut, report.cut);
+    } else if (s.pbd) {
       // The world-space sweep mapped into rest space through the deformed pieces, then cut quad by quad.
       map_sweep(model.voxels, *s.pbd, previous, s.blade, s.sweep, &s.sweep_stats);
       report.timings.map_ms = clock.now() - t0;
@@ -78,6 +84,10 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     report.timings.deform_ms = clock.now() - t3;
   }
   report.timings.total_ms = clock.now() - t0;
+  if (!s.stroke_cutting) {
+    s.cut.stroke_voxels.clear();
+    s.cut.stroke_voxels_unique = 0;
+  }
   ++s.step;
 }
 

@@ -50,6 +50,7 @@ struct WorldState {
   // from one cutting step to the next (so a still blade cuts tissue moving into it).
   BladePose blade;
   bool have_blade = false, cutting = false;
+  bool stroke_cutting = false;  // the last step cut (a stroke is under way: its end closes its seams)
   SweepMapper sweep;
   SweepMapStats sweep_stats;  // accumulated over the run
   uint32_t step = 0;          // the next step to run

@@ -224,16 +224,26 @@ void handle_keys(AppState& app, GLFWwindow* window) {
 void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
   app.hover_hit = false;
   if (app.current && app.cursor_in_view) {
+    // While dragging: the outer faces the ray enters through only. Through the slit the blade opens
+    // the ray crosses cut faces and then the tissue's far side from within; taking either as the
+    // entry would move the blade deep behind the surface it is cutting (a gap in the incision).
     const uint8_t skip = app.left_down ? kTriangleCut : 0;
     app.hover_hit = pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
-                                 app.camera.z_near, app.hover, &app.pick_scratch);
+                                 app.camera.z_near, app.hover, &app.pick_scratch,
+                                 app.left_down ? Facing::kEntering : Facing::kBoth);
   }
   if (app.hover_hit) {
     app.entry_t = app.hover.t;
-  } else if (!app.left_down || app.entry_t <= 0.0f) {
-    // Nothing under the cursor: the depth of the object's centre along the ray.
+  } else if (!app.left_down || !app.drag_touched || app.entry_t <= 0.0f) {
+    // Nothing under the cursor, before the stroke has touched the tissue: the depth of the surface
+    // nearest the cursor on screen (the blade sweeps into the tissue from the side); else the depth of
+    // the object's centre. A stroke that has left the tissue keeps its depth.
     const Vec3f centre = (0.5 * (app.bounds.min + app.bounds.max)).cast<float>();
     app.entry_t = std::max((centre - ray.origin).dot(ray.direction) - 0.5f * app.radius, app.camera.z_near);
+    float nearest = 0.0f;
+    if (app.current && nearest_surface_depth(ray, app.current->positions, app.current->triangles, app.camera.z_near, nearest)) {
+      app.entry_t = nearest;
+    }
   }
   const Vec3f entry = ray.origin + app.entry_t * ray.direction;
   // The edge faces the drag's direction on screen.
@@ -251,7 +261,7 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
     const Ray inward{entry, (aim.b - aim.a).cast<float>().normalized()};
     const uint8_t skip = app.left_down ? kTriangleCut : 0;
     if (pick_surface(inward, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
-                     0.5f * app.voxel_size, app.exit_hit, &app.pick_scratch)) {
+                     0.5f * app.voxel_size, app.exit_hit, &app.pick_scratch, Facing::kLeaving)) {
       app.through_depth = app.exit_hit.t + app.voxel_size;
     }
   }

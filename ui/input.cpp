@@ -20,7 +20,7 @@ Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vect
 
 bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
                   const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit,
-                  std::vector<Eigen::Vector2f>* scratch) {
+                  std::vector<Eigen::Vector2f>* scratch, Facing facing) {
   const uint32_t n = uint32_t(positions.size());
   const bool have_flags = flags.size() == triangles.size();
   float best = std::numeric_limits<float>::infinity();
@@ -53,6 +53,8 @@ bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std
     const Vec3f q = d.cross(e2);
     const float det = e1.dot(q);
     if (!(std::abs(det) > 1e-20f)) continue;  // parallel, degenerate or NaN
+    // det = -d . (e1 x e2): positive where the ray enters through the outward-facing side.
+    if ((facing == Facing::kEntering && det < 0.0f) || (facing == Facing::kLeaving && det > 0.0f)) continue;
     const float inv = 1.0f / det;
     const Vec3f s = o - p0;
     const float u = s.dot(q) * inv;
@@ -71,6 +73,26 @@ bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std
   hit.triangle = best_tri;
   hit.point = o + best * d;
   return true;
+}
+
+bool nearest_surface_depth(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                           float t_min, float& t) {
+  const uint32_t n = uint32_t(positions.size());
+  float best = std::numeric_limits<float>::infinity();  // tangent of the angle from the ray
+  for (const Tri& tri : triangles) {
+    if (tri[0] >= n || tri[1] >= n || tri[2] >= n) continue;  // dead slot
+    for (uint32_t v : tri) {
+      const Vec3f q = positions[v] - ray.origin;
+      const float along = q.dot(ray.direction);
+      if (!(along > t_min)) continue;  // behind, or NaN
+      const float off = (q - along * ray.direction).norm() / along;
+      if (off < best) {
+        best = off;
+        t = along;
+      }
+    }
+  }
+  return std::isfinite(best);
 }
 
 BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry, double depth, double lead,

@@ -25,7 +25,10 @@ Ray cursor_ray(const Camera& camera, const Viewport& viewport, const Eigen::Vect
 // Surface picking: the nearest triangle the ray crosses (either side; Moller-Trumbore) among live
 // slots (kDeadIndex and non-finite corners skipped). Triangles whose flags share a bit with
 // `skip_flags` are ignored (during a drag the scalpel ignores cut faces, so it does not dive into
-// the slit it just opened). False when the ray hits nothing in front of `t_min`.
+// the slit it just opened). `facing` keeps only the triangles the ray enters the tissue through
+// (kEntering: their outward normal against the ray) or leaves it through (kLeaving). False when the ray
+// hits nothing in front of `t_min`.
+enum class Facing : uint8_t { kBoth, kEntering, kLeaving };
 struct SurfaceHit {
   float t = 0.0f;        // distance along the ray
   uint32_t triangle = 0;  // slot
@@ -34,7 +37,14 @@ struct SurfaceHit {
 // `scratch` (optional) keeps the per-vertex buffer between calls (the window picks every frame).
 bool pick_surface(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
                   const std::vector<uint8_t>& flags, uint8_t skip_flags, float t_min, SurfaceHit& hit,
-                  std::vector<Eigen::Vector2f>* scratch = nullptr);
+                  std::vector<Eigen::Vector2f>* scratch = nullptr, Facing facing = Facing::kBoth);
+
+// Off the tissue: the depth along the ray of the surface vertex that appears nearest to it on screen
+// (the smallest angle from the ray; live triangles' corners in front of `t_min`). A scalpel that
+// starts beside the organ then stands at the depth of the tissue it is about to enter, and sweeps into
+// it sideways instead of diving in from the front. False when no vertex is in front.
+bool nearest_surface_depth(const Ray& ray, const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                           float t_min, float& t);
 
 // The scalpel aimed at a surface point: the blade enters at `entry` (on the surface under the
 // cursor) and goes `depth` into the tissue along the cursor ray tilted by `tilt` radians toward the

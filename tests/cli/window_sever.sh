@@ -3,11 +3,11 @@
 # the window at 1280x720 from the default view of the default scene (the liver), a scalpel drag
 # across its thin left lobe at the default depth; the blade reaches through the tissue under the
 # cursor. The --record file replays headless with one more surface component than the uncut liver
-# (summary.json "pieces", "strokes"), its hashes matching; a screenshot after the lobe has fallen is
-# left in OUTDIR (lobe.png) to look at.
-# Not in ctest: it fails today (issue 29 open): the drag cuts 7 000-9 000 voxels and gapes, but the lobe
-# stays one piece, from the default view and from above, with the blade reaching 1 or 4 voxels past the
-# far surface (measured 2026-12-05; tools: the --meshes PLYs of the replay against the recorded blade).
+# (summary.json "pieces", "strokes"), its hashes matching; a screenshot after the cut is left in
+# OUTDIR/out/window to look at.
+# The seams the tissue's motion leaves between the steps of a stroke are closed when the stroke ends
+# (sim/cut.h cut_close_seams): the lobe comes off on release. It stays where it is: the scene's anchor
+# box holds the top of the liver, the lobe's included.
 # Usage: xvfb-run -a -s "-screen 0 1280x720x24" bash window_sever.sh DIVVOX REPO OUTDIR
 set -u
 divvox=$1
@@ -38,12 +38,10 @@ sleep 2
 # Across the left lobe, a little in from its tip (window_input.sh's lobe case crosses the tip itself).
 drag 1005 140 1035 420 16
 wait_for "^cut: " 60
-sleep 8  # the lobe falls to the tray
-if command -v import >/dev/null; then
-  import -window root "$out/lobe.png" 2>/dev/null || true
-elif command -v xwd >/dev/null && command -v convert >/dev/null; then
-  xwd -root -silent | convert xwd:- "$out/lobe.png" 2>/dev/null || true
-fi
+sleep 8  # the cut piece settles
+xdotool mousemove 1200 700
+xdotool key F12  # out/window/divvox_*.png: the cut, after the lobe came off
+sleep 1
 xdotool key shift+Escape
 for _ in $(seq 60); do kill -0 $pid 2>/dev/null || break; sleep 0.5; done
 kill -0 $pid 2>/dev/null && fail "the window did not close on shift+Esc"

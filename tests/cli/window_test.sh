@@ -119,6 +119,12 @@ if command -v xdotool >/dev/null 2>&1; then
     sed 's/^/    /' "$tmp/input_$case.log"
     [[ $code -eq 0 ]] || fail "window input case '$case' (exit $code)"
   done
+  # A stroke across the liver's left lobe takes it off (issue 29).
+  timeout 300 xvfb-run -a -s "-screen 0 1280x720x24" bash "$repo/tests/cli/window_sever.sh" "$divvox" "$repo" \
+    "$tmp/sever" >"$tmp/sever.log" 2>&1
+  code=$?
+  sed 's/^/    /' "$tmp/sever.log"
+  [[ $code -eq 0 ]] || fail "window sever (exit $code)"
 elif [[ ${DIVVOX_REQUIRE_GL:-} == 1 ]]; then
   fail "xdotool not installed, but DIVVOX_REQUIRE_GL=1 (tools/setup.sh installs it)"
 else

@@ -434,3 +434,60 @@ TEST_SUITE("sever") {
   }
 }
 
+
+// Seams (cut_close_seams): two strips of one stroke that leave a gap a fraction of a voxel wide
+// between them (as strips cut through tissue that moved between steps do) keep the block in one
+// piece until the stroke ends; its end closes the seam, and a blade tip inside the tissue (a cut that
+// does not go through) moves by at most one voxel.
+TEST_SUITE("sever") {
+  TEST_CASE("the end of a stroke closes a seam between its strips, and leaves a partial cut partial") {
+    const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 0.5, 0.5), Eigen::Matrix3d::Identity(), 1);
+    const VoxelModel model = dvx_test::voxelized(box, 32);
+    const double h = model.lattice.voxel_size;
+    const auto cut = [&](CutState& s, double y0, double y1, double z_tip) {
+      // A blade along z (from above the block down to z_tip) at x = 0.0137, swept in y from y0 to y1.
+      CutStepStats stats;
+      cut_divide(model, s, {Vec3d(0.0137, y0, 1.0), Vec3d(0.0137, y0, z_tip)}, {Vec3d(0.0137, y1, 1.0), Vec3d(0.0137, y1, z_tip)},
+                 stats);
+      cut_update_surface(model, s, stats);
+    };
+    const auto pieces = [&](const CutState& s) { return int(surface_stats(compact_surface(s.surface)).components); };
+    std::string error;
+    SUBCASE("through the block: the seam closes and the block is in two") {
+      CutState s;
+      init_cut_state(model, s);
+      cut(s, -1.0, 0.1 - 0.2 * h, -1.0);  // the first strip ends in the middle of a voxel...
+      cut(s, 0.1 + 0.3 * h, 1.0, -1.0);   // ...the second starts half a voxel on
+      REQUIRE(check_cut_state(model, s, error));
+      CHECK(pieces(s) == 1);  // the seam joins the sides
+      CutStepStats stats;
+      cut_close_seams(model, s, stats);
+      CHECK(s.stroke_voxels.empty());  // a new stroke starts
+      cut_update_surface(model, s, stats);
+      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
+      MESSAGE("seam edges cut: " << stats.seam_edges);
+      CHECK(stats.seam_edges > 0);
+      CHECK(pieces(s) == 2);
+    }
+    SUBCASE("a blade that stops inside the block: still one piece, the cut's edge at most a voxel deeper") {
+      CutState s;
+      init_cut_state(model, s);
+      const double tip = 0.05;  // the block spans z -0.5..0.5: the blade reaches its middle only
+      cut(s, -1.0, 1.0, tip);
+      CutStepStats stats;
+      cut_close_seams(model, s, stats);
+      cut_update_surface(model, s, stats);
+      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
+      CHECK(pieces(s) == 1);
+      // Every cut edge lies above the tip less one voxel.
+      double lowest = 1e30;
+      for (const EdgeCut& e : s.edge_cuts) {
+        int32_t c[3];
+        model.lattice.node_coords(e.edge / 3, c);
+        lowest = std::min(lowest, model.lattice.node_position(c[0], c[1], c[2]).z());
+      }
+      MESSAGE("lowest cut edge " << (tip - lowest) / h << " voxels below the tip");
+      CHECK(lowest >= tip - 2.0 * h);
+    }
+  }
+}

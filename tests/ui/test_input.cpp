@@ -46,6 +46,38 @@ struct TwoSquares {
   }
 };
 
+TEST_CASE("pick by facing: the faces a ray enters the tissue through, or leaves it through") {
+  TwoSquares m;  // both face +z (outward normal +z)
+  SurfaceHit hit;
+  const std::vector<uint8_t> none(m.triangles.size(), 0);
+  const Ray down{Vec3f(0.2f, 0.3f, 5.0f), Vec3f(0, 0, -1)};
+  REQUIRE(pick_surface(down, m.positions, m.triangles, none, 0, 0.0f, hit, nullptr, Facing::kEntering));
+  CHECK(hit.t == doctest::Approx(5.0f));
+  CHECK_FALSE(pick_surface(down, m.positions, m.triangles, none, 0, 0.0f, hit, nullptr, Facing::kLeaving));
+  // From below, the ray meets both squares' back sides: leaving only.
+  const Ray up{Vec3f(0.2f, 0.3f, -5.0f), Vec3f(0, 0, 1)};
+  CHECK_FALSE(pick_surface(up, m.positions, m.triangles, none, 0, 0.0f, hit, nullptr, Facing::kEntering));
+  REQUIRE(pick_surface(up, m.positions, m.triangles, none, 0, 0.0f, hit, nullptr, Facing::kLeaving));
+  CHECK(hit.t == doctest::Approx(4.0f));
+}
+
+TEST_CASE("off the tissue: the depth of the surface nearest the cursor on screen") {
+  TwoSquares m;
+  float t = 0.0f;
+  // A ray passing beside the squares (x = 3): the corners at x = 1 are 2 off the ray; in perspective
+  // the back square's (6 along the ray) appear nearer the cursor than the front one's (5 along it).
+  REQUIRE(nearest_surface_depth({Vec3f(3, 0, 5), Vec3f(0, 0, -1)}, m.positions, m.triangles, 0.0f, t));
+  CHECK(t == doctest::Approx(6.0f));
+  // Beside the front square only (the back one shifted away): its depth.
+  std::vector<Vec3f> shifted = m.positions;
+  for (size_t v = 4; v < shifted.size(); ++v) shifted[v].x() -= 10.0f;
+  REQUIRE(nearest_surface_depth({Vec3f(3, 0, 5), Vec3f(0, 0, -1)}, shifted, m.triangles, 0.0f, t));
+  CHECK(t == doctest::Approx(5.0f));
+  CHECK_FALSE(nearest_surface_depth({Vec3f(3, 0, 5), Vec3f(0, 0, 1)}, m.positions, m.triangles, 0.0f, t));  // all behind
+  const std::vector<Tri> dead(m.triangles.size(), Tri{kDeadIndex, kDeadIndex, kDeadIndex});
+  CHECK_FALSE(nearest_surface_depth({Vec3f(3, 0, 5), Vec3f(0, 0, -1)}, m.positions, dead, 0.0f, t));
+}
+
 TEST_CASE("pick: the nearest triangle on the ray, either side; dead slots, NaN and skipped classes ignored") {
   TwoSquares m;
   SurfaceHit hit;
