@@ -246,9 +246,8 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   ++state.steps;
 }
 
-void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& stats) {
+void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke, CutStepStats& stats) {
   const Lattice& l = model.lattice;
-  std::vector<uint32_t>& stroke = state.stroke_voxels;
   sorted_unique(stroke);
   std::vector<uint32_t>& voxels = state.pending_voxels;
   const size_t pending_before = voxels.size();
@@ -259,6 +258,9 @@ void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& sta
     int32_t vc[3];
     l.voxel_coords(v, vc);
     const auto corner_node = [&](int c) { return l.node(vc[0] + (c & 1), vc[1] + ((c >> 1) & 1), vc[2] + ((c >> 2) & 1)); };
+    const auto corner_position = [&](int c) {
+      return l.node_position(vc[0] + (c & 1), vc[1] + ((c >> 1) & 1), vc[2] + ((c >> 2) & 1));
+    };
     // The plane of the voxel's cuts: through their crossings, normal to their mean blade normal; a
     // voxel cut along two directions (crossing strokes, a corner) has no one plane and is left alone.
     Vec3d centre = Vec3d::Zero(), normal = Vec3d::Zero();
@@ -271,8 +273,7 @@ void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& sta
       const uint32_t i = state.edge_cut_of.get(edge);
       if (i == kDeadIndex) continue;
       const EdgeCut& cut = state.edge_cuts[i];
-      const Vec3d p0 = l.node_position(vc[0] + (kVoxelEdges[e].c0 & 1), vc[1] + ((kVoxelEdges[e].c0 >> 1) & 1),
-                                       vc[2] + ((kVoxelEdges[e].c0 >> 2) & 1));
+      const Vec3d p0 = corner_position(kVoxelEdges[e].c0);
       const Vec3d along = l.voxel_size * Vec3d::Unit(kVoxelEdges[e].axis);
       for (int side = 0; side < 2; ++side) {
         Vec3d n = (side ? cut.normal_hi : cut.normal_lo).cast<double>();
@@ -292,11 +293,8 @@ void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& sta
       if ((dv.cut_edges >> e) & 1u) continue;
       const uint32_t n0 = corner_node(kVoxelEdges[e].c0), n1 = corner_node(kVoxelEdges[e].c1);
       if (!model.is_inside(n0) || !model.is_inside(n1)) continue;
-      int32_t c0[3], c1[3];
-      l.node_coords(n0, c0);
-      l.node_coords(n1, c1);
-      const double d0 = normal.dot(l.node_position(c0[0], c0[1], c0[2]) - centre);
-      const double d1 = normal.dot(l.node_position(c1[0], c1[1], c1[2]) - centre);
+      const double d0 = normal.dot(corner_position(kVoxelEdges[e].c0) - centre);
+      const double d1 = normal.dot(corner_position(kVoxelEdges[e].c1) - centre);
       if ((d0 > 0.0) == (d1 > 0.0) || d0 == d1) continue;
       const EdgeHit hit{Lattice::edge(n0, kVoxelEdges[e].axis), float(std::clamp(d0 / (d0 - d1), 0.0, 1.0)),
                         normal.cast<float>()};
@@ -307,8 +305,6 @@ void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& sta
   merge_sorted_unique(voxels, pending_before);
   stats.voxels_cut = uint32_t(voxels.size());
   stats.voxels_divided = uint32_t(state.divided.size());
-  stroke.clear();
-  state.stroke_voxels_unique = 0;
 }
 
 
@@ -321,13 +317,6 @@ void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& 
     corners.insert(corners.end(), state.changed_vertices.begin(), state.changed_vertices.end());
     state.touched_vertices.swap(corners);
     ++state.surface_changes;
-  }
-  // The stroke's voxels (for cut_close_seams), their repeats dropped as they pile up.
-  std::vector<uint32_t>& stroke = state.stroke_voxels;
-  stroke.insert(stroke.end(), state.pending_voxels.begin(), state.pending_voxels.end());
-  if (stroke.size() >= 2 * state.stroke_voxels_unique + 1024) {
-    sorted_unique(stroke);
-    state.stroke_voxels_unique = stroke.size();
   }
   state.changed_voxels.swap(state.pending_voxels);
   state.pending_voxels.clear();

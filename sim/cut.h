@@ -142,8 +142,6 @@ struct CutState {
                                          // holds still until the blade comes back to its voxel)
   std::vector<uint32_t> pending_voxels;  // voxels cut_divide changed, for cut_update_surface (sorted)
   std::vector<uint32_t> changed_voxels;  // voxels the last step refreshed (sorted), for the PBD model
-  std::vector<uint32_t> stroke_voxels;   // voxels the current stroke refreshed (repeats), for cut_close_seams
-  size_t stroke_voxels_unique = 0;       // its size when last made unique
   // The last step's voxels whose cut or air edges changed, as voxel << 32 | their pieces before the
   // step (4 bits per corner c at bit 4c, 0xF outside), sorted: only their pieces can differ (the
   // others' vertices moved: a widened crossing, the front), so the PBD model looks only at these.
@@ -199,10 +197,12 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 // At the end of a stroke through moving tissue: closes its seams. Where the tissue moved and deformed
 // between steps, a strip's start and the last one's end can disagree by up to a fine voxel, leaving
 // holes in the cut surface that keep the sides joined. Each voxel the stroke left partly cut
-// (stroke_voxels, partial_mask) whose cuts lie in one plane has the material edges that plane crosses
-// cut too: a hole a voxel wide closes; a real edge of the cut (a blade tip inside the tissue) moves by
-// at most a voxel. Leaves its voxels in state.pending_voxels (then cut_update_surface).
-void cut_close_seams(const VoxelModel& model, CutState& state, CutStepStats& stats);
+// (`stroke_voxels`, any order and repeats; partial_mask) whose cuts lie in one plane has the material
+// edges that plane crosses cut too: a hole a voxel wide closes; a real edge of the cut (a blade tip
+// inside the tissue) moves by at most a voxel. Leaves its voxels in state.pending_voxels (then
+// cut_update_surface); sorts `stroke_voxels` and drops its repeats.
+void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke_voxels,
+                     CutStepStats& stats);
 // Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (moves them to changed_voxels).
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats);
 

@@ -2,6 +2,8 @@
 
 #include "sim/state_hash.h"
 
+#include <algorithm>
+
 namespace dvx {
 namespace {
 
@@ -17,6 +19,17 @@ void apply_grab(PbdState& pbd, const GrabCommand& grab) {
     } else {
       grab_move(pbd, grab.target);
     }
+  }
+}
+
+// The voxels a cutting step refreshed, kept for the stroke's end; their repeats dropped as they pile up.
+void remember_stroke_voxels(const std::vector<uint32_t>& changed, WorldState& s) {
+  std::vector<uint32_t>& stroke = s.stroke_voxels;
+  stroke.insert(stroke.end(), changed.begin(), changed.end());
+  if (stroke.size() >= 2 * s.stroke_voxels_unique + 1024) {
+    std::sort(stroke.begin(), stroke.end());
+    stroke.erase(std::unique(stroke.begin(), stroke.end()), stroke.end());
+    s.stroke_voxels_unique = stroke.size();
   }
 }
 
@@ -56,7 +69,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
   const bool sweeps = s.cutting && had_blade && (s.pbd || !same_pose(previous, s.blade));
   if (sweeps || stroke_ends) {
     if (stroke_ends) {
-      cut_close_seams(model.voxels, s.cut, report.cut);
+      cut_close_seams(model.voxels, s.cut, s.stroke_voxels, report.cut);
     } else if (s.pbd) {
       // The world-space sweep mapped into rest space through the deformed pieces, then cut quad by quad.
       map_sweep(model.voxels, *s.pbd, previous, s.blade, s.sweep, &s.sweep_stats);
@@ -72,6 +85,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     }
     const double t1 = clock.now();
     cut_update_surface(model.voxels, s.cut, report.cut);
+    if (s.pbd && !stroke_ends) remember_stroke_voxels(s.cut.changed_voxels, s);
     const double t2 = clock.now();
     if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(model.voxels, s.cut, *s.pbd, &report.pbd);
     report.timings.cut_ms = (t1 - t0) + (clock.now() - t2);  // map, divide, fine and coarse
@@ -85,8 +99,8 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
   }
   report.timings.total_ms = clock.now() - t0;
   if (!s.stroke_cutting) {
-    s.cut.stroke_voxels.clear();
-    s.cut.stroke_voxels_unique = 0;
+    s.stroke_voxels.clear();
+    s.stroke_voxels_unique = 0;
   }
   ++s.step;
 }

@@ -51,6 +51,10 @@ struct WorldState {
   BladePose blade;
   bool have_blade = false, cutting = false;
   bool stroke_cutting = false;  // the last step cut (a stroke is under way: its end closes its seams)
+  // The voxels the stroke under way refreshed (with physics; repeats dropped as they pile up), for
+  // cut_close_seams at its end. Emptied when a stroke ends.
+  std::vector<uint32_t> stroke_voxels;
+  size_t stroke_voxels_unique = 0;  // its size when last made unique
   SweepMapper sweep;
   SweepMapStats sweep_stats;  // accumulated over the run
   uint32_t step = 0;          // the next step to run

@@ -118,6 +118,15 @@ SweepResult sweep(Body& b, const BladePose& from, const BladePose& to, int steps
     REQUIRE_MESSAGE(check_cut_state(b.voxels(), b.state.cut, error), error);
     REQUIRE_MESSAGE(check_pbd_state(b.voxels(), b.state.cut, b.pbd(), error), error);
   }
+  // The stroke ends (the blade lifted, as on a mouse release): its seams close, its voxels are let go.
+  CHECK(!b.state.stroke_voxels.empty());
+  StepCommands lift;
+  lift.has_blade = true;
+  lift.blade = to;
+  world_step(b.model, b.state, lift, context);
+  CHECK(b.state.stroke_voxels.empty());
+  std::string error;
+  REQUIRE_MESSAGE(check_cut_state(b.voxels(), b.state.cut, error), error);
   r.components = components(b);
   return r;
 }
@@ -444,12 +453,14 @@ TEST_SUITE("sever") {
     const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 0.5, 0.5), Eigen::Matrix3d::Identity(), 1);
     const VoxelModel model = dvx_test::voxelized(box, 32);
     const double h = model.lattice.voxel_size;
+    std::vector<uint32_t> stroke;  // the stroke's voxels (as world_step keeps them)
     const auto cut = [&](CutState& s, double y0, double y1, double z_tip) {
       // A blade along z (from above the block down to z_tip) at x = 0.0137, swept in y from y0 to y1.
       CutStepStats stats;
       cut_divide(model, s, {Vec3d(0.0137, y0, 1.0), Vec3d(0.0137, y0, z_tip)}, {Vec3d(0.0137, y1, 1.0), Vec3d(0.0137, y1, z_tip)},
                  stats);
       cut_update_surface(model, s, stats);
+      stroke.insert(stroke.end(), s.changed_voxels.begin(), s.changed_voxels.end());
     };
     const auto pieces = [&](const CutState& s) { return int(surface_stats(compact_surface(s.surface)).components); };
     std::string error;
@@ -461,8 +472,7 @@ TEST_SUITE("sever") {
       REQUIRE(check_cut_state(model, s, error));
       CHECK(pieces(s) == 1);  // the seam joins the sides
       CutStepStats stats;
-      cut_close_seams(model, s, stats);
-      CHECK(s.stroke_voxels.empty());  // a new stroke starts
+      cut_close_seams(model, s, stroke, stats);
       cut_update_surface(model, s, stats);
       REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
       MESSAGE("seam edges cut: " << stats.seam_edges);
@@ -475,7 +485,7 @@ TEST_SUITE("sever") {
       const double tip = 0.05;  // the block spans z -0.5..0.5: the blade reaches its middle only
       cut(s, -1.0, 1.0, tip);
       CutStepStats stats;
-      cut_close_seams(model, s, stats);
+      cut_close_seams(model, s, stroke, stats);
       cut_update_surface(model, s, stats);
       REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
       CHECK(pieces(s) == 1);
