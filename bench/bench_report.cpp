@@ -4,9 +4,9 @@
 #include "bench/bench_contact.h"
 #include "engine/errors.h"
 #include "engine/output.h"
-#include "engine/plot.h"
 #include "engine/scene.h"
 #include "engine/stats.h"
+#include "harness/plot.h"
 
 #include <nlohmann/json.hpp>
 
