@@ -27,24 +27,24 @@ std::atomic<bool> g_interrupted{false};
 void on_sigint(int) { g_interrupted.store(true); }
 
 // Closes the stroke under way (its last step `last`): the components of the surface now.
-void end_stroke(uint32_t last, Replay& run) {
-  const std::vector<double> volumes = component_volumes(compact_surface(run.session.state.cut.surface));
+void end_stroke(uint32_t last, Replay& replay) {
+  const std::vector<double> volumes = component_volumes(compact_surface(replay.session.state.cut.surface));
   const double smallest = volumes.empty() ? 0.0 : *std::min_element(volumes.begin(), volumes.end());
-  run.strokes.push_back({run.stroke_first, last, uint32_t(volumes.size()),
-                         int64_t(volumes.size()) - int64_t(run.components), smallest});
-  run.components = uint32_t(volumes.size());
-  run.in_stroke = false;
+  replay.strokes.push_back({replay.stroke_first, last, uint32_t(volumes.size()),
+                         int64_t(volumes.size()) - int64_t(replay.components), smallest});
+  replay.components = uint32_t(volumes.size());
+  replay.in_stroke = false;
 }
 
 // --meshes: DIR/meshes/mesh_NNNNN.ply, the deformed surface in world space with its cut faces marked.
-void write_step_mesh(const ReplayOptions& options, uint32_t step, Replay& run) {
-  Session& session = run.session;
+void write_step_mesh(const ReplayOptions& options, uint32_t step, Replay& replay) {
+  Session& session = replay.session;
   session_embed(session);
   char name[32];
   std::snprintf(name, sizeof(name), "mesh_%05u.ply", step);
   write_cut_mesh_ply((std::filesystem::path(options.out_dir) / "meshes" / name).string(), session.state.cut.surface,
                      session.state.pbd ? &session.state.pbd->deformed : nullptr);
-  run.last_mesh = step;
+  replay.last_mesh = step;
 }
 
 // The recording's camera for frames from this step on: usable only with a finite target and a
@@ -59,9 +59,9 @@ void publish_camera(Snapshot& slot, bool on, const CameraCommand& c) {
 
 // Steps the session through the playback: each step's recorded commands, then the hash check and the
 // recorder; with `exchange`, every step's surface goes to the render thread.
-void simulate(const ReplayOptions& options, SnapshotExchange* exchange, Replay& run) {
-  const Playback& playback = run.playback;
-  Session& session = run.session;
+void simulate(const ReplayOptions& options, SnapshotExchange* exchange, Replay& replay) {
+  const Playback& playback = replay.playback;
+  Session& session = replay.session;
   PlaybackCursor cursor;
   DirtyHistory dirty_history;
   CameraCommand camera;
@@ -70,7 +70,7 @@ void simulate(const ReplayOptions& options, SnapshotExchange* exchange, Replay& 
   const Clock::time_point start = Clock::now();
   for (uint32_t step = 0; step <= last && !playback.steps.empty(); ++step) {
     if (g_interrupted.load()) {
-      run.interrupted = true;
+      replay.interrupted = true;
       break;
     }
     // --speed realtime: a step every dt of wall-clock time.
@@ -84,18 +84,18 @@ void simulate(const ReplayOptions& options, SnapshotExchange* exchange, Replay& 
       camera_on = camera.target.allFinite() && camera.distance > 0.0f;
     }
     const StepReport row = session_step(session, commands);
-    run.voxels_cut += row.cut.voxels_cut;
-    run.rows.push_back(row);
-    if (row.cutting && !run.in_stroke) {
-      run.in_stroke = true;
-      run.stroke_first = step;
-    } else if (!row.cutting && run.in_stroke) {
-      end_stroke(step - 1, run);
+    replay.voxels_cut += row.cut.voxels_cut;
+    replay.rows.push_back(row);
+    if (row.cutting && !replay.in_stroke) {
+      replay.in_stroke = true;
+      replay.stroke_first = step;
+    } else if (!row.cutting && replay.in_stroke) {
+      end_stroke(step - 1, replay);
     }
 
     // Determinism: compare with the recorded hash; record what was applied.
-    if (recorded && run.check_hashes) check_hash(*recorded, session, run.checks);
-    if (run.recorder) run.recorder->record(step, commands, camera_set, session);
+    if (recorded && replay.check_hashes) check_hash(*recorded, session, replay.checks);
+    if (replay.recorder) replay.recorder->record(step, commands, camera_set, session);
 
     // Hand the surface to the render thread (capture frames every frames_every steps).
     if (exchange != nullptr) {
@@ -109,13 +109,13 @@ void simulate(const ReplayOptions& options, SnapshotExchange* exchange, Replay& 
           capture);
       session.state.cut.surface.clear_dirty();
     }
-    run.steps_done = step + 1;
+    replay.steps_done = step + 1;
     if (options.meshes_every > 0 && (step % options.meshes_every == 0 || step == last)) {
-      write_step_mesh(options, step, run);
+      write_step_mesh(options, step, replay);
     }
     if (options.progress && step % 200 == 0) std::fprintf(stderr, "\rdivvox: replay step %u / %u", step, last);
   }
-  if (run.in_stroke && run.steps_done > 0) end_stroke(run.steps_done - 1, run);
+  if (replay.in_stroke && replay.steps_done > 0) end_stroke(replay.steps_done - 1, replay);
 }
 
 // The simulation on its own thread and the EGL render thread here (EGL contexts belong to the thread

@@ -171,10 +171,10 @@ nlohmann::json pool_json(const TaskPoolStats& stats) {
 }
 
 // summary.json (DESIGN §1 contract: the fields that apply without physics).
-nlohmann::json summary_json(const ReplayOptions& options, const Replay& run, const ReplayResult& result, double wall_s,
+nlohmann::json summary_json(const ReplayOptions& options, const Replay& replay, const ReplayResult& result, double wall_s,
                             const PhaseSamples& phases, const FrameSamples& frames, const FinalSurface& final) {
-  const Playback& playback = run.playback;
-  const Session& session = run.session;
+  const Playback& playback = replay.playback;
+  const Session& session = replay.session;
   const CutState& state = session.state.cut;
   const PbdState* pbd = session.state.pbd ? &*session.state.pbd : nullptr;
   nlohmann::json summary = {
@@ -204,7 +204,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Replay& run, con
       {"init_ms", session.init_ms},
       {"lattice", {session.world.voxels.lattice.nx, session.world.voxels.lattice.ny, session.world.voxels.lattice.nz}},
       {"cut",
-       {{"voxels_cut", run.voxels_cut},
+       {{"voxels_cut", replay.voxels_cut},
         {"voxels_divided", state.divided.size()},
         {"edges_cut", state.edge_cuts.size()},
         {"sim_voxels_divided", pbd ? sim_voxels_divided(*pbd) : 0},
@@ -212,7 +212,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Replay& run, con
       {"surface", surface_stats_json(final.stats)},
       {"nonfinite_values", final.nonfinite},
   };
-  summary["surface"]["initial_volume"] = run.initial_volume;
+  summary["surface"]["initial_volume"] = replay.initial_volume;
   // The pieces: components of the final surface, the smallest one's volume, and what each cutting
   // stroke created (docs/cutting.md).
   {
@@ -220,7 +220,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Replay& run, con
     summary["pieces"] = {{"components", volumes.size()},
                          {"smallest_volume", volumes.empty() ? 0.0 : *std::min_element(volumes.begin(), volumes.end())}};
     nlohmann::json strokes = nlohmann::json::array();
-    for (const Replay::Stroke& s : run.strokes) {
+    for (const Replay::Stroke& s : replay.strokes) {
       strokes.push_back({{"first_step", s.first_step}, {"last_step", s.last_step}, {"components", s.components},
                          {"created", s.created}, {"smallest_volume", s.smallest_volume}});
     }
