@@ -1,12 +1,13 @@
 #include "app/cli.h"
 
 #include "engine/errors.h"
-#include "engine/options.h"
 #include "engine/mesh_io.h"
+#include "engine/options.h"
 #include "engine/output.h"
 #include "engine/resources.h"
 #include "engine/scene.h"
 #include "engine/voxelize_job.h"
+#include "harness/replay_outputs.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>

@@ -3,10 +3,10 @@
 #include "bench/child_process.h"
 #include "engine/errors.h"
 #include "engine/output.h"
-#include "engine/plot.h"
 #include "engine/resources.h"
 #include "engine/stats.h"
 #include "engine/voxelize_job.h"
+#include "harness/plot.h"
 
 #include <nlohmann/json.hpp>
 

@@ -3,9 +3,9 @@
 #include "engine/errors.h"
 #include "engine/output.h"
 #include "engine/playback.h"
-#include "engine/plot.h"
 #include "engine/session.h"
 #include "engine/stats.h"
+#include "harness/plot.h"
 
 #include <nlohmann/json.hpp>
 

@@ -4,11 +4,11 @@
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
-#include "engine/plot.h"
 #include "engine/scene.h"
 #include "engine/stats.h"
 #include "engine/task_pool.h"
 #include "engine/timing.h"
+#include "harness/plot.h"
 #include "sim/shapes.h"
 #include "sim/voxelize.h"
 #include "sim/world.h"
@@ -430,6 +430,74 @@ FrequencyMeasure measure_frequency(const ElasticCase& bar, const ElasticRun& run
   return f;
 }
 
+namespace {
+
+// The shipped solver's run of `model` at simulation resolution `sim`.
+ElasticRun shipped_run(ElasticModel model, int sim, const PbdParams& shipped, int workers) {
+  ElasticRun run;
+  run.model = model;
+  run.sim_resolution = sim;
+  run.substeps = shipped.substeps;
+  run.iterations = shipped.iterations;
+  run.stretch_compliance = shipped.stretch_compliance;
+  run.shape_stiffness = shipped.shape_stiffness;
+  run.workers = workers;
+  return run;
+}
+
+// A case's configurations, each with its kind: the shipped solver at each simulation resolution that
+// fits the case ("defaults") and, with `sweep`, every other substeps x iterations of the options ("sweep").
+std::vector<std::pair<ElasticRun, std::string>> elastic_runs(const ElasticCase& c, const std::string& name, bool sweep,
+                                                             const std::vector<ElasticModel>& models,
+                                                             const PbdParams& shipped, const BenchElasticOptions& options) {
+  std::vector<std::pair<ElasticRun, std::string>> runs;
+  for (ElasticModel model : models) {
+    for (int sim : options.sim_resolutions) {
+      if (!fits(c.resolution, sim)) {
+        std::fprintf(stderr, "divvox: bench elastic: %s: sim %d skipped (resolution %d is not sim x 2^l)\n",
+                     name.c_str(), sim, c.resolution);
+        continue;
+      }
+      const ElasticRun d = shipped_run(model, sim, shipped, options.workers);
+      runs.push_back({d, "defaults"});
+      if (!sweep) continue;
+      for (int substeps : options.substeps) {
+        for (int iterations : options.iterations) {
+          if (substeps == d.substeps && iterations == d.iterations) continue;
+          ElasticRun r = d;
+          r.substeps = substeps;
+          r.iterations = iterations;
+          runs.push_back({r, "sweep"});
+        }
+      }
+    }
+  }
+  return runs;
+}
+
+// The cantilever's first natural frequency (damping off) at the shipped solver, per model and
+// simulation resolution; an empty array when the cantilever is not among the cases.
+nlohmann::json frequency_rows(const std::vector<std::string>& cases, const std::vector<ElasticModel>& models,
+                              const PbdParams& shipped, const BenchElasticOptions& options) {
+  nlohmann::json frequency = nlohmann::json::array();
+  if (std::find(cases.begin(), cases.end(), "cantilever") == cases.end()) return frequency;
+  const ElasticCase bar = make_elastic_case("cantilever", options.resolution, options.ref_scale);
+  for (ElasticModel model : models) {
+    for (int sim : options.sim_resolutions) {
+      if (!fits(bar.resolution, sim)) continue;
+      const ElasticRun run = shipped_run(model, sim, shipped, options.workers);
+      const FrequencyMeasure f = measure_frequency(bar, run);
+      frequency.push_back({{"model", model == ElasticModel::kNeoHookean ? "neo_hookean" : "paper"},
+                           {"sim_resolution", sim}, {"substeps", run.substeps}, {"iterations", run.iterations},
+                           {"measured_hz", f.measured_hz}, {"analytic_hz", f.analytic_hz},
+                           {"crossings", f.crossings}});
+    }
+  }
+  return frequency;
+}
+
+}  // namespace
+
 std::string bench_elastic(const BenchElasticOptions& options) {
   if (find_ccx().empty()) {
     throw std::runtime_error("bench elastic: ccx (CalculiX) not found: install calculix-ccx (tools/setup.sh) or set DIVVOX_CCX");
@@ -473,35 +541,7 @@ std::string bench_elastic(const BenchElasticOptions& options) {
     }
     // The configurations: the shipped solver at each simulation resolution, and the sweep on the sweep cases.
     const bool sweep = std::find(options.sweep_cases.begin(), options.sweep_cases.end(), name) != options.sweep_cases.end();
-    std::vector<std::pair<ElasticRun, std::string>> runs;
-    for (ElasticModel model : models) {
-      for (int sim : options.sim_resolutions) {
-        if (!fits(c.resolution, sim)) {
-          std::fprintf(stderr, "divvox: bench elastic: %s: sim %d skipped (resolution %d is not sim x 2^l)\n",
-                       name.c_str(), sim, c.resolution);
-          continue;
-        }
-        ElasticRun d;
-        d.model = model;
-        d.sim_resolution = sim;
-        d.substeps = shipped.substeps;
-        d.iterations = shipped.iterations;
-        d.stretch_compliance = shipped.stretch_compliance;
-        d.shape_stiffness = shipped.shape_stiffness;
-        d.workers = options.workers;
-        runs.push_back({d, "defaults"});
-        if (!sweep) continue;
-        for (int substeps : options.substeps) {
-          for (int iterations : options.iterations) {
-            if (substeps == d.substeps && iterations == d.iterations) continue;
-            ElasticRun r = d;
-            r.substeps = substeps;
-            r.iterations = iterations;
-            runs.push_back({r, "sweep"});
-          }
-        }
-      }
-    }
+    const std::vector<std::pair<ElasticRun, std::string>> runs = elastic_runs(c, name, sweep, models, shipped, options);
     for (const auto& [run, kind] : runs) {
       const char* model = run.model == ElasticModel::kNeoHookean ? "neo_hookean" : "paper";
       if (options.progress) {
@@ -526,28 +566,7 @@ std::string bench_elastic(const BenchElasticOptions& options) {
   write_text_file((out / "bench_elastic.csv").string(), csv.str());
 
   // Dynamics: the cantilever's first natural frequency, damping off, at the shipped solver.
-  nlohmann::json frequency = nlohmann::json::array();
-  if (std::find(cases.begin(), cases.end(), "cantilever") != cases.end()) {
-    const ElasticCase bar = make_elastic_case("cantilever", options.resolution, options.ref_scale);
-    for (ElasticModel model : models) {
-      for (int sim : options.sim_resolutions) {
-        if (!fits(bar.resolution, sim)) continue;
-        ElasticRun run;
-        run.model = model;
-        run.sim_resolution = sim;
-        run.substeps = shipped.substeps;
-        run.iterations = shipped.iterations;
-        run.stretch_compliance = shipped.stretch_compliance;
-        run.shape_stiffness = shipped.shape_stiffness;
-        run.workers = options.workers;
-        const FrequencyMeasure f = measure_frequency(bar, run);
-        frequency.push_back({{"model", model == ElasticModel::kNeoHookean ? "neo_hookean" : "paper"},
-                             {"sim_resolution", sim}, {"substeps", run.substeps}, {"iterations", run.iterations},
-                             {"measured_hz", f.measured_hz}, {"analytic_hz", f.analytic_hz},
-                             {"crossings", f.crossings}});
-      }
-    }
-  }
+  const nlohmann::json frequency = frequency_rows(cases, models, shipped, options);
   const nlohmann::json results = {
       {"benchmark", "elastic"},
       {"machine", machine_summary()},

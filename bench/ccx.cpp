@@ -1,5 +1,6 @@
 #include "bench/ccx.h"
 
+#include "engine/options.h"
 #include "sim/union_find.h"
 
 #include <signal.h>
@@ -178,7 +179,8 @@ std::string ccx_deck(const HexMesh& mesh, const CcxProblem& p) {
 }
 
 std::string find_ccx() {
-  if (const char* env = std::getenv("DIVVOX_CCX"); env && *env) return fs::exists(env) ? env : "";
+  const std::string configured = read_env_options().ccx;  // DIVVOX_CCX
+  if (!configured.empty()) return fs::exists(configured) ? configured : "";
   const char* path = std::getenv("PATH");
   std::stringstream dirs(path ? path : "/usr/bin:/bin");
   for (std::string dir; std::getline(dirs, dir, ':');) {

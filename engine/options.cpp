@@ -53,6 +53,7 @@ EnvOptions read_env_options() {
   }
   if (const char* t = value_of("DIVVOX_PROGRESS")) o.progress = flag("DIVVOX_PROGRESS", t);
   if (const char* t = value_of("DIVVOX_GNUPLOT")) o.gnuplot = t;
+  if (const char* t = value_of("DIVVOX_CCX")) o.ccx = t;
   if (const char* t = value_of("DIVVOX_SNAPSHOT_EVERY_STEP")) o.snapshot_every_step = flag("DIVVOX_SNAPSHOT_EVERY_STEP", t);
   if (const char* t = value_of("DIVVOX_SIM_NICE")) o.sim_nice = int(integer("DIVVOX_SIM_NICE", t, 0, 19));
   if (const char* t = value_of("DIVVOX_MSAA")) o.msaa = int(integer("DIVVOX_MSAA", t, 0, 16));

@@ -14,6 +14,8 @@ struct EnvOptions {
   uint64_t memory_limit = 0;     // DIVVOX_MEMORY_LIMIT: bytes (K/M/G suffix) a model may take (0: 80 % of available)
   bool progress = false;         // DIVVOX_PROGRESS=1: progress lines on a pipe too
   std::string gnuplot;           // DIVVOX_GNUPLOT: the gnuplot executable (empty: `gnuplot` on PATH)
+  // Benchmarks.
+  std::string ccx;               // DIVVOX_CCX: the CalculiX executable's path (empty: `ccx` on PATH)
   // The window.
   bool snapshot_every_step = false;  // DIVVOX_SNAPSHOT_EVERY_STEP=1
   int sim_nice = 4;                  // DIVVOX_SIM_NICE: the simulation thread's niceness, 0-19

@@ -1,35 +1,37 @@
 #!/usr/bin/env bash
-# The include graph goes one way: sim <- render <- engine <- bench, ui <- app (DESIGN §2). Fails,
-# naming the file and the include, when a folder includes one above it (so engine/, render/ and sim/
-# never include ui/ or bench/), when a layer's CMakeLists.txt links a library above it, or when a
+# The include graph goes one way: sim <- render <- engine <- harness <- bench, ui <- app (DESIGN §2).
+# Fails, naming the file and the include, when a folder includes one above it (so engine/, render/ and
+# sim/ never include harness/, ui/ or bench/), when a layer's CMakeLists.txt links a library above it, or when a
 # render/ header includes or names sim/ types other than the plain mesh arrays (sim/mesh.h,
 # sim/surface_mesh.h), when a layer above sim/ includes a sim/ internal, or when engine/, ui/ or app/
-# call a stage of the step instead of world_step.
+# (or harness/) call a stage of the step instead of world_step.
 #   tests/layers_test.sh [SOURCE_DIR]
 #   tests/layers_test.sh --self-test [SOURCE_DIR]   (a copy with one violation of each kind must fail)
 set -uo pipefail
 script="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)/$(basename "${BASH_SOURCE[0]}")"
 
-# Self-test: the check must see an include of ui/ from engine/, of bench/ from sim/, a sim/ type named
-# in a render/ header, a higher library linked from engine/'s CMakeLists.txt, a sim/ internal included
-# by engine/ and a stage of the step called by engine/ (six failures).
+# Self-test: the check must see an include of ui/ from engine/, of bench/ from sim/, of harness/ from
+# engine/, a sim/ type named in a render/ header, a higher library linked from engine/'s
+# CMakeLists.txt, a sim/ internal included by engine/ and a stage of the step called by engine/ (seven
+# failures).
 if [[ "${1:-}" == --self-test ]]; then
   src="${2:-$(cd "$(dirname "$script")/.." && pwd)}"
   copy="$(mktemp -d)"
   trap 'rm -rf "$copy"' EXIT
-  for layer in sim render engine bench ui app; do
+  for layer in sim render engine harness bench ui app; do
     [[ -d $src/$layer ]] && cp -r "$src/$layer" "$copy/"
   done
   echo '#include "ui/app.h"' >>"$copy/engine/errors.h"
   echo '#include "bench/bench.h"' >>"$copy/sim/mesh.h"
+  echo '#include "harness/plot.h"' >>"$copy/engine/errors.h"
   echo 'struct CutSurface;  // a forward declaration hides the include' >>"$copy/render/camera.h"
   echo 'target_link_libraries(divvox_engine PUBLIC $<$<TARGET_EXISTS:divvox_ui>:divvox_ui>)' >>"$copy/engine/CMakeLists.txt"
   echo '#include "sim/pbd_kernels.h"' >>"$copy/engine/errors.h"
   printf 'void f(dvx::Session& s) { pbd_step(s.state.cut, *s.state.pbd); }\n' >>"$copy/engine/errors.cpp"
   output="$(bash "$script" "$copy")" && { echo "layers self-test: the violations passed"; exit 1; }
   echo "$output"
-  [[ $(grep -v 'against the layer order' <<<"$output" | grep -c '^layers: ') == 6 ]] || { echo "layers self-test: expected 6 failures"; exit 1; }
-  echo "layers self-test: ok (6 violations found)"
+  [[ $(grep -v 'against the layer order' <<<"$output" | grep -c '^layers: ') == 7 ]] || { echo "layers self-test: expected 7 failures"; exit 1; }
+  echo "layers self-test: ok (7 violations found)"
   exit 0
 fi
 
@@ -41,20 +43,21 @@ declare -A allowed=(
   [sim]="sim"
   [render]="sim render"
   [engine]="sim render engine"
-  [bench]="sim render engine bench"
+  [harness]="sim render engine harness"
+  [bench]="sim render engine harness bench"
   [ui]="sim render engine ui"
-  [app]="sim render engine bench ui app"
+  [app]="sim render engine harness bench ui app"
 )
 
 failures=0
-for layer in sim render engine bench ui app; do
+for layer in sim render engine harness bench ui app; do
   [[ -d $layer ]] || continue
   # Every quoted include of a project folder: FILE:LINE:#include "FOLDER/...".
   while IFS= read -r hit; do
     file="${hit%%:*}"
     target="$(sed -E 's/.*#[[:space:]]*include[[:space:]]*"([^"]+)".*/\1/' <<<"$hit")"
     folder="${target%%/*}"
-    [[ " sim render engine bench ui app " == *" $folder "* ]] || continue
+    [[ " sim render engine harness bench ui app " == *" $folder "* ]] || continue
     if [[ " ${allowed[$layer]} " != *" $folder "* ]]; then
       echo "layers: $file includes $target ($layer/ may include only: ${allowed[$layer]})"
       failures=$((failures + 1))
@@ -87,13 +90,13 @@ fi
 
 # Link graph: a layer's CMakeLists.txt links only the libraries of the layers it may include
 # (divvox_glad is render's; generator expressions and if() branches count alike).
-for layer in sim render engine bench ui app; do
+for layer in sim render engine harness bench ui app; do
   [[ -f $layer/CMakeLists.txt ]] || continue
   while IFS= read -r hit; do
     lib="${hit##*:}"
     folder="${lib#divvox_}"
     [[ $folder == glad ]] && folder=render
-    [[ " sim render engine bench ui app " == *" $folder "* ]] || continue
+    [[ " sim render engine harness bench ui app " == *" $folder "* ]] || continue
     if [[ " ${allowed[$layer]} " != *" $folder "* ]]; then
       echo "layers: $layer/CMakeLists.txt links $lib ($layer/ may use only: ${allowed[$layer]})"
       failures=$((failures + 1))
@@ -106,7 +109,7 @@ done
 # shared internals) stay inside sim/: the layers above include only its public headers.
 sim_internal="sim/pbd_kernels.h sim/pbd_kernels_lanes.inc sim/colouring.h sim/pbd_internal.h"
 sim_internal+=" sim/cut_internal.h sim/world_to_rest_internal.h"
-for layer in engine render bench ui app; do
+for layer in engine render harness bench ui app; do
   [[ -d $layer ]] || continue
   while IFS= read -r hit; do
     target="$(sed -E 's/.*"([^"]+)".*/\1/' <<<"$hit")"
@@ -117,11 +120,11 @@ for layer in engine render bench ui app; do
   done < <(grep -rnE '^[[:space:]]*#[[:space:]]*include[[:space:]]*"sim/' --include='*.h' --include='*.cpp' "$layer")
 done
 
-# One step: the engine, the window and the command line step the world through world_step (sim/world.h)
+# One step: the engine, the harness, the window and the command line step the world through world_step (sim/world.h)
 # only, never by calling its stages themselves; and only sim/world.cpp maps a sweep to rest space for a
 # cut (the tests of the mapping itself excepted).
 stages='\b(map_sweep|cut_divide|cut_update_surface|pbd_apply_cut|pbd_step)[[:space:]]*\('
-for layer in engine ui app; do
+for layer in engine harness ui app; do
   [[ -d $layer ]] || continue
   while IFS= read -r hit; do
     echo "layers: ${hit%%:*} calls a stage of the step ($(grep -oE "$stages" <<<"${hit#*:}" | head -1 | tr -d '( ')): call world_step"
@@ -139,4 +142,4 @@ if ((failures > 0)); then
   echo "layers: $failures include(s), sim/ type name(s) or link(s) against the layer order"
   exit 1
 fi
-echo "layers: ok (sim <- render <- engine <- bench, ui <- app)"
+echo "layers: ok (sim <- render <- engine <- harness <- bench, ui <- app)"

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Builds divvox with clang sanitizers and runs the tests under them.
 #   tools/sanitize.sh            -> ASan + UBSan build in build-asan/, the whole CTest suite
-#   tools/sanitize.sh thread     -> TSan build in build-tsan/, the engine tests (ctest -R engine/)
+#   tools/sanitize.sh thread     -> TSan build in build-tsan/, the engine and harness tests (ctest -R '(engine|harness)/')
 #   tools/sanitize.sh sim        -> ASan + UBSan with g++ (no extra packages) in build-asan-sim/, the
 #                                   sim/ tests: the subset README command 2 (and so CI) runs
 # Idempotent: configures once per build folder, then incremental builds.
@@ -25,9 +25,9 @@ case "$mode" in
   thread | tsan)
     build="$here/build-tsan"
     sanitize="thread"
-    # The engine tests: the task pool behind the PBD loops, the simulation thread + render thread of
-    # a headless replay with frames (EGL), record/replay with 1 and 2 workers.
-    ctest_filter=(-R 'engine/')
+    # The engine and harness tests: the task pool behind the PBD loops, the simulation thread + render
+    # thread of a headless replay with frames (EGL), record/replay with 1 and 2 workers.
+    ctest_filter=(-R '(engine|harness)/')
     graphics=ON
     ;;
   sim)

@@ -1,8 +1,8 @@
 // The shipped recording with the physics: the severed top of the head is a free body (no particle
 // shared with the rest) and falls clear of it.
 #include "engine/recording.h"
-#include "engine/replay.h"
 #include "engine/session.h"
+#include "harness/replay_outputs.h"
 #include "sim/pbd.h"
 #include "sim/shapes.h"
 #include "support.h"

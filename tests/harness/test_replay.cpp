@@ -1,10 +1,10 @@
 // Cutting real meshes and replaying recordings through the cutter (geometry only).
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
-#include "engine/plot.h"
 #include "engine/recording.h"
-#include "engine/replay.h"
 #include "engine/scene.h"
+#include "harness/plot.h"
+#include "harness/replay_outputs.h"
 #include "sim/cut.h"
 #include "sim/mesh_distance.h"
 #include "sim/surface_metrics.h"

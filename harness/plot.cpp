@@ -1,4 +1,4 @@
-#include "engine/plot.h"
+#include "harness/plot.h"
 #include "engine/options.h"
 
 #include <sys/utsname.h>

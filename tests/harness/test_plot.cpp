@@ -1,5 +1,5 @@
 // The plot module: readable log-axis ticks, the Pareto front, gnuplot's SVG, and a missing gnuplot.
-#include "engine/plot.h"
+#include "harness/plot.h"
 #include "support.h"
 
 #include <doctest/doctest.h>
