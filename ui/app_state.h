@@ -1,5 +1,6 @@
 // The render thread's state of the window (camera, tools, view options, panel fields, frame
-// statistics), shared by ui/app.cpp (input, drawing) and ui/panels.cpp (ImGui).
+// statistics), shared by ui/app.cpp (the frame loop), ui/tools.cpp (input), ui/view.cpp (drawing),
+// ui/frame_stats.cpp and ui/panels.cpp (ImGui).
 #pragma once
 
 #include "render/camera.h"
@@ -37,8 +38,8 @@ struct AppState {
   Camera camera;
   Viewport viewport;  // the 3D view (not the window)
   int view_x = 0, panel_width = 0;
-  float panel_drawn_width = 0.0f;
-  bool panel_cleared = false;      // the window cleared the panel's strip in its colour (ImGui draws no background)  // the panel's width as ImGui drew it (tests: it never changes)
+  float panel_drawn_width = 0.0f;  // the panel's width as ImGui drew it (tests: it never changes)
+  bool panel_cleared = false;      // the window cleared the panel's strip in its colour (ImGui draws no background)
   Aabb bounds;
   float radius = 1.0f, voxel_size = 0.1f;
   DrawOptions draw;

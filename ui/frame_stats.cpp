@@ -174,4 +174,19 @@ void FrameStats::print(const AppState& app) const {
   }
 }
 
+// AppState::sim_rate from the steps run in the last half second (a new session or an undo, which
+// moves the step back, restarts the measurement).
+void update_sim_rate(AppState& app, double now) {
+  if (app.rate_time < 0.0 || app.status.step < app.rate_step || app.status.paused || !app.status.ready) {
+    app.rate_time = now;
+    app.rate_step = app.status.step;
+    if (app.status.paused || !app.status.ready) app.sim_rate = 1.0;
+    return;
+  }
+  if (now - app.rate_time < 0.5) return;
+  app.sim_rate = double(app.status.step - app.rate_step) * app.status.dt / (now - app.rate_time);
+  app.rate_time = now;
+  app.rate_step = app.status.step;
+}
+
 }  // namespace dvx
