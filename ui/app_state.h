@@ -50,6 +50,9 @@ struct AppState {
   Tool tool = Tool::kScalpel;
   Eigen::Vector2f cursor = Eigen::Vector2f::Zero();  // view pixels
   bool have_cursor = false, cursor_in_view = false, left_down = false, camera_drag = false;
+  // A tool switch ended the drag while the button was still held (select_tool): the new tool starts
+  // nothing until it is released (else the held button would start a stroke, or a grab, at once).
+  bool await_release = false;
   // The scalpel: aimed at the surface point under the cursor (`hover`), `cut_depth` into the tissue.
   bool hover_hit = false;
   SurfaceHit hover;

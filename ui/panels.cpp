@@ -4,6 +4,7 @@
 // fits at 1280x720 (items take half the width, long text wraps).
 #include "engine/errors.h"
 #include "ui/app_state.h"
+#include "ui/tools.h"
 
 #include <imgui.h>
 
@@ -155,7 +156,7 @@ void tools_panel(AppState& app) {
   ImGui::RadioButton("scalpel (S)", &tool, 0);
   ImGui::SameLine();
   ImGui::RadioButton("grab (G)", &tool, 1);
-  app.tool = tool == 0 ? Tool::kScalpel : Tool::kGrab;
+  select_tool(app, tool == 0 ? Tool::kScalpel : Tool::kGrab);
   float depth = app.cut_depth;
   if (ImGui::SliderFloat("cut depth", &depth, 0.5f * app.voxel_size, 2.0f * app.radius, "%.2f",
                          ImGuiSliderFlags_Logarithmic)) {

@@ -71,9 +71,9 @@ void handle_keys(AppState& app, InputEvents& events, GLFWwindow* window) {
         break;
       case GLFW_KEY_R:
       case GLFW_KEY_HOME: frame_camera(app); break;
-      case GLFW_KEY_G: app.tool = Tool::kGrab; break;
+      case GLFW_KEY_G: select_tool(app, Tool::kGrab); break;
       case GLFW_KEY_S:
-      case GLFW_KEY_C: app.tool = Tool::kScalpel; break;
+      case GLFW_KEY_C: select_tool(app, Tool::kScalpel); break;
       case GLFW_KEY_EQUAL:
       case GLFW_KEY_KP_ADD: camera_zoom(app.camera, 0.9f, app.radius); break;
       case GLFW_KEY_MINUS:
@@ -149,6 +149,24 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
   app.blade_pose = scalpel_pose(app.camera, ray, entry, std::max(app.cut_depth, app.reach_depth), 2.0 * app.voxel_size);
 }
 
+// The end of a scalpel stroke: the blade's last pose, not cutting; its cut is reported once the
+// step after it has run (report_cut).
+void scalpel_release(AppState& app) {
+  app.left_down = false;
+  send_blade(app, app.blade_pose, false);
+  app.cut_pending = true;
+  app.cut_release_stamp = app.last_blade_stamp;
+}
+
+// The end of a grab drag: the tissue is let go (the grab's marker and line go with it).
+void grab_release(AppState& app) {
+  app.left_down = false;
+  if (app.grabbing) {
+    send_grab(app, GrabCommand::kRelease, Vec3f::Zero());
+    app.grabbing = false;
+  }
+}
+
 void scalpel_mouse(AppState& app, bool left, bool free_mouse) {
   if (left && !app.left_down && free_mouse && app.cursor_in_view) {
     app.left_down = true;
@@ -163,10 +181,7 @@ void scalpel_mouse(AppState& app, bool left, bool free_mouse) {
     const BladePose& p = app.blade_pose;
     if (p.a != app.last_sent_pose.a || p.b != app.last_sent_pose.b) send_blade(app, p, true);
   } else if (!left && app.left_down) {
-    app.left_down = false;
-    send_blade(app, app.blade_pose, false);
-    app.cut_pending = true;
-    app.cut_release_stamp = app.last_blade_stamp;
+    scalpel_release(app);
   }
 }
 
@@ -197,15 +212,31 @@ void grab_mouse(AppState& app, bool left, bool free_mouse, const Ray& ray) {
       app.grab_target = target;
     }
   } else if (!left && app.left_down) {
-    app.left_down = false;
-    if (app.grabbing) {
-      send_grab(app, GrabCommand::kRelease, Vec3f::Zero());
-      app.grabbing = false;
-    }
+    grab_release(app);
   }
 }
 
 }  // namespace
+
+void end_drag(AppState& app) {
+  if (!app.left_down) return;
+  if (app.tool == Tool::kScalpel) {
+    scalpel_release(app);
+  } else {
+    grab_release(app);
+  }
+}
+
+void select_tool(AppState& app, Tool tool) {
+  if (tool == app.tool) return;
+  // Mid-drag: the drag ends as its own tool's release (a grab left pinned, or a grab's release
+  // taken for the end of a scalpel stroke, were the bugs of issue 32).
+  if (app.left_down) {
+    end_drag(app);
+    app.await_release = true;
+  }
+  app.tool = tool;
+}
 
 MouseFrame handle_mouse(AppState& app, InputEvents& events, GLFWwindow* window) {
   double mx = 0, my = 0;
@@ -258,6 +289,11 @@ void handle_tools(AppState& app, const MouseFrame& mouse) {
   aim_scalpel(app, ray, mouse.delta);
   if (app.status.playing && !app.status.play_done) return;  // the recording drives the tools
   if (!app.status.ready) return;
+  // A drag ended by a tool switch: nothing starts until the button is released.
+  if (app.await_release) {
+    if (mouse.left) return;
+    app.await_release = false;
+  }
   if (app.tool == Tool::kScalpel) scalpel_mouse(app, mouse.left, mouse.free_mouse);
   if (app.tool == Tool::kGrab) grab_mouse(app, mouse.left, mouse.free_mouse, ray);
 }
