@@ -20,7 +20,9 @@
 #include <imgui.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <thread>
@@ -46,6 +48,20 @@ void on_key(GLFWwindow*, int key, int, int action, int mods) {
   if (action != GLFW_PRESS && action != GLFW_REPEAT) return;
   if (ImGui::GetCurrentContext() && ImGui::GetIO().WantCaptureKeyboard) return;
   g_events.keys.emplace_back(key, mods);
+}
+
+// SIGTERM and SIGINT end the window as a close does (statistics printed, exit 0): the handler only
+// sets this flag (lock-free, so safe in a handler); the frame loop polls it.
+std::atomic<int> g_quit_signal{0};
+void on_quit_signal(int signal_number) { g_quit_signal.store(signal_number); }
+
+void install_quit_handlers() {
+  struct sigaction action = {};
+  action.sa_handler = on_quit_signal;
+  sigemptyset(&action.sa_mask);
+  action.sa_flags = SA_RESTART;
+  sigaction(SIGTERM, &action, nullptr);
+  sigaction(SIGINT, &action, nullptr);
 }
 
 void no_display_error() {
@@ -240,7 +256,9 @@ void run_frame(AppState& app, WindowContext& w) {
   glfwPollEvents();
   app.status = w.sim.status();
   follow_simulation(app, w.generation);
-  update_sim_rate(app, glfwGetTime());
+  sim_pace_sample(app.pace, glfwGetTime(), app.status.step, app.status.dt,
+                  app.status.ready && !app.status.paused && !app.status.loading, app.status.generation,
+                  app.status.restores);
   // Window resize: a new panel width and offscreen target.
   int fb_w = 0, fb_h = 0;
   glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
@@ -394,7 +412,12 @@ int run_window(const WindowOptions& options) {
   const double max_fps = read_env_options().max_fps;
   Clock::time_point frame_start = Clock::now();
   int exit_code = kExitOk;
+  install_quit_handlers();
   while (!glfwWindowShouldClose(w.window)) {
+    if (const int signal_number = g_quit_signal.load(); signal_number != 0) {
+      std::printf("window: closing on %s\n", signal_number == SIGTERM ? "SIGTERM" : "SIGINT");
+      break;
+    }
     // Paused with nothing new on the last frame: wait for input (up to 50 ms) instead of redrawing
     // the same image at full speed (on a software rasteriser that is two busy cores for nothing).
     if (w.idle) glfwWaitEventsTimeout(0.05);

@@ -7,6 +7,7 @@
 #include "render/renderer.h"
 #include "ui/app.h"
 #include "ui/input.h"
+#include "ui/sim_pace.h"
 #include "ui/sim_runner.h"
 
 #include <deque>
@@ -106,11 +107,8 @@ struct AppState {
   std::vector<double> latency_frames;  // frames from a cutting command to the snapshot showing it
   std::vector<double> latency_ms;      // the same in wall-clock ms (frame rates vary: the scene cache)
   double latency_probe_time = 0.0;     // glfwGetTime() when the probed command was sent
-  // Simulated time per wall-clock second over the last half second or so (1: real time; lower when
-  // a step costs more CPU than the frames leave it: the window keeps its frame rate, the simulation
-  // slows down). rate_time / rate_step: where the current measurement started.
-  double sim_rate = 1.0, rate_time = -1.0;
-  uint32_t rate_step = 0;
+  // The simulation's pace (ui/sim_pace.h), shown on the status line and printed at exit.
+  SimPace pace;
   uint32_t latency_probe_stamp = 0;
   uint64_t latency_probe_frame = 0;
 

@@ -160,10 +160,12 @@ void FrameStats::print(const AppState& app) const {
   std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
               1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
               1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
-  // The simulation's pace while the frames were counted (below 1: slower than real time).
-  const double steps_run = double(app.status.step >= step_start ? app.status.step - step_start : 0u);
-  std::printf("window: simulation x%.2f real time (%.0f steps in %.1f s)\n",
-              seconds > 0 ? steps_run * app.status.dt / seconds : 0.0, steps_run, seconds);
+  // The simulation's pace (below 1: slower than real time): its simulated time over the wall time
+  // it ran, since the session's start, its last Reset or undo / redo (SimPace).
+  const SimPace& pace = app.pace;
+  std::printf("window: simulation x%.2f real time (%llu steps, %.2f s simulated in %.2f s running; paused time left out, "
+              "counted since the last reset or undo)\n",
+              pace.rate(), static_cast<unsigned long long>(pace.steps), pace.sim_seconds, pace.run_seconds);
   if (!app.latency_frames.empty()) {
     double latency = 0.0;
     for (double l : app.latency_frames) latency += l;
@@ -174,19 +176,23 @@ void FrameStats::print(const AppState& app) const {
   }
 }
 
-// AppState::sim_rate from the steps run in the last half second (a new session or an undo, which
-// moves the step back, restarts the measurement).
-void update_sim_rate(AppState& app, double now) {
-  if (app.rate_time < 0.0 || app.status.step < app.rate_step || app.status.paused || !app.status.ready) {
-    app.rate_time = now;
-    app.rate_step = app.status.step;
-    if (app.status.paused || !app.status.ready) app.sim_rate = 1.0;
-    return;
+void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool running, uint64_t generation,
+                     uint64_t restores) {
+  // A new session, an undo / redo, or a step that went back: the count starts again from here.
+  if (!pace.started || generation != pace.generation || restores != pace.restores || step < pace.last_step) {
+    pace = SimPace{};
+    pace.started = true;
+    pace.generation = generation;
+    pace.restores = restores;
+  } else if (pace.running && running) {
+    // Running at both samples: the span and the steps run in it count.
+    pace.run_seconds += now - pace.last_time;
+    pace.steps += step - pace.last_step;
+    pace.sim_seconds += double(step - pace.last_step) * dt;
   }
-  if (now - app.rate_time < 0.5) return;
-  app.sim_rate = double(app.status.step - app.rate_step) * app.status.dt / (now - app.rate_time);
-  app.rate_time = now;
-  app.rate_step = app.status.step;
+  pace.running = running;
+  pace.last_time = now;
+  pace.last_step = step;
 }
 
 }  // namespace dvx

@@ -59,7 +59,4 @@ struct FrameStats {
   void print(const AppState& app) const;
 };
 
-// AppState::sim_rate from the steps run in the last half second (`now`: seconds, glfwGetTime()).
-void update_sim_rate(AppState& app, double now);
-
 }  // namespace dvx

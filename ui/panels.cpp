@@ -312,10 +312,11 @@ void draw_panels(AppState& app) {
   // Status line: the last message, else what the window is doing.
   const SimStatus& s = app.status;
   const float fps = app.fps.empty() ? 0.0f : mean_of(app.fps);
-  // The simulation's pace when it falls behind real time (the frames keep their rate).
+  // The simulation's pace, as printed at exit (SimPace: since the last reset or undo, paused time
+  // left out), once half a second of running is counted.
   char pace[48] = "";
-  if (s.ready && !s.paused && !s.loading && app.sim_rate < 0.95) {
-    std::snprintf(pace, sizeof pace, "sim x%.2f real time", app.sim_rate);
+  if (s.ready && !s.paused && !s.loading && app.pace.run_seconds >= 0.5) {
+    std::snprintf(pace, sizeof pace, "sim x%.2f real time", app.pace.rate());
   }
   ImGui::Text("divvox  %.0f fps  %s", fps, s.loading ? "loading..." : s.paused ? "paused" : pace);
   if (!app.message.empty()) {
