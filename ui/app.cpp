@@ -315,6 +315,13 @@ void run_frame(AppState& app, WindowContext& w) {
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
   glViewport(0, 0, fb_w, fb_h);
   ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+  if (!app.window_screenshot_request.empty()) {
+    std::string message;
+    take_window_screenshot(fb_w, fb_h, app.window_screenshot_request, message);
+    show_message(app, message);
+    std::printf("%s\n", message.c_str());
+    app.window_screenshot_request.clear();
+  }
   if (w.profile) glFinish();
   const Clock::time_point t3 = Clock::now();
   glfwSwapBuffers(w.window);
@@ -362,8 +369,9 @@ int finish_window(AppState& app, WindowContext& w, const WindowOptions& options,
     }
   }
   w.stats.print(app);
-  std::printf("window: layout panel %d px (drawn %.0f px), view %dx%d\n", app.panel_width, app.panel_drawn_width,
-              app.viewport.width, app.viewport.height);
+  std::printf("window: layout panel %d px (drawn %.0f px), view %dx%d, panel sections %.0f px in %.0f px (%s)\n",
+              app.panel_width, app.panel_drawn_width, app.viewport.width, app.viewport.height, app.panel_sections_height,
+              app.panel_sections_room, app.panel_sections_height <= app.panel_sections_room ? "fit" : "scroll");
   const SimStatus final_status = w.sim.status();
   if (final_status.playing && final_status.hash_mismatched > 0) {
     std::fprintf(stderr, "divvox: error: %s: the window's simulation diverged from the recording (%u of %u hashes differ)\n",

@@ -40,6 +40,9 @@ struct AppState {
   Viewport viewport;  // the 3D view (not the window)
   int view_x = 0, panel_width = 0;
   float panel_drawn_width = 0.0f;  // the panel's width as ImGui drew it (tests: it never changes)
+  // The panel's sections (below the status line, scrolling when they outgrow it): their height and
+  // the room they have, in pixels, as last drawn (printed at exit: tests check they fit at 1280x720).
+  float panel_sections_height = 0.0f, panel_sections_room = 0.0f;
   bool panel_cleared = false;      // the window cleared the panel's strip in its colour (ImGui draws no background)
   Aabb bounds;
   float radius = 1.0f, voxel_size = 0.1f;
@@ -95,6 +98,7 @@ struct AppState {
   // A screenshot asked for (F12, the View panel's Save): taken by the next frame once the view is
   // drawn (in direct mode the image is the back buffer, good only between the view's draw and the swap).
   std::string screenshot_request;
+  std::string window_screenshot_request;  // shift+F12: the whole window, panel included (after the panels)
   float ui_dt = 1.0f / 60.0f, ui_gravity[3] = {0, -9.81f, 0};
   int ui_iterations = 10;
 
@@ -134,6 +138,8 @@ void show_message(AppState& app, const std::string& text, double seconds = 6.0);
 void request_undo(AppState& app, bool redo);
 // Reads the last scene image back and writes it as PNG; `message` says what happened.
 bool take_screenshot(AppState& app, const std::string& path, std::string& message);
+// Reads the whole window's back buffer (fb_w x fb_h: the panel and the view) and writes it as PNG.
+bool take_window_screenshot(int fb_w, int fb_h, const std::string& path, std::string& message);
 // The window's output folder (F12 screenshots, the default recording), relative to the working
 // directory like the other commands' out/ folders.
 constexpr const char* kWindowOutputDir = "out/window";

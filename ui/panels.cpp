@@ -266,7 +266,7 @@ void help_panel(AppState& app) {
   app.show_help = ImGui::CollapsingHeader("Help (F1)");
   if (!app.show_help) return;
   static const char* const kKeys[][2] = {
-      {"left drag", "scalpel: cut from the surface point under the cursor, 'cut depth' deep / grab: pull the surface"},
+      {"left drag", "scalpel: cut, 'cut depth' deep / grab: pull the surface"},
       {"ctrl+wheel, [ ]", "cut depth"},
       {"ctrl+z, ctrl+shift+z", "undo, redo a cut or a grab"},
       {"right drag", "orbit"},
@@ -276,7 +276,7 @@ void help_panel(AppState& app) {
       {"R or Home", "reset the view"},
       {"space, .", "pause / play, one step"},
       {"W, T", "wireframe, blade trail"},
-      {"F12", "screenshot (PNG in out/window/)"},
+      {"F12, shift+F12", "screenshot: view, window (out/window/)"},
       {"F1", "this help"},
       {"shift+Esc", "quit"}};
   if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingStretchProp)) {
@@ -307,8 +307,7 @@ void draw_panels(AppState& app) {
   const ImGuiWindowFlags flags = ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoCollapse |
                                  ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoSavedSettings |
                                  ImGuiWindowFlags_NoBringToFrontOnFocus;
-  ImGui::Begin("divvox", nullptr, flags);
-  ImGui::PushItemWidth(0.5f * float(app.panel_width));
+  ImGui::Begin("divvox", nullptr, flags | ImGuiWindowFlags_NoScrollbar | ImGuiWindowFlags_NoScrollWithMouse);
   // Status line: the last message, else what the window is doing.
   const SimStatus& s = app.status;
   const float fps = app.fps.empty() ? 0.0f : mean_of(app.fps);
@@ -329,6 +328,9 @@ void draw_panels(AppState& app) {
     ImGui::TextDisabled("%s", app.tool == Tool::kScalpel ? "left drag cuts, right drag orbits" : "left drag pulls the tissue");
   }
   ImGui::Separator();
+  // The sections scroll under the status line (which stays in view) when they outgrow the window.
+  ImGui::BeginChild("sections", ImVec2(0.0f, 0.0f), false);
+  ImGui::PushItemWidth(0.5f * float(app.panel_width));
   tools_panel(app);
   simulation_panel(app);
   view_panel(app);
@@ -337,6 +339,9 @@ void draw_panels(AppState& app) {
   recording_panel(app);
   help_panel(app);
   ImGui::PopItemWidth();
+  app.panel_sections_height = ImGui::GetCursorPosY() - ImGui::GetStyle().ItemSpacing.y;
+  app.panel_sections_room = ImGui::GetWindowHeight();
+  ImGui::EndChild();
   app.panel_drawn_width = ImGui::GetWindowSize().x;
   ImGui::End();
 }

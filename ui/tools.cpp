@@ -85,7 +85,13 @@ void handle_keys(AppState& app, InputEvents& events, GLFWwindow* window) {
       case GLFW_KEY_W: app.draw.wireframe = !app.draw.wireframe; break;
       case GLFW_KEY_T: app.show_trail = !app.show_trail; break;
       case GLFW_KEY_F1: app.show_help = !app.show_help; break;
-      case GLFW_KEY_F12: app.screenshot_request = default_screenshot_name(); break;
+      case GLFW_KEY_F12:
+        if (shift) {
+          app.window_screenshot_request = default_screenshot_name();
+        } else {
+          app.screenshot_request = default_screenshot_name();
+        }
+        break;
       case GLFW_KEY_ESCAPE:
         if (mods & GLFW_MOD_SHIFT) glfwSetWindowShouldClose(window, GLFW_TRUE);
         break;

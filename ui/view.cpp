@@ -61,6 +61,31 @@ bool take_screenshot(AppState& app, const std::string& path, std::string& messag
   return true;
 }
 
+bool take_window_screenshot(int fb_w, int fb_h, const std::string& path, std::string& message) {
+  // The window's back buffer as drawn so far (call it after the panels, before the swap).
+  std::vector<uint8_t> rgba(size_t(fb_w) * size_t(fb_h) * 4);
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+  glReadBuffer(GL_BACK);
+  glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  glReadPixels(0, 0, fb_w, fb_h, GL_RGBA, GL_UNSIGNED_BYTE, rgba.data());
+  // GL's rows start at the bottom; the PNG's at the top.
+  const size_t row = size_t(fb_w) * 4;
+  for (int y = 0; y < fb_h / 2; ++y) {
+    std::swap_ranges(rgba.begin() + ptrdiff_t(size_t(y) * row), rgba.begin() + ptrdiff_t(size_t(y + 1) * row),
+                     rgba.begin() + ptrdiff_t(size_t(fb_h - 1 - y) * row));
+  }
+  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  std::error_code ec;
+  if (!parent.empty()) std::filesystem::create_directories(parent, ec);
+  std::string error;
+  if (!write_png(path, fb_w, fb_h, rgba, error)) {
+    message = error;
+    return false;
+  }
+  message = "wrote window screenshot " + path + " (" + std::to_string(fb_w) + "x" + std::to_string(fb_h) + ", panel included)";
+  return true;
+}
+
 std::string default_screenshot_name() {
   const std::time_t now = std::time(nullptr);
   char name[64];

@@ -3,7 +3,7 @@
 # pressed in the middle of it. The switch must end the grab (the recording's last grab command is a
 # release, sent before the button comes up), start no scalpel stroke while the button is still held
 # (no cutting blade command in the recording), and print no "cut:" line; the recording replays
-# headless with its hashes matching.
+# headless with its hashes matching. Then F1: with Help open the panel's sections fit at 1280x720.
 # Usage: window_tools.sh DIVVOX REPO OUTDIR
 set -u
 divvox=$1
@@ -51,6 +51,9 @@ for k in 5 6 7; do
 done
 xdotool mouseup 1
 sleep 2
+# Help open (F1): the panel's sections still fit at 1280x720 (issue 32: no clipped last section).
+xdotool key F1
+sleep 1.5
 
 xdotool key shift+Escape
 for _ in $(seq 60); do kill -0 $pid 2>/dev/null || break; sleep 0.5; done
@@ -62,6 +65,10 @@ trap - EXIT
 if grep -q "^cut: " "$out/win.out"; then
   fail "a grab (ended by S) reported a cut: $(grep '^cut: ' "$out/win.out")"
 fi
+
+layout=$(grep "^window: layout panel" "$out/win.out")
+echo "tools: $layout"
+[[ $layout == *"(fit)"* ]] || fail "the panel's sections (Help open) do not fit at 1280x720: $layout"
 
 # The recording: grab targets, then a release as the last grab command; no cutting blade command.
 verdict=$(python3 - "$out/session.jsonl" <<'PY'
