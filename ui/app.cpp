@@ -73,9 +73,9 @@ void no_display_error() {
 // The played recording's poses by step (for drawing the blade and its trail while playing), from the
 // playback the simulation thread runs (read once).
 void load_play_poses(AppState& app, const Playback& playback) {
-  app.play_poses.clear();
+  app.view.play_poses.clear();
   for (const PlaybackStep& s : playback.steps) {
-    if (s.commands.has_blade) app.play_poses.push_back({s.step, s.commands.blade, s.commands.cutting});
+    if (s.commands.has_blade) app.view.play_poses.push_back({s.step, s.commands.blade, s.commands.cutting});
   }
 }
 
@@ -84,21 +84,21 @@ void load_play_poses(AppState& app, const Playback& playback) {
 void follow_simulation(AppState& app, uint64_t& generation) {
   if (app.status.generation != generation && app.status.ready) {
     generation = app.status.generation;
-    app.bounds = app.status.bounds;
-    app.edit = scene_edit_of(app.status.scene);
+    app.view.bounds = app.status.bounds;
+    app.panel.edit = scene_edit_of(app.status.scene);
     frame_camera(app);
     set_trays(app);
-    app.voxel_size = float(app.bounds.extent().maxCoeff() / std::max(app.status.scene.pbd.resolution, 1));
-    app.cut_depth = float(app.status.scene.scalpel.length);
-    set_cut_depth(app, app.cut_depth);
-    app.cut_pending = false;
+    app.view.voxel_size = float(app.view.bounds.extent().maxCoeff() / std::max(app.status.scene.pbd.resolution, 1));
+    app.tools.cut_depth = float(app.status.scene.scalpel.length);
+    set_cut_depth(app, app.tools.cut_depth);
+    app.tools.cut_pending = false;
     app.restores_seen = app.status.restores;
-    std::printf("window: ready (%s, panel %d px, view %dx%d)\n", app.status.scene.file.c_str(), app.panel_width,
-                app.viewport.width, app.viewport.height);
+    std::printf("window: ready (%s, panel %d px, view %dx%d)\n", app.status.scene.file.c_str(), app.view.panel_width,
+                app.view.viewport.width, app.view.viewport.height);
     std::fflush(stdout);
     app.undo_notes_seen = app.status.undo_notes;
     reset_mouse_commands(app);
-    app.left_down = false;
+    app.tools.left_down = false;
     if (app.status.playing && app.status.playback) load_play_poses(app, *app.status.playback);
   }
   // An undo or redo ran: the mouse's stamps start again from the restored step.
@@ -110,9 +110,9 @@ void follow_simulation(AppState& app, uint64_t& generation) {
     app.undo_notes_seen = app.status.undo_notes;
     show_message(app, app.status.undo_note, 4.0);
   }
-  if (app.message_until > 0.0 && glfwGetTime() > app.message_until) {
-    app.message.clear();
-    app.message_until = 0.0;
+  if (app.panel.message_until > 0.0 && glfwGetTime() > app.panel.message_until) {
+    app.panel.message.clear();
+    app.panel.message_until = 0.0;
   }
   report_cut(app);
 }
@@ -120,8 +120,8 @@ void follow_simulation(AppState& app, uint64_t& generation) {
 }  // namespace
 
 void show_message(AppState& app, const std::string& text, double seconds) {
-  app.message = text;
-  app.message_until = seconds > 0 ? glfwGetTime() + seconds : 0.0;
+  app.panel.message = text;
+  app.panel.message_until = seconds > 0 ? glfwGetTime() + seconds : 0.0;
 }
 
 namespace {
@@ -167,8 +167,10 @@ int open_gl_window(const WindowOptions& options, WindowContext& w) {
   w.window = glfwCreateWindow(options.width, options.height, "divvox", nullptr, nullptr);
   if (w.window == nullptr) {
     if (g_glfw_error_code == GLFW_VERSION_UNAVAILABLE || g_glfw_error_code == GLFW_API_UNAVAILABLE) {
-      std::fprintf(stderr, "divvox: error: the display offers no OpenGL 4.5 core context (%s); use 'divvox replay REC --headless'\n",
-                   g_glfw_error.c_str());
+      std::fprintf(
+          stderr,
+          "divvox: error: the display offers no OpenGL 4.5 core context (%s); use 'divvox replay REC --headless'\n",
+          g_glfw_error.c_str());
     } else {
       no_display_error();
     }
@@ -184,7 +186,8 @@ int open_gl_window(const WindowOptions& options, WindowContext& w) {
     return kExitInternal;
   }
   w.gl_renderer = reinterpret_cast<const char*>(glGetString(GL_RENDERER));
-  w.software = w.gl_renderer.find("llvmpipe") != std::string::npos || w.gl_renderer.find("softpipe") != std::string::npos;
+  w.software =
+      w.gl_renderer.find("llvmpipe") != std::string::npos || w.gl_renderer.find("softpipe") != std::string::npos;
   return -1;
 }
 
@@ -201,14 +204,14 @@ bool init_graphics(AppState& app, WindowContext& w) {
   const int samples = env.msaa >= 0 ? env.msaa : w.software ? 0 : 4;
   w.cache_scene = samples == 0 && env.scene_cache;
   std::string error;
-  if (!renderer_init(w.renderer, app.viewport.width, app.viewport.height, error, samples,
+  if (!renderer_init(w.renderer, app.view.viewport.width, app.view.viewport.height, error, samples,
                      samples == 0 && !w.cache_scene)) {
     std::fprintf(stderr, "divvox: error: renderer: %s\n", error.c_str());
     glfwDestroyWindow(w.window);
     glfwTerminate();
     return false;
   }
-  renderer_place(w.renderer, app.view_x, 0);
+  renderer_place(w.renderer, app.view.view_x, 0);
   if (w.cache_scene && w.software && env.split_frames) {
     w.split_frames = renderer_double_buffer(w.renderer, error);
     if (!w.split_frames && !error.empty()) {
@@ -219,7 +222,8 @@ bool init_graphics(AppState& app, WindowContext& w) {
     }
   }
   if (!overlay_init(w.overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no blade overlay)\n", error.c_str());
-  if (!solid_overlay_init(w.solid_overlay, error)) std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
+  if (!solid_overlay_init(w.solid_overlay, error))
+    std::fprintf(stderr, "divvox: warning: %s (no scalpel)\n", error.c_str());
   glfwSetScrollCallback(w.window, on_scroll);
   glfwSetKeyCallback(w.window, on_key);
   IMGUI_CHECKVERSION();
@@ -243,10 +247,10 @@ bool init_graphics(AppState& app, WindowContext& w) {
   app.sim = &w.sim;
   app.renderer = &w.renderer;
   app.gl_renderer = w.gl_renderer;
-  app.draw.cull_back_faces = true;
-  app.draw.surface_pieces = w.software ? 4 : 1;  // DrawOptions::surface_pieces
+  app.view.draw.cull_back_faces = true;
+  app.view.draw.surface_pieces = w.software ? 4 : 1;  // DrawOptions::surface_pieces
   // DIVVOX_SHADOWS=0: start with the tray's shadow off (View panel: "shadow on the tray").
-  if (env.shadows >= 0) app.draw.shadows = env.shadows == 1;
+  if (env.shadows >= 0) app.view.draw.shadows = env.shadows == 1;
   return true;
 }
 
@@ -256,20 +260,20 @@ void run_frame(AppState& app, WindowContext& w) {
   glfwPollEvents();
   app.status = w.sim.status();
   follow_simulation(app, w.generation);
-  sim_pace_sample(app.pace, glfwGetTime(), app.status.step, app.status.dt,
+  sim_pace_sample(app.history.pace, glfwGetTime(), app.status.step, app.status.dt,
                   app.status.ready && !app.status.paused && !app.status.loading, app.status.generation,
                   app.status.restores);
   // Window resize: a new panel width and offscreen target.
   int fb_w = 0, fb_h = 0;
   glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
   if (fb_w >= 16 && fb_h >= 16) {
-    const Viewport before = app.viewport;
+    const Viewport before = app.view.viewport;
     layout_view(app, fb_w, fb_h);
-    renderer_place(w.renderer, app.view_x, 0);
+    renderer_place(w.renderer, app.view.view_x, 0);
     std::string error;
-    if ((app.viewport.width != w.renderer.width || app.viewport.height != w.renderer.height) &&
-        !renderer_resize(w.renderer, app.viewport.width, app.viewport.height, error)) {
-      app.viewport = before;
+    if ((app.view.viewport.width != w.renderer.width || app.view.viewport.height != w.renderer.height) &&
+        !renderer_resize(w.renderer, app.view.viewport.width, app.view.viewport.height, error)) {
+      app.view.viewport = before;
     }
   }
   ImGui_ImplOpenGL3_NewFrame();
@@ -280,11 +284,11 @@ void run_frame(AppState& app, WindowContext& w) {
 
   const Clock::time_point t0 = Clock::now();
   const Eigen::Vector2f cursor_before = w.last_cursor;
-  w.last_cursor = app.cursor;
+  w.last_cursor = app.tools.cursor;
   // Half of a snapshot's image drawn: the same snapshot until the rest is.
   const double normals_ms = w.split_pending ? -1.0 : take_snapshot(app, w);
-  w.idle = normals_ms < 0.0 && !w.split_pending && app.status.ready && app.status.paused && !app.left_down && !app.camera_drag &&
-           cursor_before == app.cursor && app.message.empty();
+  w.idle = normals_ms < 0.0 && !w.split_pending && app.status.ready && app.status.paused && !app.tools.left_down &&
+           !app.tools.camera_drag && cursor_before == app.tools.cursor && app.panel.message.empty();
   if (w.profile) glFinish();
   const Clock::time_point t1 = Clock::now();
   renderer_update_normals(w.renderer);  // GPU normals (a no-op when they came with the snapshot)
@@ -297,13 +301,13 @@ void run_frame(AppState& app, WindowContext& w) {
   draw_overlays(app, w);
   // Multisampled (a GPU): the offscreen image, overlays included, into the window (direct mode and
   // the scene cache: nothing to copy).
-  if (!w.cache_scene) renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view_x, 0);
-  if (!app.screenshot_request.empty()) {
+  if (!w.cache_scene) renderer_blit(w.renderer, 0, w.renderer.width, w.renderer.height, app.view.view_x, 0);
+  if (!app.panel.screenshot_request.empty()) {
     std::string message;
-    take_screenshot(app, app.screenshot_request, message);
+    take_screenshot(app, app.panel.screenshot_request, message);
     show_message(app, message);
     std::printf("%s\n", message.c_str());
-    app.screenshot_request.clear();
+    app.panel.screenshot_request.clear();
   }
   w.sim.frame_done();  // the next snapshot may go out now
   if (w.profile) glFinish();
@@ -315,12 +319,12 @@ void run_frame(AppState& app, WindowContext& w) {
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
   glViewport(0, 0, fb_w, fb_h);
   ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
-  if (!app.window_screenshot_request.empty()) {
+  if (!app.panel.window_screenshot_request.empty()) {
     std::string message;
-    take_window_screenshot(fb_w, fb_h, app.window_screenshot_request, message);
+    take_window_screenshot(fb_w, fb_h, app.panel.window_screenshot_request, message);
     show_message(app, message);
     std::printf("%s\n", message.c_str());
-    app.window_screenshot_request.clear();
+    app.panel.window_screenshot_request.clear();
   }
   if (w.profile) glFinish();
   const Clock::time_point t3 = Clock::now();
@@ -330,13 +334,13 @@ void run_frame(AppState& app, WindowContext& w) {
   // Frame statistics (normals: the simulation thread's time for the snapshot shown, or the GPU passes).
   const double render_ms = ms_between(t0, t3), interval = ms_between(w.last_frame, t4);
   w.last_frame = t4;
-  app.push_frame(ms_between(t0, t1), ms_between(t1, t2), render_ms, interval);
-  ++app.frame;
+  app.history.push_frame(ms_between(t0, t1), ms_between(t1, t2), render_ms, interval);
+  ++app.history.frame;
   if (app.status.ready && app.current != nullptr) {
     const double normals = w.gpu_normals ? ms_between(t1, t1n) : std::max(normals_ms, 0.0);
-    if (normals_ms >= 0.0) AppState::push(app.normals_ms, normals);
-    const double phases[6] = {ms_between(t0, t1), normals, ms_between(t1n, t1d), ms_between(t1d, t2), ms_between(t2, t3),
-                              ms_between(t3, t4)};
+    if (normals_ms >= 0.0) FrameHistory::push(app.history.normals_ms, normals);
+    const double phases[6] = {ms_between(t0, t1), normals,           ms_between(t1n, t1d), ms_between(t1d, t2),
+                              ms_between(t2, t3), ms_between(t3, t4)};
     w.stats.add(app, phases, render_ms, interval, t4, normals_ms >= 0.0, drawn);
   }
 }
@@ -350,8 +354,8 @@ int finish_window(AppState& app, WindowContext& w, const WindowOptions& options,
       glfwGetFramebufferSize(w.window, &fb_w, &fb_h);
       clear_window(app, fb_w, fb_h, w.cache_scene);
       if (!w.cache_scene || !w.scene_valid || w.split_pending) {
-        app.draw.pieces_begin = 0;
-        app.draw.pieces_end = 64;
+        app.view.draw.pieces_begin = 0;
+        app.view.draw.pieces_end = 64;
         draw_surface(app, w);
         draw_trays(app, w);
         renderer_show_drawn(w.renderer);
@@ -370,11 +374,13 @@ int finish_window(AppState& app, WindowContext& w, const WindowOptions& options,
   }
   w.stats.print(app);
   std::printf("window: layout panel %d px (drawn %.0f px), view %dx%d, panel sections %.0f px in %.0f px (%s)\n",
-              app.panel_width, app.panel_drawn_width, app.viewport.width, app.viewport.height, app.panel_sections_height,
-              app.panel_sections_room, app.panel_sections_height <= app.panel_sections_room ? "fit" : "scroll");
+              app.view.panel_width, app.view.panel_drawn_width, app.view.viewport.width, app.view.viewport.height,
+              app.view.panel_sections_height, app.view.panel_sections_room,
+              app.view.panel_sections_height <= app.view.panel_sections_room ? "fit" : "scroll");
   const SimStatus final_status = w.sim.status();
   if (final_status.playing && final_status.hash_mismatched > 0) {
-    std::fprintf(stderr, "divvox: error: %s: the window's simulation diverged from the recording (%u of %u hashes differ)\n",
+    std::fprintf(stderr,
+                 "divvox: error: %s: the window's simulation diverged from the recording (%u of %u hashes differ)\n",
                  final_status.play_path.c_str(), final_status.hash_mismatched, final_status.hash_checked);
     exit_code = kExitInternal;
   }
@@ -402,16 +408,16 @@ int run_window(const WindowOptions& options) {
   if (const int code = open_gl_window(options, w); code >= 0) return code;
   if (!init_graphics(app, w)) return kExitInternal;
   app.window_options = options;
-  std::snprintf(app.record_path, sizeof app.record_path, "%s",
+  std::snprintf(app.panel.record_path, sizeof app.panel.record_path, "%s",
                 options.record_path.empty() ? default_output_path("divvox_recording.jsonl").c_str()
                                             : options.record_path.c_str());
   if (playback) {
-    std::snprintf(app.play_path, sizeof app.play_path, "%s", options.play_path.c_str());
+    std::snprintf(app.panel.play_path, sizeof app.panel.play_path, "%s", options.play_path.c_str());
     w.sim.play(playback);
   } else {
     w.sim.open(scene, scene.pbd.dt, options.record_path);
   }
-  std::snprintf(app.scene_path, sizeof app.scene_path, "%s", options.scene_path.c_str());
+  std::snprintf(app.panel.scene_path, sizeof app.panel.scene_path, "%s", options.scene_path.c_str());
 
   // Frame pacing: at most DIVVOX_MAX_FPS frames a second (default 60; 0: unpaced). Without a vsync
   // (Xvfb) a frame that reuses the scene cache takes a few ms, and every frame shown costs this
@@ -430,7 +436,8 @@ int run_window(const WindowOptions& options) {
     // the same image at full speed (on a software rasteriser that is two busy cores for nothing).
     if (w.idle) glfwWaitEventsTimeout(0.05);
     if (max_fps > 0.0) {
-      const Clock::time_point next = frame_start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / max_fps));
+      const Clock::time_point next =
+          frame_start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(1.0 / max_fps));
       if (Clock::now() < next) std::this_thread::sleep_until(next);
     }
     frame_start = Clock::now();

@@ -53,10 +53,10 @@ bool take_screenshot(AppState& app, const std::string& path, std::string& messag
     message = error;
     return false;
   }
-  app.last_coverage = coverage(rgba, app.draw.background);
+  app.history.last_coverage = coverage(rgba, app.view.draw.background);
   char text[512];
   std::snprintf(text, sizeof text, "wrote screenshot %s (%dx%d, object coverage %.1f %%)", path.c_str(),
-                app.renderer->width, app.renderer->height, 100.0 * app.last_coverage);
+                app.renderer->width, app.renderer->height, 100.0 * app.history.last_coverage);
   message = text;
   return true;
 }
@@ -82,7 +82,8 @@ bool take_window_screenshot(int fb_w, int fb_h, const std::string& path, std::st
     message = error;
     return false;
   }
-  message = "wrote window screenshot " + path + " (" + std::to_string(fb_w) + "x" + std::to_string(fb_h) + ", panel included)";
+  message = "wrote window screenshot " + path + " (" + std::to_string(fb_w) + "x" + std::to_string(fb_h) +
+            ", panel included)";
   return true;
 }
 
@@ -95,16 +96,16 @@ std::string default_screenshot_name() {
 
 // The scene's contact planes as trays: centred under the object, a little wider than it.
 void set_trays(AppState& app) {
-  app.draw.trays.clear();
+  app.view.draw.trays.clear();
   for (const ContactPlane& p : app.status.scene.pbd.planes) {
-    app.draw.trays.push_back(tray_under(app.bounds.min.cast<float>(), app.bounds.max.cast<float>(),
-                                        p.point.cast<float>(), p.normal.cast<float>()));
+    app.view.draw.trays.push_back(tray_under(app.view.bounds.min.cast<float>(), app.view.bounds.max.cast<float>(),
+                                             p.point.cast<float>(), p.normal.cast<float>()));
   }
 }
 
 void frame_camera(AppState& app) {
-  app.camera = frame_box(app.bounds, app.viewport.aspect());
-  app.radius = float(0.5 * app.bounds.extent().norm());
+  app.view.camera = frame_box(app.view.bounds, app.view.viewport.aspect());
+  app.view.radius = float(0.5 * app.view.bounds.extent().norm());
 }
 
 namespace {
@@ -117,25 +118,25 @@ void add_line(std::vector<LineVertex>& lines, const Vec3d& a, const Vec3d& b, co
 // The blade to draw: the recording's at the displayed step while playing, else the mouse's.
 bool blade_to_draw(AppState& app, BladePose& blade, bool& cutting, std::vector<BladePose>& trail) {
   trail.clear();
-  if (app.status.playing && !app.play_poses.empty() && app.current) {
+  if (app.status.playing && !app.view.play_poses.empty() && app.current) {
     const uint32_t step = app.current->step;
-    auto it = std::upper_bound(app.play_poses.begin(), app.play_poses.end(), step,
+    auto it = std::upper_bound(app.view.play_poses.begin(), app.view.play_poses.end(), step,
                                [](uint32_t s, const PlayPose& p) { return s < p.step; });
-    if (it == app.play_poses.begin()) return false;
+    if (it == app.view.play_poses.begin()) return false;
     const auto last = it - 1;
     blade = last->pose;
     cutting = last->cutting;
-    for (auto k = last; k >= app.play_poses.begin() && int(last - k) < app.trail_length; --k) {
+    for (auto k = last; k >= app.view.play_poses.begin() && int(last - k) < app.view.trail_length; --k) {
       if (!k->cutting) break;
       trail.insert(trail.begin(), k->pose);
-      if (k == app.play_poses.begin()) break;
+      if (k == app.view.play_poses.begin()) break;
     }
     return true;
   }
-  if (app.tool != Tool::kScalpel || !app.cursor_in_view) return false;
-  blade = app.blade_pose;
-  cutting = app.left_down;
-  trail.assign(app.trail.begin(), app.trail.end());
+  if (app.tools.tool != Tool::kScalpel || !app.tools.cursor_in_view) return false;
+  blade = app.tools.blade_pose;
+  cutting = app.tools.left_down;
+  trail.assign(app.tools.trail.begin(), app.tools.trail.end());
   return true;
 }
 
@@ -147,24 +148,25 @@ void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector
   BladePose blade;
   bool cutting = false;
   if (blade_to_draw(app, blade, cutting, trail)) {
-    if (app.show_trail && trail.size() > 1) {
+    if (app.view.show_trail && trail.size() > 1) {
       for (size_t k = 0; k + 1 < trail.size(); ++k) {
         const float alpha = 0.25f + 0.6f * float(k) / float(trail.size());
         add_line(lines, trail[k].b, trail[k + 1].b, Eigen::Vector4f(1.0f, 0.85f, 0.3f, alpha));
       }
     }
     ScalpelStyle style;
-    style.blade_width = std::max(0.05f * app.radius, 2.0f * app.voxel_size);
-    style.handle_length = 0.35f * app.radius;
+    style.blade_width = std::max(0.05f * app.view.radius, 2.0f * app.view.voxel_size);
+    style.handle_length = 0.35f * app.view.radius;
     if (cutting) style.edge_color = Vec3f(1.0f, 0.35f, 0.3f);
     // The steel shows a quarter of the depth above the entry (drawn only: the cutting edge is a..b).
     const Vec3f a = blade.a.cast<float>(), b = blade.b.cast<float>();
-    scalpel_mesh(a - 0.25f * (b - a), b, app.edge_dir, style, solids);
+    scalpel_mesh(a - 0.25f * (b - a), b, app.tools.edge_dir, style, solids);
     // The entry mark: a ring in the view plane where the blade meets the surface.
-    if (app.hover_hit && !app.status.playing) {
-      const Vec3f c = app.hover.point, r = camera_right(app.camera), u = camera_up(app.camera);
-      const float radius = 0.012f * app.hover.t;
-      const Eigen::Vector4f colour = cutting ? Eigen::Vector4f(1.0f, 0.35f, 0.3f, 1.0f) : Eigen::Vector4f(0.4f, 0.95f, 1.0f, 1.0f);
+    if (app.tools.hover_hit && !app.status.playing) {
+      const Vec3f c = app.tools.hover.point, r = camera_right(app.view.camera), u = camera_up(app.view.camera);
+      const float radius = 0.012f * app.tools.hover.t;
+      const Eigen::Vector4f colour =
+          cutting ? Eigen::Vector4f(1.0f, 0.35f, 0.3f, 1.0f) : Eigen::Vector4f(0.4f, 0.95f, 1.0f, 1.0f);
       for (int k = 0; k < 16; ++k) {
         const float a0 = float(k) * 0.3926991f, a1 = float(k + 1) * 0.3926991f;
         add_line(lines, (c + radius * (std::cos(a0) * r + std::sin(a0) * u)).cast<double>(),
@@ -172,12 +174,12 @@ void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector
       }
     }
   }
-  if (app.grabbing && app.current && app.grab_vertex < app.current->positions.size()) {
-    const Vec3f p = app.current->positions[app.grab_vertex];
+  if (app.tools.grabbing && app.current && app.tools.grab_vertex < app.current->positions.size()) {
+    const Vec3f p = app.current->positions[app.tools.grab_vertex];
     if (p.allFinite()) {
-      marker_mesh(p, 0.03f * app.radius, Vec3f(0.3f, 1.0f, 0.45f), solids);
-      add_line(lines, p.cast<double>(), app.grab_target.cast<double>(), Eigen::Vector4f(0.3f, 1.0f, 0.45f, 1.0f));
-      marker_mesh(app.grab_target, 0.015f * app.radius, Vec3f(1.0f, 1.0f, 1.0f), solids);
+      marker_mesh(p, 0.03f * app.view.radius, Vec3f(0.3f, 1.0f, 0.45f), solids);
+      add_line(lines, p.cast<double>(), app.tools.grab_target.cast<double>(), Eigen::Vector4f(0.3f, 1.0f, 0.45f, 1.0f));
+      marker_mesh(app.tools.grab_target, 0.015f * app.view.radius, Vec3f(1.0f, 1.0f, 1.0f), solids);
     }
   }
 }
@@ -186,18 +188,18 @@ void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector
 
 // The depth next to the cursor while aiming (ImGui's foreground layer, so it is never hidden).
 void cursor_label(AppState& app) {
-  if (app.tool != Tool::kScalpel || !app.cursor_in_view || app.status.playing) return;
+  if (app.tools.tool != Tool::kScalpel || !app.tools.cursor_in_view || app.status.playing) return;
   char text[96];
-  if (app.hover_hit || app.left_down) {
-    if (app.reach_depth > app.cut_depth) {
-      std::snprintf(text, sizeof text, "depth %.2f (through %.2f)", app.cut_depth, app.reach_depth);
+  if (app.tools.hover_hit || app.tools.left_down) {
+    if (app.tools.reach_depth > app.tools.cut_depth) {
+      std::snprintf(text, sizeof text, "depth %.2f (through %.2f)", app.tools.cut_depth, app.tools.reach_depth);
     } else {
-      std::snprintf(text, sizeof text, "depth %.2f", app.cut_depth);
+      std::snprintf(text, sizeof text, "depth %.2f", app.tools.cut_depth);
     }
   } else {
     std::snprintf(text, sizeof text, "no tissue here");
   }
-  const ImVec2 at(float(app.view_x) + app.cursor.x() + 18.0f, app.cursor.y() + 12.0f);
+  const ImVec2 at(float(app.view.view_x) + app.tools.cursor.x() + 18.0f, app.tools.cursor.y() + 12.0f);
   ImGui::GetForegroundDrawList()->AddText(at, IM_COL32(230, 240, 255, 230), text);
 }
 
@@ -214,21 +216,21 @@ bool same_trays(const std::vector<TrayPlane>& a, const std::vector<TrayPlane>& b
 bool operator==(const SceneKey& a, const SceneKey& b) {
   const Camera &p = a.camera, &q = b.camera;
   const DrawOptions &o = a.options, &u = b.options;
-  return a.sequence == b.sequence && a.width == b.width && a.height == b.height && a.x == b.x &&
-         p.target == q.target && p.distance == q.distance && p.yaw == q.yaw && p.pitch == q.pitch &&
-         p.fov_y == q.fov_y && p.z_near == q.z_near && p.z_far == q.z_far && o.wireframe == u.wireframe &&
-         o.shadows == u.shadows && o.cull_back_faces == u.cull_back_faces && o.surface_color == u.surface_color &&
-         o.cut_color == u.cut_color && o.wire_color == u.wire_color && o.background == u.background &&
-         o.tray_color == u.tray_color && o.shadow_alpha == u.shadow_alpha && same_trays(o.trays, u.trays);
+  return a.sequence == b.sequence && a.width == b.width && a.height == b.height && a.x == b.x && p.target == q.target &&
+         p.distance == q.distance && p.yaw == q.yaw && p.pitch == q.pitch && p.fov_y == q.fov_y &&
+         p.z_near == q.z_near && p.z_far == q.z_far && o.wireframe == u.wireframe && o.shadows == u.shadows &&
+         o.cull_back_faces == u.cull_back_faces && o.surface_color == u.surface_color && o.cut_color == u.cut_color &&
+         o.wire_color == u.wire_color && o.background == u.background && o.tray_color == u.tray_color &&
+         o.shadow_alpha == u.shadow_alpha && same_trays(o.trays, u.trays);
 }
 
 }  // namespace
 
 // The 3D view right of the docked panel, for a framebuffer size.
 void layout_view(AppState& app, int fb_w, int fb_h) {
-  app.panel_width = panel_width_for(fb_w);
-  app.view_x = app.panel_width;
-  app.viewport = {std::max(fb_w - app.view_x, 16), fb_h};
+  app.view.panel_width = panel_width_for(fb_w);
+  app.view.view_x = app.view.panel_width;
+  app.view.viewport = {std::max(fb_w - app.view.view_x, 16), fb_h};
 }
 
 // The newest snapshot to the renderer (what changed since the last one, its normals as the
@@ -249,14 +251,14 @@ double take_snapshot(AppState& app, WindowContext& w) {
   }
   renderer_upload(w.renderer, mesh);
   w.last_sequence = s->sequence;
-  app.triangles = 0;
-  for (const Tri& t : s->triangles) app.triangles += t[0] != kDeadIndex ? 1 : 0;
+  app.history.triangles = 0;
+  for (const Tri& t : s->triangles) app.history.triangles += t[0] != kDeadIndex ? 1 : 0;
   // The probed cut is in this snapshot: counted once it shows (record_latency).
-  if (app.latency_probe_stamp != 0 && s->step + 1 >= app.latency_probe_stamp) {
+  if (app.history.latency_probe_stamp != 0 && s->step + 1 >= app.history.latency_probe_stamp) {
     w.latency_hit = true;
-    w.latency_hit_frame = app.latency_probe_frame;  // a new probe may start before it shows
-    w.latency_hit_time = app.latency_probe_time;
-    app.latency_probe_stamp = 0;
+    w.latency_hit_frame = app.history.latency_probe_frame;  // a new probe may start before it shows
+    w.latency_hit_time = app.history.latency_probe_time;
+    app.history.latency_probe_stamp = 0;
   }
   return s->normals_ms;
 }
@@ -273,7 +275,7 @@ void clear_window(AppState& app, int fb_w, int fb_h, bool view_covered) {
   glDepthMask(GL_TRUE);
   glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
   const ImVec4 panel = ImGui::GetStyleColorVec4(ImGuiCol_WindowBg);
-  const Vec3f& background = app.draw.background;
+  const Vec3f& background = app.view.draw.background;
   if (view_covered) {
     glClearColor(panel.x, panel.y, panel.z, 1.0f);
   } else {
@@ -283,7 +285,7 @@ void clear_window(AppState& app, int fb_w, int fb_h, bool view_covered) {
   glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
   if (view_covered) return;
   glEnable(GL_SCISSOR_TEST);
-  glScissor(0, 0, std::min(app.view_x, fb_w), fb_h);
+  glScissor(0, 0, std::min(app.view.view_x, fb_w), fb_h);
   glClearColor(panel.x, panel.y, panel.z, 1.0f);
   glClear(GL_COLOR_BUFFER_BIT);
   glDisable(GL_SCISSOR_TEST);
@@ -293,8 +295,8 @@ void clear_window(AppState& app, int fb_w, int fb_h, bool view_covered) {
 // the renderer clears), handed to the rasteriser at once (glFlush), so that on a software
 // rasteriser it rasterises while this thread picks, builds the tray's shadow and the panels.
 void draw_surface(AppState& app, WindowContext& w) {
-  app.draw.clear = !w.renderer.direct;
-  renderer_draw_surface(w.renderer, app.camera, app.draw);
+  app.view.draw.clear = !w.renderer.direct;
+  renderer_draw_surface(w.renderer, app.view.camera, app.view.draw);
   glFlush();
 }
 
@@ -305,11 +307,11 @@ namespace {
 SceneKey scene_key_of(const AppState& app, const WindowContext& w) {
   SceneKey k;
   k.sequence = app.current ? app.current->sequence : 0;
-  k.camera = app.camera;
+  k.camera = app.view.camera;
   k.width = w.renderer.width;
   k.height = w.renderer.height;
-  k.x = app.view_x;
-  k.options = app.draw;
+  k.x = app.view.view_x;
+  k.options = app.view.draw;
   return k;
 }
 
@@ -319,24 +321,25 @@ SceneKey scene_key_of(const AppState& app, const WindowContext& w) {
 // (the light follows it) or the shadow switch changed (while cutting, most frames show the
 // snapshot of the frame before).
 void draw_trays(AppState& app, WindowContext& w) {
-  if (app.current != nullptr && app.draw.shadows &&
-      (w.shadow_sequence != app.current->sequence || w.shadow_yaw != app.camera.yaw ||
-       w.shadow_pitch != app.camera.pitch || !w.renderer.shadow_valid)) {
+  if (app.current != nullptr && app.view.draw.shadows &&
+      (w.shadow_sequence != app.current->sequence || w.shadow_yaw != app.view.camera.yaw ||
+       w.shadow_pitch != app.view.camera.pitch || !w.renderer.shadow_valid)) {
     shadow_casters(*app.current, w.shadow_positions);  // only vertices of live triangles
-    tray_shadow_update(w.renderer, w.shadow_positions.data(), uint32_t(w.shadow_positions.size()), app.camera, app.draw);
+    tray_shadow_update(w.renderer, w.shadow_positions.data(), uint32_t(w.shadow_positions.size()), app.view.camera,
+                       app.view.draw);
     w.shadow_sequence = app.current->sequence;
-    w.shadow_yaw = app.camera.yaw;
-    w.shadow_pitch = app.camera.pitch;
+    w.shadow_yaw = app.view.camera.yaw;
+    w.shadow_pitch = app.view.camera.pitch;
   }
-  if (w.renderer.triangle_count > 0) tray_draw(w.renderer, app.camera, app.draw);
+  if (w.renderer.triangle_count > 0) tray_draw(w.renderer, app.view.camera, app.view.draw);
 }
 
 // The scalpel, its entry mark and trail, the grabbed point, over the scene.
 void draw_overlays(AppState& app, WindowContext& w) {
   overlay_geometry(app, w.lines, w.solids);
   const ViewTarget target = renderer_target(w.renderer);
-  solid_overlay_draw(w.solid_overlay, target, app.camera, w.solids);
-  overlay_draw(w.overlay, target, app.camera, w.lines);
+  solid_overlay_draw(w.solid_overlay, target, app.view.camera, w.solids);
+  overlay_draw(w.overlay, target, app.view.camera, w.lines);
 }
 
 // The input-to-cut latency of a probed cut whose snapshot this frame showed (with split frames, the
@@ -344,10 +347,10 @@ void draw_overlays(AppState& app, WindowContext& w) {
 void record_latency(AppState& app, WindowContext& w) {
   if (!w.latency_hit || w.split_pending) return;
   w.latency_hit = false;
-  app.latency_frames.push_back(double(app.frame - w.latency_hit_frame));
-  app.latency_ms.push_back(1e3 * (glfwGetTime() - w.latency_hit_time));
-  if (app.latency_frames.size() > 120) app.latency_frames.erase(app.latency_frames.begin());
-  if (app.latency_ms.size() > 120) app.latency_ms.erase(app.latency_ms.begin());
+  app.history.latency_frames.push_back(double(app.history.frame - w.latency_hit_frame));
+  app.history.latency_ms.push_back(1e3 * (glfwGetTime() - w.latency_hit_time));
+  if (app.history.latency_frames.size() > 120) app.history.latency_frames.erase(app.history.latency_frames.begin());
+  if (app.history.latency_ms.size() > 120) app.history.latency_ms.erase(app.history.latency_ms.begin());
 }
 
 namespace {
@@ -373,13 +376,13 @@ SceneDraw scene_draw_for(const WindowContext& w, const SceneKey& key) {
 // buffer. Returns what it drew.
 SceneDraw draw_view(AppState& app, WindowContext& w, int fb_w, int fb_h, const MouseFrame& mouse) {
   const bool window = w.renderer.direct || w.cache_scene;
-  app.panel_cleared = window;
+  app.view.panel_cleared = window;
   if (window) clear_window(app, fb_w, fb_h, w.cache_scene);
   const SceneKey key = scene_key_of(app, w);
   const SceneDraw d = scene_draw_for(w, key);
-  const int half = (app.draw.surface_pieces + 1) / 2;
-  app.draw.pieces_begin = d == SceneDraw::kSecondHalf ? half : 0;
-  app.draw.pieces_end = d == SceneDraw::kFirstHalf ? half : 64;
+  const int half = (app.view.draw.surface_pieces + 1) / 2;
+  app.view.draw.pieces_begin = d == SceneDraw::kSecondHalf ? half : 0;
+  app.view.draw.pieces_end = d == SceneDraw::kFirstHalf ? half : 64;
   if (d != SceneDraw::kNone) draw_surface(app, w);
   handle_tools(app, mouse);  // picks on the snapshot shown while the surface rasterises
   // The trays with the first half (the halves cost alike then; behind the second half's triangles

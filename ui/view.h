@@ -67,7 +67,7 @@ struct WindowContext {
   Eigen::Vector2f last_cursor = Eigen::Vector2f::Zero();
 };
 
-// The camera framing the object's bounds; AppState::radius from them.
+// The camera framing the object's bounds; ViewState::radius from them.
 void frame_camera(AppState& app);
 // The scene's contact planes as trays: centred under the object, a little wider than it.
 void set_trays(AppState& app);

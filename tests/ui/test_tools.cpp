@@ -45,25 +45,25 @@ struct ToolScene {
     app.sim = &sim;
     app.current = &shot;
     app.status.ready = true;
-    app.bounds.grow(Vec3d(-1, -1, -1));
-    app.bounds.grow(Vec3d(1, 1, 1));
-    app.radius = float(0.5 * app.bounds.extent().norm());
-    app.voxel_size = 0.1f;
-    app.cut_depth = 0.5f;
-    app.viewport = {640, 480};
-    app.camera = frame_box(app.bounds, app.viewport.aspect());
-    app.cursor = centre;
-    app.have_cursor = app.cursor_in_view = true;
+    app.view.bounds.grow(Vec3d(-1, -1, -1));
+    app.view.bounds.grow(Vec3d(1, 1, 1));
+    app.view.radius = float(0.5 * app.view.bounds.extent().norm());
+    app.view.voxel_size = 0.1f;
+    app.tools.cut_depth = 0.5f;
+    app.view.viewport = {640, 480};
+    app.view.camera = frame_box(app.view.bounds, app.view.viewport.aspect());
+    app.tools.cursor = centre;
+    app.tools.have_cursor = app.tools.cursor_in_view = true;
   }
 
   // One frame of the mouse over the view: the button's state and the cursor `offset` pixels from the centre.
   void frame(bool left, float offset = 0.0f) {
     MouseFrame m;
     m.pixel = centre + Eigen::Vector2f(offset, 0.0f);
-    m.delta = m.pixel - app.cursor;
+    m.delta = m.pixel - app.tools.cursor;
     m.left = left;
     m.free_mouse = true;
-    app.cursor = m.pixel;
+    app.tools.cursor = m.pixel;
     handle_tools(app, m);
   }
 };
@@ -71,97 +71,97 @@ struct ToolScene {
 }  // namespace
 
 TEST_SUITE("ui") {
-TEST_CASE("tools: S pressed mid-grab lets the tissue go; the held button starts no stroke; no cut is reported") {
-  ToolScene s;
-  AppState& app = s.app;
-  app.tool = Tool::kGrab;
-  s.frame(true);
-  REQUIRE(app.grabbing);
-  REQUIRE(app.left_down);
-  s.frame(true, 20.0f);
-  const Vec3f pulled = app.grab_target;
-  CHECK(pulled != app.grab_anchor);
+  TEST_CASE("tools: S pressed mid-grab lets the tissue go; the held button starts no stroke; no cut is reported") {
+    ToolScene s;
+    AppState& app = s.app;
+    app.tools.tool = Tool::kGrab;
+    s.frame(true);
+    REQUIRE(app.tools.grabbing);
+    REQUIRE(app.tools.left_down);
+    s.frame(true, 20.0f);
+    const Vec3f pulled = app.tools.grab_target;
+    CHECK(pulled != app.tools.grab_anchor);
 
-  // The switch releases the grab (its marker and line are drawn only while `grabbing`).
-  select_tool(app, Tool::kScalpel);
-  CHECK(app.tool == Tool::kScalpel);
-  CHECK_FALSE(app.grabbing);
-  CHECK_FALSE(app.left_down);
-  CHECK(app.await_release);
-  // Still held and moved: no stroke starts (no blade command at all), nothing waits to be reported.
-  s.frame(true, 40.0f);
-  s.frame(true, 60.0f);
-  CHECK_FALSE(app.left_down);
-  CHECK_FALSE(app.blade_sent);
-  s.frame(false, 60.0f);
-  CHECK_FALSE(app.await_release);
-  CHECK_FALSE(app.cut_pending);
-  app.status.step = 1000;
-  app.status.voxels_cut = 2576;  // a previous cut's count must not be reported for a grab
-  report_cut(app);
-  CHECK(app.message.empty());
+    // The switch releases the grab (its marker and line are drawn only while `grabbing`).
+    select_tool(app, Tool::kScalpel);
+    CHECK(app.tools.tool == Tool::kScalpel);
+    CHECK_FALSE(app.tools.grabbing);
+    CHECK_FALSE(app.tools.left_down);
+    CHECK(app.tools.await_release);
+    // Still held and moved: no stroke starts (no blade command at all), nothing waits to be reported.
+    s.frame(true, 40.0f);
+    s.frame(true, 60.0f);
+    CHECK_FALSE(app.tools.left_down);
+    CHECK_FALSE(app.tools.blade_sent);
+    s.frame(false, 60.0f);
+    CHECK_FALSE(app.tools.await_release);
+    CHECK_FALSE(app.tools.cut_pending);
+    app.status.step = 1000;
+    app.status.voxels_cut = 2576;  // a previous cut's count must not be reported for a grab
+    report_cut(app);
+    CHECK(app.panel.message.empty());
 
-  // The next press starts a stroke as usual.
-  s.frame(true);
-  CHECK(app.left_down);
-  CHECK(app.blade_sent);
-  CHECK_FALSE(app.last_cutting);
-}
+    // The next press starts a stroke as usual.
+    s.frame(true);
+    CHECK(app.tools.left_down);
+    CHECK(app.tools.blade_sent);
+    CHECK_FALSE(app.tools.last_cutting);
+  }
 
-TEST_CASE("tools: G pressed mid-stroke ends the stroke (its release sent, its cut reported); a grab reports no cut") {
-  ToolScene s;
-  AppState& app = s.app;
-  app.tool = Tool::kScalpel;
-  app.status.voxels_cut = 100;
-  s.frame(true);
-  REQUIRE(app.left_down);
-  s.frame(true, 30.0f);
-  REQUIRE(app.last_cutting);
+  TEST_CASE("tools: G pressed mid-stroke ends the stroke (its release sent, its cut reported); a grab reports no cut") {
+    ToolScene s;
+    AppState& app = s.app;
+    app.tools.tool = Tool::kScalpel;
+    app.status.voxels_cut = 100;
+    s.frame(true);
+    REQUIRE(app.tools.left_down);
+    s.frame(true, 30.0f);
+    REQUIRE(app.tools.last_cutting);
 
-  select_tool(app, Tool::kGrab);
-  CHECK_FALSE(app.left_down);
-  CHECK_FALSE(app.last_cutting);  // the release (cutting off) went out
-  CHECK(app.cut_pending);
-  CHECK(app.await_release);
-  // Reported once the step after the release has run: the voxels cut since the press.
-  app.status.voxels_cut = 105;
-  app.status.step = app.cut_release_stamp + 1;
-  report_cut(app);
-  CHECK_FALSE(app.cut_pending);
-  CHECK(app.message.find("cut 5 voxels") != std::string::npos);
+    select_tool(app, Tool::kGrab);
+    CHECK_FALSE(app.tools.left_down);
+    CHECK_FALSE(app.tools.last_cutting);  // the release (cutting off) went out
+    CHECK(app.tools.cut_pending);
+    CHECK(app.tools.await_release);
+    // Reported once the step after the release has run: the voxels cut since the press.
+    app.status.voxels_cut = 105;
+    app.status.step = app.tools.cut_release_stamp + 1;
+    report_cut(app);
+    CHECK_FALSE(app.tools.cut_pending);
+    CHECK(app.panel.message.find("cut 5 voxels") != std::string::npos);
 
-  // Held, then released, then a grab drag of its own: its release reports nothing.
-  s.frame(true, 40.0f);
-  CHECK_FALSE(app.grabbing);
-  s.frame(false, 40.0f);
-  app.message.clear();
-  s.frame(true);
-  REQUIRE(app.grabbing);
-  s.frame(true, 25.0f);
-  s.frame(false, 25.0f);
-  CHECK_FALSE(app.grabbing);
-  CHECK_FALSE(app.cut_pending);
-  app.status.step += 100;
-  app.status.voxels_cut += 50;
-  report_cut(app);
-  CHECK(app.message.empty());
-}
+    // Held, then released, then a grab drag of its own: its release reports nothing.
+    s.frame(true, 40.0f);
+    CHECK_FALSE(app.tools.grabbing);
+    s.frame(false, 40.0f);
+    app.panel.message.clear();
+    s.frame(true);
+    REQUIRE(app.tools.grabbing);
+    s.frame(true, 25.0f);
+    s.frame(false, 25.0f);
+    CHECK_FALSE(app.tools.grabbing);
+    CHECK_FALSE(app.tools.cut_pending);
+    app.status.step += 100;
+    app.status.voxels_cut += 50;
+    report_cut(app);
+    CHECK(app.panel.message.empty());
+  }
 
-TEST_CASE("tools: selecting the tool already in use, or switching between drags, changes nothing else") {
-  ToolScene s;
-  AppState& app = s.app;
-  app.tool = Tool::kGrab;
-  s.frame(true);
-  REQUIRE(app.grabbing);
-  select_tool(app, Tool::kGrab);
-  CHECK(app.grabbing);
-  CHECK(app.left_down);
-  CHECK_FALSE(app.await_release);
-  s.frame(false);
-  CHECK_FALSE(app.grabbing);
-  select_tool(app, Tool::kScalpel);
-  CHECK_FALSE(app.await_release);
-  s.frame(true);
-  CHECK(app.left_down);
-}
+  TEST_CASE("tools: selecting the tool already in use, or switching between drags, changes nothing else") {
+    ToolScene s;
+    AppState& app = s.app;
+    app.tools.tool = Tool::kGrab;
+    s.frame(true);
+    REQUIRE(app.tools.grabbing);
+    select_tool(app, Tool::kGrab);
+    CHECK(app.tools.grabbing);
+    CHECK(app.tools.left_down);
+    CHECK_FALSE(app.tools.await_release);
+    s.frame(false);
+    CHECK_FALSE(app.tools.grabbing);
+    select_tool(app, Tool::kScalpel);
+    CHECK_FALSE(app.tools.await_release);
+    s.frame(true);
+    CHECK(app.tools.left_down);
+  }
 }
