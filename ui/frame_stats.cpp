@@ -37,7 +37,9 @@ ThreadCpu thread_cpu() {
     const std::string name = stat.substr(open + 1, close - open - 1);
     unsigned long utime = 0, stime = 0;
     // Fields after the name: state(3) ... utime(14) stime(15).
-    if (std::sscanf(stat.c_str() + close + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %lu %lu", &utime, &stime) != 2) continue;
+    if (std::sscanf(stat.c_str() + close + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %lu %lu", &utime, &stime) !=
+        2)
+      continue;
     const double seconds = double(utime + stime) / tick;
     const bool is_main = entry.path().filename() == std::to_string(getpid());
     if (is_main) {
@@ -50,7 +52,6 @@ ThreadCpu thread_cpu() {
   }
   return cpu;
 }
-
 
 }  // namespace
 
@@ -106,7 +107,7 @@ double fps_percentile(const std::vector<double>& intervals_ms, double q) {
 
 // `fresh`: the frame took a new snapshot (the upload and normals phases count only those).
 void FrameStats::add(const AppState& app, const double phases[6], double render, double interval, Clock::time_point end,
-         bool fresh, SceneDraw drawn) {
+                     bool fresh, SceneDraw drawn) {
   const std::pair<double, double> now_cpu = frame_clocks(clocks);
   if (counted_frames == 0) {
     first = end;
@@ -137,11 +138,13 @@ void FrameStats::print(const AppState& app) const {
               static_cast<unsigned long long>(counted_frames), seconds,
               seconds > 0 ? double(counted_frames - 1) / seconds : 0.0, quantile(render_ms, 0.5),
               quantile(render_ms, 0.99), app.status.step, gl_renderer.c_str());
-  std::printf("window: %s phase ms p50 (p95): upload %s, normals %s, draw %s, overlays+blit %s, panels %s, swap %s; fps p50 %.1f p5 %.1f\n",
-              profiled ? "(profiled)" : "(not profiled: phases overlap on the GPU)", percentiles(phase_ms[0]).c_str(),
-              percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
-              percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms, 0.5),
-              fps_percentile(interval_ms, 0.05));
+  std::printf(
+      "window: %s phase ms p50 (p95): upload %s, normals %s, draw %s, overlays+blit %s, panels %s, swap %s; fps p50 "
+      "%.1f p5 %.1f\n",
+      profiled ? "(profiled)" : "(not profiled: phases overlap on the GPU)", percentiles(phase_ms[0]).c_str(),
+      percentiles(phase_ms[1]).c_str(), percentiles(phase_ms[2]).c_str(), percentiles(phase_ms[3]).c_str(),
+      percentiles(phase_ms[4]).c_str(), percentiles(phase_ms[5]).c_str(), fps_percentile(interval_ms, 0.5),
+      fps_percentile(interval_ms, 0.05));
   std::printf("window: %llu of %llu frames showed a new snapshot (normals: %s), %llu drew the scene (%s)\n",
               static_cast<unsigned long long>(fresh_frames), static_cast<unsigned long long>(counted_frames),
               normals_where.c_str(), static_cast<unsigned long long>(scene_frames),
@@ -150,28 +153,53 @@ void FrameStats::print(const AppState& app) const {
   for (int kind = 0; kind < 4; ++kind) {
     const size_t n = kind_interval_ms[kind].size();
     if (n == 0) continue;
-    std::printf("window: frames that %s: %zu, cpu ms per frame: render thread %.1f, GL driver threads %.1f; fps p50 %.1f p5 %.1f\n",
-                kSceneDrawNames[kind], n, kind_cpu[kind][0] / double(n),
-                kind_cpu[kind][1] / double(n), fps_percentile(kind_interval_ms[kind], 0.5),
-                fps_percentile(kind_interval_ms[kind], 0.05));
+    std::printf(
+        "window: frames that %s: %zu, cpu ms per frame: render thread %.1f, GL driver threads %.1f; fps p50 %.1f p5 "
+        "%.1f\n",
+        kSceneDrawNames[kind], n, kind_cpu[kind][0] / double(n), kind_cpu[kind][1] / double(n),
+        fps_percentile(kind_interval_ms[kind], 0.5), fps_percentile(kind_interval_ms[kind], 0.05));
   }
   const ThreadCpu cpu_end = thread_cpu();
   const double frames = double(counted_frames), steps = double(std::max(app.status.step - step_start, 1u));
-  std::printf("window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
-              1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
-              1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
-  // The simulation's pace while the frames were counted (below 1: slower than real time).
-  const double steps_run = double(app.status.step >= step_start ? app.status.step - step_start : 0u);
-  std::printf("window: simulation x%.2f real time (%.0f steps in %.1f s)\n",
-              seconds > 0 ? steps_run * app.status.dt / seconds : 0.0, steps_run, seconds);
-  if (!app.latency_frames.empty()) {
+  std::printf(
+      "window: cpu ms per frame: render thread %.1f, GL driver threads %.1f; simulation %.1f per step (%.0f steps)\n",
+      1000.0 * (cpu_end.main - cpu_start.main) / frames, 1000.0 * (cpu_end.driver - cpu_start.driver) / frames,
+      1000.0 * (cpu_end.other - cpu_start.other) / steps, steps);
+  // The simulation's pace (below 1: slower than real time): its simulated time over the wall time
+  // it ran, since the session's start, its last Reset or undo / redo (SimPace).
+  const SimPace& pace = app.history.pace;
+  std::printf(
+      "window: simulation x%.2f real time (%llu steps, %.2f s simulated in %.2f s running; paused time left out, "
+      "counted since the last reset or undo)\n",
+      pace.rate(), static_cast<unsigned long long>(pace.steps), pace.sim_seconds, pace.run_seconds);
+  if (!app.history.latency_frames.empty()) {
     double latency = 0.0;
-    for (double l : app.latency_frames) latency += l;
+    for (double l : app.history.latency_frames) latency += l;
     double ms = 0.0;
-    for (double l : app.latency_ms) ms += l;
-    std::printf("input to cut latency: %.2f frames mean over %zu cuts (%.0f ms)\n", latency / double(app.latency_frames.size()),
-                app.latency_frames.size(), app.latency_ms.empty() ? 0.0 : ms / double(app.latency_ms.size()));
+    for (double l : app.history.latency_ms) ms += l;
+    std::printf("input to cut latency: %.2f frames mean over %zu cuts (%.0f ms)\n",
+                latency / double(app.history.latency_frames.size()), app.history.latency_frames.size(),
+                app.history.latency_ms.empty() ? 0.0 : ms / double(app.history.latency_ms.size()));
   }
+}
+
+void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool running, uint64_t generation,
+                     uint64_t restores) {
+  // A new session, an undo / redo, or a step that went back: the count starts again from here.
+  if (!pace.started || generation != pace.generation || restores != pace.restores || step < pace.last_step) {
+    pace = SimPace{};
+    pace.started = true;
+    pace.generation = generation;
+    pace.restores = restores;
+  } else if (pace.running && running) {
+    // Running at both samples: the span and the steps run in it count.
+    pace.run_seconds += now - pace.last_time;
+    pace.steps += step - pace.last_step;
+    pace.sim_seconds += double(step - pace.last_step) * dt;
+  }
+  pace.running = running;
+  pace.last_time = now;
+  pace.last_step = step;
 }
 
 }  // namespace dvx

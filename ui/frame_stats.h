@@ -31,7 +31,7 @@ void find_driver_clocks(FrameClocks& c);
 // How a frame drew the scene (the scene cache's image reused, or all or half of a new image drawn).
 enum class SceneDraw { kNone, kWhole, kFirstHalf, kSecondHalf };
 inline constexpr const char* kSceneDrawNames[4] = {"reused the scene cache", "drew the whole scene",
-                                            "drew the first half of a new image", "drew its second half"};
+                                                   "drew the first half of a new image", "drew its second half"};
 
 // The window's frame statistics from the first frame showing a scene, printed at exit.
 struct FrameStats {

@@ -4,6 +4,7 @@
 // fits at 1280x720 (items take half the width, long text wraps).
 #include "engine/errors.h"
 #include "ui/app_state.h"
+#include "ui/tools.h"
 
 #include <imgui.h>
 
@@ -35,10 +36,10 @@ void open_scene_file(AppState& app, const std::string& path) {
   try {
     const Scene scene = load_scene(path);
     app.sim->open(scene, scene.pbd.dt);
-    app.edit_error.clear();
+    app.panel.edit_error.clear();
     show_message(app, "opening " + path, 4.0);
   } catch (const InputError& e) {
-    app.edit_error = e.what();
+    app.panel.edit_error = e.what();
   }
 }
 
@@ -59,24 +60,25 @@ void plot(const char* label, const std::vector<float>& values, const char* unit,
     }
   }
   char overlay[64];
-  std::snprintf(overlay, sizeof overlay, "%s%.2f %s (mean %.2f)", last_nonzero ? "last " : "", shown, unit, mean_of(values));
+  std::snprintf(overlay, sizeof overlay, "%s%.2f %s (mean %.2f)", last_nonzero ? "last " : "", shown, unit,
+                mean_of(values));
   ImGui::PlotLines(label, values.data(), int(values.size()), 0, overlay, 0.0f, FLT_MAX, ImVec2(0, 40));
 }
 
 void scene_panel(AppState& app) {
   if (!ImGui::CollapsingHeader("Scene")) return;
   ImGui::TextWrapped("%s", app.status.scene.file.empty() ? "(scene built in code)" : app.status.scene.file.c_str());
-  ImGui::InputText("scene file", app.scene_path, sizeof app.scene_path);
-  if (ImGui::Button("Open")) open_scene_file(app, app.scene_path);
+  ImGui::InputText("scene file", app.panel.scene_path, sizeof app.panel.scene_path);
+  if (ImGui::Button("Open")) open_scene_file(app, app.panel.scene_path);
   for (const std::string& f : scene_files()) {
     const std::string name = std::filesystem::path(f).filename().string();
     if (ImGui::Selectable(name.c_str(), std::filesystem::path(f) == std::filesystem::path(app.status.scene.file))) {
-      std::snprintf(app.scene_path, sizeof app.scene_path, "%s", f.c_str());
+      std::snprintf(app.panel.scene_path, sizeof app.panel.scene_path, "%s", f.c_str());
       open_scene_file(app, f);
     }
   }
   ImGui::Separator();
-  SceneEdit& e = app.edit;
+  SceneEdit& e = app.panel.edit;
   ImGui::InputText("mesh", e.mesh, sizeof e.mesh);
   ImGui::InputInt("resolution", &e.resolution);
   ImGui::InputInt("sim resolution", &e.sim_resolution);
@@ -94,19 +96,19 @@ void scene_panel(AppState& app) {
     std::string error;
     if (apply_scene_edit(app.status.scene, e, scene, error)) {
       app.sim->open(scene, scene.pbd.dt);
-      app.edit_error.clear();
+      app.panel.edit_error.clear();
     } else {
-      app.edit_error = error;
+      app.panel.edit_error = error;
     }
   }
   ImGui::SameLine();
   if (ImGui::Button("Revert")) {
     e = scene_edit_of(app.status.scene);
-    app.edit_error.clear();
+    app.panel.edit_error.clear();
   }
-  if (!app.edit_error.empty()) {
+  if (!app.panel.edit_error.empty()) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.4f, 0.4f, 1));
-    ImGui::TextWrapped("%s", app.edit_error.c_str());
+    ImGui::TextWrapped("%s", app.panel.edit_error.c_str());
     ImGui::PopStyleColor();
   }
 }
@@ -114,7 +116,8 @@ void scene_panel(AppState& app) {
 void simulation_panel(AppState& app) {
   if (!ImGui::CollapsingHeader("Simulation", ImGuiTreeNodeFlags_DefaultOpen)) return;
   const SimStatus& s = app.status;
-  ImGui::Text("step %u  (%.1f s)%s%s", s.step, s.step * s.dt, s.paused ? "  paused" : "", s.loading ? "  loading..." : "");
+  ImGui::Text("step %u  (%.1f s)%s%s", s.step, s.step * s.dt, s.paused ? "  paused" : "",
+              s.loading ? "  loading..." : "");
   if (ImGui::Button(s.paused ? "Play" : "Pause")) app.sim->set_paused(!s.paused);
   ImGui::SameLine();
   if (ImGui::Button("Step")) app.sim->step_once();
@@ -124,21 +127,23 @@ void simulation_panel(AppState& app) {
   const bool locked = s.recording || s.playing;
   if (locked) ImGui::TextWrapped("(solver edits are off while recording or playing)");
   ImGui::BeginDisabled(locked);
-  ImGui::InputFloat("dt##sim", &app.ui_dt, 0, 0, "%.5f");
-  ImGui::InputInt("iterations##sim", &app.ui_iterations);
-  ImGui::InputFloat3("gravity##sim", app.ui_gravity);
+  ImGui::InputFloat("dt##sim", &app.panel.ui_dt, 0, 0, "%.5f");
+  ImGui::InputInt("iterations##sim", &app.panel.ui_iterations);
+  ImGui::InputFloat3("gravity##sim", app.panel.ui_gravity);
   if (ImGui::Button("Set")) {
-    if (app.ui_dt >= 1e-6f && app.ui_dt <= 1.0f && app.ui_iterations >= 1 && app.ui_iterations <= 10000) {
-      app.sim->set_solver(app.ui_dt, app.ui_iterations, Vec3d(app.ui_gravity[0], app.ui_gravity[1], app.ui_gravity[2]));
+    if (app.panel.ui_dt >= 1e-6f && app.panel.ui_dt <= 1.0f && app.panel.ui_iterations >= 1 &&
+        app.panel.ui_iterations <= 10000) {
+      app.sim->set_solver(app.panel.ui_dt, app.panel.ui_iterations,
+                          Vec3d(app.panel.ui_gravity[0], app.panel.ui_gravity[1], app.panel.ui_gravity[2]));
     } else {
       show_message(app, "dt must be in [1e-6, 1], iterations in [1, 10000]");
     }
   }
   ImGui::SameLine();
   if (ImGui::Button("From scene")) {
-    app.ui_dt = float(s.dt);
-    app.ui_iterations = s.scene.pbd.iterations;
-    for (int k = 0; k < 3; ++k) app.ui_gravity[k] = float(s.scene.pbd.gravity[k]);
+    app.panel.ui_dt = float(s.dt);
+    app.panel.ui_iterations = s.scene.pbd.iterations;
+    for (int k = 0; k < 3; ++k) app.panel.ui_gravity[k] = float(s.scene.pbd.gravity[k]);
   }
   ImGui::EndDisabled();
   ImGui::TreePop();
@@ -151,19 +156,19 @@ void simulation_panel(AppState& app) {
 
 void tools_panel(AppState& app) {
   if (!ImGui::CollapsingHeader("Tools", ImGuiTreeNodeFlags_DefaultOpen)) return;
-  int tool = app.tool == Tool::kScalpel ? 0 : 1;
+  int tool = app.tools.tool == Tool::kScalpel ? 0 : 1;
   ImGui::RadioButton("scalpel (S)", &tool, 0);
   ImGui::SameLine();
   ImGui::RadioButton("grab (G)", &tool, 1);
-  app.tool = tool == 0 ? Tool::kScalpel : Tool::kGrab;
-  float depth = app.cut_depth;
-  if (ImGui::SliderFloat("cut depth", &depth, 0.5f * app.voxel_size, 2.0f * app.radius, "%.2f",
+  select_tool(app, tool == 0 ? Tool::kScalpel : Tool::kGrab);
+  float depth = app.tools.cut_depth;
+  if (ImGui::SliderFloat("cut depth", &depth, 0.5f * app.view.voxel_size, 2.0f * app.view.radius, "%.2f",
                          ImGuiSliderFlags_Logarithmic)) {
-    app.cut_depth = depth;
+    app.tools.cut_depth = depth;
   }
   ImGui::TextDisabled("ctrl+wheel or [ ] also set it");
-  ImGui::SliderFloat("pull strength", &app.grab_strength, 3.0f, 9.0f, "%.1f");
-  ImGui::TextDisabled("grab compliance 1e-%.1f", app.grab_strength);
+  ImGui::SliderFloat("pull strength", &app.tools.grab_strength, 3.0f, 9.0f, "%.1f");
+  ImGui::TextDisabled("grab compliance 1e-%.1f", app.tools.grab_strength);
   const SimStatus& s = app.status;
   ImGui::BeginDisabled(s.undo_levels == 0 || s.recording || s.playing);
   if (ImGui::Button("Undo (ctrl+z)")) request_undo(app, false);
@@ -178,19 +183,20 @@ void tools_panel(AppState& app) {
 
 void view_panel(AppState& app) {
   if (!ImGui::CollapsingHeader("View")) return;
-  ImGui::Checkbox("wireframe (W)", &app.draw.wireframe);
-  ImGui::Checkbox("blade trail (T)", &app.show_trail);
-  ImGui::SliderInt("trail length", &app.trail_length, 2, 200);
-  ImGui::Checkbox("shadow on the tray", &app.draw.shadows);
-  ImGui::ColorEdit3("cut colour", app.draw.cut_color.data());
-  ImGui::ColorEdit3("surface colour", app.draw.surface_color.data());
+  ImGui::Checkbox("wireframe (W)", &app.view.draw.wireframe);
+  ImGui::Checkbox("blade trail (T)", &app.view.show_trail);
+  ImGui::SliderInt("trail length", &app.view.trail_length, 2, 200);
+  ImGui::Checkbox("shadow on the tray", &app.view.draw.shadows);
+  ImGui::ColorEdit3("cut colour", app.view.draw.cut_color.data());
+  ImGui::ColorEdit3("surface colour", app.view.draw.surface_color.data());
   if (ImGui::Button("Reset view (R)")) {
-    app.camera = frame_box(app.bounds, app.viewport.aspect());
+    app.view.camera = frame_box(app.view.bounds, app.view.viewport.aspect());
   }
-  ImGui::InputText("screenshot", app.screenshot_path, sizeof app.screenshot_path);
+  ImGui::InputText("screenshot", app.panel.screenshot_path, sizeof app.panel.screenshot_path);
   ImGui::SameLine();
   if (ImGui::Button("Save (F12)")) {
-    app.screenshot_request = app.screenshot_path[0] ? std::string(app.screenshot_path) : default_screenshot_name();
+    app.panel.screenshot_request =
+        app.panel.screenshot_path[0] ? std::string(app.panel.screenshot_path) : default_screenshot_name();
   }
 }
 
@@ -207,18 +213,19 @@ void performance_panel(AppState& app) {
   plot("surface ms", surface, "ms", true);
   plot("deform ms", deform, "ms");
   plot("step ms", total, "ms");
-  plot("upload ms", app.upload_ms, "ms");
-  plot("normals ms", app.normals_ms, "ms");
-  plot("render ms", app.render_ms, "ms");
-  plot("FPS", app.fps, "fps");
+  plot("upload ms", app.history.upload_ms, "ms");
+  plot("normals ms", app.history.normals_ms, "ms");
+  plot("render ms", app.history.render_ms, "ms");
+  plot("FPS", app.history.fps, "fps");
   const SimStatus& s = app.status;
   ImGui::TextWrapped("voxels %u, divided %u, sim voxels divided %u", s.occupied_voxels, s.divided_voxels,
                      s.sim_voxels_divided);
-  ImGui::TextWrapped("particles %u, triangles %llu", s.particles, static_cast<unsigned long long>(app.triangles));
-  if (!app.latency_frames.empty()) {
+  ImGui::TextWrapped("particles %u, triangles %llu", s.particles,
+                     static_cast<unsigned long long>(app.history.triangles));
+  if (!app.history.latency_frames.empty()) {
     double mean = 0;
-    for (double l : app.latency_frames) mean += l;
-    ImGui::Text("input to cut latency %.1f frames", mean / double(app.latency_frames.size()));
+    for (double l : app.history.latency_frames) mean += l;
+    ImGui::Text("input to cut latency %.1f frames", mean / double(app.history.latency_frames.size()));
   }
   ImGui::PushStyleColor(ImGuiCol_Text, ImGui::GetStyleColorVec4(ImGuiCol_TextDisabled));
   ImGui::TextWrapped("%s", app.gl_renderer.c_str());
@@ -228,14 +235,14 @@ void performance_panel(AppState& app) {
 void recording_panel(AppState& app) {
   if (!ImGui::CollapsingHeader("Recording")) return;
   const SimStatus& s = app.status;
-  ImGui::InputText("record to", app.record_path, sizeof app.record_path);
+  ImGui::InputText("record to", app.panel.record_path, sizeof app.panel.record_path);
   if (!s.recording) {
     if (ImGui::Button("Record (restarts the scene)")) {
-      const std::filesystem::path parent = std::filesystem::path(app.record_path).parent_path();
+      const std::filesystem::path parent = std::filesystem::path(app.panel.record_path).parent_path();
       std::error_code ec;
       if (!parent.empty()) std::filesystem::create_directories(parent, ec);
-      app.sim->start_recording(app.record_path);
-      show_message(app, std::string("recording to ") + app.record_path, 4.0);
+      app.sim->start_recording(app.panel.record_path);
+      show_message(app, std::string("recording to ") + app.panel.record_path, 4.0);
     }
   } else {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1, 0.3f, 0.3f, 1));
@@ -244,11 +251,11 @@ void recording_panel(AppState& app) {
     if (ImGui::Button("Stop recording")) app.sim->stop_recording();
   }
   ImGui::Separator();
-  ImGui::InputText("play file", app.play_path, sizeof app.play_path);
+  ImGui::InputText("play file", app.panel.play_path, sizeof app.panel.play_path);
   if (ImGui::Button("Play")) {
     try {
-      app.sim->play(app.play_path);
-      show_message(app, std::string("playing ") + app.play_path, 4.0);
+      app.sim->play(app.panel.play_path);
+      show_message(app, std::string("playing ") + app.panel.play_path, 4.0);
     } catch (const InputError& e) {
       show_message(app, e.what(), 10.0);
     }
@@ -261,25 +268,24 @@ void recording_panel(AppState& app) {
 }
 
 void help_panel(AppState& app) {
-  ImGui::SetNextItemOpen(app.show_help, ImGuiCond_Always);
-  app.show_help = ImGui::CollapsingHeader("Help (F1)");
-  if (!app.show_help) return;
-  static const char* const kKeys[][2] = {
-      {"left drag", "scalpel: cut from the surface point under the cursor, 'cut depth' deep / grab: pull the surface"},
-      {"ctrl+wheel, [ ]", "cut depth"},
-      {"ctrl+z, ctrl+shift+z", "undo, redo a cut or a grab"},
-      {"right drag", "orbit"},
-      {"middle drag", "pan (also shift + right drag)"},
-      {"wheel, + -", "zoom"},
-      {"S or C, G", "scalpel, grab tool"},
-      {"R or Home", "reset the view"},
-      {"space, .", "pause / play, one step"},
-      {"W, T", "wireframe, blade trail"},
-      {"F12", "screenshot (PNG in out/window/)"},
-      {"F1", "this help"},
-      {"shift+Esc", "quit"}};
+  ImGui::SetNextItemOpen(app.panel.show_help, ImGuiCond_Always);
+  app.panel.show_help = ImGui::CollapsingHeader("Help (F1)");
+  if (!app.panel.show_help) return;
+  static const char* const kKeys[][2] = {{"left drag", "scalpel: cut, 'cut depth' deep / grab: pull the surface"},
+                                         {"ctrl+wheel, [ ]", "cut depth"},
+                                         {"ctrl+z, ctrl+shift+z", "undo, redo a cut or a grab"},
+                                         {"right drag", "orbit"},
+                                         {"middle drag", "pan (also shift + right drag)"},
+                                         {"wheel, + -", "zoom"},
+                                         {"S or C, G", "scalpel, grab tool"},
+                                         {"R or Home", "reset the view"},
+                                         {"space, .", "pause / play, one step"},
+                                         {"W, T", "wireframe, blade trail"},
+                                         {"F12, shift+F12", "screenshot: view, window (out/window/)"},
+                                         {"F1", "this help"},
+                                         {"shift+Esc", "quit"}};
   if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_SizingStretchProp)) {
-    ImGui::TableSetupColumn("key", ImGuiTableColumnFlags_WidthFixed, 0.36f * float(app.panel_width));
+    ImGui::TableSetupColumn("key", ImGuiTableColumnFlags_WidthFixed, 0.36f * float(app.view.panel_width));
     ImGui::TableSetupColumn("action", ImGuiTableColumnFlags_WidthStretch);
     for (const auto& row : kKeys) {
       ImGui::TableNextRow();
@@ -301,32 +307,36 @@ int panel_width_for(int framebuffer_width) {
 void draw_panels(AppState& app) {
   // Docked: the left strip of the window, full height; fixed, opaque, no title bar.
   ImGui::SetNextWindowPos(ImVec2(0, 0), ImGuiCond_Always);
-  ImGui::SetNextWindowSize(ImVec2(float(app.panel_width), float(app.viewport.height)), ImGuiCond_Always);
-  ImGui::SetNextWindowBgAlpha(app.panel_cleared ? 0.0f : 1.0f);
+  ImGui::SetNextWindowSize(ImVec2(float(app.view.panel_width), float(app.view.viewport.height)), ImGuiCond_Always);
+  ImGui::SetNextWindowBgAlpha(app.view.panel_cleared ? 0.0f : 1.0f);
   const ImGuiWindowFlags flags = ImGuiWindowFlags_NoResize | ImGuiWindowFlags_NoMove | ImGuiWindowFlags_NoCollapse |
                                  ImGuiWindowFlags_NoTitleBar | ImGuiWindowFlags_NoSavedSettings |
                                  ImGuiWindowFlags_NoBringToFrontOnFocus;
-  ImGui::Begin("divvox", nullptr, flags);
-  ImGui::PushItemWidth(0.5f * float(app.panel_width));
+  ImGui::Begin("divvox", nullptr, flags | ImGuiWindowFlags_NoScrollbar | ImGuiWindowFlags_NoScrollWithMouse);
   // Status line: the last message, else what the window is doing.
   const SimStatus& s = app.status;
-  const float fps = app.fps.empty() ? 0.0f : mean_of(app.fps);
-  // The simulation's pace when it falls behind real time (the frames keep their rate).
+  const float fps = app.history.fps.empty() ? 0.0f : mean_of(app.history.fps);
+  // The simulation's pace, as printed at exit (SimPace: since the last reset or undo, paused time
+  // left out), once half a second of running is counted.
   char pace[48] = "";
-  if (s.ready && !s.paused && !s.loading && app.sim_rate < 0.95) {
-    std::snprintf(pace, sizeof pace, "sim x%.2f real time", app.sim_rate);
+  if (s.ready && !s.paused && !s.loading && app.history.pace.run_seconds >= 0.5) {
+    std::snprintf(pace, sizeof pace, "sim x%.2f real time", app.history.pace.rate());
   }
   ImGui::Text("divvox  %.0f fps  %s", fps, s.loading ? "loading..." : s.paused ? "paused" : pace);
-  if (!app.message.empty()) {
+  if (!app.panel.message.empty()) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1.0f, 0.85f, 0.45f, 1.0f));
-    ImGui::TextWrapped("%s", app.message.c_str());
+    ImGui::TextWrapped("%s", app.panel.message.c_str());
     ImGui::PopStyleColor();
   } else if (s.playing && !s.play_done) {
     ImGui::TextWrapped("playing step %u / %u", std::min(s.step, s.play_last), s.play_last);
   } else {
-    ImGui::TextDisabled("%s", app.tool == Tool::kScalpel ? "left drag cuts, right drag orbits" : "left drag pulls the tissue");
+    ImGui::TextDisabled(
+        "%s", app.tools.tool == Tool::kScalpel ? "left drag cuts, right drag orbits" : "left drag pulls the tissue");
   }
   ImGui::Separator();
+  // The sections scroll under the status line (which stays in view) when they outgrow the window.
+  ImGui::BeginChild("sections", ImVec2(0.0f, 0.0f), false);
+  ImGui::PushItemWidth(0.5f * float(app.view.panel_width));
   tools_panel(app);
   simulation_panel(app);
   view_panel(app);
@@ -335,7 +345,10 @@ void draw_panels(AppState& app) {
   recording_panel(app);
   help_panel(app);
   ImGui::PopItemWidth();
-  app.panel_drawn_width = ImGui::GetWindowSize().x;
+  app.view.panel_sections_height = ImGui::GetCursorPosY() - ImGui::GetStyle().ItemSpacing.y;
+  app.view.panel_sections_room = ImGui::GetWindowHeight();
+  ImGui::EndChild();
+  app.view.panel_drawn_width = ImGui::GetWindowSize().x;
   ImGui::End();
 }
 

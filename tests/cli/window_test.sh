@@ -7,7 +7,8 @@
 # With xdotool, real mouse input (tests/cli/window_input.sh): scalpel drags across the default
 # scene's (the liver's) thick middle and its thin left lobe, and across the bunny's ear, cut (their
 # --record files replay headless with voxels_cut > 0); ctrl+z restores the kept state's hash; a
-# drag at the panel's edge leaves its width alone.
+# drag at the panel's edge leaves its width alone; S pressed mid-grab ends the grab and reports no
+# cut (window_tools.sh); SIGTERM and SIGINT close the window with its statistics (window_signal.sh).
 # Usage: window_test.sh DIVVOX REPO
 set -u
 divvox=$1
@@ -125,6 +126,20 @@ if command -v xdotool >/dev/null 2>&1; then
   code=$?
   sed 's/^/    /' "$tmp/sever.log"
   [[ $code -eq 0 ]] || fail "window sever (exit $code)"
+  # S pressed in the middle of a grab ends the grab and reports no cut (issue 32).
+  timeout 300 xvfb-run -a -s "-screen 0 1280x720x24" bash "$repo/tests/cli/window_tools.sh" "$divvox" "$repo" \
+    "$tmp/tools" >"$tmp/tools.log" 2>&1
+  code=$?
+  sed 's/^/    /' "$tmp/tools.log"
+  [[ $code -eq 0 ]] || fail "window tools (exit $code)"
+  # SIGTERM and SIGINT close the window with its statistics, paused time left out (issue 31).
+  for case in term int; do
+    timeout 300 xvfb-run -a -s "-screen 0 1280x720x24" bash "$repo/tests/cli/window_signal.sh" "$divvox" "$repo" "$case" \
+      "$tmp/signal_$case" >"$tmp/signal_$case.log" 2>&1
+    code=$?
+    sed 's/^/    /' "$tmp/signal_$case.log"
+    [[ $code -eq 0 ]] || fail "window signal case '$case' (exit $code)"
+  done
 elif [[ ${DIVVOX_REQUIRE_GL:-} == 1 ]]; then
   fail "xdotool not installed, but DIVVOX_REQUIRE_GL=1 (tools/setup.sh installs it)"
 else

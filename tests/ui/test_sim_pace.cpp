@@ -1,0 +1,93 @@
+// The simulation's pace (ui/sim_pace.h, issue 31): simulated time over the wall time the simulation
+// ran, paused spans left out, restarted by a new session (Reset) and by an undo / redo.
+#include <doctest/doctest.h>
+
+#include "ui/sim_pace.h"
+
+using namespace dvx;
+
+namespace {
+
+constexpr double kDt = 0.01;
+
+// Samples a frame each 0.1 s from `t0` to `t1`, the step advancing `steps_per_frame` a frame.
+void run(SimPace& pace, double& t, uint32_t& step, double t1, uint32_t steps_per_frame, bool running,
+         uint64_t generation = 1, uint64_t restores = 0) {
+  while (t < t1 - 1e-9) {
+    t += 0.1;
+    step += steps_per_frame;
+    sim_pace_sample(pace, t, step, kDt, running, generation, restores);
+  }
+}
+
+}  // namespace
+
+TEST_SUITE("ui") {
+  TEST_CASE("sim pace: simulated time over the running wall time; paused spans and their single steps left out") {
+    SimPace pace;
+    double t = 0.0;
+    uint32_t step = 0;
+    CHECK(pace.rate() == 0.0);
+    sim_pace_sample(pace, t, step, kDt, true, 1, 0);
+    // 2 s at half real time (5 steps of 0.01 s per 0.1 s frame).
+    run(pace, t, step, 2.0, 5, true);
+    CHECK(pace.run_seconds == doctest::Approx(2.0));
+    CHECK(pace.steps == 100);
+    CHECK(pace.rate() == doctest::Approx(0.5));
+    // 15 s paused, with a few single steps meanwhile: nothing counted.
+    run(pace, t, step, 17.0, 0, false);
+    step += 3;
+    sim_pace_sample(pace, t, step, kDt, false, 1, 0);
+    CHECK(pace.run_seconds == doctest::Approx(2.0));
+    CHECK(pace.steps == 100);
+    // Running again, at real time for 3 s (the first frame's span began paused: not counted).
+    run(pace, t, step, 20.0, 10, true);
+    CHECK(pace.run_seconds == doctest::Approx(4.9));
+    CHECK(pace.steps == 390);
+    CHECK(pace.sim_seconds == doctest::Approx(3.9));
+    CHECK(pace.rate() == doctest::Approx(3.9 / 4.9));
+  }
+
+  TEST_CASE("sim pace: a Reset (new session) and an undo / redo start the count again") {
+    SimPace pace;
+    double t = 0.0;
+    uint32_t step = 0;
+    sim_pace_sample(pace, t, step, kDt, true, 1, 0);
+    run(pace, t, step, 15.0, 2, true);  // 15 s at x0.2
+    CHECK(pace.rate() == doctest::Approx(0.2));
+    // Reset: generation 2, step 0; then 5 s at real time. The figure is the new session's only (the
+    // old one divided the steps since the reset by the whole wall time: x0.24 after 15 s + 5 s).
+    step = 0;
+    sim_pace_sample(pace, t, step, kDt, true, 2, 0);
+    CHECK(pace.run_seconds == 0.0);
+    CHECK(pace.steps == 0);
+    run(pace, t, step, 20.0, 10, true, 2);
+    CHECK(pace.run_seconds == doctest::Approx(5.0));
+    CHECK(pace.rate() == doctest::Approx(1.0));
+    // An undo: back to step 120 (restores 1); then 1 s at x0.5.
+    step = 120;
+    sim_pace_sample(pace, t, step, kDt, true, 2, 1);
+    CHECK(pace.steps == 0);
+    run(pace, t, step, 21.0, 5, true, 2, 1);
+    CHECK(pace.steps == 50);
+    CHECK(pace.rate() == doctest::Approx(0.5));
+    // A redo moves the step forward, yet it is a restore: the count starts again too.
+    step = 500;
+    sim_pace_sample(pace, t, step, kDt, true, 2, 2);
+    CHECK(pace.steps == 0);
+    CHECK(pace.run_seconds == 0.0);
+  }
+
+  TEST_CASE("sim pace: loading (not running) counts nothing; a step that goes back restarts") {
+    SimPace pace;
+    double t = 0.0;
+    uint32_t step = 0;
+    run(pace, t, step, 1.0, 0, false);
+    CHECK(pace.run_seconds == 0.0);
+    run(pace, t, step, 2.0, 10, true);
+    CHECK(pace.run_seconds == doctest::Approx(0.9));  // the first running frame's span was not running at its start
+    step -= 5;
+    sim_pace_sample(pace, t + 0.1, step, kDt, true, 1, 0);
+    CHECK(pace.steps == 0);
+  }
+}

@@ -1,0 +1,36 @@
+// The simulation's pace (issue 31): simulated time over the wall-clock time the simulation ran, as
+// the window's exit statistics and its status line report it. Plain arithmetic over per-frame
+// samples, tested without a window (tests/ui/test_sim_pace.cpp).
+#pragma once
+
+#include <cstdint>
+
+namespace dvx {
+
+// Why these spans: "×1 real time" should mean the simulation kept up with the clock while it ran.
+// So only the wall time between two samples that both saw it running (ready, not paused, not
+// loading) counts, with the steps run in it; paused spans (single steps included) and loading are
+// left out. A new session (open, Reset, a recording started or played: `generation`) and an undo /
+// redo (`restores`: the step moves back to a kept state) start the count again, so the figure
+// covers one unbroken run of steps.
+struct SimPace {
+  bool started = false;
+  uint64_t generation = 0, restores = 0;  // what the count is for
+  bool running = false;                   // at the last sample
+  double last_time = 0.0;                 // the last sample's wall-clock time (s)
+  uint32_t last_step = 0;                 // the last sample's step (the next to run)
+  double run_seconds = 0.0;               // wall-clock time counted
+  double sim_seconds = 0.0;               // simulated time of the steps run in it (steps x their dt)
+  uint64_t steps = 0;                     // the steps run in it
+
+  // Simulated seconds per wall-clock second (1: real time); 0 before any time was counted.
+  double rate() const { return run_seconds > 0.0 ? sim_seconds / run_seconds : 0.0; }
+};
+
+// One sample (each frame): `now` wall-clock seconds, `step` the next step to run, `dt` the step's
+// length, `running`: ready, not paused, not loading. The span since the last sample counts when both
+// samples were running.
+void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool running, uint64_t generation,
+                     uint64_t restores);
+
+}  // namespace dvx
