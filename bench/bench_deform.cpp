@@ -159,8 +159,8 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kColourGroups; ++c) {
       if (path >= 0) {
-        solve_shape_blocks(paths[size_t(path)].first, x, pbd.shape_blocks[c].data(), 0,
-                           uint32_t(pbd.shape_blocks[c].size()), 1.0, pbd.rotation.data(), c != kOverflowColour);
+        solve_shape_blocks(paths[size_t(path)].first, x, pbd.cache.shape_blocks[c].data(), 0,
+                           uint32_t(pbd.cache.shape_blocks[c].size()), 1.0, pbd.rotation.data(), c != kOverflowColour);
         continue;
       }
       for (const uint32_t slot : pbd.piece_groups[c]) {
@@ -184,15 +184,15 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
   // each path in the colour groups (solve_stretch_rows with disjoint groups), from the same start and
   // multipliers.
   uint64_t constraints = 0;
-  for (int c = 0; c < kOverflowColour; ++c) constraints += pbd.stretch_rows[c].size();
+  for (int c = 0; c < kOverflowColour; ++c) constraints += pbd.cache.stretch_rows[c].size();
   const double alpha = pbd.params.stretch_compliance / (pbd.params.dt * pbd.params.dt);
   std::vector<std::vector<double>> lambdas(kColourGroups);
   const auto stretch_pass = [&](int path) {
     double* x = pbd.position[0].data();
     const Clock::time_point t0 = Clock::now();
     for (int c = 0; c < kOverflowColour; ++c) {
-      solve_stretch_rows(path < 0 ? KernelIsa::kBaseline : paths[size_t(path)].first, x, pbd.stretch_rows[c].data(),
-                         lambdas[c].data(), 0, uint32_t(pbd.stretch_rows[c].size()), alpha, path >= 0);
+      solve_stretch_rows(path < 0 ? KernelIsa::kBaseline : paths[size_t(path)].first, x, pbd.cache.stretch_rows[c].data(),
+                         lambdas[c].data(), 0, uint32_t(pbd.cache.stretch_rows[c].size()), alpha, path >= 0);
     }
     return ms_between(t0, Clock::now());
   };
@@ -201,7 +201,7 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
       pbd, paths, repeats, per_row,
       [&] {
         pbd.position = start;
-        for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.stretch_rows[c].size(), 0.0);
+        for (int c = 0; c < kColourGroups; ++c) lambdas[c].assign(pbd.cache.stretch_rows[c].size(), 0.0);
       },
       stretch_pass);
   pbd.position = start;

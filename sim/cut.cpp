@@ -220,7 +220,7 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   const Lattice& l = model.lattice;
 
   // Edges the swept quad crosses.
-  std::vector<EdgeHit>& hits = state.scratch_hits;
+  std::vector<EdgeHit>& hits = state.scratch.hits;
   hits.clear();
   sweep_edge_hits(l, from, to, hits);
   stats.edges_hit = uint32_t(hits.size());
@@ -233,7 +233,7 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   stats.voxels_cut = uint32_t(voxels.size());
 
   // The cut front moved: partly cut voxels on it get new vertex positions.
-  std::vector<uint32_t>& front_changed = state.scratch_voxels;
+  std::vector<uint32_t>& front_changed = state.scratch.voxels;
   front_changed.clear();
   update_front(model, state, from, to, front_changed);
   const size_t divided_end = voxels.size();
@@ -310,7 +310,7 @@ void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint3
 
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats) {
   state.changed_vertices.clear();
-  std::vector<uint32_t>& corners = state.scratch_corners;
+  std::vector<uint32_t>& corners = state.scratch.corners;
   corners.clear();
   refresh_voxels(model, state, state.pending_voxels, stats, &corners);
   if (!state.changed_vertices.empty() || !corners.empty()) {

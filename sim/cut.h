@@ -128,6 +128,22 @@ struct CutSurface {
   void clear_dirty() { dirty_vertex_begin = dirty_vertex_end = dirty_triangle_begin = dirty_triangle_end = 0; }
 };
 
+// Scratch of a cut step, reused from step to step so a cut allocates nothing in steady state. Not
+// state: no hash reads it, and a copy of a CutState (undo keeps copies) copies none of it.
+struct CutScratch {
+  std::vector<EdgeHit> hits;
+  std::vector<uint32_t> voxels, edges, touched, across;
+  std::vector<double> params;
+  std::vector<uint32_t> blade_voxels;  // the blade edge's points' voxels and points (update_front)
+  std::vector<Vec3f> blade_points;
+  std::vector<uint32_t> corners;       // the next touched_vertices, as cut_update_surface fills it
+  CutScratch() = default;
+  CutScratch(const CutScratch&) {}
+  CutScratch& operator=(const CutScratch&) { return *this; }
+  CutScratch(CutScratch&&) = default;
+  CutScratch& operator=(CutScratch&&) = default;
+};
+
 struct CutState {
   std::vector<EdgeCut> edge_cuts;        // (cut edges)
   FlatMap edge_cut_of;                   // lattice edge -> index in edge_cuts
@@ -162,13 +178,7 @@ struct CutState {
   ContourParams contour;                 // vertex placement rule (as dual_contour)
   BladePose last_blade;                  // where the last step left the blade (valid when steps > 0)
   uint64_t steps = 0;                    // cut steps applied
-  // Scratch reused between steps (no allocation in steady state).
-  std::vector<EdgeHit> scratch_hits;
-  std::vector<uint32_t> scratch_voxels, scratch_edges, scratch_touched, scratch_across;
-  std::vector<double> scratch_params;
-  std::vector<uint32_t> scratch_blade_voxels;  // the blade edge's points' voxels and points (update_front)
-  std::vector<Vec3f> scratch_blade_points;
-  std::vector<uint32_t> scratch_corners;       // the next touched_vertices, as cut_update_surface fills it
+  CutScratch scratch;                    // never copied (see CutScratch)
 };
 
 // What one cut step did.

@@ -274,15 +274,15 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
     ++f.trail_count;
     changed.push_back(voxel);
   };
-  walk_segment(l, from.a, to.a, false, state.scratch_params, add_trail);
-  walk_segment(l, from.b, to.b, false, state.scratch_params, add_trail);
+  walk_segment(l, from.a, to.a, false, state.scratch.params, add_trail);
+  walk_segment(l, from.b, to.b, false, state.scratch.params, add_trail);
   // The blade edge now, walked once: its points in voxels with material (added below, once the
   // parked points are settled) and its voxels (sorted, to know where the blade is).
-  std::vector<uint32_t>& blade_voxel = state.scratch_blade_voxels;
-  std::vector<Vec3f>& blade_point = state.scratch_blade_points;
+  std::vector<uint32_t>& blade_voxel = state.scratch.blade_voxels;
+  std::vector<Vec3f>& blade_point = state.scratch.blade_points;
   blade_voxel.clear();
   blade_point.clear();
-  walk_segment(l, to.a, to.b, true, state.scratch_params, [&](uint32_t voxel, const Vec3d& point) {
+  walk_segment(l, to.a, to.b, true, state.scratch.params, [&](uint32_t voxel, const Vec3d& point) {
     if (!blade_voxel.empty() && blade_voxel.back() == voxel) {
       blade_voxel.push_back(voxel);  // same voxel as the last point: material already known
     } else if (has_material(model, voxel)) {
@@ -292,7 +292,7 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
     }
     blade_point.push_back(point.cast<float>());
   });
-  std::vector<uint32_t>& now = state.scratch_edges;
+  std::vector<uint32_t>& now = state.scratch.edges;
   now.assign(blade_voxel.begin(), blade_voxel.end());
   sorted_unique(now);
   // The previous blade edge's points: replaced when this sweep continues from it; otherwise they
@@ -313,7 +313,7 @@ void update_front(const VoxelModel& model, CutState& state, const BladePose& fro
   }
   state.blade_voxels.clear();
   sorted_unique(state.parked_voxels);
-  std::vector<uint32_t>& touched = state.scratch_touched;
+  std::vector<uint32_t>& touched = state.scratch.touched;
   touched.assign(changed.begin() + std::ptrdiff_t(first_new), changed.end());
   sorted_unique(touched);
   size_t kept = 0;

@@ -703,7 +703,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
                     std::vector<uint32_t>* changed_corners) {
   const Lattice& l = model.lattice;
   CutSurface& s = state.surface;
-  std::vector<uint32_t>& across = state.scratch_across;
+  std::vector<uint32_t>& across = state.scratch.across;
   across.clear();
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
   // Pieces first: a voxel's patches look at the pieces of the voxels across its faces.

@@ -19,7 +19,7 @@ namespace {
 
 // ---- Solver blocks ----------------------------------------------------------------------------
 
-// Where a piece's cluster sits in the shape blocks (PbdData::shape_lane): its lane in the low
+// Where a piece's cluster sits in the shape blocks (PbdCache::shape_lane): its lane in the low
 // kLaneBits, its block above, its colour in the top 6 bits.
 constexpr int kLaneBits = 3;
 static_assert(kShapeLanes <= 1 << kLaneBits && kColourGroups <= 64, "a lane code holds every lane and colour");
@@ -52,40 +52,40 @@ void add_cluster(PbdState& s, uint32_t slot) {
   }
   ShapeRest r;
   if (!shape_matching_rest(s.inv_mass.data(), particles, rest, 8, r)) return;
-  std::vector<ShapeBlock>& blocks = s.shape_blocks[piece.colour];
+  std::vector<ShapeBlock>& blocks = s.cache.shape_blocks[piece.colour];
   const int lanes = piece.colour == kOverflowColour ? 1 : kShapeLanes;
   if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
-  s.shape_lane[slot] = lane_code(piece.colour, blocks.size() - 1, blocks.back().lanes);
+  s.cache.shape_lane[slot] = lane_code(piece.colour, blocks.size() - 1, blocks.back().lanes);
   shape_block_add(blocks.back(), slot, particles, r);
 }
 
 // Takes a piece's cluster out of its block: the colour's last lane moves into its place (the unused
 // lanes of the last block repeat its last, as shape_block_add leaves them).
 void remove_cluster(PbdState& s, uint32_t slot) {
-  const uint32_t code = s.shape_lane[slot];
+  const uint32_t code = s.cache.shape_lane[slot];
   const uint32_t colour = code >> 26, block = (code & ((1u << 26) - 1)) >> kLaneBits;
   const int lane = int(code & kLaneMask);
-  std::vector<ShapeBlock>& blocks = s.shape_blocks[colour];
+  std::vector<ShapeBlock>& blocks = s.cache.shape_blocks[colour];
   ShapeBlock& last = blocks.back();
   const int last_lane = last.lanes - 1;
   if (block + 1 != blocks.size() || lane != last_lane) {
     copy_lane(blocks[block], lane, last, last_lane);
-    s.shape_lane[blocks[block].piece[lane]] = code;
+    s.cache.shape_lane[blocks[block].piece[lane]] = code;
   }
   if (--last.lanes == 0) {
     blocks.pop_back();
   } else {
     for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, last.lanes - 1);
   }
-  s.shape_lane[slot] = kDeadIndex;
+  s.cache.shape_lane[slot] = kDeadIndex;
 }
 
 // Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, from scratch
 // (in their colour groups' order).
 void build_shape_blocks(PbdState& s) {
-  s.shape_lane.assign(s.pieces.size(), kDeadIndex);
+  s.cache.shape_lane.assign(s.pieces.size(), kDeadIndex);
   for (int c = 0; c < kColourGroups; ++c) {
-    s.shape_blocks[c].clear();
+    s.cache.shape_blocks[c].clear();
     for (const uint32_t slot : s.piece_groups[c]) add_cluster(s, slot);
   }
 }
@@ -95,16 +95,16 @@ void build_shape_blocks(PbdState& s) {
 // join again at the end of their colour; the overflow colour is rebuilt in its group's order.
 void update_shape_blocks(PbdState& s) {
   const PbdEdits& e = s.edits;
-  const EditRange from = edits_after(e, s.blocks_edits);
-  std::vector<uint8_t>& mark = s.blocks_mark;
+  const EditRange from = edits_after(e, s.cache.blocks_edits);
+  std::vector<uint8_t>& mark = s.cache.blocks_mark;
   mark.resize(s.position.size(), 0);
   for (size_t i = from.particles; i < e.particles.size(); ++i) mark[e.particles[i]] = 1;
-  s.shape_lane.resize(s.pieces.size(), kDeadIndex);
-  for (const ShapeBlock& b : s.shape_blocks[kOverflowColour]) {
-    for (int l = 0; l < b.lanes; ++l) s.shape_lane[b.piece[l]] = kDeadIndex;
+  s.cache.shape_lane.resize(s.pieces.size(), kDeadIndex);
+  for (const ShapeBlock& b : s.cache.shape_blocks[kOverflowColour]) {
+    for (int l = 0; l < b.lanes; ++l) s.cache.shape_lane[b.piece[l]] = kDeadIndex;
   }
-  s.shape_blocks[kOverflowColour].clear();
-  std::vector<uint32_t>& dirty = s.blocks_dirty;
+  s.cache.shape_blocks[kOverflowColour].clear();
+  std::vector<uint32_t>& dirty = s.cache.blocks_dirty;
   dirty.clear();
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
     const SimPiece& piece = s.pieces[slot];
@@ -112,7 +112,7 @@ void update_shape_blocks(PbdState& s) {
     bool changed = !live;
     for (int k = 0; live && k < 8 && !changed; ++k) changed = mark[piece.particles[k]] != 0;
     if (!changed) continue;
-    if (s.shape_lane[slot] != kDeadIndex) remove_cluster(s, slot);
+    if (s.cache.shape_lane[slot] != kDeadIndex) remove_cluster(s, slot);
     if (live && piece.colour != kOverflowColour) dirty.push_back(slot);
   }
   for (const uint32_t slot : dirty) add_cluster(s, slot);
@@ -132,7 +132,7 @@ void sort_shape_lanes(PbdState& s) {
   std::vector<std::pair<uint32_t, uint32_t>> order;  // (key, block << kLaneBits | lane)
   std::vector<ShapeBlock> sorted;
   for (int c = 0; c < kOverflowColour; ++c) {
-    std::vector<ShapeBlock>& blocks = s.shape_blocks[c];
+    std::vector<ShapeBlock>& blocks = s.cache.shape_blocks[c];
     order.clear();
     for (uint32_t b = 0; b < blocks.size(); ++b) {
       for (int l = 0; l < blocks[b].lanes; ++l) {
@@ -149,7 +149,7 @@ void sort_shape_lanes(PbdState& s) {
       const int lane = int(i % kShapeLanes);
       copy_lane(dst, lane, blocks[order[i].second >> kLaneBits], int(order[i].second & kLaneMask));
       dst.lanes = lane + 1;
-      s.shape_lane[dst.piece[lane]] = lane_code(uint32_t(c), i / kShapeLanes, lane);
+      s.cache.shape_lane[dst.piece[lane]] = lane_code(uint32_t(c), i / kShapeLanes, lane);
     }
     if (!sorted.empty()) {
       ShapeBlock& last = sorted.back();
@@ -165,15 +165,15 @@ void sort_shape_lanes(PbdState& s) {
 // blocks above; a row's multiplier is its substep's, so they follow the rows), the overflow's in its
 // group's order (it is solved in order).
 void refresh_blocks(const CutState& cut, PbdState& s) {
-  if (s.blocks_revision != s.revision) {
-    if (edits_replayable(s, cut, s.blocks_edits, s.blocks_revision, 0, false) && s.shape_lane.size() <= s.pieces.size()) {
+  if (s.cache.blocks_revision != s.revision) {
+    if (edits_replayable(s, cut, s.cache.blocks_edits, s.cache.blocks_revision, 0, false) && s.cache.shape_lane.size() <= s.pieces.size()) {
       update_shape_blocks(s);
     } else {
       build_shape_blocks(s);
     }
     sort_shape_lanes(s);
     for (int c = 0; c < kColourGroups; ++c) {
-      std::vector<StretchRow>& rows = s.stretch_rows[c];
+      std::vector<StretchRow>& rows = s.cache.stretch_rows[c];
       rows.clear();
       for (const StretchConstraint& k : s.stretch_groups[c]) rows.push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
       if (c != kOverflowColour) {
@@ -185,7 +185,7 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
     const bool elastic = s.params.elastic == ElasticModel::kNeoHookean;
     const double eighth = s.fine_size * s.fine_size * s.fine_size / 8.0;
     for (int c = 0; c < kColourGroups; ++c) {
-      std::vector<ElasticRow>& rows = s.elastic_rows[c];
+      std::vector<ElasticRow>& rows = s.cache.elastic_rows[c];
       rows.clear();
       for (const uint32_t slot : s.piece_groups[c]) {
         if (!elastic) break;
@@ -209,11 +209,11 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
         }
         rows.push_back(row);
       }
-      s.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
+      s.cache.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
     }
-    s.blocks_revision = s.revision;
+    s.cache.blocks_revision = s.revision;
   }
-  s.blocks_edits = s.edits.count();
+  s.cache.blocks_edits = s.edits.count();
 }
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
@@ -239,8 +239,8 @@ constexpr uint32_t kSerial = ~0u;
 // substep's predict (index 1; one pass over the particles, both per particle), or alone after the
 // last substep (index 0). The first chunk of each predict batch resets the substep's multipliers.
 void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
-  std::vector<StepBatch>& steps = s.step_batches;
-  std::vector<TaskBatch>& batches = s.task_batches;
+  std::vector<StepBatch>& steps = s.cache.step_batches;
+  std::vector<TaskBatch>& batches = s.cache.task_batches;
   steps.clear();
   batches.clear();
   const auto add = [&](uint8_t kind, uint32_t index, uint32_t count, uint32_t grain) {
@@ -266,13 +266,13 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
   for (int it = 0; it < s.params.iterations; ++it) {
     // The material's hexahedra (kNeoHookean), or the paper's stretch and shape matching.
     for (int c = 0; elastic && stretch_on && c < kColourGroups; ++c) {
-      add(StepBatch::kElastic, uint32_t(c), uint32_t(s.elastic_rows[c].size()), c == kOverflowColour ? kSerial : elastic_grain);
+      add(StepBatch::kElastic, uint32_t(c), uint32_t(s.cache.elastic_rows[c].size()), c == kOverflowColour ? kSerial : elastic_grain);
     }
     for (int c = 0; !elastic && stretch_on && c < kColourGroups; ++c) {
       add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : stretch_grain);
     }
     for (int c = 0; !elastic && c < kColourGroups; ++c) {
-      add(StepBatch::kShape, uint32_t(c), uint32_t(s.shape_blocks[c].size()), c == kOverflowColour ? kSerial : shape_grain);
+      add(StepBatch::kShape, uint32_t(c), uint32_t(s.cache.shape_blocks[c].size()), c == kOverflowColour ? kSerial : shape_grain);
     }
     if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) add(StepBatch::kGrab, 0, 1, kSerial);
     // Contact between pieces, then with the static planes, last so each iteration ends with the
@@ -524,10 +524,10 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
 void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   // Each piece's 8 corners in float, once (a piece serves ~40 surface vertices), padded to 4 floats
   // a corner so one corner is one 4-float vector.
-  s.piece_corners.resize(s.pieces.size() * 32);
+  s.cache.piece_corners.resize(s.pieces.size() * 32);
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
     if (s.pieces[slot].sim_voxel == kDeadIndex) continue;
-    float* out = &s.piece_corners[32 * size_t(slot)];
+    float* out = &s.cache.piece_corners[32 * size_t(slot)];
     for (int c = 0; c < 8; ++c) {
       const Vec3d& p = s.position[s.pieces[slot].particles[c]];
       for (int a = 0; a < 3; ++a) out[4 * c + a] = float(p[a]);
@@ -538,10 +538,10 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   // The interpolation (pbd_kernels.h embed_rows); the deformed surface is float anyway and not part
   // of the state hash.
   static_assert(sizeof(Vec3f) == 3 * sizeof(float), "deformed positions are packed float triples");
-  const float* corners = s.piece_corners.data();
-  const EmbedRow* rows = s.embed_rows.data();
+  const float* corners = s.cache.piece_corners.data();
+  const EmbedRow* rows = s.cache.embed_rows.data();
   float* out = s.deformed.empty() ? nullptr : s.deformed[0].data();
-  const TaskBatch batch{uint32_t(s.embed_rows.size()), 4096};
+  const TaskBatch batch{uint32_t(s.cache.embed_rows.size()), 4096};
   run_batches(tasks, &batch, 1, [&](uint32_t, uint32_t begin, uint32_t end) { embed_rows(corners, rows, begin, end, out); });
 }
 
@@ -570,7 +570,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   // else reads them then).
   const auto begin_substep = [&] {
     for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
-    for (std::vector<double>& lambda : s.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    for (std::vector<double>& lambda : s.cache.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     contacts_begin_substep(s.contacts);
     contacts_begin_substep(s.piece_contacts.set);
     for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
@@ -614,7 +614,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   };
   // One job for the whole step: the batches of build_step_batches in order (a barrier between batches).
   const auto run = [&](uint32_t batch, uint32_t begin, uint32_t end) {
-    const StepBatch& b = s.step_batches[batch];
+    const StepBatch& b = s.cache.step_batches[batch];
     switch (b.kind) {
       case StepBatch::kPredict:
         if (begin == 0) begin_substep();
@@ -622,18 +622,18 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       case StepBatch::kStretch: {
         // Four at a time where a colour shares no particle (pbd_kernels.h); the overflow group in order.
-        solve_stretch_rows(x, s.stretch_rows[b.index].data(), s.stretch_lambda[b.index].data(), begin, end, alpha,
+        solve_stretch_rows(x, s.cache.stretch_rows[b.index].data(), s.stretch_lambda[b.index].data(), begin, end, alpha,
                            b.index != kOverflowColour);
         break;
       }
       case StepBatch::kShape:
         // Two blocks at once where a colour shares no particle (pbd_kernels.h); the overflow's in order.
-        solve_shape_blocks(x, s.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data(),
+        solve_shape_blocks(x, s.cache.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data(),
                            b.index != kOverflowColour);
         break;
       case StepBatch::kElastic:
         // One colour's hexahedra share no particle; the overflow's in order (pbd_elastic.h).
-        solve_elastic_rows(x, s.previous[0].data(), s.elastic_rows[b.index].data(), s.elastic_lambda[b.index].data(), begin,
+        solve_elastic_rows(x, s.previous[0].data(), s.cache.elastic_rows[b.index].data(), s.cache.elastic_lambda[b.index].data(), begin,
                            end, material, s.rotation.data());
         break;
       case StepBatch::kGrab:
@@ -652,14 +652,14 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
     }
   };
-  run_batches(tasks, s.task_batches.data(), uint32_t(s.task_batches.size()), run);
+  run_batches(tasks, s.cache.task_batches.data(), uint32_t(s.cache.task_batches.size()), run);
   ++s.steps;
   if (embed) pbd_embed(cut, s, tasks);
 }
 
 void pbd_forget_caches(PbdState& s) {
-  s.blocks_revision = s.blocks_edits = ~uint64_t(0);
-  s.embed_revision = kNoRows;
+  s.cache.blocks_revision = s.cache.blocks_edits = ~uint64_t(0);
+  s.cache.embed_revision = kNoRows;
   s.piece_contacts.index.revision = s.piece_contacts.index.edits = ~uint64_t(0);
   s.piece_contacts.seen_steps = ~uint64_t(0);  // the allowances compare every slot
 }

@@ -260,7 +260,7 @@ struct PbdModel {
   std::vector<uint64_t> cut_rows;
 
   // Bumped by every edit of the model (init_pbd, pbd_apply_cut): the solver updates its constraint
-  // blocks (PbdData::shape_blocks) only when it changed.
+  // blocks (PbdCache::shape_blocks) only when it changed.
   uint64_t revision = 0;
   PbdEdits edits;
 };
@@ -276,28 +276,18 @@ struct StepBatch {
 // grains in pbd.cpp follow from it): a batch with less than two such chunks runs on one thread.
 constexpr uint32_t kDefaultChunkWork = 40000;
 
-// The dynamic state: what a step writes.
-struct PbdData {
-  std::vector<Vec3d> position, velocity, previous;  // (particle slots)
-  std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_groups
-  std::vector<Eigen::Quaterniond> rotation;           // (piece slots) warm start of the rotation extraction
-  // Grab tool: one particle pulled towards a target through a compliant attachment.
-  uint32_t grab_particle = ~0u;
-  Vec3d grab_target = Vec3d::Zero();
-  double grab_compliance = 1e-4;
-  std::vector<Vec3f> deformed;  // (surface vertex slots)
-  // Contact points of this step against params.planes (grouped by piece, batched by its colour) and
-  // between pieces of different bodies (sim/contact.h).
-  ContactSet contacts;
-  PieceContacts piece_contacts;
-  uint64_t steps = 0;
-  // Solver scratch, rebuilt when the model changes (blocks_revision != PbdModel::revision; masses and
-  // rest positions change only with it): the shape-matching clusters of each colour in blocks (their
-  // rest frames), the stretch constraints with their masses; each step, each piece's corners in float for the embedding.
-  // Updated from PbdModel::edits (the pieces using a changed particle leave their block, by moving
-  // the colour's last lane into their place, and join at the end: within a colour other than the
-  // overflow clusters share no particle and each lane is solved alone, so their order does not
-  // change the bits; the overflow colour is rebuilt in its group's order).
+// What the solver derives from the model and rebuilds from it (Jolt's SoftBodyUpdateContext, Box2D's
+// arena): never hashed, and never copied — a copy of the state (undo keeps copies) starts with an
+// empty cache and rebuilds it at its next step, to the same bits (tests/sim/test_pbd_incremental.cpp
+// checks an updated cache against a rebuilt one).
+struct PbdCache {
+  // Rebuilt when the model changes (blocks_revision != PbdModel::revision; masses and rest positions
+  // change only with it): the shape-matching clusters of each colour in blocks (their rest frames),
+  // the stretch constraints with their masses; each step, each piece's corners in float for the
+  // embedding. Updated from PbdModel::edits (the pieces using a changed particle leave their block,
+  // by moving the colour's last lane into their place, and join at the end: within a colour other
+  // than the overflow clusters share no particle and each lane is solved alone, so their order does
+  // not change the bits; the overflow colour is rebuilt in its group's order).
   uint64_t blocks_revision = ~uint64_t(0), blocks_edits = ~uint64_t(0);
   std::vector<ShapeBlock> shape_blocks[kColourGroups];
   std::vector<uint32_t> shape_lane;    // (piece slots) colour << 26 | block << 3 | lane, ~0u: in no block
@@ -317,12 +307,39 @@ struct PbdData {
   std::vector<EmbedRow> embed_rows;
   std::vector<uint32_t> embed_row_of;  // (surface vertex slots) index in embed_rows, ~0u: none
   uint64_t embed_revision = ~uint64_t(0), embed_updates = ~uint64_t(0);
-  // Work per chunk of a shared batch (kDefaultChunkWork). A solver setting, not physics: the results
-  // are the same bits for any value. Tests lower it so that small scenes split every batch.
-  uint32_t chunk_work = kDefaultChunkWork;
   // The batches of one step (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;
+
+  PbdCache() = default;
+  PbdCache(const PbdCache&) {}
+  PbdCache& operator=(const PbdCache& other) {
+    if (this != &other) *this = PbdCache();
+    return *this;
+  }
+  PbdCache(PbdCache&&) = default;
+  PbdCache& operator=(PbdCache&&) = default;
+};
+
+// The dynamic state: what a step writes.
+struct PbdData {
+  std::vector<Vec3d> position, velocity, previous;  // (particle slots)
+  std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_groups
+  std::vector<Eigen::Quaterniond> rotation;           // (piece slots) warm start of the rotation extraction
+  // Grab tool: one particle pulled towards a target through a compliant attachment.
+  uint32_t grab_particle = ~0u;
+  Vec3d grab_target = Vec3d::Zero();
+  double grab_compliance = 1e-4;
+  std::vector<Vec3f> deformed;  // (surface vertex slots)
+  // Contact points of this step against params.planes (grouped by piece, batched by its colour) and
+  // between pieces of different bodies (sim/contact.h).
+  ContactSet contacts;
+  PieceContacts piece_contacts;
+  uint64_t steps = 0;
+  // Work per chunk of a shared batch (kDefaultChunkWork). A solver setting, not physics: the results
+  // are the same bits for any value. Tests lower it so that small scenes split every batch.
+  uint32_t chunk_work = kDefaultChunkWork;
+  PbdCache cache;  // derived from the model; a copy starts empty (see PbdCache)
 };
 
 // Model and data together (what the engine holds). Field names of the data are forwarded for the

@@ -101,7 +101,7 @@ void record_edits(const CutState& cut, PbdState& s, const std::vector<uint32_t>&
                   const std::vector<uint64_t>* particles) {
   PbdEdits& e = s.edits;
   uint64_t seen = e.count();
-  for (const uint64_t c : {s.piece_contacts.index.edits, s.blocks_edits}) {
+  for (const uint64_t c : {s.piece_contacts.index.edits, s.cache.blocks_edits}) {
     if (c >= e.first && c < seen) seen = c;
   }
   drop_edits(e, seen - e.first);
@@ -127,24 +127,24 @@ namespace {
 // position), swapping the last row into a removed one.
 void set_embed_row(const CutState& cut, PbdState& s, uint32_t slot) {
   const uint32_t piece = s.piece_contacts.index.slot_piece[slot];
-  uint32_t& row = s.embed_row_of[slot];
+  uint32_t& row = s.cache.embed_row_of[slot];
   if (piece != kDeadIndex) {
     const VertexEmbedding& e = s.embedding[slot];
     const EmbedRow r{slot, piece, e.local.x(), e.local.y(), e.local.z()};
     if (row == kDeadIndex) {
-      row = uint32_t(s.embed_rows.size());
-      s.embed_rows.push_back(r);
+      row = uint32_t(s.cache.embed_rows.size());
+      s.cache.embed_rows.push_back(r);
     } else {
-      s.embed_rows[row] = r;
+      s.cache.embed_rows[row] = r;
     }
     return;
   }
   s.deformed[slot] = cut.surface.positions[slot];
   if (row == kDeadIndex) return;
-  const EmbedRow last = s.embed_rows.back();
-  s.embed_rows[row] = last;
-  s.embed_row_of[last.slot] = row;
-  s.embed_rows.pop_back();
+  const EmbedRow last = s.cache.embed_rows.back();
+  s.cache.embed_rows[row] = last;
+  s.cache.embed_row_of[last.slot] = row;
+  s.cache.embed_rows.pop_back();
   row = kDeadIndex;
 }
 
@@ -157,14 +157,14 @@ void set_embed_row(const CutState& cut, PbdState& s, uint32_t slot) {
 void refresh_embed_rows(const CutState& cut, PbdState& s) {
   refresh_slots(cut, s);
   const ContactIndex& x = s.piece_contacts.index;
-  const bool valid = s.embed_revision != kNoRows;
-  if (valid && s.embed_updates == x.updates) return;
-  s.embed_row_of.resize(x.slots, kDeadIndex);
-  if (valid && s.embed_updates + 1 == x.updates && !x.rebuilt) {
+  const bool valid = s.cache.embed_revision != kNoRows;
+  if (valid && s.cache.embed_updates == x.updates) return;
+  s.cache.embed_row_of.resize(x.slots, kDeadIndex);
+  if (valid && s.cache.embed_updates + 1 == x.updates && !x.rebuilt) {
     for (uint32_t slot : x.revisited) set_embed_row(cut, s, slot);
   } else {
-    s.embed_rows.clear();
-    std::fill(s.embed_row_of.begin(), s.embed_row_of.end(), kDeadIndex);
+    s.cache.embed_rows.clear();
+    std::fill(s.cache.embed_row_of.begin(), s.cache.embed_row_of.end(), kDeadIndex);
     for (uint32_t i = 0; i < x.pieces; ++i) {
       for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) set_embed_row(cut, s, x.piece_slots[n]);
     }
@@ -172,8 +172,8 @@ void refresh_embed_rows(const CutState& cut, PbdState& s) {
       if (x.slot_piece[slot] == kDeadIndex) s.deformed[slot] = cut.surface.positions[slot];
     }
   }
-  s.embed_revision = s.revision;
-  s.embed_updates = x.updates;
+  s.cache.embed_revision = s.revision;
+  s.cache.embed_updates = x.updates;
 }
 
 }  // namespace pbd_internal

@@ -353,7 +353,7 @@ void embed_vertex(const VoxelModel& model, const CutState& cut, PbdState& s, uin
 // pages inside the steps cost ~0.1 ms each step on a virtual machine.
 void grow_embedding(const CutState& cut, PbdState& s);
 
-constexpr uint64_t kNoRows = ~uint64_t(0);  // PbdData::embed_revision of rows to build from scratch
+constexpr uint64_t kNoRows = ~uint64_t(0);  // PbdCache::embed_revision of rows to build from scratch
 
 // Reserves the edit records and lists to their bounds (init_pbd), so a cut step does not allocate.
 void reserve_edits(PbdEdits& e);

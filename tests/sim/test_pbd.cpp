@@ -274,7 +274,7 @@ TEST_SUITE("pbd") {
       horizontal_cut(b, 0.137, x[segment], x[segment + 1], 2);
       for (int i = 0; i < 10; ++i) {
         pbd_step(a.cut, a.pbd);
-        b.pbd.blocks_revision = b.pbd.embed_revision = ~uint64_t(0);  // force a rebuild
+        b.pbd.cache.blocks_revision = b.pbd.cache.embed_revision = ~uint64_t(0);  // force a rebuild
         pbd_step(b.cut, b.pbd);
         CHECK(a.pbd.deformed == b.pbd.deformed);
       }

@@ -39,7 +39,7 @@ uint64_t position_hash(const PbdState& s) {
 // The embedding rows as a set (their order is free: each row writes its own slot).
 std::vector<std::tuple<uint32_t, uint32_t, float, float, float>> row_set(const PbdState& s) {
   std::vector<std::tuple<uint32_t, uint32_t, float, float, float>> rows;
-  for (const EmbedRow& r : s.embed_rows) rows.emplace_back(r.slot, r.piece, r.u, r.v, r.w);
+  for (const EmbedRow& r : s.cache.embed_rows) rows.emplace_back(r.slot, r.piece, r.u, r.v, r.w);
   std::sort(rows.begin(), rows.end());
   return rows;
 }
@@ -50,7 +50,7 @@ std::map<uint32_t, std::vector<uint8_t>> lanes_by_piece(const PbdState& s, uint3
   std::map<uint32_t, std::vector<uint8_t>> lanes;
   Fnv1a overflow;
   for (int c = 0; c < kColourGroups; ++c) {
-    for (const ShapeBlock& b : s.shape_blocks[c]) {
+    for (const ShapeBlock& b : s.cache.shape_blocks[c]) {
       for (int l = 0; l < b.lanes; ++l) {
         std::vector<uint8_t> bytes;
         const auto put = [&](const void* p, size_t n) {
@@ -102,9 +102,9 @@ void check_caches_equal(const PbdState& a, const PbdState& b) {
   CHECK(oa == ob);  // the overflow colour in its group's order
   for (int c = 0; c < kColourGroups; ++c) {
     // As many blocks per colour (the solver's batches), and the same stretch rows in order.
-    CHECK(a.shape_blocks[c].size() == b.shape_blocks[c].size());
-    REQUIRE(a.stretch_rows[c].size() == b.stretch_rows[c].size());
-    CHECK(same_bytes(a.stretch_rows[c], b.stretch_rows[c]));
+    CHECK(a.cache.shape_blocks[c].size() == b.cache.shape_blocks[c].size());
+    REQUIRE(a.cache.stretch_rows[c].size() == b.cache.stretch_rows[c].size());
+    CHECK(same_bytes(a.cache.stretch_rows[c], b.cache.stretch_rows[c]));
   }
 }
 
