@@ -143,14 +143,13 @@ void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangl
   }
   // The occluders' projected area per cell (cells^2) and its height sum. A closed surface covers its
   // shadow twice (a near side and a far side), so half of each triangle's projected area counts:
-  // a cell wholly in the shadow gets 1 and one a small piece covers a part of it that part; each
-  // triangle's share goes to the cells of its corners and centroid. Without triangles each vertex
-  // covers its whole cell (the splat of a point cloud).
+  // a cell wholly in the shadow gets 1 and one a small piece covers a part of it that part. Without
+  // triangles each vertex covers its whole cell (the splat of a point cloud).
   const auto add = [&](float x, float y, float area, float height) {
-    const int cx = int(std::floor(x)), cy = int(std::floor(y));
-    if (cx < 0 || cy < 0 || cx >= g || cy >= g) return;
-    scratch.area[size_t(cy) * g + size_t(cx)] += area;
-    scratch.height[size_t(cy) * g + size_t(cx)] += area * height;
+    if (!(x >= 0.0f && y >= 0.0f && x < float(g) && y < float(g))) return;
+    const size_t cell = size_t(int(y)) * g + size_t(int(x));
+    scratch.area[cell] += area;
+    scratch.height[cell] += area * height;
   };
   if (triangles != nullptr) {
     for (uint32_t t = 0; t < triangle_count; ++t) {
@@ -159,9 +158,16 @@ void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangl
       const Vec3f &a = scratch.projected[tri[0]], &b = scratch.projected[tri[1]], &c = scratch.projected[tri[2]];
       const float area = 0.25f * std::abs((b.x() - a.x()) * (c.y() - a.y()) - (b.y() - a.y()) * (c.x() - a.x()));
       if (!(area > 0.0f) || !std::isfinite(area)) continue;
-      const float share = 0.25f * area;  // half the area, over four points
       const Vec3f m = (a + b + c) * (1.0f / 3.0f);
-      for (const Vec3f* p : {&a, &b, &c, &m}) add(p->x(), p->y(), share, m.z());
+      // A triangle within a cell's width goes to its centroid's cell; a larger one is shared out
+      // between its corners' and its centroid's.
+      const float extent = std::max({std::abs(b.x() - a.x()), std::abs(c.x() - a.x()), std::abs(b.y() - a.y()),
+                                     std::abs(c.y() - a.y())});
+      if (extent < 1.0f) {
+        add(m.x(), m.y(), area, m.z());
+      } else {
+        for (const Vec3f* p : {&a, &b, &c, &m}) add(p->x(), p->y(), 0.25f * area, m.z());
+      }
     }
   } else {
     for (uint32_t k = 0; k < count; ++k) {
