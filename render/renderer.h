@@ -54,11 +54,12 @@ RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* nor
                           const std::vector<uint8_t>* flags = nullptr);
 
 // A scene's contact plane drawn as a tray: a square `half_size` around `centre` (a point on the plane)
-// with a darker lip, and the surface's shadow on it: the deformed surface's vertices projected onto
-// the plane along the key light into a small grid (tray_shadow_grid), blurred, and sampled by the
-// tray's own fragment shader. Part of the tray itself, so it cannot z-fight it, and it costs no
-// second pass over the surface's triangles (on llvmpipe a projected-geometry shadow, drawn again
-// with a flattening matrix and a stencil, cost ~30 % of the frame).
+// with a darker lip, and the surface's shadow on it: the deformed surface's triangles projected onto
+// the plane along the key light into a small grid on the CPU (tray_shadow_grid), blurred by a
+// penumbra, and sampled by the tray's own fragment shader. Part of the tray itself, so it cannot
+// z-fight it, and it costs no second pass of the GPU over the surface's triangles (on llvmpipe a
+// projected-geometry shadow, drawn again with a flattening matrix and a stencil, cost ~30 % of the
+// frame).
 struct TrayPlane {
   Vec3f centre = Vec3f::Zero(), normal = Vec3f::UnitY();
   float half_size = 1.0f;
