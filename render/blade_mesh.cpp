@@ -55,11 +55,22 @@ void scalpel_mesh(const Vec3f& back, const Vec3f& tip, const Vec3f& edge_dir, co
                                     at(back, 0.25f * length, h),  at(back, 0.0f, h)};
   add_prism(out, blade, n, 0.06f * h, style.blade_color,
             {style.blade_color, style.edge_color, style.edge_color, style.edge_color, style.edge_color, style.blade_color});
-  // Handle: a flat bar behind the blade, a little narrower, with a rounded-looking bevelled end.
-  const float hl = style.handle_length, hw = 0.7f * h;
-  const std::vector<Vec3f> handle = {at(back, -hl, -hw * 0.8f), at(back, 0.0f, -hw), at(back, 0.0f, hw),
-                                     at(back, -hl, hw * 0.8f), at(back, -hl - 0.6f * hw, 0.0f)};
-  add_prism(out, handle, n, 0.35f * hw, style.handle_color, {style.handle_color});
+  // Neck: a narrow stem continuing the blade's axis behind its back end.
+  const float hl = style.handle_length, hw = 0.7f * h, neck = 0.15f * hl;
+  const std::vector<Vec3f> stem = {at(back, -neck, -0.25f * h), at(back, 0.0f, -0.3f * h), at(back, 0.0f, 0.3f * h),
+                                   at(back, -neck, 0.25f * h)};
+  add_prism(out, stem, n, 0.2f * hw, style.handle_color, {style.handle_color});
+  // Handle: a flat bar from the neck, leaning off the blade's plane (toward -n, by handle_lean), with
+  // a rounded-looking bevelled end. The incision runs in the blade's plane, and the eye looks nearly
+  // along the blade, so a handle in line with it covered the line just cut whenever the stroke moved
+  // down the screen; leaning off the plane, it stands beside the line whichever way the blade moves.
+  const Vec3f root = back - neck * u;
+  const Vec3f handle_axis = (u * std::cos(style.handle_lean) + n * std::sin(style.handle_lean)).normalized();
+  const Vec3f across = handle_axis.cross(w);  // the handle's own plane normal (as n is the blade's)
+  const auto on_handle = [&](float along, float side) { return Vec3f(root + along * handle_axis + side * w); };
+  const std::vector<Vec3f> handle = {on_handle(-hl, -hw * 0.8f), on_handle(0.0f, -hw), on_handle(0.0f, hw),
+                                     on_handle(-hl, hw * 0.8f), on_handle(-hl - 0.6f * hw, 0.0f)};
+  add_prism(out, handle, across, 0.35f * hw, style.handle_color, {style.handle_color});
 }
 
 void marker_mesh(const Vec3f& c, float r, const Vec3f& color, std::vector<SolidVertex>& out) {

@@ -17,7 +17,10 @@ struct SolidVertex {
 
 struct ScalpelStyle {
   float blade_width = 0.2f;    // across the blade, scene units
-  float handle_length = 1.0f;  // behind the blade's back end, scene units
+  float handle_length = 1.0f;  // the handle's bar (after a neck 0.15 x as long), scene units
+  // The handle's angle off the blade's axis, radians, leaning away from the blade's plane toward -n
+  // (n = axis x edge direction): on screen the handle stands beside the incision instead of over it.
+  float handle_lean = 0.87f;   // 50 degrees
   Vec3f blade_color = Vec3f(0.80f, 0.83f, 0.88f);
   Vec3f edge_color = Vec3f(0.95f, 0.97f, 1.0f);
   Vec3f handle_color = Vec3f(0.46f, 0.52f, 0.60f);
@@ -26,7 +29,8 @@ struct ScalpelStyle {
 // Appends the scalpel's triangles (3 vertices each, outward normals) to `out`: the blade from `back`
 // (where it leaves the handle) to `tip` (its deepest point), its sharp edge facing `edge_dir`
 // (orthogonalised against the blade's axis; any vector not along it), and the handle continuing from
-// `back` away from the tip. Nothing is added for a zero-length blade.
+// `back` away from the tip through a narrow neck, then leaning off the blade's plane (ScalpelStyle::
+// handle_lean; 0: in line with the blade). Nothing is added for a zero-length blade.
 void scalpel_mesh(const Vec3f& back, const Vec3f& tip, const Vec3f& edge_dir, const ScalpelStyle& style,
                   std::vector<SolidVertex>& out);
 

@@ -1,6 +1,7 @@
 #include "render/renderer.h"
 
 #include "render/gl_program.h"
+#include "render/normals.h"
 
 #include <glad/gl.h>
 
@@ -22,10 +23,18 @@ constexpr uint32_t kMinTriangleCapacity = 2048;
 // Vertex stage, per pass (kSurfacePreambles' CUT_PASS; the wireframe uses the outer one): normals
 // to eye space (the view matrix is rigid, so its 3x3 part transforms normals too). The outer pass
 // passes its normal and, in w, 1 at a cut's rim vertices (those with a cut-face normal; 0
-// elsewhere: interpolated, it says how near a fragment is to the rim); the cut pass only the cut
-// faces' own normal. A software rasteriser sets up every varying of every triangle on the render
-// thread, so each pass interpolates only what it uses (4 and 3 values), and the eye position is
-// rebuilt in the fragment shader from gl_FragCoord where it is needed.
+// elsewhere: interpolated, it says how near a fragment is to the rim); the cut pass the cut faces'
+// own normal and the tissue's texture values (kSurfaceFragmentShader). A software rasteriser sets up
+// every varying of every triangle on the render thread, so each pass interpolates only what it uses
+// (4 and 5 values), and the eye position is rebuilt in the fragment shader from gl_FragCoord where
+// it is needed.
+//
+// The cut faces' texture is tied to the vertex slots (gl_VertexID is the slot: every draw is indexed
+// from slot 0), not to a position: a vertex keeps its slot while the tissue moves and deforms
+// (render/ sees only deformed positions, and a slot is reused only where a cut rebuilds the surface),
+// so the pattern moves with the tissue and never swims. Two hashes of the slot: a value in [0, 1]
+// (interpolated between the vertices: a mottle at the scale of the voxels, the size of liver
+// lobules at 128) and 1 at about one vertex in twelve (a small spot around it: a vessel's section).
 const char* kVertexShader = R"(
 layout(location = 0) in vec3 a_position;
 layout(location = 1) in vec3 a_normal;
@@ -35,8 +44,13 @@ layout(location = 1) uniform mat4 u_view;
 #if CUT_PASS
 layout(location = 6) uniform int u_split;  // the cut faces have their own normals
 out vec3 v_eye_normal;
+out vec2 v_tissue;  // (mottle, vessel)
 void main() {
   v_eye_normal = mat3(u_view) * (u_split != 0 ? a_cut_normal : a_normal);
+  uint h = uint(gl_VertexID) * 747796405u + 2891336453u;  // PCG's output hash of the slot
+  h = ((h >> ((h >> 28u) + 4u)) ^ h) * 277803737u;
+  h = (h >> 22u) ^ h;
+  v_tissue = vec2(float(h & 0xFFFFu) * (1.0 / 65535.0), (h >> 16u) < 5461u ? 1.0 : 0.0);
   gl_Position = u_view_projection * vec4(a_position, 1.0);
 }
 #else
@@ -57,11 +71,16 @@ void main() {
   "}\n"
 #define DVX_FLAG_BLOCK DVX_FLAG_LOOKUP "uint triangle_flags() { return triangle_flags_of(uint(gl_PrimitiveID)); }\n"
 
-// Wet tissue: two lights fixed to the camera (key from the upper left, weak fill from the right),
-// wrapped diffuse (light bleeds past the terminator as in translucent tissue), a sharp and a broad
-// highlight and a Fresnel sheen (a wet, glossy film); the cut faces are darker, redder and wetter.
+// Tissue: two lights fixed to the camera (key from the upper left, weak fill from the right), wrapped
+// diffuse (light bleeds past the terminator as in translucent tissue), a Fresnel sheen, and by class:
+//  - the outer surface, the organ's capsule: smooth and slightly glossy (one soft highlight; a sharp
+//    one drew the contoured facets' edges as blocky highlights), blushing toward the cut colour at a
+//    cut's rim;
+//  - the cut faces, the parenchyma: the cut colour (deep red-brown liver tissue) mottled by the
+//    vertex slots' texture values (kVertexShader), darker where a vessel is cut across, and wet: a
+//    sharp, strong highlight broken up by the mottle (a wet film glistens in patches) over a broad one.
 // Two-sided: back faces flip the normal. Smooth normals come per vertex (the cut faces' own where
-// the GPU computed them: crisp rims); without them (FLAT) the face normal from screen-space
+// they were computed: crisp rims); without them (FLAT) the face normal from screen-space
 // derivatives of the eye position.
 //
 // Compiled in four variants (kSurfacePreambles: the outer surface or the cut faces, smooth or flat)
@@ -73,6 +92,7 @@ void main() {
 const char* kSurfaceFragmentShader = R"(
 #if CUT_PASS
 in vec3 v_eye_normal;
+in vec2 v_tissue;
 #else
 in vec4 v_eye_normal_rim;
 #endif
@@ -85,17 +105,18 @@ layout(location = 8) uniform vec2 u_depth;
 out vec4 frag_color;
 void main() {
 #if CUT_PASS
-  vec3 base = u_cut_color;
+  // Parenchyma: lobules lighter and darker by up to a quarter, vessels' sections dark spots.
+  float mottle = smoothstep(0.2, 0.8, v_tissue.x);
+  float vessel = smoothstep(0.45, 0.85, v_tissue.y);
+  vec3 base = u_cut_color * ((0.78 + 0.44 * mottle) * (1.0 - 0.55 * vessel));
   vec3 n = v_eye_normal;
-  const float gloss = 1.3;
 #else
   // The outer surface blushes toward the cut colour right at a cut's rim: an incision line that shows
   // even while the slit is closed. Only the part of the rim vertices' triangles nearest them: the
   // whole triangle fan blushed into a saw-tooth band as wide as the (uneven) triangles.
   float near_rim = v_eye_normal_rim.w * v_eye_normal_rim.w;
-  vec3 base = mix(u_surface_color, 0.85 * u_cut_color, 0.85 * smoothstep(0.55, 0.95, near_rim));
+  vec3 base = mix(u_surface_color, u_cut_color, 0.85 * smoothstep(0.55, 0.95, near_rim));
   vec3 n = v_eye_normal_rim.xyz;
-  const float gloss = 1.0;
 #endif
 #if FLAT
   vec3 ray = vec3((gl_FragCoord.xy * u_unproject.xy - 1.0) * u_unproject.zw, -1.0);  // eye position / depth
@@ -112,10 +133,16 @@ void main() {
   const vec3 half_key = vec3(-0.2161, 0.3241, 0.9210);  // normalize(key + (0, 0, 1))
   float diffuse = 0.72 * max((dot(n, key) + 0.35) * (1.0 / 1.35), 0.0) + 0.25 * max(dot(n, fill), 0.0);
   float nh = max(dot(n, half_key), 0.0);
-  float nh2 = nh * nh, nh4 = nh2 * nh2, nh16 = nh4 * nh4 * nh4 * nh4, nh64 = nh16 * nh16 * nh16 * nh16;
-  float specular = gloss * (0.45 * nh64 + 0.08 * nh16);
+  float nh2 = nh * nh, nh4 = nh2 * nh2, nh8 = nh4 * nh4, nh16 = nh8 * nh8, nh32 = nh16 * nh16;
   float rim = 1.0 - max(n.z, 0.0), rim2 = rim * rim;
-  float fresnel = 0.12 * rim2 * rim2;
+#if CUT_PASS
+  float nh64 = nh32 * nh32;
+  float specular = (0.3 + mottle) * 0.5 * nh64 + 0.12 * nh16;
+  float fresnel = 0.16 * rim2 * rim2;
+#else
+  float specular = 0.20 * nh32 + 0.05 * nh8;
+  float fresnel = 0.10 * rim2 * rim2;
+#endif
   vec3 color = base * (0.20 + diffuse) + vec3(specular + fresnel) * vec3(1.0, 0.97, 0.95);
   // Dither: +-0.5 of an 8-bit step, from a hash of the pixel.
   float noise = fract(52.9829189 * fract(dot(gl_FragCoord.xy, vec2(0.06711056, 0.00583715)))) - 0.5;
@@ -136,31 +163,55 @@ const char* const kSurfacePreambles[4] = {
   "layout(std430, binding = 3) buffer CornerNormals { float cornern[]; };\n" \
   "layout(location = 0) uniform uint u_count;\n"
 
-// GPU normals, pass 1 (one invocation per triangle slot): the unit face normal times each
-// corner's angle, per corner (zero for dead, degenerate or non-finite triangles).
+// GPU normals, pass 1 (one invocation per triangle slot): the face's cross product (its unit normal
+// times twice its area: render/normals.h's area weights) at each corner (zero for dead, degenerate or
+// non-finite triangles).
 const char* kTriangleNormalShader = DVX_NORMAL_PASS_PREAMBLE R"(
 layout(std430, binding = 1) readonly buffer Positions { float pos[]; };
 layout(std430, binding = 2) readonly buffer Indices { uint idx[]; };
 vec3 p_of(uint v) { return vec3(pos[3u * v], pos[3u * v + 1u], pos[3u * v + 2u]); }
-float corner(vec3 a, vec3 b) { return acos(clamp(dot(a, b) * inversesqrt(dot(a, a) * dot(b, b)), -1.0, 1.0)); }
+void main() {
+  uint t = gl_GlobalInvocationID.x;
+  if (t >= u_count) return;
+  vec3 p0 = p_of(idx[3u * t]), p1 = p_of(idx[3u * t + 1u]), p2 = p_of(idx[3u * t + 2u]);
+  vec3 n = cross(p1 - p0, p2 - p0);
+  float len2 = dot(n, n);
+  if ((triangle_flags_of(t) & 2u) != 0u || !(len2 > 1e-30) || isinf(len2)) n = vec3(0.0);
+  for (uint c = 0u; c < 3u; ++c) {
+    cornern[9u * t + 3u * c] = n.x;
+    cornern[9u * t + 3u * c + 1u] = n.y;
+    cornern[9u * t + 3u * c + 2u] = n.z;
+  }
+}
+)";
+
+// GPU normals, a smoothing pass (one invocation per triangle slot, then pass 2 again): the sum of
+// its three vertices' normals of its class times |face| at each corner (render/normals.h).
+const char* kSmoothNormalShader = DVX_NORMAL_PASS_PREAMBLE R"(
+layout(std430, binding = 1) readonly buffer Positions { float pos[]; };
+layout(std430, binding = 2) readonly buffer Indices { uint idx[]; };
+layout(std430, binding = 4) readonly buffer SurfaceNormals { float sn[]; };
+layout(std430, binding = 5) readonly buffer CutNormals { float cn[]; };
+vec3 p_of(uint v) { return vec3(pos[3u * v], pos[3u * v + 1u], pos[3u * v + 2u]); }
+vec3 n_of(uint v, bool cut) {
+  return cut ? vec3(cn[3u * v], cn[3u * v + 1u], cn[3u * v + 2u]) : vec3(sn[3u * v], sn[3u * v + 1u], sn[3u * v + 2u]);
+}
 void main() {
   uint t = gl_GlobalInvocationID.x;
   if (t >= u_count) return;
   uint i0 = idx[3u * t], i1 = idx[3u * t + 1u], i2 = idx[3u * t + 2u];
-  vec3 p0 = p_of(i0), p1 = p_of(i1), p2 = p_of(i2);
-  vec3 e01 = p1 - p0, e02 = p2 - p0, e12 = p2 - p1;
-  vec3 n = cross(e01, e02);
+  vec3 n = cross(p_of(i1) - p_of(i0), p_of(i2) - p_of(i0));
   float len2 = dot(n, n);
-  vec3 w = vec3(0.0);
-  if ((triangle_flags_of(t) & 2u) == 0u && len2 > 1e-30 && !isinf(len2)) {
-    n *= inversesqrt(len2);
-    w = vec3(corner(e01, e02), corner(-e01, e12), corner(-e02, -e12));
+  uint flags = triangle_flags_of(t);
+  vec3 s = vec3(0.0);
+  if ((flags & 2u) == 0u && len2 > 1e-30 && !isinf(len2)) {
+    bool cut = (flags & 1u) != 0u;
+    s = sqrt(len2) * (n_of(i0, cut) + n_of(i1, cut) + n_of(i2, cut));
   }
   for (uint c = 0u; c < 3u; ++c) {
-    vec3 q = w[c] * n;
-    cornern[9u * t + 3u * c] = q.x;
-    cornern[9u * t + 3u * c + 1u] = q.y;
-    cornern[9u * t + 3u * c + 2u] = q.z;
+    cornern[9u * t + 3u * c] = s.x;
+    cornern[9u * t + 3u * c + 1u] = s.y;
+    cornern[9u * t + 3u * c + 2u] = s.z;
   }
 }
 )";
@@ -344,6 +395,18 @@ void compute_normals(Renderer& r) {
   glUseProgram(r.vertex_normal_program);
   glUniform1ui(0, r.vertex_count);
   glDispatchCompute((r.vertex_count + 63) / 64, 1, 1);
+  glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+  // The smoothing passes: per triangle the weighted sums of its vertices' normals, then pass 2 again.
+  for (int pass = 0; pass < kNormalSmoothingPasses; ++pass) {
+    glUseProgram(r.smooth_normal_program);
+    glUniform1ui(0, r.triangle_count);
+    glDispatchCompute((r.triangle_count + 63) / 64, 1, 1);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    glUseProgram(r.vertex_normal_program);
+    glUniform1ui(0, r.vertex_count);
+    glDispatchCompute((r.vertex_count + 63) / 64, 1, 1);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+  }
   glMemoryBarrier(GL_VERTEX_ATTRIB_ARRAY_BARRIER_BIT | GL_SHADER_STORAGE_BARRIER_BIT);
   glUseProgram(0);
   r.normals_stale = false;
@@ -420,7 +483,8 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
   }
   if (r.wire_program) r.triangle_normal_program = gl_link_compute(kTriangleNormalShader, error);
   if (r.triangle_normal_program) r.vertex_normal_program = gl_link_compute(kVertexNormalShader, error);
-  if (!r.wire_program || !r.vertex_normal_program || !tray_init(r, error)) {
+  if (r.vertex_normal_program) r.smooth_normal_program = gl_link_compute(kSmoothNormalShader, error);
+  if (!r.wire_program || !r.smooth_normal_program || !tray_init(r, error)) {
     renderer_destroy(r);
     return false;
   }
@@ -528,6 +592,8 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
       r.scratch_flags[i] = dead ? kTriangleDead : flags;
     }
     glNamedBufferSubData(r.index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_triangles.data());
+    r.shadow_triangles.resize(mesh.triangle_count);
+    std::copy(r.scratch_triangles.begin(), r.scratch_triangles.end(), r.shadow_triangles.begin() + tb);
     glNamedBufferSubData(r.outer_index_buffer, GLintptr(tb) * 12, GLsizeiptr(n) * 12, r.scratch_outer.data());
     glNamedBufferSubData(r.flag_buffer, GLintptr(tb), GLsizeiptr(n), r.scratch_flags.data());
     r.last_upload_bytes += uint64_t(n) * 25;
@@ -549,7 +615,7 @@ void renderer_upload(Renderer& r, const RenderMesh& mesh) {
 }
 
 void renderer_update_normals(Renderer& r) {
-  if (r.gpu_normals && r.normals_stale && r.triangle_normal_program && r.vertex_normal_program) compute_normals(r);
+  if (r.gpu_normals && r.normals_stale && r.smooth_normal_program) compute_normals(r);
 }
 
 void renderer_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
@@ -741,6 +807,7 @@ void renderer_destroy(Renderer& r) {
   if (r.wire_program) glDeleteProgram(r.wire_program);
   if (r.triangle_normal_program) glDeleteProgram(r.triangle_normal_program);
   if (r.vertex_normal_program) glDeleteProgram(r.vertex_normal_program);
+  if (r.smooth_normal_program) glDeleteProgram(r.smooth_normal_program);
   tray_destroy(r);
   if (r.vertex_array) glDeleteVertexArrays(1, &r.vertex_array);
   const GLuint buffers[] = {r.position_buffer,   r.normal_buffer,         r.index_buffer,

@@ -43,9 +43,9 @@ struct RenderMesh {
   uint32_t vertex_begin = 0, vertex_end = 0;      // dirty vertex slots [begin, end)
   uint32_t triangle_begin = 0, triangle_end = 0;  // dirty triangle slots [begin, end)
   bool full = true;                               // ignore the ranges, upload every slot
-  // No `normals`: the GPU computes smooth normals once per upload (compute shaders, angle-weighted,
-  // the cut faces and the outer surface separately, so cut rims stay crisp creases). False (and no
-  // normals): flat shading.
+  // No `normals`: the GPU computes smooth normals once per upload (compute shaders, render/normals.h's
+  // area-weighted and smoothed normals, the cut faces and the outer surface separately, so cut rims
+  // stay crisp creases). False (and no normals): flat shading.
   bool gpu_normals = false;
 };
 
@@ -54,11 +54,12 @@ RenderMesh render_mesh_of(const SurfaceMesh& mesh, const std::vector<Vec3f>* nor
                           const std::vector<uint8_t>* flags = nullptr);
 
 // A scene's contact plane drawn as a tray: a square `half_size` around `centre` (a point on the plane)
-// with a darker lip, and the surface's shadow on it: the deformed surface's vertices projected onto
-// the plane along the key light into a small grid (tray_shadow_grid), blurred, and sampled by the
-// tray's own fragment shader. Part of the tray itself, so it cannot z-fight it, and it costs no
-// second pass over the surface's triangles (on llvmpipe a projected-geometry shadow, drawn again
-// with a flattening matrix and a stencil, cost ~30 % of the frame).
+// with a darker lip, and the surface's shadow on it: the deformed surface's triangles projected onto
+// the plane along the key light into a small grid on the CPU (tray_shadow_grid), blurred by a
+// penumbra, and sampled by the tray's own fragment shader. Part of the tray itself, so it cannot
+// z-fight it, and it costs no second pass of the GPU over the surface's triangles (on llvmpipe a
+// projected-geometry shadow, drawn again with a flattening matrix and a stencil, cost ~30 % of the
+// frame).
 struct TrayPlane {
   Vec3f centre = Vec3f::Zero(), normal = Vec3f::UnitY();
   float half_size = 1.0f;
@@ -71,6 +72,14 @@ struct TrayPlane {
 // and the headless frames draw the same trays.
 TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec3f& plane_point,
                      const Vec3f& plane_normal);
+
+// The tray shadow's working arrays (tray_shadow_grid).
+struct ShadowScratch {
+  std::vector<Vec3f> projected;             // (vertex slots) cell x, cell y, height above the tray
+  std::vector<float> area, height;          // (cells) projected area (cells^2), its height sum
+  std::vector<float> radius, blurred;       // (cells) the penumbra's half-width, the first blur
+  std::vector<double> table, height_table;  // summed-area tables ((g + 1)^2)
+};
 
 struct DrawOptions {
   // Clear the view first (colour and depth). False: the caller cleared it (the window clears its
@@ -92,11 +101,11 @@ struct DrawOptions {
   // (renderer_double_buffer).
   int pieces_begin = 0, pieces_end = 64;
   Vec3f surface_color = Vec3f(0.88f, 0.70f, 0.64f);  // pale organ capsule
-  Vec3f cut_color = Vec3f(0.80f, 0.17f, 0.20f);      // exposed tissue on the cut faces
+  Vec3f cut_color = Vec3f(0.56f, 0.17f, 0.12f);      // the cut faces' parenchyma: deep red-brown liver tissue
   Vec3f wire_color = Vec3f(0.20f, 0.12f, 0.12f);
   Vec3f background = Vec3f(0.15f, 0.16f, 0.19f);
   Vec3f tray_color = Vec3f(0.55f, 0.60f, 0.64f);  // brushed steel
-  float shadow_alpha = 0.55f;                     // how much the shadow darkens the tray
+  float shadow_alpha = 0.65f;                     // how much the shadow darkens the tray
 };
 
 // GL object names and the capacities of the GPU buffers.
@@ -139,7 +148,10 @@ struct Renderer {
   // array); the shadow re-draws the surface's index buffer, flattened onto the plane.
   uint32_t tray_program = 0, empty_vertex_array = 0, shadow_texture = 0;
   bool shadow_valid = false;  // shadow_texture holds the first tray's shadow for this frame
-  std::vector<float> shadow_grid, shadow_scratch;
+  std::vector<float> shadow_grid;
+  ShadowScratch shadow_scratch;
+  // The triangle slots of the last upload (dead ones {0,0,0}), for the shadow's projected areas.
+  std::vector<Tri> shadow_triangles;
   std::vector<uint8_t> shadow_bytes;
   // Mesh buffers, mirroring the caller's slots.
   uint32_t vertex_array = 0;
@@ -156,16 +168,18 @@ struct Renderer {
   uint32_t outer_index_buffer = 0, cut_index_buffer = 0;
   uint32_t cut_count = 0;
   uint32_t flag_buffer = 0;      // (triangle_capacity bytes, rounded up to 4) SSBO binding 0
-  // GPU normals, in two passes without atomics (so the sums do not depend on scheduling): per
-  // triangle slot, its unit normal times each corner's angle (corner_normal_buffer, 3 corners x 3
-  // floats); then per vertex slot, the sums over the corners it is part of (the vertex -> corner
-  // adjacency, CSR, rebuilt on the CPU when triangles change: only on cut steps), the outer
-  // surface's into normal_buffer and the cut faces' into cut_normal_buffer. Each fragment takes
-  // the one of its triangle's class, so cut rims stay creases.
+  // GPU normals (render/normals.h's, computed the same way), in passes without atomics (so the sums
+  // do not depend on scheduling): per triangle slot, its face's cross product at each corner
+  // (corner_normal_buffer, 3 corners x 3 floats); then per vertex slot, the sums over the corners it
+  // is part of (the vertex -> corner adjacency, CSR, rebuilt on the CPU when triangles change: only
+  // on cut steps), normalised, the outer surface's into normal_buffer and the cut faces' into
+  // cut_normal_buffer; then kNormalSmoothingPasses times: per triangle slot, |face| times the sum of
+  // its vertices' normals of its class at each corner, and the per-vertex pass again. Each fragment
+  // takes the normal of its triangle's class, so cut rims stay creases.
   uint32_t cut_normal_buffer = 0;     // (vertex_capacity x 3 floats)
   uint32_t corner_normal_buffer = 0;  // (triangle_capacity x 9 floats)
   uint32_t adjacency_offset_buffer = 0, adjacency_buffer = 0;  // (vertex_capacity + 1), (3 x triangle_capacity) uint32
-  uint32_t triangle_normal_program = 0, vertex_normal_program = 0;
+  uint32_t triangle_normal_program = 0, vertex_normal_program = 0, smooth_normal_program = 0;
   std::vector<uint32_t> scratch_offsets, scratch_adjacency, scratch_fill;
   bool adjacency_stale = true;
   bool gpu_normals = false, normals_stale = false;
@@ -216,17 +230,26 @@ void tray_destroy(Renderer& r);
 void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options);
 // The shadow of the surface at `positions` (count vertex slots; non-finite ones skipped) on the
 // first tray, for this frame's camera (the light is the camera's key light). Call it before
-// renderer_draw when the surface or the camera changed; without it the tray has no shadow.
+// renderer_draw when the surface or the camera changed; without it the tray has no shadow. When
+// `positions` are the vertex slots of the mesh last uploaded (count == its vertex count), its
+// triangles (kept by renderer_upload) cast the shadow by their projected areas; else each vertex
+// darkens its cell of the grid.
 void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, const Camera& camera,
                         const DrawOptions& options);
 // The shadow grid (no GL): kTrayShadowGrid^2 cells over the tray's square, row-major along the
-// tray's axes; 1 where the vertices projected along `light` land (then blurred), 0 far from them.
-constexpr int kTrayShadowGrid = 96;
-void tray_shadow_grid(const Vec3f* positions, uint32_t count, const TrayPlane& tray, const Vec3f& light,
-                      std::vector<float>& grid, std::vector<float>& scratch);
-// The direction toward the light for a tray: the camera's key light, raised to at least 60 degrees
-// from the plane so the shadow stays near the object.
-Vec3f tray_light(const Camera& camera, const Vec3f& normal);
+// tray's axes, each the share of the light the surface blocks, in [0, 1]. The triangles' areas
+// projected along `light` onto the plane, half of it counted (a closed surface covers its shadow
+// twice): the share of each cell in the shadow, so a piece smaller than a cell darkens it only in
+// part (without triangles, each vertex covers its whole cell). Then blurred twice by a box whose
+// half-width is the penumbra's: one cell plus kTrayPenumbra x the occluders' mean height above the
+// tray (within 6 cells), up to 10 cells: sharp where a piece lies on the tray, soft under the organ
+// hanging over it, and a small piece's shadow is as small and as faint as the piece. (The grid
+// once marked every vertex's cell in full and dilated the marks, so a crumb of one voxel cast a
+// dark blob of 5 x 5 cells, a sixth of the organ's size.)
+constexpr int kTrayShadowGrid = 128;
+constexpr float kTrayPenumbra = 0.15f;  // the penumbra's half-width per unit of height (a ~9 degree light)
+void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangles, uint32_t triangle_count,
+                      const TrayPlane& tray, const Vec3f& light, std::vector<float>& grid, ShadowScratch& scratch);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
 // Direct mode (and after renderer_present): the back buffer's rectangle, so before the swap
 // (including what was drawn over it since).

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace dvx {
 
@@ -74,42 +75,135 @@ Vec3f tray_light(const Camera& camera, const Vec3f& normal) {
   return light;
 }
 
-void tray_shadow_grid(const Vec3f* positions, uint32_t count, const TrayPlane& tray, const Vec3f& light,
-                      std::vector<float>& grid, std::vector<float>& scratch) {
+namespace {
+
+// Sums of `values` (g x g, row-major) over every rectangle of cells: (g + 1) x (g + 1), entry
+// (y, x) the sum over the cells above and left of it.
+void summed_area(const std::vector<float>& values, int g, std::vector<double>& table) {
+  table.assign(size_t(g + 1) * size_t(g + 1), 0.0);
+  for (int y = 0; y < g; ++y) {
+    double row = 0.0;
+    for (int x = 0; x < g; ++x) {
+      row += values[size_t(y) * g + size_t(x)];
+      table[size_t(y + 1) * (g + 1) + size_t(x + 1)] = table[size_t(y) * (g + 1) + size_t(x + 1)] + row;
+    }
+  }
+}
+
+// The sum over the square of cells within `r` (cells) of (x, y), cut to the grid (outside is empty).
+double box_sum(const std::vector<double>& table, int g, int x, int y, int r) {
+  const int x0 = std::max(x - r, 0), x1 = std::min(x + r + 1, g), y0 = std::max(y - r, 0), y1 = std::min(y + r + 1, g);
+  const size_t w = size_t(g + 1);
+  return table[size_t(y1) * w + size_t(x1)] - table[size_t(y0) * w + size_t(x1)] - table[size_t(y1) * w + size_t(x0)] +
+         table[size_t(y0) * w + size_t(x0)];
+}
+
+// A box blur of `in` into `out` whose half-width at each cell is radius[cell] (cells, fractional:
+// the blend of the two whole widths around it; outside the grid counts as empty).
+void variable_blur(const std::vector<float>& in, const std::vector<float>& radius, int g, std::vector<double>& table,
+                   std::vector<float>& out) {
+  summed_area(in, g, table);
+  out.resize(in.size());
+  for (int y = 0; y < g; ++y) {
+    for (int x = 0; x < g; ++x) {
+      const float r = radius[size_t(y) * g + size_t(x)];
+      const int r0 = int(r);
+      const float f = r - float(r0);
+      const double side0 = 2 * r0 + 1, side1 = side0 + 2;
+      const double a = box_sum(table, g, x, y, r0) / (side0 * side0);
+      const double b = f > 0.0f ? box_sum(table, g, x, y, r0 + 1) / (side1 * side1) : a;
+      out[size_t(y) * g + size_t(x)] = float((1.0 - f) * a + f * b);
+    }
+  }
+}
+
+}  // namespace
+
+void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangles, uint32_t triangle_count,
+                      const TrayPlane& tray, const Vec3f& light, std::vector<float>& grid, ShadowScratch& scratch) {
   constexpr int g = kTrayShadowGrid;
-  grid.assign(size_t(g) * g, 0.0f);
+  const size_t cells = size_t(g) * g;
+  grid.assign(cells, 0.0f);
+  scratch.area.assign(cells, 0.0f);
+  scratch.height.assign(cells, 0.0f);
   const Vec3f n = tray.normal.normalized();
   Vec3f u, v;
   plane_axes(n, u, v);
-  const float ln = light.dot(n), scale = 0.5f * float(g) / tray.half_size;
-  // Splat: every surface vertex slid along the light onto the plane marks its cell (every
-  // stride-th one on big surfaces: ~64k points cover the grid's 9k cells many times over).
-  const uint32_t stride = std::max(1u, count / 65536u);
-  for (uint32_t k = 0; k < count; k += stride) {
+  const float ln = light.dot(n), scale = 0.5f * float(g) / tray.half_size;  // cells per unit length
+  if (!(ln > 0.0f)) return;
+  // Every vertex slid along the light onto the plane, in cells (x, y), and its height above the plane.
+  scratch.projected.resize(count);
+  for (uint32_t k = 0; k < count; ++k) {
     const Vec3f& p = positions[k];
-    if (!p.allFinite() || !(ln > 0.0f)) continue;
-    const Vec3f q = p - ((p - tray.centre).dot(n) / ln) * light - tray.centre;
-    const int x = int(std::floor(q.dot(u) * scale + 0.5f * float(g)));
-    const int y = int(std::floor(q.dot(v) * scale + 0.5f * float(g)));
-    if (x >= 0 && y >= 0 && x < g && y < g) grid[size_t(y) * g + size_t(x)] = 1.0f;
+    const float h = (p - tray.centre).dot(n);
+    const Vec3f q = p - (h / ln) * light - tray.centre;
+    scratch.projected[k] = p.allFinite() ? Vec3f(q.dot(u) * scale + 0.5f * float(g), q.dot(v) * scale + 0.5f * float(g),
+                                                 std::max(h, 0.0f))
+                                         : Vec3f::Constant(std::numeric_limits<float>::quiet_NaN());
   }
-  // Two 3x3 box blurs: closes the gaps between splats and softens the edge (a penumbra).
-  scratch.resize(grid.size());
-  for (int pass = 0; pass < 2; ++pass) {
-    for (int y = 0; y < g; ++y) {
-      for (int x = 0; x < g; ++x) {
-        float sum = 0.0f;
-        for (int dy = -1; dy <= 1; ++dy) {
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int xx = std::clamp(x + dx, 0, g - 1), yy = std::clamp(y + dy, 0, g - 1);
-            sum += grid[size_t(yy) * g + size_t(xx)];
-          }
-        }
-        scratch[size_t(y) * g + size_t(x)] = std::min(sum * (pass == 0 ? 0.5f : 1.0f / 9.0f), 1.0f);
+  // The occluders' projected area per cell (cells^2) and its height sum. A closed surface covers its
+  // shadow twice (a near side and a far side), so half of each triangle's projected area counts:
+  // a cell wholly in the shadow gets 1 and one a small piece covers a part of it that part. Without
+  // triangles each vertex covers its whole cell (the splat of a point cloud).
+  const auto add = [&](float x, float y, float area, float height) {
+    if (!(x >= 0.0f && y >= 0.0f && x < float(g) && y < float(g))) return;
+    const size_t cell = size_t(int(y)) * g + size_t(int(x));
+    scratch.area[cell] += area;
+    scratch.height[cell] += area * height;
+  };
+  if (triangles != nullptr) {
+    for (uint32_t t = 0; t < triangle_count; ++t) {
+      const Tri& tri = triangles[t];
+      if (tri[0] >= count || tri[1] >= count || tri[2] >= count) continue;
+      const Vec3f &a = scratch.projected[tri[0]], &b = scratch.projected[tri[1]], &c = scratch.projected[tri[2]];
+      const float area = 0.25f * std::abs((b.x() - a.x()) * (c.y() - a.y()) - (b.y() - a.y()) * (c.x() - a.x()));
+      if (!(area > 0.0f) || !std::isfinite(area)) continue;
+      const Vec3f m = (a + b + c) * (1.0f / 3.0f);
+      // A triangle within a cell's width goes to its centroid's cell; a larger one is shared out
+      // between its corners' and its centroid's.
+      const float extent = std::max({std::abs(b.x() - a.x()), std::abs(c.x() - a.x()), std::abs(b.y() - a.y()),
+                                     std::abs(c.y() - a.y())});
+      if (extent < 1.0f) {
+        add(m.x(), m.y(), area, m.z());
+      } else {
+        for (const Vec3f* p : {&a, &b, &c, &m}) add(p->x(), p->y(), 0.25f * area, m.z());
       }
     }
-    grid.swap(scratch);
+  } else {
+    for (uint32_t k = 0; k < count; ++k) {
+      const Vec3f& p = scratch.projected[k];
+      if (!p.allFinite()) continue;
+      const int cx = int(std::floor(p.x())), cy = int(std::floor(p.y()));
+      if (cx < 0 || cy < 0 || cx >= g || cy >= g) continue;
+      const size_t cell = size_t(cy) * g + size_t(cx);
+      if (scratch.area[cell] == 0.0f) {  // the cell's first vertex gives its height
+        scratch.area[cell] = 1.0f;
+        scratch.height[cell] = p.z();
+      }
+    }
   }
+  // The penumbra: its half-width grows with the occluders' height above the tray (a light of about
+  // 7 degrees' radius), from one cell at contact: the mean height of the occluders within 6 cells.
+  std::vector<float>& radius = scratch.radius;
+  radius.resize(cells);
+  summed_area(scratch.area, g, scratch.table);
+  std::vector<double>& height_table = scratch.height_table;
+  summed_area(scratch.height, g, height_table);
+  for (int y = 0; y < g; ++y) {
+    for (int x = 0; x < g; ++x) {
+      const double area = box_sum(scratch.table, g, x, y, 6);
+      const double height = area > 0.0 ? box_sum(height_table, g, x, y, 6) / area : 0.0;
+      radius[size_t(y) * g + size_t(x)] = std::min(1.0f + kTrayPenumbra * float(height) * scale, 10.0f);
+    }
+  }
+  // Coverage blurred twice by the penumbra's box, at most 1 after the first (the corners' shares fall
+  // unevenly on cells smaller than a triangle: clamped first, the uneven cells left holes): a piece's
+  // shadow is as dark as the share of the penumbra's area it covers, so a small piece casts a small,
+  // faint shadow.
+  variable_blur(scratch.area, radius, g, scratch.table, scratch.blurred);
+  for (float& a : scratch.blurred) a = std::min(a, 1.0f);
+  variable_blur(scratch.blurred, radius, g, scratch.table, grid);
+  for (float& a : grid) a = std::min(a, 1.0f);
 }
 
 bool tray_init(Renderer& r, std::string& error) {
@@ -138,9 +232,14 @@ void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, con
   r.shadow_valid = false;
   if (!r.shadow_texture || options.trays.empty() || !options.shadows || positions == nullptr) return;
   const TrayPlane& tray = options.trays.front();
-  tray_shadow_grid(positions, count, tray, tray_light(camera, tray.normal), r.shadow_grid, r.shadow_scratch);
+  // The uploaded triangles when the positions are the uploaded mesh's vertex slots.
+  const bool triangles = count == r.vertex_count && r.shadow_triangles.size() >= r.triangle_count;
+  tray_shadow_grid(positions, count, triangles ? r.shadow_triangles.data() : nullptr, triangles ? r.triangle_count : 0,
+                   tray, tray_light(camera, tray.normal), r.shadow_grid, r.shadow_scratch);
   r.shadow_bytes.resize(r.shadow_grid.size());
-  for (size_t k = 0; k < r.shadow_grid.size(); ++k) r.shadow_bytes[k] = uint8_t(std::lround(255.0f * r.shadow_grid[k]));
+  for (size_t k = 0; k < r.shadow_grid.size(); ++k) {
+    r.shadow_bytes[k] = uint8_t(std::lround(255.0f * std::clamp(r.shadow_grid[k], 0.0f, 1.0f)));
+  }
   glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
   glTextureSubImage2D(r.shadow_texture, 0, 0, 0, kTrayShadowGrid, kTrayShadowGrid, GL_RED, GL_UNSIGNED_BYTE,
                       r.shadow_bytes.data());

@@ -1,4 +1,5 @@
-// Split smooth normals (render/normals.h) and the renderer's GPU passes that compute the same, and
+// Split smooth normals (render/normals.h: area weights, smoothing passes) and the renderer's GPU
+// passes that compute the same, and
 // the scalpel's mesh (render/blade_mesh.h).
 #include "render/blade_mesh.h"
 #include "render/egl_context.h"
@@ -44,6 +45,58 @@ TEST_CASE("normals: cut faces and the outer surface are averaged apart, so the r
   split_vertex_normals(q, {{0, 1, 2}, {kDeadIndex, kDeadIndex, kDeadIndex}, {0, 0, 1}, {0, 1, 3}}, {}, surface, cut);
   CHECK((surface[0] - n0).norm() < 1e-5f);
   CHECK(surface[3].norm() == 0.0f);
+}
+
+TEST_CASE("normals: area weights, so a sliver cannot turn a vertex's normal (the dark pits)") {
+  // Vertex 0 in the plane z = 0 with a fan of six triangles around it, plus a sliver: its corner at
+  // vertex 0 is nearly 180 degrees and its normal tilted 45 degrees. Angle weights gave the sliver
+  // half the say (a pit of shade around the vertex); area weights give it almost none.
+  std::vector<Vec3f> p = {Vec3f::Zero()};
+  std::vector<Tri> t;
+  for (int k = 0; k < 6; ++k) p.push_back(Vec3f(std::cos(1.0471976f * k), std::sin(1.0471976f * k), 0.0f));
+  for (uint32_t k = 0; k < 6; ++k) t.push_back({0, 1 + k, 1 + (k + 1) % 6});
+  p.push_back(Vec3f(0.5f, 0.001f, 0.5f));
+  p.push_back(Vec3f(-0.5f, 0.0f, -0.5f));
+  t.push_back({0, 7, 8});
+  std::vector<Vec3f> surface, cut;
+  split_vertex_normals(p, t, {}, surface, cut, 0);
+  CHECK(surface[0].z() > std::cos(0.02f));
+  split_vertex_normals(p, t, {}, surface, cut);
+  CHECK(surface[0].z() > std::cos(0.05f));
+}
+
+TEST_CASE("normals: the smoothing passes spread a crease over the neighbouring vertices") {
+  // A strip of unit squares (x 0..10, y 0..3) bent 20 degrees about the line x = 5.
+  const float bend = 0.349066f;
+  std::vector<Vec3f> p;
+  std::vector<Tri> t;
+  for (int y = 0; y <= 3; ++y) {
+    for (int x = 0; x <= 10; ++x) {
+      const float d = float(x) - 5.0f;
+      p.push_back(d <= 0.0f ? Vec3f(d, float(y), 0.0f) : Vec3f(d * std::cos(bend), float(y), d * std::sin(bend)));
+    }
+  }
+  for (uint32_t y = 0; y < 3; ++y) {
+    for (uint32_t x = 0; x < 10; ++x) {
+      const uint32_t a = y * 11 + x;
+      t.push_back({a, a + 1, a + 12});
+      t.push_back({a, a + 12, a + 11});
+    }
+  }
+  std::vector<Vec3f> surface, cut;
+  const auto tilt = [&](int x) { return std::acos(std::clamp(surface[size_t(11 + x)].dot(Vec3f::UnitZ()), -1.0f, 1.0f)); };
+  // One ring only: the crease's vertices are bent, their neighbours keep their facet's normal.
+  split_vertex_normals(p, t, {}, surface, cut, 0);
+  CHECK(tilt(4) < 1e-5f);
+  CHECK(tilt(5) > 0.1f);
+  // Smoothed: the bend reaches the next vertices on both sides, and runs the right way.
+  split_vertex_normals(p, t, {}, surface, cut);
+  CHECK(tilt(4) > 0.03f);
+  CHECK(tilt(6) < bend - 0.03f);
+  CHECK(tilt(3) < tilt(4));
+  CHECK(tilt(4) < tilt(5));
+  CHECK(tilt(5) < tilt(6));
+  CHECK(tilt(1) < 1e-3f);  // far from the crease, still flat
 }
 
 TEST_CASE("normals: the GPU passes give the CPU's split normals") {
@@ -94,8 +147,8 @@ TEST_CASE("normals: the GPU passes give the CPU's split normals") {
   destroy_egl_context(ctx);
 }
 
-TEST_CASE("scalpel mesh: the blade reaches the tip from the back, the handle lies behind it") {
-  const Vec3f back(1, 2, 3), tip(1, 2, 1);  // the blade points along -z, 2 long
+TEST_CASE("scalpel mesh: the blade reaches the tip from the back, the handle leans off the blade's plane") {
+  const Vec3f back(1, 2, 3), tip(1, 2, 1);  // the blade points along -z, 2 long, its edge along +x
   ScalpelStyle style;
   style.blade_width = 0.4f;
   style.handle_length = 1.5f;
@@ -103,17 +156,32 @@ TEST_CASE("scalpel mesh: the blade reaches the tip from the back, the handle lie
   scalpel_mesh(back, tip, Vec3f(1, 0, 0), style, v);
   REQUIRE(v.size() % 3 == 0);
   REQUIRE(v.size() > 30);
-  float deepest = 1e9f, highest = -1e9f, widest = 0.0f;
+  float deepest = 1e9f, highest = -1e9f, widest = 0.0f, leaning = -1e9f, other_side = 1e9f;
   for (const SolidVertex& x : v) {
     const Vec3f p(x.position[0], x.position[1], x.position[2]);
     deepest = std::min(deepest, p.z());
     highest = std::max(highest, p.z());
     widest = std::max(widest, std::abs(p.x() - 1.0f));
+    leaning = std::max(leaning, p.y() - 2.0f);
+    other_side = std::min(other_side, p.y() - 2.0f);
     CHECK(Vec3f(x.normal[0], x.normal[1], x.normal[2]).norm() == doctest::Approx(1.0f).epsilon(1e-4));
   }
   CHECK(deepest == doctest::Approx(tip.z()).epsilon(1e-5));  // the tip is the blade's deepest point
-  CHECK(highest > back.z() + 1.4f);                          // the handle continues behind the back
   CHECK(widest <= 0.5f * style.blade_width + 1e-5f);         // no wider than the blade
+  // The handle continues behind the back (the neck, then cos 50 degrees of its length) and leans
+  // off the blade's plane (x = 1) toward -n = -(axis x edge) = +y by sin 50 degrees of its length,
+  // so seen along the blade it stands beside the incision (which runs along x), not over it.
+  const float lean = style.handle_lean, hl = style.handle_length;
+  CHECK(highest > back.z() + 0.15f * hl + 0.95f * std::cos(lean) * hl);
+  CHECK(leaning > 0.95f * std::sin(lean) * hl);
+  CHECK(other_side > -0.2f * style.blade_width);  // only its thickness on the other side
+  // In line with the blade (no lean), the handle runs straight back along the axis.
+  style.handle_lean = 0.0f;
+  v.clear();
+  scalpel_mesh(back, tip, Vec3f(1, 0, 0), style, v);
+  highest = -1e9f;
+  for (const SolidVertex& x : v) highest = std::max(highest, x.position[2]);
+  CHECK(highest > back.z() + 1.15f * hl);
   // Nothing for a zero-length blade; the marker is a closed octahedron.
   std::vector<SolidVertex> none;
   scalpel_mesh(back, back, Vec3f(1, 0, 0), style, none);

@@ -580,32 +580,49 @@ TEST_CASE("renderer: buffers grow past capacity / incremental cut uploads match 
   renderer_destroy(incremental);
 }
 
+// An icosphere's positions (float) and triangles, for the shadow grid.
+struct Ball {
+  std::vector<Vec3f> positions;
+  std::vector<Tri> triangles;
+};
+Ball make_ball(const Vec3f& centre, float radius) {
+  const TriMesh mesh = make_icosphere(centre.cast<double>(), radius, 4);
+  Ball b;
+  for (const Vec3d& p : mesh.positions) b.positions.push_back(p.cast<float>());
+  b.triangles = mesh.triangles;
+  return b;
+}
+
 TEST_CASE("tray shadow grid: dark under the object along the light, clear far from it") {
-  // A ball of vertices 3 above the plane y = 0, the light straight up: the shadow is a disc under it.
-  std::vector<Vec3f> points;
-  for (int k = 0; k < 4000; ++k) {
-    const float a = 2.399963f * float(k), z = 1.0f - 2.0f * (float(k) + 0.5f) / 4000.0f, r = std::sqrt(1.0f - z * z);
-    points.push_back(Vec3f(r * std::cos(a), 3.0f + z, r * std::sin(a)));
-  }
-  points.push_back(Vec3f(NAN, NAN, NAN));  // a free slot is skipped
+  // A ball of radius 1, its centre 1.5 above the plane y = 0, the light straight up: the shadow is a
+  // disc under it (its penumbra 0.15 x 1.5 wide).
+  Ball ball = make_ball(Vec3f(0, 1.5f, 0), 1.0f);
+  ball.positions.push_back(Vec3f(NAN, NAN, NAN));  // a free slot is skipped
+  ball.triangles.push_back({kDeadIndex, kDeadIndex, kDeadIndex});
+  const uint32_t nv = uint32_t(ball.positions.size()), nt = uint32_t(ball.triangles.size());
   TrayPlane tray;
   tray.centre = Vec3f::Zero();
   tray.half_size = 4.0f;
-  std::vector<float> grid, scratch;
+  std::vector<float> grid;
+  ShadowScratch scratch;
   const int g = kTrayShadowGrid;
   const auto at = [&](float along_u, float along_v) {  // the cell at tray coordinates in [-1, 1]
     const int x = std::clamp(int((0.5f * along_u + 0.5f) * float(g)), 0, g - 1);
     const int y = std::clamp(int((0.5f * along_v + 0.5f) * float(g)), 0, g - 1);
     return grid[size_t(y) * size_t(g) + size_t(x)];
   };
-  tray_shadow_grid(points.data(), uint32_t(points.size()), tray, Vec3f::UnitY(), grid, scratch);
+  tray_shadow_grid(ball.positions.data(), nv, ball.triangles.data(), nt, tray, Vec3f::UnitY(), grid, scratch);
   REQUIRE(grid.size() == size_t(g) * size_t(g));
-  CHECK(at(0.0f, 0.0f) > 0.9f);   // under the ball's centre
+  CHECK(at(0.0f, 0.0f) > 0.95f);  // under the ball's centre
   CHECK(at(0.6f, 0.0f) == 0.0f);  // 2.4 away, the ball's radius is 1
   CHECK(at(0.0f, -0.6f) == 0.0f);
+  // The vertices alone (no triangles) cast it too.
+  tray_shadow_grid(ball.positions.data(), nv, nullptr, 0, tray, Vec3f::UnitY(), grid, scratch);
+  CHECK(at(0.0f, 0.0f) > 0.8f);
+  CHECK(at(0.6f, 0.0f) == 0.0f);
   // A slanted light moves the shadow away from under the ball, opposite to the light's tilt.
   const Vec3f light = Vec3f(1.0f, 1.0f, 0.0f).normalized();
-  tray_shadow_grid(points.data(), uint32_t(points.size()), tray, light, grid, scratch);
+  tray_shadow_grid(ball.positions.data(), nv, ball.triangles.data(), nt, tray, light, grid, scratch);
   float sum = 0.0f, moment = 0.0f;
   Vec3f u = tray.normal.cross(std::abs(tray.normal.x()) < 0.9f ? Vec3f::UnitX() : Vec3f::UnitY()).normalized();
   for (int y = 0; y < g; ++y) {
@@ -618,8 +635,52 @@ TEST_CASE("tray shadow grid: dark under the object along the light, clear far fr
     }
   }
   REQUIRE(sum > 0.0f);
-  MESSAGE("shadow centre x " << moment / sum << " (the ball at 3 above, light at 45 degrees: -3)");
-  CHECK(moment / sum == doctest::Approx(-3.0f).epsilon(0.1));
+  MESSAGE("shadow centre x " << moment / sum << " (the ball at 1.5 above, light at 45 degrees: -1.5)");
+  CHECK(moment / sum == doctest::Approx(-1.5f).epsilon(0.1));
+}
+
+TEST_CASE("tray shadow grid: a small piece casts a shadow as small and faint as itself") {
+  // The ball of radius 1 hanging 1.5 above the tray, and a crumb of radius 0.05 (a grid cell is 0.0625)
+  // lying on it 3.2 away: the crumb's shadow stays within four of its own radii and is faint (the
+  // grid once made it a dark blob of 5 x 5 cells); a piece of radius 0.3 lying there casts a dark
+  // shadow within twice its radius.
+  const Ball ball = make_ball(Vec3f(0, 1.5f, 0), 1.0f);
+  TrayPlane tray;
+  tray.half_size = 4.0f;
+  const int g = kTrayShadowGrid;
+  const float cell = 2.0f * tray.half_size / float(g);
+  std::vector<float> grid;
+  ShadowScratch scratch;
+  for (const float r : {0.05f, 0.3f}) {
+    Ball both = ball;
+    const Ball piece = make_ball(Vec3f(3.2f, r, 0), r);
+    const uint32_t offset = uint32_t(both.positions.size());
+    both.positions.insert(both.positions.end(), piece.positions.begin(), piece.positions.end());
+    for (const Tri& t : piece.triangles) both.triangles.push_back({t[0] + offset, t[1] + offset, t[2] + offset});
+    tray_shadow_grid(both.positions.data(), uint32_t(both.positions.size()), both.triangles.data(),
+                     uint32_t(both.triangles.size()), tray, Vec3f::UnitY(), grid, scratch);
+    // The piece's shadow: the cells nearer to it than to the ball's shadow.
+    float darkest = 0.0f, reach = 0.0f;
+    for (int y = 0; y < g; ++y) {
+      for (int x = 0; x < g; ++x) {
+        const Eigen::Vector2f c((float(x) + 0.5f) * cell - tray.half_size, (float(y) + 0.5f) * cell - tray.half_size);
+        const float w = grid[size_t(y) * size_t(g) + size_t(x)];
+        // The tray's axes: u = n x (1,0,0) = (0,0,-1), v = n x u = (-1,0,0): the piece is at v = -3.2.
+        const float from_piece = (c - Eigen::Vector2f(0.0f, -3.2f)).norm();
+        if (from_piece > 1.0f || w < 0.02f) continue;
+        darkest = std::max(darkest, w);
+        reach = std::max(reach, from_piece);
+      }
+    }
+    MESSAGE("piece of radius " << r << ": shadow up to " << darkest << ", reaching " << reach);
+    if (r < 0.1f) {
+      CHECK(darkest < 0.35f);
+      CHECK(reach < 4.0f * r);
+    } else {
+      CHECK(darkest > 0.8f);
+      CHECK(reach < 2.0f * r);
+    }
+  }
 }
 
 TEST_CASE("renderer: a tray under the surface, darker where its shadow falls") {
