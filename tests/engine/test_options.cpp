@@ -11,12 +11,14 @@ TEST_SUITE("options") {
   TEST_CASE("the switches parse to their settings and default when unset") {
     {
       const dvx_test::ScopedEnv a("DIVVOX_MEMORY_LIMIT", "100M"), b("DIVVOX_MAX_FPS", "24.5"), c("DIVVOX_SHADOWS", "0"),
-          d("DIVVOX_CHUNK_WORK", "7");
+          d("DIVVOX_CHUNK_WORK", "7"), e("DIVVOX_CCX", "/opt/calculix/ccx_2.20"), f("DIVVOX_GNUPLOT", "gnuplot-qt");
       const EnvOptions o = read_env_options();
       CHECK(o.memory_limit == 100u * 1024 * 1024);
       CHECK(o.max_fps == 24.5);
       CHECK(o.shadows == 0);
       CHECK(o.chunk_work == 7);
+      CHECK(o.ccx == "/opt/calculix/ccx_2.20");
+      CHECK(o.gnuplot == "gnuplot-qt");
     }
     const dvx_test::ScopedEnv empty("DIVVOX_MSAA", "");
     const EnvOptions o = read_env_options();
