@@ -68,6 +68,7 @@ struct ToolState {
   bool blade_sent = false, last_cutting = false;
   uint32_t last_blade_stamp = 0;
   BladePose last_sent_pose;
+  Eigen::Vector2f last_sent_cursor = Eigen::Vector2f::Zero();  // the cursor then (a fast drag covers the path since)
   std::deque<BladePose> trail;
   // A drag's outcome: voxels cut between its press and the step after its release.
   bool cut_pending = false;

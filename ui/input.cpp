@@ -1,6 +1,7 @@
 #include "ui/input.h"
 
 #include "engine/errors.h"
+#include "render/renderer.h"
 #include "sim/cut.h"
 
 #include <Eigen/Geometry>
@@ -106,6 +107,64 @@ BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry,
   BladePose pose;
   pose.a = e - lead * u;
   pose.b = e + depth * u;
+  return pose;
+}
+
+BladePose cover_crossed_path(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& from_pixel,
+                             const Eigen::Vector2f& to_pixel, const BladePose& from, const BladePose& to,
+                             const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                             const std::vector<uint8_t>& flags, double depth, double voxel,
+                             std::vector<Eigen::Vector2f>* scratch, CoverStats* stats, float step_pixels,
+                             uint32_t max_samples) {
+  CoverStats local;
+  CoverStats& st = stats ? *stats : local;
+  const float pixels = (to_pixel - from_pixel).norm();
+  const Vec3d top_move = to.a - from.a, tip_move = to.b - from.b;
+  const double blade = (to.b - to.a).norm();
+  if (pixels <= step_pixels || blade <= 0.0 || top_move.squaredNorm() <= 0.0) return to;
+  const Vec3d u = (to.b - to.a) / blade;  // the new pose's direction: into the tissue
+  const uint32_t n = std::min(max_samples, uint32_t(pixels / step_pixels));
+  double raise = 0.0, lower = 0.0;
+  for (uint32_t i = 1; i <= n; ++i) {
+    // The scalpel aimed at this point of the screen path, as aim_scalpel aims it at a frame.
+    const float f = float(i) / float(n + 1);
+    const Ray ray = cursor_ray(camera, viewport, from_pixel + f * (to_pixel - from_pixel));
+    ++st.samples;
+    SurfaceHit entry_hit;
+    if (!pick_surface(ray, positions, triangles, flags, kTriangleCut, camera.z_near, entry_hit, scratch,
+                      Facing::kEntering)) {
+      continue;
+    }
+    ++st.hits;
+    const Vec3f entry = entry_hit.point;
+    const BladePose aim = scalpel_pose(camera, ray, entry, 1.0, 0.0);
+    const Ray inward{entry, (aim.b - aim.a).cast<float>().normalized()};
+    double reach = depth;
+    SurfaceHit exit_hit;
+    if (pick_surface(inward, positions, triangles, flags, kTriangleCut, 0.5f * float(voxel), exit_hit, scratch,
+                     Facing::kLeaving)) {
+      reach = std::max(reach, double(exit_hit.t) + voxel);
+    }
+    const Vec3d e = entry.cast<double>();
+    const Vec3d reach_point = e + reach * (aim.b - aim.a).normalized();
+    // Where along the sweep the blade passes this point: its projection on the top's path.
+    const double s = std::clamp((e - from.a).dot(top_move) / top_move.squaredNorm(), 0.0, 1.0);
+    if (s < 0.1) continue;
+    // The top at s must lie `voxel` before the entry along the blade; raising the new top by r moves
+    // the top at s by s r. Likewise the tip must lie past the reach point.
+    const Vec3d top = from.a + s * top_move, tip = from.b + s * tip_move;
+    raise = std::max(raise, (voxel - (e - top).dot(u)) / s);
+    lower = std::max(lower, (-(tip - reach_point).dot(u)) / s);
+  }
+  // A sample far off the blade's line (another part of the organ behind the path) must not make a
+  // blade many times longer: each end moves by at most twice the blade's length.
+  raise = std::clamp(raise, 0.0, 2.0 * blade);
+  lower = std::clamp(lower, 0.0, 2.0 * blade);
+  st.raised = raise;
+  st.lowered = lower;
+  BladePose pose = to;
+  pose.a -= raise * u;
+  pose.b += lower * u;
   return pose;
 }
 

@@ -53,6 +53,26 @@ bool nearest_surface_depth(const Ray& ray, const std::vector<Vec3f>& positions, 
 BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry, double depth, double lead,
                        float tilt = 0.35f);
 
+// A fast drag (issue 29): between two frames the blade sweeps the straight ruled quad from `from` to
+// `to`; under a curved surface its top dips below the tissue the cursor crossed between the frames,
+// which stays uncut (an incision of dashes). The screen path between `from_pixel` and `to_pixel` is
+// sampled (every `step_pixels`, at most `max_samples`); at each sample the scalpel is aimed as at a
+// frame (entry: the outer face the ray enters through, cut faces skipped; reach: `depth` or through
+// the tissue plus `voxel`). The returned pose is `to` lengthened along its own line, its top raised and
+// its tip lowered, just enough that the sweep from `from` passes `voxel` above every sampled entry and
+// reaches every sampled reach: the stroke cuts along the surface the cursor crossed. A sample the
+// sweep meets too early in its course (under 10 % of it) is left to the previous sweep.
+struct CoverStats {
+  uint32_t samples = 0, hits = 0;   // path samples, and those over the tissue
+  double raised = 0.0, lowered = 0.0;  // how far the top was raised and the tip lowered
+};
+BladePose cover_crossed_path(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& from_pixel,
+                             const Eigen::Vector2f& to_pixel, const BladePose& from, const BladePose& to,
+                             const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
+                             const std::vector<uint8_t>& flags, double depth, double voxel,
+                             std::vector<Eigen::Vector2f>* scratch = nullptr, CoverStats* stats = nullptr,
+                             float step_pixels = 12.0f, uint32_t max_samples = 8);
+
 // Camera moves by mouse. Orbit: yaw/pitch by pixels dragged (pitch kept within +-89 degrees);
 // target and distance unchanged. Pan: the target moves in the view plane so the point under the
 // cursor at the target's depth follows the cursor; distance and angles unchanged. Zoom: distance

@@ -34,6 +34,7 @@ void send_blade(AppState& app, const BladePose& pose, bool cutting) {
   app.tools.last_cutting = cutting;
   app.tools.last_blade_stamp = stamp;
   app.tools.last_sent_pose = pose;
+  app.tools.last_sent_cursor = app.tools.cursor;
   if (cutting) {
     app.tools.trail.push_back(pose);
     while (app.tools.trail.size() > size_t(app.view.trail_length)) app.tools.trail.pop_front();
@@ -184,7 +185,17 @@ void scalpel_mouse(AppState& app, bool left, bool free_mouse) {
   } else if (left && app.tools.left_down) {
     app.tools.drag_touched |= app.tools.hover_hit;
     const BladePose& p = app.tools.blade_pose;
-    if (p.a != app.tools.last_sent_pose.a || p.b != app.tools.last_sent_pose.b) send_blade(app, p, true);
+    if (p.a != app.tools.last_sent_pose.a || p.b != app.tools.last_sent_pose.b) {
+      // A fast drag: the sweep from the last pose covers the surface the cursor crossed since.
+      BladePose pose = p;
+      if (app.current && app.tools.drag_touched) {
+        pose = cover_crossed_path(app.view.camera, app.view.viewport, app.tools.last_sent_cursor, app.tools.cursor,
+                                  app.tools.last_sent_pose, p, app.current->positions, app.current->triangles,
+                                  app.current->triangle_flags, app.tools.cut_depth, app.view.voxel_size,
+                                  &app.tools.pick_scratch);
+      }
+      send_blade(app, pose, true);
+    }
   } else if (!left && app.tools.left_down) {
     scalpel_release(app);
   }

@@ -4,6 +4,7 @@
 
 #include "engine/scene.h"
 #include "sim/cut.h"
+#include "sim/shapes.h"
 
 #include <nlohmann/json.hpp>
 
@@ -121,6 +122,75 @@ TEST_CASE("scalpel: the blade enters at the picked point, reaches the set depth,
     CHECK(angle == doctest::Approx(tilt).epsilon(1e-3));
     if (tilt > 0) CHECK(u.dot(camera_up(camera).cast<double>()) < 0.0);  // toward the bottom of the screen
   }
+}
+
+// Issue 29, fast drags: a drag of 240 px across a sphere in one frame. The straight sweep between the
+// two frames' poses passes under the surface the cursor crossed (its top dips below the entries by
+// about the chord's sagitta); lengthened by cover_crossed_path it passes above every one of them, and
+// its tip through the tissue under each.
+TEST_CASE("scalpel: a fast drag's sweep covers the surface the cursor crossed") {
+  const TriMesh sphere = make_icosphere(Vec3d::Zero(), 1.0, 4);
+  std::vector<Vec3f> positions;
+  for (const Vec3d& p : sphere.positions) positions.push_back(p.cast<float>());
+  const std::vector<uint8_t> flags(sphere.triangles.size(), 0);
+  const Camera camera = frame_box(unit_box(), 16.0f / 9.0f);
+  const Viewport viewport{1280, 720};
+  const double voxel = 0.02, depth = 0.3;
+  const auto aim = [&](const Eigen::Vector2f& pixel, Vec3f& entry) {
+    const Ray ray = cursor_ray(camera, viewport, pixel);
+    SurfaceHit hit;
+    REQUIRE(pick_surface(ray, positions, sphere.triangles, flags, 0, camera.z_near, hit, nullptr, Facing::kEntering));
+    entry = hit.point;
+    // As the window aims it: the set depth, or through the tissue under the cursor and a voxel.
+    const BladePose line = scalpel_pose(camera, ray, entry, 1.0, 0.0);
+    SurfaceHit exit;
+    double reach = depth;
+    if (pick_surface({entry, (line.b - line.a).cast<float>().normalized()}, positions, sphere.triangles, flags, 0,
+                     0.5f * float(voxel), exit, nullptr, Facing::kLeaving)) {
+      reach = std::max(reach, double(exit.t) + voxel);
+    }
+    return scalpel_pose(camera, ray, entry, reach, 2.0 * voxel);
+  };
+  const Eigen::Vector2f from_pixel(520, 360), to_pixel(760, 360);
+  Vec3f e0, e1;
+  const BladePose from = aim(from_pixel, e0), to = aim(to_pixel, e1);
+  // How far above (positive) the sweep's top passes each entry under the path, the worst of 32.
+  const auto worst_clearance = [&](const BladePose& end) {
+    const Vec3d top_move = end.a - from.a, u = (end.b - end.a).normalized();
+    double worst = 1e300, worst_depth = 1e300;
+    for (int i = 1; i < 32; ++i) {
+      Vec3f e;
+      const BladePose at = aim(from_pixel + (float(i) / 32.0f) * (to_pixel - from_pixel), e);
+      const double s = std::clamp((e.cast<double>() - from.a).dot(top_move) / top_move.squaredNorm(), 0.0, 1.0);
+      const Vec3d top = from.a + s * top_move, tip = from.b + s * (end.b - from.b);
+      worst = std::min(worst, (e.cast<double>() - top).dot(u));
+      worst_depth = std::min(worst_depth, (tip - at.b).dot(u));
+    }
+    return std::pair<double, double>(worst, worst_depth);
+  };
+  const auto [plain, plain_depth] = worst_clearance(to);
+  MESSAGE("straight sweep: the top passes " << -plain << " below the lowest entry crossed");
+  CHECK(plain < -3.0 * voxel);  // the dashes: the top under the surface by several voxels
+  CoverStats stats;
+  const BladePose covered = cover_crossed_path(camera, viewport, from_pixel, to_pixel, from, to, positions,
+                                               sphere.triangles, flags, depth, voxel, nullptr, &stats);
+  const auto [clear, clear_depth] = worst_clearance(covered);
+  MESSAGE("covered: the top raised " << stats.raised << ", the tip lowered " << stats.lowered << ", clearance " << clear
+                                     << ", depth margin " << clear_depth << " (" << stats.hits << "/" << stats.samples
+                                     << " samples on the tissue)");
+  CHECK(stats.hits == 8);
+  CHECK(clear > 0.0);               // every entry crossed lies under the sweep's top
+  CHECK(plain_depth < -3.0 * voxel);  // the tip, too, stops short of the far side
+  CHECK(clear_depth > -voxel);  // covered: past the far side under every point (each aim reaches a voxel beyond it)
+  // Along the new pose's own line: the same blade, longer.
+  const Vec3d u0 = (to.b - to.a).normalized(), u1 = (covered.b - covered.a).normalized();
+  CHECK(u0.dot(u1) > 1.0 - 1e-9);
+  CHECK(distance_to_line(covered.a, to.a, u0) < 1e-9);
+  // A slow drag (under a step) is sent as it is.
+  const BladePose slow = cover_crossed_path(camera, viewport, from_pixel, from_pixel + Eigen::Vector2f(5, 0), from, to,
+                                            positions, sphere.triangles, flags, depth, voxel);
+  CHECK(slow.a == to.a);
+  CHECK(slow.b == to.b);
 }
 
 TEST_CASE("camera: orbit keeps target and distance, pan keeps distance and angles, zoom keeps target") {
