@@ -1,12 +1,16 @@
 #include "engine/errors.h"
 #include "engine/scene.h"
 #include "engine/session.h"
+#include "sim/surface_metrics.h"
 #include "support.h"
 
 #include <doctest/doctest.h>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <array>
 #include <filesystem>
+#include <map>
 
 using namespace dvx;
 using nlohmann::json;
@@ -227,5 +231,76 @@ TEST_SUITE("scene") {
     CHECK(sag / moving < 0.05);
     CHECK(lowest > tray - 0.001);
     CHECK(lowest < tray + 0.005);  // it reached the tray
+  }
+
+  // Issue 30: an incision in loaded tissue opens. The liver hangs from its ligaments onto its tray;
+  // after it has settled for 1 s, a vertical blade is swept through its depth in half a second just beside the
+  // anchored region, from its top down a third of its height: the top of the lobe there is in tension
+  // (it bends down from the anchors), so the cut's two faces draw apart.
+  TEST_CASE("a cut across the loaded liver gapes within 1 s") {
+    const Scene scene = load_scene(dvx_test::source_path("assets/scenes/liver.json"));
+    Session session;
+    open_session(scene, scene.pbd.dt, true, 1, session);
+    for (int i = 0; i < 60; ++i) session_step(session, StepCommands());
+    const Aabb b = mesh_bounds(session.input.mesh);
+    const Vec3d size = b.extent();
+    // The cut plane: a tenth of the liver's width beyond the anchor box's -x face, where the left
+    // lobe leaves the anchored region.
+    const double x = scene.pbd.fixed[0].min.x() - 0.1 * size.x();
+    const double top = b.max.y() + 0.05 * size.y(), bottom = b.max.y() - 0.6 * size.y();
+    MESSAGE("bounds " << b.min.transpose() << " .. " << b.max.transpose() << ", anchor box x " << scene.pbd.fixed[0].min.x() << " .. " << scene.pbd.fixed[0].max.x() << ", cut at x " << x);
+    // The stroke: 30 steps (half a second) through the liver's depth, then the blade lifted.
+    const double z0 = b.min.z() - 0.05 * size.z(), z1 = b.max.z() + 0.05 * size.z();
+    uint64_t voxels_cut = 0;
+    for (int i = 0; i <= 31; ++i) {
+      StepCommands c;
+      c.has_blade = true;
+      const double z = z0 + (z1 - z0) * std::min(i, 30) / 30.0;
+      c.blade = {Vec3d(x, top, z), Vec3d(x, bottom, z)};
+      c.cutting = i > 0 && i <= 30;
+      voxels_cut += session_step(session, c).cut.voxels_cut;
+    }
+    CHECK(voxels_cut > 100);
+    // The cut's vertices come in twins, one per side, at the same rest point; the incision's width
+    // at a twin is the distance between the two deformed positions (0 when the cut is made).
+    const auto widths = [&]() {
+      const CutSurface& surface = session.state.cut.surface;
+      const PbdState& s = *session.state.pbd;
+      std::map<std::array<float, 3>, std::vector<uint32_t>> at;
+      for (size_t t = 0; t < surface.triangles.size(); ++t) {
+        const Tri& tri = surface.triangles[t];
+        if (!surface.triangle_cut[t] || tri[0] >= surface.positions.size()) continue;
+        for (uint32_t v : tri) {
+          const Vec3f& p = surface.positions[v];
+          std::vector<uint32_t>& slots = at[{p.x(), p.y(), p.z()}];
+          if (std::find(slots.begin(), slots.end(), v) == slots.end()) slots.push_back(v);
+        }
+      }
+      std::vector<double> w;
+      for (const auto& [point, slots] : at) {
+        if (slots.size() == 2) w.push_back((s.deformed[slots[0]] - s.deformed[slots[1]]).norm());
+      }
+      std::sort(w.begin(), w.end());
+      return w;
+    };
+    const auto quantile = [](const std::vector<double>& w, double q) { return w[size_t(q * double(w.size() - 1))]; };
+    const std::vector<double> at_cut = widths();
+    REQUIRE(at_cut.size() > 100);
+    for (int i = 0; i < 60; ++i) session_step(session, StepCommands());
+    const std::vector<double> after = widths();
+    REQUIRE(after.size() > 100);
+    MESSAGE("cut " << voxels_cut << " voxels, " << after.size() << " twin vertices; the incision's width: median "
+                   << 1e3 * quantile(at_cut, 0.5) << " mm at the stroke's end, median / p90 " << 1e3 * quantile(after, 0.5)
+                   << " / " << 1e3 * quantile(after, 0.9) << " mm 1 s later");
+    CHECK(count_nonfinite(*session.state.pbd) == 0);
+    CHECK(quantile(after, 0.5) > 0.001);  // open by more than a millimetre
+    CHECK(quantile(after, 0.5) < 0.05);   // and not a piece that fell away: the lobe still hangs on
+    std::vector<Tri> live;
+    for (const Tri& t : session.state.cut.surface.triangles) {
+      if (t[0] < session.state.cut.surface.positions.size()) live.push_back(t);
+    }
+    uint32_t components = 0;
+    triangle_components(live, uint32_t(session.state.cut.surface.positions.size()), components);
+    CHECK(components == 1);
   }
 }
