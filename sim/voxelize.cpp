@@ -335,8 +335,8 @@ bool checked_node_count(const Lattice& l, uint64_t& nodes) {
   return true;
 }
 
-bool run_voxelize(const TriMesh& mesh, const VoxelizeParams& params, VoxelModel* model,
-                  std::vector<uint8_t>* parities, Lattice& lattice_out, std::string& error) {
+// The mesh's indices and used vertices are valid; else `error` says what is not.
+bool check_mesh(const TriMesh& mesh, std::string& error) {
   const size_t nv = mesh.positions.size();
   const size_t ntri = mesh.triangles.size();
   if (ntri == 0) {
@@ -360,6 +360,162 @@ bool run_voxelize(const TriMesh& mesh, const VoxelizeParams& params, VoxelModel*
       }
     }
   }
+  return true;
+}
+
+// Fixed-point vertices in lattice units, clamped into the grid.
+std::vector<Fixed3> snap_vertices(const TriMesh& mesh, const Lattice& L, const Grid& g) {
+  std::vector<Fixed3> q(mesh.positions.size(), Fixed3{0, 0, 0});
+  for (size_t i = 0; i < mesh.positions.size(); ++i) {
+    const Vec3d& p = mesh.positions[i];
+    if (!p.allFinite()) continue;  // unused (used ones were checked)
+    for (int a = 0; a < 3; ++a) {
+      const double x = (p[a] - L.origin[a]) / L.voxel_size * double(kUnit);
+      const double hi = double(g.n[a] * kUnit);
+      q[i][a] = std::llround(std::clamp(x, 0.0, hi));
+    }
+  }
+  return q;
+}
+
+// The ray parities of slice k's nodes (bit a: the ray along axis a has crossed the surface an odd
+// number of times before the node), from the sorted hits; `cursor` advances through each axis's
+// hits slice by slice. The z bit carries over from the slice below.
+void slice_parities(const std::array<std::vector<Hit>, 3>& hits, size_t cursor[3], uint32_t base, uint32_t P,
+                    uint32_t R, int32_t ny, uint8_t* b) {
+  const uint32_t end = base + P;
+  keep_bits(b, P, 4);
+  // z: toggle the nodes after each crossing of this slice.
+  {
+    const std::vector<Hit>& h = hits[2];
+    size_t& c = cursor[2];
+    for (; c < h.size() && h[c].key < end; ++c) b[h[c].key - base] ^= 4;
+  }
+  // y: toggles, then a prefix xor along y (rows of the slice).
+  {
+    const std::vector<Hit>& h = hits[1];
+    size_t& c = cursor[1];
+    for (; c < h.size() && h[c].key < end; ++c) b[h[c].key - base] ^= 2;
+    prefix_y(b, R, ny);
+  }
+  // x: runs between consecutive crossings of a row (a row ends the run of an odd ray).
+  const std::vector<Hit>& h = hits[0];
+  size_t& c = cursor[0];
+  bool on = false;
+  uint32_t start = 0, row_end = 0;
+  for (; c < h.size() && h[c].key < end; ++c) {
+    const uint32_t p = h[c].key - base;
+    if (on && p >= row_end) {
+      set_bit0(b, start, row_end);
+      on = false;
+    }
+    if (!on) {
+      on = true;
+      start = p;
+      row_end = (p / R + 1) * R;
+    } else {
+      set_bit0(b, start, p);
+      on = false;
+    }
+  }
+  if (on) set_bit0(b, start, row_end);
+}
+
+// Appends a slice's inside flags (one byte per node, 0 or 1) to the bitset.
+void pack_slice(const uint8_t* m, uint32_t P, BitWriter& writer) {
+  uint32_t p = 0;
+  for (; p + 64 <= P; p += 64) {
+    uint64_t w = 0;
+    for (int s = 0; s < 8; ++s) w |= pack8(m + p + 8 * s) << (8 * s);
+    writer.put(w, 64);
+  }
+  if (p < P) {
+    uint64_t w = 0;
+    const int rem = int(P - p);
+    for (int s = 0; s < rem; ++s) w |= uint64_t(m[p + uint32_t(s)]) << s;
+    writer.put(w, rem);
+  }
+}
+
+// The Hermite data of the lattice edges whose end nodes differ in sign: each edge's crossing (the hit
+// nearest its middle) and the surface normal there, oriented outward. The cursors walk each axis's
+// sorted hits in step with the slices.
+struct CrossingWriter {
+  const TriMesh& mesh;
+  const Grid& g;
+  const std::array<std::vector<Hit>, 3>& hits;
+  std::vector<EdgeCrossing>& crossings;
+  size_t end_cursor[3] = {0, 0, 0};    // into hits (the edge's end node)
+  size_t first_cursor[3] = {0, 0, 0};  // into hits (the edge's first node)
+
+  void emit(uint32_t node, int a, bool first_inside) {
+    const uint32_t target = node + g.stride[a];  // the edge's end node = key of its hits
+    const std::vector<Hit>& h = hits[a];
+    size_t& c = end_cursor[a];
+    while (c < h.size() && h[c].key < target) ++c;
+    const Hit* best = nullptr;
+    float best_d = 2.0f;
+    for (size_t i = c; i < h.size() && h[i].key == target; ++i) {
+      const float d = std::fabs(h[i].t - 0.5f);
+      if (d < best_d) {
+        best_d = d;
+        best = &h[i];
+      }
+    }
+    float t = best ? best->t : 0.5f;
+    if (!best) {
+      // The vote flipped a node that lies exactly on the surface: the ray's crossing sits on the
+      // edge's first node (it belongs to the edge before by the half-open rule). Use it at t = 0.
+      size_t& c0 = first_cursor[a];
+      while (c0 < h.size() && h[c0].key < node) ++c0;
+      for (size_t i = c0; i < h.size() && h[i].key == node; ++i) {
+        if (h[i].tri & kOnNodeBit) {
+          best = &h[i];
+          t = 0.0f;
+          break;
+        }
+      }
+    }
+    EdgeCrossing ec;
+    ec.edge = 3u * node + uint32_t(a);
+    ec.pad = 0;
+    const double toward_out = first_inside ? 1.0 : -1.0;  // along +axis when the first node is inside
+    Vec3d n = Vec3d::Zero();
+    ec.t = t;
+    if (best) {
+      n = triangle_normal(mesh, best->tri & kTriMask);
+      const double s = (best->tri & kNegBit) ? -1.0 : 1.0;  // sign of n[a] (exact, snapped)
+      if (s != toward_out) n = -n;
+    }  // else: the vote flipped a sign this ray did not see (t = 0.5, axis normal)
+    if (n.squaredNorm() == 0.0) n[a] = toward_out;
+    encode_normal(n, ec.normal);
+    crossings.push_back(ec);
+  }
+
+  // Sign-change edges whose first node lies in slice kk (m: its signs; next: slice kk+1 or null).
+  void slice_edges(int32_t kk, const uint8_t* m, const uint8_t* next, uint8_t* d, uint32_t P, uint32_t R,
+                   int32_t nx, int32_t ny) {
+    sign_changes(m, next, d, P, R, nx, ny);
+    const uint32_t base = uint32_t(kk) * P;
+    for (uint32_t p0 = 0; p0 < P; p0 += 8) {
+      uint64_t w;
+      std::memcpy(&w, d + p0, 8);
+      if (w == 0) continue;
+      const uint32_t pe = std::min(P, p0 + 8);
+      for (uint32_t p = p0; p < pe; ++p) {
+        const uint8_t bits = d[p];
+        if (!bits) continue;
+        for (int a = 0; a < 3; ++a) {
+          if (bits & (1u << a)) emit(base + p, a, m[p] != 0);
+        }
+      }
+    }
+  }
+};
+
+bool run_voxelize(const TriMesh& mesh, const VoxelizeParams& params, VoxelModel* model,
+                  std::vector<uint8_t>* parities, Lattice& lattice_out, std::string& error) {
+  if (!check_mesh(mesh, error)) return false;
   Lattice L;
   if (!make_lattice(mesh_bounds(mesh), params.resolution, params.padding, L)) {
     error = "voxelize: no lattice (degenerate mesh box, resolution " + std::to_string(params.resolution) +
@@ -384,22 +540,11 @@ bool run_voxelize(const TriMesh& mesh, const VoxelizeParams& params, VoxelModel*
   g.stride[1] = R;
   g.stride[2] = P;
 
-  // 1. Fixed-point vertices in lattice units, clamped into the grid.
-  std::vector<Fixed3> q(nv, Fixed3{0, 0, 0});
-  for (size_t i = 0; i < nv; ++i) {
-    const Vec3d& p = mesh.positions[i];
-    if (!p.allFinite()) continue;  // unused (used ones were checked)
-    for (int a = 0; a < 3; ++a) {
-      const double x = (p[a] - L.origin[a]) / L.voxel_size * double(kUnit);
-      const double hi = double(g.n[a] * kUnit);
-      q[i][a] = std::llround(std::clamp(x, 0.0, hi));
-    }
-  }
-
-  // Triangles that can contribute: not degenerate after snapping, and not a same-winding
-  // duplicate of an earlier triangle (a double-covered surface would cancel its own parity).
-  // Opposite-winding duplicates are kept: they are internal walls (two solids sharing a face)
-  // and cancel on purpose.
+  // 1. Fixed-point vertices. Triangles that can contribute: not degenerate after snapping, and not a
+  // same-winding duplicate of an earlier triangle (a double-covered surface would cancel its own
+  // parity). Opposite-winding duplicates are kept: they are internal walls (two solids sharing a
+  // face) and cancel on purpose.
+  std::vector<Fixed3> q = snap_vertices(mesh, L, g);
   std::vector<uint32_t> active = active_triangles(mesh, q);
 
   // 2-3. Hits per axis, sorted by key.
@@ -416,157 +561,34 @@ bool run_voxelize(const TriMesh& mesh, const VoxelizeParams& params, VoxelModel*
   std::vector<Fixed3>().swap(q);
   std::vector<uint32_t>().swap(active);
 
-  // 4. Slice sweep.
+  // 4. Slice sweep: parities, the majority vote, the inside bitset, the occupied voxels and the
+  // crossings of the edges between this slice and the one below.
   std::vector<uint64_t> inside((node_count + 63) / 64, 0);
   std::vector<EdgeCrossing> crossings;
   crossings.reserve(hits[0].size() + hits[1].size() + hits[2].size());
   if (parities) parities->assign(node_count, 0);
-
   constexpr size_t kPad = 8;  // lets the diff scan read 8 bytes at a time
   std::vector<uint8_t> buf(P + kPad, 0), maj_prev(P + kPad, 0), maj_cur(P + kPad, 0), diff(P + kPad, 0),
       occ(P + kPad, 0);
   BitWriter writer{inside.data()};
-  size_t cur[3] = {0, 0, 0};    // sign pass cursors into hits
-  size_t hcur[3] = {0, 0, 0};   // Hermite lookup cursors into hits (edge's end node)
-  size_t hcur0[3] = {0, 0, 0};  // Hermite lookup cursors into hits (edge's first node)
+  CrossingWriter edges{mesh, g, hits, crossings};
+  size_t cursor[3] = {0, 0, 0};  // sign pass cursors into hits
   uint64_t occupied = 0;
-  const int32_t nx = L.nx, ny = L.ny, nz = L.nz;
-
-  auto emit_crossing = [&](uint32_t node, int a, bool first_inside) {
-    const uint32_t target = node + g.stride[a];  // the edge's end node = key of its hits
-    const std::vector<Hit>& h = hits[a];
-    size_t& c = hcur[a];
-    while (c < h.size() && h[c].key < target) ++c;
-    const Hit* best = nullptr;
-    float best_d = 2.0f;
-    for (size_t i = c; i < h.size() && h[i].key == target; ++i) {
-      const float d = std::fabs(h[i].t - 0.5f);
-      if (d < best_d) {
-        best_d = d;
-        best = &h[i];
-      }
-    }
-    float t = best ? best->t : 0.5f;
-    if (!best) {
-      // The vote flipped a node that lies exactly on the surface: the ray's crossing sits on the
-      // edge's first node (it belongs to the edge before by the half-open rule). Use it at t = 0.
-      size_t& c0 = hcur0[a];
-      while (c0 < h.size() && h[c0].key < node) ++c0;
-      for (size_t i = c0; i < h.size() && h[i].key == node; ++i) {
-        if (h[i].tri & kOnNodeBit) {
-          best = &h[i];
-          t = 0.0f;
-          break;
-        }
-      }
-    }
-    EdgeCrossing ec;
-    ec.edge = 3u * node + uint32_t(a);
-    ec.pad = 0;
-    const double toward_out = first_inside ? 1.0 : -1.0;  // along +axis when the first node is inside
-    Vec3d n = Vec3d::Zero();
-    ec.t = t;
-    if (best) {
-      n = triangle_normal(mesh, best->tri & kTriMask);
-      const double s = (best->tri & kNegBit) ? -1.0 : 1.0;  // sign of n[a] (exact, snapped)
-      if (s != toward_out) n = -n;
-    }  // else: the vote flipped a sign this ray did not see (t = 0.5, axis normal)
-    if (n.squaredNorm() == 0.0) n[a] = toward_out;
-    encode_normal(n, ec.normal);
-    crossings.push_back(ec);
-  };
-
-  // Sign-change edges whose first node lies in slice kk (m: its signs; next: slice kk+1 or null).
-  auto emit_slice_edges = [&](int32_t kk, const uint8_t* m, const uint8_t* next) {
-    uint8_t* d = diff.data();
-    sign_changes(m, next, d, P, R, nx, ny);
-    const uint32_t base = uint32_t(kk) * P;
-    for (uint32_t p0 = 0; p0 < P; p0 += 8) {
-      uint64_t w;
-      std::memcpy(&w, d + p0, 8);
-      if (w == 0) continue;
-      const uint32_t pe = std::min(P, p0 + 8);
-      for (uint32_t p = p0; p < pe; ++p) {
-        const uint8_t bits = d[p];
-        if (!bits) continue;
-        for (int a = 0; a < 3; ++a) {
-          if (bits & (1u << a)) emit_crossing(base + p, a, m[p] != 0);
-        }
-      }
-    }
-  };
-
-  for (int32_t k = 0; k <= nz; ++k) {
+  for (int32_t k = 0; k <= L.nz; ++k) {
     const uint32_t base = uint32_t(k) * P;
-    const uint32_t end = base + P;
-    uint8_t* b = buf.data();
-    keep_bits(b, P, 4);  // z parity carries over from the slice below
-    // z: toggle the nodes after each crossing of this slice.
-    {
-      const std::vector<Hit>& h = hits[2];
-      size_t& c = cur[2];
-      for (; c < h.size() && h[c].key < end; ++c) b[h[c].key - base] ^= 4;
-    }
-    // y: toggles, then a prefix xor along y (rows of the slice).
-    {
-      const std::vector<Hit>& h = hits[1];
-      size_t& c = cur[1];
-      for (; c < h.size() && h[c].key < end; ++c) b[h[c].key - base] ^= 2;
-      prefix_y(b, R, ny);
-    }
-    // x: runs between consecutive crossings of a row (a row ends the run of an odd ray).
-    {
-      const std::vector<Hit>& h = hits[0];
-      size_t& c = cur[0];
-      bool on = false;
-      uint32_t start = 0, row_end = 0;
-      auto fill = [b](uint32_t s, uint32_t e) { set_bit0(b, s, e); };
-      for (; c < h.size() && h[c].key < end; ++c) {
-        const uint32_t p = h[c].key - base;
-        if (on && p >= row_end) {
-          fill(start, row_end);
-          on = false;
-        }
-        if (!on) {
-          on = true;
-          start = p;
-          row_end = (p / R + 1) * R;
-        } else {
-          fill(start, p);
-          on = false;
-        }
-      }
-      if (on) fill(start, row_end);
-    }
-    if (parities) std::memcpy(parities->data() + base, b, P);
-
-    // Majority vote.
+    slice_parities(hits, cursor, base, P, R, L.ny, buf.data());
+    if (parities) std::memcpy(parities->data() + base, buf.data(), P);
     uint8_t* m = maj_cur.data();
-    majority3(b, m, P);
-    // Pack into the bitset.
-    {
-      uint32_t p = 0;
-      for (; p + 64 <= P; p += 64) {
-        uint64_t w = 0;
-        for (int s = 0; s < 8; ++s) w |= pack8(m + p + 8 * s) << (8 * s);
-        writer.put(w, 64);
-      }
-      if (p < P) {
-        uint64_t w = 0;
-        const int rem = int(P - p);
-        for (int s = 0; s < rem; ++s) w |= uint64_t(m[p + uint32_t(s)]) << s;
-        writer.put(w, rem);
-      }
-    }
+    majority3(buf.data(), m, P);
+    pack_slice(m, P, writer);
     if (k > 0) {
       // Occupied voxels of layer k-1: any of the 8 corners inside.
-      const uint8_t* mp = maj_prev.data();
-      occupied += count_occupied(mp, m, occ.data(), P, R, nx, ny);
-      emit_slice_edges(k - 1, mp, m);
+      occupied += count_occupied(maj_prev.data(), m, occ.data(), P, R, L.nx, L.ny);
+      edges.slice_edges(k - 1, maj_prev.data(), m, diff.data(), P, R, L.nx, L.ny);
     }
     maj_prev.swap(maj_cur);
   }
-  emit_slice_edges(nz, maj_prev.data(), nullptr);
+  edges.slice_edges(L.nz, maj_prev.data(), nullptr, diff.data(), P, R, L.nx, L.ny);
   writer.flush();
 
   for (std::vector<Hit>& h : hits) std::vector<Hit>().swap(h);
