@@ -192,25 +192,32 @@ void merge_rows(SweepMapper& m, size_t row_first, double h) {
   m.open.swap(m.next_open);
 }
 
-}  // namespace
+// The sweep's sampling: nu + 1 samples along the blade, nv + 1 along its motion (fine-voxel spacing);
+// `motion` the farthest a sample moves.
+struct SweepSize {
+  uint32_t nu = 0, nv = 0;
+  double motion = 0.0;
+  uint32_t row() const { return nu + 1; }
+};
 
-void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
-               SweepMapper& m, SweepMapStats* stats) {
+// The samples of the sweep from `from` to `to` (the first row where the last step's samples are now)
+// and the rest images of each through the pieces near the sweep. False when the poses are not finite.
+bool sample_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
+                  SweepMapper& m, SweepSize& z, uint32_t& tests) {
   const double h = pbd.fine_size;
-  m.quads.clear();
-  // Samples: nu + 1 along the blade, nv + 1 along its motion (fine-voxel spacing).
   const double length = std::max((from.b - from.a).norm(), (to.b - to.a).norm());
-  if (!std::isfinite(length)) return;
-  uint32_t nu = uint32_t(std::clamp(std::ceil(length / h), 1.0, double(kMaxSweepPoints / 2)));
+  if (!std::isfinite(length)) return false;
+  z.nu = uint32_t(std::clamp(std::ceil(length / h), 1.0, double(kMaxSweepPoints / 2)));
+  const uint32_t nu = z.nu;
   sweep_start(model, pbd, from, nu, m);
   m.to_world.resize(nu + 1);
-  double motion = 0.0;
+  z.motion = 0.0;
   for (uint32_t i = 0; i <= nu; ++i) {
     m.to_world[i] = to.a + (double(i) / nu) * (to.b - to.a);
-    motion = std::max(motion, (m.to_world[i] - m.from_world[i]).norm());
+    z.motion = std::max(z.motion, (m.to_world[i] - m.from_world[i]).norm());
   }
-  if (!std::isfinite(motion)) return;
-  const uint32_t nv = uint32_t(std::clamp(std::ceil(motion / h), 1.0, std::max(1.0, double(kMaxSweepPoints / (nu + 1)) - 1.0)));
+  if (!std::isfinite(z.motion)) return false;
+  z.nv = uint32_t(std::clamp(std::ceil(z.motion / h), 1.0, std::max(1.0, double(kMaxSweepPoints / (nu + 1)) - 1.0)));
   // The pieces near the sweep, then the rest images of every sample.
   Aabb region;
   for (uint32_t i = 0; i <= nu; ++i) {
@@ -220,13 +227,12 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
   region.min.array() -= h;
   region.max.array() += h;
   build_piece_grid(pbd, region, pbd.sim_size, 1e-3 * h, m.grid);
-  const uint32_t row = nu + 1, count = row * (nv + 1);
+  const uint32_t row = z.row(), count = row * (z.nv + 1);
   m.points.resize(count);
   m.hit_begin.resize(size_t(count) + 1);
   m.hits.clear();
-  uint32_t tests = 0;
-  for (uint32_t j = 0; j <= nv; ++j) {
-    const double t = double(j) / nv;
+  for (uint32_t j = 0; j <= z.nv; ++j) {
+    const double t = double(j) / z.nv;
     for (uint32_t i = 0; i <= nu; ++i) {
       const uint32_t k = j * row + i;
       m.points[k] = m.from_world[i] + t * (m.to_world[i] - m.from_world[i]);
@@ -237,98 +243,87 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
     }
   }
   m.hit_begin[count] = uint32_t(m.hits.size());
+  return true;
+}
 
-  // Cells: one rest quad per piece holding one of the cell's corners.
-  const bool carry = m.ended_begin.size() == size_t(nu) + 2;
-  m.ending.clear();
-  m.ending_sample.clear();
-  m.open.clear();
-  m.rungs.clear();
-  m.merged_away.clear();
-  m.joint_head.clear();
-  m.joint_bound.clear();
-  if (motion > 1e-9 * h) {
-    for (uint32_t j = 0; j < nv; ++j) {
-      const size_t row_first = m.quads.size();
-      m.cell_quads.clear();
-      m.joints.clear();
-      size_t prev_first = 0, prev_last = 0;
-      for (uint32_t i = 0; i < nu; ++i) {
-        const uint32_t k[4] = {j * row + i, j * row + i + 1, (j + 1) * row + i, (j + 1) * row + i + 1};
-        // Distinct pieces of the corners' hits, ascending.
-        uint32_t pieces[32];
-        Vec3d starts[32];
-        int piece_count = 0;
-        for (uint32_t corner : k) {
-          for (uint32_t x = m.hit_begin[corner]; x < m.hit_begin[corner + 1] && piece_count < 32; ++x) {
-            const uint32_t p = m.hits[x].piece;
-            if (std::find(pieces, pieces + piece_count, p) != pieces + piece_count) continue;
-            starts[piece_count] = (m.hits[x].rest - m.grid.piece_origin[p]) / pbd.sim_size;
-            pieces[piece_count++] = p;
-          }
-        }
-        for (int a = 1; a < piece_count; ++a) {  // insertion sort (tiny)
-          for (int b = a; b > 0 && pieces[b - 1] > pieces[b]; --b) {
-            std::swap(pieces[b - 1], pieces[b]);
-            std::swap(starts[b - 1], starts[b]);
-          }
-        }
-        const size_t cell_first = m.cell_quads.size();
-        Vec3d own[32][4];  // this cell's quads before merging (corners r[]; left uninitialised)
-        int own_count = 0;
-        for (int p = 0; p < piece_count; ++p) {
-          Vec3d r[4];
-          bool ok = true;
-          for (int c = 0; c < 4 && ok; ++c) {
-            // The first row starts where the last step's quads through this piece ended.
-            if (c < 2 && j == 0 && carry && ended_through(m, i + uint32_t(c), pieces[p], r[c])) continue;
-            ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
-          }
-          if (!ok) continue;
-          if (j + 1 == nv) {
-            m.ending.push_back({pieces[p], r[2]});
-            m.ending_sample.push_back(i);
-            m.ending.push_back({pieces[p], r[3]});
-            m.ending_sample.push_back(i + 1);
-          }
-          const RestQuad q{{r[0], r[1]}, {r[2], r[3]}};
-          // A neighbour piece sharing the cell's corners maps it the same way: cut it once.
-          bool same = false;
-          for (int x = 0; x < own_count && !same; ++x) {
-            const Vec3d* o = own[x];
-            same = near_point(o[3], r[3], 1e-3 * h) && near_point(o[2], r[2], 1e-3 * h) &&
-                   near_point(o[1], r[1], 1e-3 * h) && near_point(o[0], r[0], 1e-3 * h);
-          }
-          if (same) continue;
-          std::copy(r, r + 4, own[own_count++]);
-          m.cell_quads.push_back(emit_quad(q, h, m, prev_first, prev_last));
-        }
-        prev_first = cell_first;
-        prev_last = m.cell_quads.size();
-      }
-      merge_rows(m, row_first, h);
+// Cell (i, j) of the sweep: one rest quad per piece holding one of its corners (a neighbour piece
+// mapping the cell the same way adds none). The first row starts where the last step's quads
+// through each piece ended (`carry`); the last row records where they end.
+void cell_quads(const PbdState& pbd, SweepMapper& m, const SweepSize& z, uint32_t i, uint32_t j, bool carry,
+                size_t& prev_first, size_t& prev_last) {
+  const double h = pbd.fine_size;
+  const uint32_t row = z.row();
+  const uint32_t k[4] = {j * row + i, j * row + i + 1, (j + 1) * row + i, (j + 1) * row + i + 1};
+  // Distinct pieces of the corners' hits, ascending.
+  uint32_t pieces[32];
+  Vec3d starts[32];
+  int piece_count = 0;
+  for (uint32_t corner : k) {
+    for (uint32_t x = m.hit_begin[corner]; x < m.hit_begin[corner + 1] && piece_count < 32; ++x) {
+      const uint32_t p = m.hits[x].piece;
+      if (std::find(pieces, pieces + piece_count, p) != pieces + piece_count) continue;
+      starts[piece_count] = (m.hits[x].rest - m.grid.piece_origin[p]) / pbd.sim_size;
+      pieces[piece_count++] = p;
     }
-    // The quads merged into an earlier row's are dropped (the others keep their order).
-    m.merged_away.resize(m.quads.size(), 0);
-    size_t kept = 0;
-    for (size_t x = 0; x < m.quads.size(); ++x) {
-      if (!m.merged_away[x]) m.quads[kept++] = m.quads[x];
+  }
+  for (int a = 1; a < piece_count; ++a) {  // insertion sort (tiny)
+    for (int b = a; b > 0 && pieces[b - 1] > pieces[b]; --b) {
+      std::swap(pieces[b - 1], pieces[b]);
+      std::swap(starts[b - 1], starts[b]);
     }
-    m.quads.resize(kept);
   }
-  // Where this step's quads ended, per sample (a counting sort; lookups take the first entry of a
-  // (sample, piece)). A step without motion cut nothing: the strip still ends where it ended.
-  if (motion > 1e-9 * h || !carry) {
-    m.ended_begin.assign(size_t(nu) + 2, 0);
-    for (uint32_t x : m.ending_sample) ++m.ended_begin[x + 1];
-    for (uint32_t i = 0; i <= nu; ++i) m.ended_begin[i + 1] += m.ended_begin[i];
-    m.ended.resize(m.ending.size());
-    m.ended_fill.assign(m.ended_begin.begin(), m.ended_begin.end() - 1);
-    for (size_t x = 0; x < m.ending.size(); ++x) m.ended[m.ended_fill[m.ending_sample[x]]++] = m.ending[x];
+  const size_t cell_first = m.cell_quads.size();
+  Vec3d own[32][4];  // this cell's quads before merging (corners r[]; left uninitialised)
+  int own_count = 0;
+  for (int p = 0; p < piece_count; ++p) {
+    Vec3d r[4];
+    bool ok = true;
+    for (int c = 0; c < 4 && ok; ++c) {
+      // The first row starts where the last step's quads through this piece ended.
+      if (c < 2 && j == 0 && carry && ended_through(m, i + uint32_t(c), pieces[p], r[c])) continue;
+      ok = rest_through(pbd, m, k[c], pieces[p], starts[p], r[c]);
+    }
+    if (!ok) continue;
+    if (j + 1 == z.nv) {
+      m.ending.push_back({pieces[p], r[2]});
+      m.ending_sample.push_back(i);
+      m.ending.push_back({pieces[p], r[3]});
+      m.ending_sample.push_back(i + 1);
+    }
+    const RestQuad q{{r[0], r[1]}, {r[2], r[3]}};
+    // A neighbour piece sharing the cell's corners maps it the same way: cut it once.
+    bool same = false;
+    for (int x = 0; x < own_count && !same; ++x) {
+      const Vec3d* o = own[x];
+      same = near_point(o[3], r[3], 1e-3 * h) && near_point(o[2], r[2], 1e-3 * h) &&
+             near_point(o[1], r[1], 1e-3 * h) && near_point(o[0], r[0], 1e-3 * h);
+    }
+    if (same) continue;
+    std::copy(r, r + 4, own[own_count++]);
+    m.cell_quads.push_back(emit_quad(q, h, m, prev_first, prev_last));
   }
-  // The samples of `to` that are in material, carried to the next step.
-  // In a slit or a gap (inside a piece's hexahedron, outside its material) a sample is carried with
-  // that piece: the material closing in on it is then cut by the relative motion.
+  prev_first = cell_first;
+  prev_last = m.cell_quads.size();
+}
+
+// Where this step's quads ended, per sample (a counting sort; lookups take the first entry of a
+// (sample, piece)).
+void record_ends(SweepMapper& m, uint32_t nu) {
+  m.ended_begin.assign(size_t(nu) + 2, 0);
+  for (uint32_t x : m.ending_sample) ++m.ended_begin[x + 1];
+  for (uint32_t i = 0; i <= nu; ++i) m.ended_begin[i + 1] += m.ended_begin[i];
+  m.ended.resize(m.ending.size());
+  m.ended_fill.assign(m.ended_begin.begin(), m.ended_begin.end() - 1);
+  for (size_t x = 0; x < m.ending.size(); ++x) m.ended[m.ended_fill[m.ending_sample[x]]++] = m.ending[x];
+}
+
+// The samples of `to` that are in material, carried to the next step. In a slit or a gap (inside a
+// piece's hexahedron, outside its material) a sample is carried with that piece: the material
+// closing in on it is then cut by the relative motion. The samples in no piece are carried through
+// the piece of the nearest sample along the blade that has one (its map extrapolated, as the cells'
+// quads map them), so they move with the tissue too.
+void carry_samples(const PbdState& pbd, SweepMapper& m, const SweepSize& z) {
+  const uint32_t nu = z.nu, nv = z.nv, row = z.row();
   m.carried.assign(nu + 1, Vec3d::Constant(std::numeric_limits<double>::quiet_NaN()));
   m.carried_piece.assign(nu + 1, kDeadIndex);
   m.carried_outside.assign(nu + 1, 0);
@@ -351,8 +346,6 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
       m.carried_piece[i] = slot;
     });
   }
-  // The samples in no piece: carried through the piece of the nearest sample along the blade that has
-  // one (its map extrapolated, as the cells' quads map them), so they move with the tissue too.
   for (int pass = 0; pass < 2; ++pass) {
     uint32_t near = kDeadIndex;
     for (uint32_t x = 0; x <= nu; ++x) {
@@ -381,8 +374,49 @@ void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& fr
       m.carried_near[i] = near;
     }
   }
+}
+
+}  // namespace
+
+void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
+               SweepMapper& m, SweepMapStats* stats) {
+  const double h = pbd.fine_size;
+  m.quads.clear();
+  SweepSize z;
+  uint32_t tests = 0;
+  if (!sample_sweep(model, pbd, from, to, m, z, tests)) return;
+
+  // Cells: one rest quad per piece holding one of the cell's corners; rows merged as they come.
+  const bool carry = m.ended_begin.size() == size_t(z.nu) + 2;
+  m.ending.clear();
+  m.ending_sample.clear();
+  m.open.clear();
+  m.rungs.clear();
+  m.merged_away.clear();
+  m.joint_head.clear();
+  m.joint_bound.clear();
+  if (z.motion > 1e-9 * h) {
+    for (uint32_t j = 0; j < z.nv; ++j) {
+      const size_t row_first = m.quads.size();
+      m.cell_quads.clear();
+      m.joints.clear();
+      size_t prev_first = 0, prev_last = 0;
+      for (uint32_t i = 0; i < z.nu; ++i) cell_quads(pbd, m, z, i, j, carry, prev_first, prev_last);
+      merge_rows(m, row_first, h);
+    }
+    // The quads merged into an earlier row's are dropped (the others keep their order).
+    m.merged_away.resize(m.quads.size(), 0);
+    size_t kept = 0;
+    for (size_t x = 0; x < m.quads.size(); ++x) {
+      if (!m.merged_away[x]) m.quads[kept++] = m.quads[x];
+    }
+    m.quads.resize(kept);
+  }
+  // A step without motion cut nothing: the strip still ends where it ended.
+  if (z.motion > 1e-9 * h || !carry) record_ends(m, z.nu);
+  carry_samples(pbd, m, z);
   if (stats) {
-    stats->samples += count;
+    stats->samples += z.row() * (z.nv + 1);
     stats->piece_tests += tests;
     stats->hits += uint32_t(m.hits.size());
     stats->quads += uint32_t(m.quads.size());
