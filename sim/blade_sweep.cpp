@@ -54,6 +54,128 @@ bool snap(const Lattice& lattice, const Vec3d& p, int64_t out[3]) {
   return true;
 }
 
+// The lattice edges along axis a that the snapped triangle v crosses (n: its exact normal, n[a] != 0),
+// found by scanlines over the triangle's projection across a: one exact crossing per lattice line.
+void axis_hits(const Lattice& lattice, const int64_t v[3][3], const i128 n[3], int a, int on_plane_side,
+               const Vec3f& normal, std::vector<EdgeHit>& out, SweepStats* stats) {
+  const int64_t count[3] = {lattice.nx, lattice.ny, lattice.nz};
+  const uint64_t stride[3] = {1, uint64_t(lattice.nx) + 1, (uint64_t(lattice.nx) + 1) * (uint64_t(lattice.ny) + 1)};
+  // Orient the normal so that m_a > 0: nodes with larger a-coordinate are on the + side.
+  const int s = n[a] > 0 ? 1 : -1;
+  // An on-plane node joins the upper nodes of its line iff its perturbed side is sign(n_a).
+  const bool on_plane_upper = on_plane_side == s;
+
+  // Scanlines run along b (columns j) and step along c (rows k). Rows go along the axis with
+  // fewer lattice lines in the projection's range, so a thin sliver lying along b or c (a blade
+  // aligned with an axis) costs one row per crossed line and not one row per voxel of its length.
+  int b = (a + 1) % 3, c = (a + 2) % 3;
+  int s2 = s;  // sign of the projected triangle's area in (b, c) coordinates
+  {
+    auto span = [&](int axis) {
+      const int64_t lo = std::min({v[0][axis], v[1][axis], v[2][axis]});
+      const int64_t hi = std::max({v[0][axis], v[1][axis], v[2][axis]});
+      return std::min<int64_t>(count[axis], int64_t(floor_div(hi, kOne))) -
+             std::max<int64_t>(0, int64_t(ceil_div(lo, kOne)));
+    };
+    if (span(c) > span(b)) {
+      std::swap(b, c);
+      s2 = -s;
+    }
+  }
+  const i128 ma = s * n[a], mb = s * n[b], mc = s * n[c];
+
+  // Projected triangle and its edges in (b, c), the inside on the left when s2 > 0.
+  int64_t pb[3], pc[3];
+  for (int i = 0; i < 3; ++i) {
+    pb[i] = v[i][b];
+    pc[i] = v[i][c];
+  }
+  i128 alpha[3], eb[3], ec[3];
+  for (int i = 0; i < 3; ++i) {
+    const int i1 = (i + 1) % 3;
+    eb[i] = i128(pb[i1]) - pb[i];
+    ec[i] = i128(pc[i1]) - pc[i];
+    // s2 * orient(P_i, P_i1, (J, K)) = alpha J + beta(K) >= 0 inside (inclusive).
+    alpha[i] = -s2 * ec[i];
+  }
+  const int64_t min_b = std::min({pb[0], pb[1], pb[2]}), max_b = std::max({pb[0], pb[1], pb[2]});
+  const int64_t min_c = std::min({pc[0], pc[1], pc[2]}), max_c = std::max({pc[0], pc[1], pc[2]});
+  const int64_t row_lo = std::max<int64_t>(0, int64_t(ceil_div(min_c, kOne)));
+  const int64_t row_hi = std::min<int64_t>(count[c], int64_t(floor_div(max_c, kOne)));
+  const int64_t col_lo = std::max<int64_t>(0, int64_t(ceil_div(min_b, kOne)));
+  const int64_t col_hi = std::min<int64_t>(count[b], int64_t(floor_div(max_b, kOne)));
+  if (row_lo > row_hi || col_lo > col_hi) return;
+
+  const i128 den = ma * kOne;                                   // x* = X / den voxels
+  const i128 top = i128(std::min<int64_t>(count[a], kAxisLimit)) * den;  // X of the last node
+  const i128 step = -mb * kOne;                                 // X(j + 1) - X(j)
+  const i128 step_q = floor_div(step, den);
+  const i128 step_r = step - step_q * den;                      // in [0, den)
+  const double den_d = double(den);
+
+  for (int64_t k = row_lo; k <= row_hi; ++k) {
+    if (stats) ++stats->rows_scanned;
+    const i128 kk = i128(k) * kOne;
+    // Columns inside the projected triangle.
+    i128 lo = col_lo, hi = col_hi;
+    bool empty = false;
+    for (int i = 0; i < 3; ++i) {
+      const i128 beta = s2 * (eb[i] * (kk - pc[i]) + ec[i] * pb[i]);
+      if (alpha[i] > 0) {
+        lo = std::max(lo, ceil_div(-beta, alpha[i] * kOne));
+      } else if (alpha[i] < 0) {
+        hi = std::min(hi, floor_div(beta, -alpha[i] * kOne));
+      } else if (beta < 0) {  // an edge along b: already implied by the row range, kept for clarity
+        empty = true;
+      }
+    }
+    if (empty || lo > hi) continue;
+    // Columns whose crossing lies on the lattice: 0 <= X(j) <= top.
+    const i128 x_lo = ma * v[0][a] - mb * (lo * kOne - pb[0]) - mc * (kk - pc[0]);
+    i128 first = lo, last = hi;
+    if (step == 0) {
+      if (x_lo < 0 || x_lo > top) continue;
+    } else if (step < 0) {
+      last = std::min(last, lo + floor_div(x_lo, -step));
+      first = std::max(first, lo + ceil_div(x_lo - top, -step));
+    } else {
+      first = std::max(first, lo + ceil_div(-x_lo, step));
+      last = std::min(last, lo + floor_div(top - x_lo, step));
+    }
+    if (first > last) continue;
+
+    const i128 x_first = x_lo + step * (first - lo);
+    i128 q = floor_div(x_first, den);
+    i128 r = x_first - q * den;
+    const uint64_t row_base = uint64_t(k) * stride[c];
+    for (int64_t j = int64_t(first); j <= int64_t(last); ++j) {
+      if (stats) ++stats->lines_tested;
+      int64_t i0;
+      float t;
+      if (r != 0) {
+        i0 = int64_t(q);
+        t = float(double(r) / den_d);
+      } else if (on_plane_upper) {
+        i0 = int64_t(q) - 1;
+        t = 1.0f;
+      } else {
+        i0 = int64_t(q);
+        t = 0.0f;
+      }
+      if (i0 >= 0 && i0 < count[a]) {
+        const uint64_t node = uint64_t(i0) * stride[a] + uint64_t(j) * stride[b] + row_base;
+        out.push_back(EdgeHit{Lattice::edge(uint32_t(node), a), t, normal});
+      }
+      q += step_q;
+      r += step_r;
+      if (r >= den) {
+        r -= den;
+        ++q;
+      }
+    }
+  }
+}
+
 void snapped_triangle_hits(const Lattice& lattice, const int64_t v[3][3], std::vector<EdgeHit>& out,
                            SweepStats* stats) {
   i128 e1[3], e2[3];
@@ -68,127 +190,12 @@ void snapped_triangle_hits(const Lattice& lattice, const int64_t v[3][3], std::v
   const Vec3d nd{double(n[0]), double(n[1]), double(n[2])};
   const Vec3f normal = (nd / nd.norm()).cast<float>();
 
-  const int64_t count[3] = {lattice.nx, lattice.ny, lattice.nz};
-  const uint64_t stride[3] = {1, uint64_t(lattice.nx) + 1, (uint64_t(lattice.nx) + 1) * (uint64_t(lattice.ny) + 1)};
   // Side of a node exactly on the plane under the perturbation eps * (1, eps, eps^2).
   const int on_plane_side = n[0] != 0 ? (n[0] > 0 ? 1 : -1) : n[1] != 0 ? (n[1] > 0 ? 1 : -1) : (n[2] > 0 ? 1 : -1);
 
   for (int a = 0; a < 3; ++a) {
-    if (n[a] == 0) continue;  // projection onto the plane perpendicular to a has no area
-    // Orient the normal so that m_a > 0: nodes with larger a-coordinate are on the + side.
-    const int s = n[a] > 0 ? 1 : -1;
-    // An on-plane node joins the upper nodes of its line iff its perturbed side is sign(n_a).
-    const bool on_plane_upper = on_plane_side == s;
-
-    // Scanlines run along b (columns j) and step along c (rows k). Rows go along the axis with
-    // fewer lattice lines in the projection's range, so a thin sliver lying along b or c (a blade
-    // aligned with an axis) costs one row per crossed line and not one row per voxel of its length.
-    int b = (a + 1) % 3, c = (a + 2) % 3;
-    int s2 = s;  // sign of the projected triangle's area in (b, c) coordinates
-    {
-      auto span = [&](int axis) {
-        const int64_t lo = std::min({v[0][axis], v[1][axis], v[2][axis]});
-        const int64_t hi = std::max({v[0][axis], v[1][axis], v[2][axis]});
-        return std::min<int64_t>(count[axis], int64_t(floor_div(hi, kOne))) -
-               std::max<int64_t>(0, int64_t(ceil_div(lo, kOne)));
-      };
-      if (span(c) > span(b)) {
-        std::swap(b, c);
-        s2 = -s;
-      }
-    }
-    const i128 ma = s * n[a], mb = s * n[b], mc = s * n[c];
-
-    // Projected triangle and its edges in (b, c), the inside on the left when s2 > 0.
-    int64_t pb[3], pc[3];
-    for (int i = 0; i < 3; ++i) {
-      pb[i] = v[i][b];
-      pc[i] = v[i][c];
-    }
-    i128 alpha[3], eb[3], ec[3];
-    for (int i = 0; i < 3; ++i) {
-      const int i1 = (i + 1) % 3;
-      eb[i] = i128(pb[i1]) - pb[i];
-      ec[i] = i128(pc[i1]) - pc[i];
-      // s2 * orient(P_i, P_i1, (J, K)) = alpha J + beta(K) >= 0 inside (inclusive).
-      alpha[i] = -s2 * ec[i];
-    }
-    const int64_t min_b = std::min({pb[0], pb[1], pb[2]}), max_b = std::max({pb[0], pb[1], pb[2]});
-    const int64_t min_c = std::min({pc[0], pc[1], pc[2]}), max_c = std::max({pc[0], pc[1], pc[2]});
-    const int64_t row_lo = std::max<int64_t>(0, int64_t(ceil_div(min_c, kOne)));
-    const int64_t row_hi = std::min<int64_t>(count[c], int64_t(floor_div(max_c, kOne)));
-    const int64_t col_lo = std::max<int64_t>(0, int64_t(ceil_div(min_b, kOne)));
-    const int64_t col_hi = std::min<int64_t>(count[b], int64_t(floor_div(max_b, kOne)));
-    if (row_lo > row_hi || col_lo > col_hi) continue;
-
-    const i128 den = ma * kOne;                                   // x* = X / den voxels
-    const i128 top = i128(std::min<int64_t>(count[a], kAxisLimit)) * den;  // X of the last node
-    const i128 step = -mb * kOne;                                 // X(j + 1) - X(j)
-    const i128 step_q = floor_div(step, den);
-    const i128 step_r = step - step_q * den;                      // in [0, den)
-    const double den_d = double(den);
-
-    for (int64_t k = row_lo; k <= row_hi; ++k) {
-      if (stats) ++stats->rows_scanned;
-      const i128 kk = i128(k) * kOne;
-      // Columns inside the projected triangle.
-      i128 lo = col_lo, hi = col_hi;
-      bool empty = false;
-      for (int i = 0; i < 3; ++i) {
-        const i128 beta = s2 * (eb[i] * (kk - pc[i]) + ec[i] * pb[i]);
-        if (alpha[i] > 0) {
-          lo = std::max(lo, ceil_div(-beta, alpha[i] * kOne));
-        } else if (alpha[i] < 0) {
-          hi = std::min(hi, floor_div(beta, -alpha[i] * kOne));
-        } else if (beta < 0) {  // an edge along b: already implied by the row range, kept for clarity
-          empty = true;
-        }
-      }
-      if (empty || lo > hi) continue;
-      // Columns whose crossing lies on the lattice: 0 <= X(j) <= top.
-      const i128 x_lo = ma * v[0][a] - mb * (lo * kOne - pb[0]) - mc * (kk - pc[0]);
-      i128 first = lo, last = hi;
-      if (step == 0) {
-        if (x_lo < 0 || x_lo > top) continue;
-      } else if (step < 0) {
-        last = std::min(last, lo + floor_div(x_lo, -step));
-        first = std::max(first, lo + ceil_div(x_lo - top, -step));
-      } else {
-        first = std::max(first, lo + ceil_div(-x_lo, step));
-        last = std::min(last, lo + floor_div(top - x_lo, step));
-      }
-      if (first > last) continue;
-
-      const i128 x_first = x_lo + step * (first - lo);
-      i128 q = floor_div(x_first, den);
-      i128 r = x_first - q * den;
-      const uint64_t row_base = uint64_t(k) * stride[c];
-      for (int64_t j = int64_t(first); j <= int64_t(last); ++j) {
-        if (stats) ++stats->lines_tested;
-        int64_t i0;
-        float t;
-        if (r != 0) {
-          i0 = int64_t(q);
-          t = float(double(r) / den_d);
-        } else if (on_plane_upper) {
-          i0 = int64_t(q) - 1;
-          t = 1.0f;
-        } else {
-          i0 = int64_t(q);
-          t = 0.0f;
-        }
-        if (i0 >= 0 && i0 < count[a]) {
-          const uint64_t node = uint64_t(i0) * stride[a] + uint64_t(j) * stride[b] + row_base;
-          out.push_back(EdgeHit{Lattice::edge(uint32_t(node), a), t, normal});
-        }
-        q += step_q;
-        r += step_r;
-        if (r >= den) {
-          r -= den;
-          ++q;
-        }
-      }
-    }
+    // A projection onto the plane perpendicular to a with no area crosses no edge along a.
+    if (n[a] != 0) axis_hits(lattice, v, n, a, on_plane_side, normal, out, stats);
   }
 }
 
