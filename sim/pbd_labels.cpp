@@ -272,6 +272,61 @@ void materialise_labels(const VoxelModel& model, PbdState& s, uint32_t sv) {
 
 }  // namespace
 
+// After relabel_local's search: groups that ran out are pieces of their own; per label one group
+// keeps it (the one left running, else the first). Fills w.new_label (kNoPiece: keeps its label).
+void assign_group_labels(LocalSearch& w, const uint8_t* labels, SimDivided& div) {
+  const auto find = [&](uint32_t x) { return uf_find(w.parent.data(), x); };
+  uint8_t keeper_found[256] = {};
+  w.new_label.assign(w.parent.size(), kNoPiece);
+  for (uint32_t g = 0; g < w.parent.size(); ++g) {
+    if (find(g) == g && w.dropped[g]) keeper_found[labels[w.visited[g]]] = 1;  // seed g is visited[g]
+  }
+  for (uint32_t g = 0; g < w.parent.size(); ++g) {
+    if (find(g) != g) continue;
+    const uint8_t label = labels[w.visited[g]];
+    if (w.dropped[g]) continue;
+    if (!keeper_found[label]) {
+      keeper_found[label] = 1;
+      continue;
+    }
+    if (div.piece_count >= kMaxSimPieces) continue;  // beyond the label range: stays merged
+    w.new_label[g] = div.piece_count++;
+  }
+}
+
+// Relabels the searched nodes of the new pieces of simulation voxel sv (block coordinates c); their
+// volumes move from the old piece to the new, which starts with the old one's particles and rotation.
+// Clears the search's owners.
+void apply_group_labels(const VoxelModel& model, PbdState& s, uint32_t sv, const int32_t c[3], uint8_t* labels) {
+  LocalSearch& w = s.scratch.search;
+  SimDivided& div = s.divided[s.voxel_divided[sv]];
+  const Lattice& l = model.lattice;
+  const int32_t n = s.ratio + 1;
+  const auto find = [&](uint32_t x) { return uf_find(w.parent.data(), x); };
+  const uint32_t count_before = s.pieces_in_voxel[sv];
+  for (uint8_t p = uint8_t(count_before); p < div.piece_count; ++p) s.label_slots[div.first_slot + p] = kDeadIndex;
+  for (uint32_t b : w.visited) {
+    const uint32_t g = find(w.owner[b]);
+    w.owner[b] = kDeadIndex;
+    const uint8_t to = w.new_label[g];
+    if (to == kNoPiece) continue;
+    const uint8_t from = labels[b];
+    const int32_t x = int32_t(b % uint32_t(n)), y = int32_t((b / uint32_t(n)) % uint32_t(n)), z = int32_t(b / uint32_t(n * n));
+    const uint64_t e = node_eighths(l, s, c, x, y, z);
+    uint32_t& slot = s.label_slots[div.first_slot + to];
+    if (slot == kDeadIndex) {
+      const uint32_t old = s.label_slots[div.first_slot + from];
+      slot = new_piece(s, sv, to);
+      std::copy(s.pieces[old].particles, s.pieces[old].particles + 8, s.pieces[slot].particles);
+      s.rotation[slot] = s.rotation[old];
+    }
+    s.pieces[s.label_slots[div.first_slot + from]].eighths -= e;
+    s.pieces[slot].eighths += e;
+    labels[b] = to;
+  }
+  s.pieces_in_voxel[sv] = div.piece_count;
+}
+
 // Splits the pieces of simulation voxel sv that the changed fine voxels [first, last) (in the block)
 // separated. Cuts only remove material connections, so only labels of the changed voxels' nodes can
 // split, and every node of such a label is joined to one of those nodes. A breadth-first search runs
@@ -365,47 +420,8 @@ bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, ui
     }
     if (w.pending[g] == 0) --w.active[label];
   }
-  // Groups that ran out are pieces of their own; per label one group keeps it (the one left running,
-  // else the first).
-  uint8_t keeper_found[256] = {};
-  w.new_label.assign(w.parent.size(), kNoPiece);
-  for (uint32_t g = 0; g < w.parent.size(); ++g) {
-    if (find(g) == g && w.dropped[g]) keeper_found[labels[w.visited[g]]] = 1;  // seed g is visited[g]
-  }
-  for (uint32_t g = 0; g < w.parent.size(); ++g) {
-    if (find(g) != g) continue;
-    const uint8_t label = labels[w.visited[g]];
-    if (w.dropped[g]) continue;
-    if (!keeper_found[label]) {
-      keeper_found[label] = 1;
-      continue;
-    }
-    if (div.piece_count >= kMaxSimPieces) continue;  // beyond the label range: stays merged
-    w.new_label[g] = div.piece_count++;
-  }
-  // Relabel the nodes of the new pieces; their volumes move from the old piece to the new.
-  const uint32_t count_before = s.pieces_in_voxel[sv];
-  for (uint8_t p = uint8_t(count_before); p < div.piece_count; ++p) s.label_slots[div.first_slot + p] = kDeadIndex;
-  for (uint32_t b : w.visited) {
-    const uint32_t g = find(w.owner[b]);
-    w.owner[b] = kDeadIndex;
-    const uint8_t to = w.new_label[g];
-    if (to == kNoPiece) continue;
-    const uint8_t from = labels[b];
-    const int32_t x = int32_t(b % uint32_t(n)), y = int32_t((b / uint32_t(n)) % uint32_t(n)), z = int32_t(b / uint32_t(n * n));
-    const uint64_t e = node_eighths(l, s, c, x, y, z);
-    uint32_t& slot = s.label_slots[div.first_slot + to];
-    if (slot == kDeadIndex) {
-      const uint32_t old = s.label_slots[div.first_slot + from];
-      slot = new_piece(s, sv, to);
-      std::copy(s.pieces[old].particles, s.pieces[old].particles + 8, s.pieces[slot].particles);
-      s.rotation[slot] = s.rotation[old];
-    }
-    s.pieces[s.label_slots[div.first_slot + from]].eighths -= e;
-    s.pieces[slot].eighths += e;
-    labels[b] = to;
-  }
-  s.pieces_in_voxel[sv] = div.piece_count;
+  assign_group_labels(w, labels, div);
+  apply_group_labels(model, s, sv, c, labels);
   return true;
 }
 
