@@ -55,9 +55,20 @@ wait_for() {
   done
 }
 
-# A grab pull: press at ($1,$2), move by ($3,$4) px in 10 moves, hold, release, wait for the spring back.
-# The simulation may run at half real time under a loaded rasteriser: the waits cover 1.5 s and 3 s
-# of simulated time at that pace. $5: a screenshot path taken while the pull is held (optional).
+# The simulation's step as the recording shows it (a line per step with commands, a hash line every
+# 60 steps, flushed line by line), and a wait (up to 60 s) until it reaches $1: the simulation may
+# run at a fraction of real time under a loaded rasteriser, and the pulls are timed in its steps.
+sim_step() { grep -o '"step":[0-9]*' "$out/session.jsonl" 2>/dev/null | tail -1 | cut -d: -f2; }
+wait_step() {
+  local deadline=$((SECONDS + 60))
+  while (($(sim_step || echo 0) < $1)); do
+    ((SECONDS < deadline)) || fail "the simulation did not reach step $1 within 60 s (at $(sim_step))"
+    sleep 0.3
+  done
+}
+
+# A grab pull: press at ($1,$2), move by ($3,$4) px in 10 moves, hold 1.7 s (simulated), release,
+# wait 3.3 s (simulated) for the spring back. $5: take a screenshot while the pull is held.
 pull() {
   xdotool mousemove "$1" "$2"
   sleep 0.8
@@ -68,23 +79,27 @@ pull() {
     xdotool mousemove $(($1 + $3 * k / 10)) $(($2 + $4 * k / 10))
     sleep 0.1
   done
-  sleep 1.5
+  local moved
+  moved=$(sim_step)
+  wait_step $((moved + 50))
   if [[ -n ${5:-} ]]; then
     xdotool key shift+F12
   fi
-  sleep 2.5
+  wait_step $((moved + 100))
   xdotool mouseup 1
-  sleep 7
+  sleep 0.5
+  wait_step $(($(sim_step) + 200))
 }
 
 wait_for "^window: ready" 150
 sleep 4  # the liver settles on its ligaments and the tray
 xdotool key g
 sleep 0.5
-# The default view: the left lobe's tip, the middle, the lower right lobe (the ligaments are the
-# ridge at the top right).
-pull 700 480 0 -150 shot
-pull 850 420 -106 -106
+# The default view: the upper left, the middle, the lower right lobe (the ligaments are the ridge at
+# the top right). Not the left lobe's tip: it lies on the tray, whose friction (0.6) keeps part of a
+# drag there (docs/window.md).
+pull 760 360 -106 -106
+pull 850 420 0 -150 shot
 pull 1000 400 0 -150
 # Above: a right drag down orbits the camera to its highest pitch.
 xdotool mousemove 800 100
@@ -98,7 +113,7 @@ done
 xdotool mouseup 3
 sleep 1.5
 pull 700 320 -150 0
-pull 760 440 0 150
+pull 790 330 0 -150
 pull 850 450 -106 106
 
 xdotool key shift+Escape
