@@ -58,9 +58,10 @@ GrabCommand parse_grab(const json& grab, const std::string& file, uint32_t line)
     g.kind = GrabCommand::kRelease;
     return g;
   }
+  const auto fail = [&](const std::string& problem) { throw_input(file, "line " + std::to_string(line) + ": " + problem); };
   const auto bad = [&] {
-    throw_input(file, "line " + std::to_string(line) +
-                          ": grab must be {\"target\": [x,y,z], \"compliance\": c} or \"release\"");
+    fail("grab must be {\"target\": [x,y,z], \"stiffness\": N/m, \"radius\": r, \"force_limit\": N}, "
+         "{\"target\": [x,y,z], \"compliance\": c} or \"release\"");
   };
   if (!grab.is_object() || !grab.contains("target") || !grab["target"].is_array() || grab["target"].size() != 3) bad();
   for (int a = 0; a < 3; ++a) {
@@ -68,9 +69,28 @@ GrabCommand parse_grab(const json& grab, const std::string& file, uint32_t line)
     g.target[a] = grab["target"][a].get<double>();
   }
   if (!g.target.allFinite()) bad();
-  if (grab.contains("compliance")) {
-    if (!grab["compliance"].is_number() || !(grab["compliance"].get<double>() >= 0.0)) bad();
-    g.compliance = grab["compliance"].get<double>();
+  // A number of the grab's, finite and at least 0 (above 0 when `positive`).
+  const auto number = [&](const char* key, bool positive) {
+    const json& v = grab[key];
+    const double x = v.is_number() ? v.get<double>() : NAN;
+    if (!std::isfinite(x) || x < 0.0 || (positive && x == 0.0)) {
+      fail(std::string("grab.") + key + " must be a finite number " + (positive ? "above 0" : "of at least 0") +
+           ", got " + v.dump());
+    }
+    return x;
+  };
+  // The region grab (stiffness in N/m), or the single-particle grab of older recordings (compliance).
+  if (grab.contains("stiffness")) {
+    if (grab.contains("compliance")) fail("grab has both stiffness (the region grab) and compliance (the single-particle grab)");
+    g.stiffness = number("stiffness", true);
+    if (grab.contains("radius")) g.radius = number("radius", false);
+    if (grab.contains("force_limit")) g.force_limit = number("force_limit", false);
+  } else {
+    if (grab.contains("radius") || grab.contains("force_limit")) fail("grab.radius and grab.force_limit need grab.stiffness");
+    if (grab.contains("compliance")) {
+      if (!grab["compliance"].is_number() || !(grab["compliance"].get<double>() >= 0.0)) bad();
+      g.compliance = grab["compliance"].get<double>();
+    }
   }
   g.kind = GrabCommand::kTarget;
   return g;
@@ -78,7 +98,15 @@ GrabCommand parse_grab(const json& grab, const std::string& file, uint32_t line)
 
 json grab_to_json(const GrabCommand& g) {
   if (g.kind == GrabCommand::kRelease) return "release";
-  return {{"target", {g.target.x(), g.target.y(), g.target.z()}}, {"compliance", g.compliance}};
+  json out = {{"target", {g.target.x(), g.target.y(), g.target.z()}}};
+  if (g.stiffness > 0.0) {
+    out["stiffness"] = g.stiffness;
+    out["radius"] = g.radius;
+    out["force_limit"] = g.force_limit;
+  } else {
+    out["compliance"] = g.compliance;
+  }
+  return out;
 }
 
 Playback playback_of(const Recording& rec) {

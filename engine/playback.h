@@ -75,7 +75,9 @@ struct HashChecks {
 // Returns false on a mismatch.
 bool check_hash(const PlaybackStep& recorded, const Session& session, HashChecks& checks);
 
-// A grab command from a recording's "grab" value: {"target": [x,y,z], "compliance": c} or "release".
+// A grab command from a recording's "grab" value: {"target": [x,y,z], "stiffness": N/m, "radius": r,
+// "force_limit": N} (the region grab), {"target": [x,y,z], "compliance": c} (the single-particle grab
+// of older recordings) or "release".
 // Throws InputError naming `file` and `line` otherwise.
 GrabCommand parse_grab(const nlohmann::json& grab, const std::string& file, uint32_t line);
 nlohmann::json grab_to_json(const GrabCommand& grab);

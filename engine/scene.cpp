@@ -99,7 +99,7 @@ Scene parse_scene(const json& root, const std::string& file) {
   const Reader r{file};
   r.check_keys(root, "",
                {"mesh", "resolution", "sim_resolution", "units", "material", "solver", "gravity", "fixed", "scalpel", "planes",
-                "contact"});
+                "contact", "grab"});
   Scene scene;
   scene.file = file;
 
@@ -220,6 +220,18 @@ Scene parse_scene(const json& root, const std::string& file) {
     if (s.contains("length")) scene.scalpel.length = r.number(s["length"], "scalpel.length", 1e-9, 1e9);
   }
   if (root.contains("planes")) pbd.planes = parse_planes(r, root["planes"]);
+  // The grab tool: stiffness (N/m) > 0, radius (scene lengths) >= 0, force limit (N) >= 0 (0: none).
+  if (root.contains("grab")) {
+    const json& g = root["grab"];
+    r.check_keys(g, "grab", {"stiffness", "radius", "force_limit"});
+    if (g.contains("stiffness")) {
+      scene.grab.stiffness = r.number(g["stiffness"], "grab.stiffness", 0.0, 1e12);
+      if (!(scene.grab.stiffness > 0.0)) r.fail("grab.stiffness", "must be positive (N/m)");
+    }
+    if (g.contains("radius")) scene.grab.radius = r.number(g["radius"], "grab.radius", 0.0, 1e9);
+    if (g.contains("force_limit")) scene.grab.force_limit = r.number(g["force_limit"], "grab.force_limit", 0.0, 1e12);
+    scene.grab.given = true;
+  }
   if (root.contains("contact")) {
     const json& c = root["contact"];
     r.check_keys(c, "contact", {"pieces", "friction"});
@@ -237,6 +249,7 @@ Scene parse_scene(const json& root, const std::string& file) {
     }
     for (ContactPlane& p : pbd.planes) p.point *= scale;
     scene.scalpel.length *= scale;
+    if (scene.grab.given) scene.grab.radius *= scale;
   }
   return scene;
 }
@@ -289,6 +302,9 @@ json scene_to_json(const Scene& scene) {
   // Absent when empty / default: older recordings keep their header.
   if (scene.metres_per_unit != 1.0) out["units"] = {{"metres_per_unit", scene.metres_per_unit}, {"scene_lengths", "metres"}};
   if (!pbd.planes.empty()) out["planes"] = planes;
+  if (scene.grab.given) {
+    out["grab"] = {{"stiffness", scene.grab.stiffness}, {"radius", scene.grab.radius}, {"force_limit", scene.grab.force_limit}};
+  }
   if (!pbd.piece_contact || pbd.piece_friction != PbdParams{}.piece_friction) {
     out["contact"] = {{"pieces", pbd.piece_contact}, {"friction", pbd.piece_friction}};
   }

@@ -33,6 +33,16 @@ struct Scene {
     double length = 0.5;   // metres (scaled like every length)
   } scalpel;
   double metres_per_unit = 1.0;  // the mesh file's length unit (the session scales the mesh by it)
+  // The window's grab tool (sim/pbd.h "Grab"): the region grab's total stiffness, the radius of the
+  // tissue it holds around the picked point, its force limit (0: none). The defaults suit the liver
+  // (0.2 m, E 5.4 kPa: a 150 px pull moves the point under the cursor about half the pull at
+  // 15-20 N, the tens of newtons of real retraction); `given`: the scene has a "grab" block.
+  struct Grab {
+    double stiffness = 500.0;   // N/m
+    double radius = 0.015;      // metres (scaled like every length)
+    double force_limit = 30.0;  // N
+    bool given = false;
+  } grab;
 };
 
 // Bounds on values a scene may hold (also used by the CLI for --resolution).

@@ -30,7 +30,7 @@ struct PhaseSamples {
 PhaseSamples write_timings_csv(const std::vector<StepReport>& rows, bool physics, const std::filesystem::path& out) {
   std::ostringstream csv;
   csv << "step,cut_ms,surface_ms,deform_ms,total_ms,cut_voxels,edges_hit,edges_cut,voxels_divided,"
-         "vertices_changed,triangles_changed,cutting,sim_voxels_cut\n";
+         "vertices_changed,triangles_changed,cutting,sim_voxels_cut,grab_force_n\n";
   PhaseSamples samples;
   for (const StepReport& r : rows) {
     if (physics) samples.deform.push_back(r.timings.deform_ms);
@@ -38,7 +38,7 @@ PhaseSamples write_timings_csv(const std::vector<StepReport>& rows, bool physics
     csv << r.step << ',' << r.timings.cut_ms << ',' << r.timings.surface_ms << ',' << r.timings.deform_ms << ','
         << r.timings.total_ms << ',' << r.cut.voxels_cut << ',' << r.cut.edges_hit << ',' << r.cut.edges_cut << ','
         << r.cut.voxels_divided << ',' << r.cut.vertices_changed << ',' << r.cut.triangles_changed << ','
-        << (r.cutting ? 1 : 0) << ',' << r.sim_voxels_cut << '\n';
+        << (r.cutting ? 1 : 0) << ',' << r.sim_voxels_cut << ',' << r.grab_force_n << '\n';
     if (r.cut.edges_hit > 0) {
       samples.cut.push_back(r.timings.cut_ms);
       samples.surface.push_back(r.timings.surface_ms);

@@ -232,6 +232,19 @@ constexpr uint32_t kParticleCost = 30, kStretchCost = 36, kShapeBlockCost = kSha
 constexpr uint32_t kElasticCost = 2500;  // a hexahedron's 9 constraints (estimated from its operations)
 constexpr uint32_t kSerial = ~0u;
 
+// Grab: whether held particle i is solved (a region grab skips particles a cut freed; the
+// single-particle grab keeps its former rule, a particle with mass).
+bool grab_holds(const PbdState& s, size_t i) {
+  const uint32_t p = s.grab_particles[i];
+  return p < s.position.size() && s.inv_mass[p] > 0.0 && (!s.grab_region || s.refs[p] > 0);
+}
+bool grab_moves(const PbdState& s) {
+  for (size_t i = 0; i < s.grab_particles.size(); ++i) {
+    if (grab_holds(s, i)) return true;
+  }
+  return false;
+}
+
 // The batches of a whole step (all substeps: one TaskRunner job, one wake-up of the workers), in
 // order: predict; per iteration the stretch colours (overflow last, serially), the shape-matching
 // colours, the grab, the contact batches between pieces and with the planes; kFinalContactSweeps
@@ -274,7 +287,7 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
     for (int c = 0; !elastic && c < kColourGroups; ++c) {
       add(StepBatch::kShape, uint32_t(c), uint32_t(s.cache.shape_blocks[c].size()), c == kOverflowColour ? kSerial : shape_grain);
     }
-    if (s.grab_particle < n && s.inv_mass[s.grab_particle] > 0.0) add(StepBatch::kGrab, 0, 1, kSerial);
+    if (grab_moves(s)) add(StepBatch::kGrab, 0, 1, kSerial);
     // Contact between pieces, then with the static planes, last so each iteration ends with the
     // surface above them.
     static_assert(kContactOverflow == kOverflowColour, "one overflow batch for both contact sets");
@@ -301,15 +314,39 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
   add(StepBatch::kVelocity, 0, n, particle_grain);
 }
 
-// Grab: a compliant attachment of one particle to its target (XPBD, per axis).
-void solve_grab(PbdState& s, double h, double lambda[3]) {
-  const uint32_t p = s.grab_particle;
-  const double alpha = s.grab_compliance / (h * h);
-  for (int a = 0; a < 3; ++a) {
-    const double constraint = s.position[p][a] - s.grab_target[a];
-    const double dl = (-constraint - alpha * lambda[a]) / (s.inv_mass[p] + alpha);
-    lambda[a] += dl;
-    s.position[p][a] += s.inv_mass[p] * dl;
+// Grab: each held particle's compliant attachment to target + offset (XPBD, per axis), in order. A
+// particle's multipliers (lambda / h^2: the force on it) are clamped to its force limit by scaling the
+// vector, the position following the clamped multipliers.
+void solve_grab(PbdState& s, double h, double* lambda) {
+  for (size_t i = 0; i < s.grab_particles.size(); ++i) {
+    if (!grab_holds(s, i)) continue;
+    const uint32_t p = s.grab_particles[i];
+    const double w = s.inv_mass[p];
+    const double alpha = s.grab_compliance[i] / (h * h);
+    const Vec3d goal = s.grab_target + s.grab_offsets[i];
+    double* l = lambda + 3 * i;
+    double dl[3];
+    for (int a = 0; a < 3; ++a) {
+      const double constraint = s.position[p][a] - goal[a];
+      dl[a] = (-constraint - alpha * l[a]) / (w + alpha);
+    }
+    const double limit = s.grab_limit[i] * (h * h);
+    const double l_new[3] = {l[0] + dl[0], l[1] + dl[1], l[2] + dl[2]};
+    const double norm = std::sqrt(l_new[0] * l_new[0] + l_new[1] * l_new[1] + l_new[2] * l_new[2]);
+    if (!(norm > limit)) {
+      for (int a = 0; a < 3; ++a) {
+        l[a] += dl[a];
+        s.position[p][a] += w * dl[a];
+      }
+    } else {
+      // Over the limit: the multipliers scaled back onto it.
+      const double scale = limit / norm;
+      for (int a = 0; a < 3; ++a) {
+        const double clamped = l_new[a] * scale;
+        s.position[p][a] += w * (clamped - l[a]);
+        l[a] = clamped;
+      }
+    }
   }
 }
 
@@ -565,7 +602,8 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
                                                        : ElasticConstants{};
   gather_contacts(cut, s);  // contact (sim/contact.h)
   build_step_batches(s, elastic ? h > 0.0 : stretch_on, substeps);
-  double grab_lambda[3] = {0, 0, 0};
+  s.cache.grab_lambda.assign(3 * s.grab_particles.size(), 0.0);
+  double* grab_lambda = s.cache.grab_lambda.data();
   // A substep starts with zero multipliers (the first chunk of its predict pass resets them; nothing
   // else reads them then).
   const auto begin_substep = [&] {
@@ -573,7 +611,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
     for (std::vector<double>& lambda : s.cache.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
     contacts_begin_substep(s.contacts);
     contacts_begin_substep(s.piece_contacts.set);
-    for (int a = 0; a < 3; ++a) grab_lambda[a] = 0.0;
+    std::fill(s.cache.grab_lambda.begin(), s.cache.grab_lambda.end(), 0.0);
   };
   // Per particle: the end of a substep (the planes' backstop, velocities), then the start of the next
   // (previous positions, gravity, prediction), in one pass over the particles (raw arrays: Eigen's
@@ -653,6 +691,13 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
     }
   };
   run_batches(tasks, s.cache.task_batches.data(), uint32_t(s.cache.task_batches.size()), run);
+  // The grab's force: its multipliers of the last substep over h^2, summed in order.
+  s.grab_force = Vec3d::Zero();
+  if (h > 0.0) {
+    for (size_t i = 0; i < s.grab_particles.size(); ++i) {
+      for (int a = 0; a < 3; ++a) s.grab_force[a] += s.cache.grab_lambda[3 * i + a] / (h * h);
+    }
+  }
   ++s.steps;
   if (embed) pbd_embed(cut, s, tasks);
 }
@@ -711,22 +756,90 @@ void piece_corners(const PbdState& s, uint32_t piece, Vec3d corners[8]) {
 }
 
 void grab_begin(PbdState& s, const Vec3d& point, double compliance) {
+  grab_end(s);
   double best = std::numeric_limits<double>::infinity();
-  s.grab_particle = ~0u;
+  uint32_t nearest = ~0u;
   for (uint32_t p = 0; p < s.position.size(); ++p) {
     if (s.refs[p] == 0) continue;
     const double d = (s.position[p] - point).squaredNorm();
     if (d < best) {
       best = d;
-      s.grab_particle = p;
+      nearest = p;
     }
   }
   s.grab_target = point;
-  s.grab_compliance = compliance;
+  if (nearest == ~0u) return;
+  s.grab_particles.push_back(nearest);
+  s.grab_offsets.push_back(Vec3d::Zero());
+  s.grab_compliance.push_back(compliance);
+  s.grab_limit.push_back(std::numeric_limits<double>::infinity());
+}
+
+void grab_begin_region(PbdState& s, const Vec3d& point, uint32_t piece, double stiffness, double radius,
+                       double force_limit) {
+  grab_end(s);
+  s.grab_region = true;
+  s.grab_target = point;
+  // The candidates: the piece's corners, the live particles within the radius (in slot order, once
+  // each), or else the nearest live particle.
+  std::vector<uint32_t>& held = s.grab_particles;
+  if (piece < s.pieces.size() && s.pieces[piece].sim_voxel != kDeadIndex) {
+    for (int c = 0; c < 8; ++c) held.push_back(s.pieces[piece].particles[c]);
+  }
+  double best = std::numeric_limits<double>::infinity();
+  uint32_t nearest = ~0u;
+  for (uint32_t p = 0; p < s.position.size(); ++p) {
+    if (s.refs[p] == 0) continue;
+    const double d = (s.position[p] - point).squaredNorm();
+    if (d <= radius * radius) held.push_back(p);
+    if (d < best) {
+      best = d;
+      nearest = p;
+    }
+  }
+  if (held.empty() && nearest != ~0u) held.push_back(nearest);
+  std::sort(held.begin(), held.end());
+  held.erase(std::unique(held.begin(), held.end()), held.end());
+  // Anchored candidates are left out (they do not move; a region all anchored holds nothing).
+  size_t kept = 0;
+  for (uint32_t p : held) {
+    if (s.inv_mass[p] > 0.0) {
+      held[kept++] = p;
+    } else {
+      ++s.grab_anchored;
+    }
+  }
+  held.resize(kept);
+  // Weights: mass x (1 - d / 2R), R the farthest held particle's distance; normalised to sum 1.
+  double reach = 0.0;
+  for (uint32_t p : held) reach = std::max(reach, (s.position[p] - point).norm());
+  std::vector<double> weight(held.size());
+  double total = 0.0;
+  for (size_t i = 0; i < held.size(); ++i) {
+    const double d = (s.position[held[i]] - point).norm();
+    weight[i] = s.mass[held[i]] * (reach > 0.0 ? 1.0 - 0.5 * d / reach : 1.0);
+    total += weight[i];
+  }
+  const double limit = force_limit > 0.0 ? force_limit : std::numeric_limits<double>::infinity();
+  for (size_t i = 0; i < held.size(); ++i) {
+    const double w = weight[i] / total;
+    s.grab_offsets.push_back(s.position[held[i]] - point);
+    s.grab_compliance.push_back(1.0 / (stiffness * w));
+    s.grab_limit.push_back(limit * w);
+  }
 }
 
 void grab_move(PbdState& s, const Vec3d& target) { s.grab_target = target; }
-void grab_end(PbdState& s) { s.grab_particle = ~0u; }
+
+void grab_end(PbdState& s) {
+  s.grab_particles.clear();
+  s.grab_offsets.clear();
+  s.grab_compliance.clear();
+  s.grab_limit.clear();
+  s.grab_region = false;
+  s.grab_anchored = 0;
+  s.grab_force = Vec3d::Zero();
+}
 
 double total_mass(const PbdState& s) {
   uint64_t eighths = 0;

@@ -307,6 +307,8 @@ struct PbdCache {
   std::vector<EmbedRow> embed_rows;
   std::vector<uint32_t> embed_row_of;  // (surface vertex slots) index in embed_rows, ~0u: none
   uint64_t embed_revision = ~uint64_t(0), embed_updates = ~uint64_t(0);
+  // The grab's multipliers (held particles x 3), reset every substep.
+  std::vector<double> grab_lambda;
   // The batches of one step (parallel arrays), rebuilt every step: constraints change between steps.
   std::vector<StepBatch> step_batches;
   std::vector<TaskBatch> task_batches;
@@ -326,10 +328,15 @@ struct PbdData {
   std::vector<Vec3d> position, velocity, previous;  // (particle slots)
   std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_groups
   std::vector<Eigen::Quaterniond> rotation;           // (piece slots) warm start of the rotation extraction
-  // Grab tool: one particle pulled towards a target through a compliant attachment.
-  uint32_t grab_particle = ~0u;
+  // Grab tool (see "Grab" at grab_begin): the held particles and, parallel to them, their offsets
+  // from the target, the compliances (m/N) and force limits (N) of their attachments. Empty: no grab.
+  std::vector<uint32_t> grab_particles;
+  std::vector<Vec3d> grab_offsets;
+  std::vector<double> grab_compliance, grab_limit;
   Vec3d grab_target = Vec3d::Zero();
-  double grab_compliance = 1e-4;
+  bool grab_region = false;      // a region grab (else the single-particle grab of older recordings)
+  uint32_t grab_anchored = 0;    // candidates of the region left out because they are anchored
+  Vec3d grab_force = Vec3d::Zero();  // N: sum of the multipliers / h^2 of the last step's last substep
   std::vector<Vec3f> deformed;  // (surface vertex slots)
   // Contact points of this step against params.planes (grouped by piece, batched by its colour) and
   // between pieces of different bodies (sim/contact.h).
@@ -384,10 +391,24 @@ bool piece_holds(const VoxelModel& model, const PbdState& state, uint32_t piece,
 Vec3d piece_rest_origin(const PbdState& state, uint32_t piece);
 void piece_corners(const PbdState& state, uint32_t piece, Vec3d corners[8]);
 
-// Grab tool: attach the live particle nearest to `point` (deformed space); move; release.
+// Grab. The tool holds particles, each on an XPBD attachment to the target plus its offset (per axis,
+// solved serially after the shape matching in every iteration; its multipliers give the force).
+// grab_begin: the single-particle grab of the recordings before the region grab (the live particle
+// nearest to `point`, deformed space, on a spring of `compliance`; kept bit for bit). grab_begin_region:
+// the tissue around a surface point — the 8 corner particles of `piece` (the piece whose material
+// holds the point, kDeadIndex: none) and every live particle within `radius` of the point — each
+// held at its offset from the point as the target moves. Its `stiffness` (N/m) is split over them in
+// proportion to weights w_i = mass_i (1 - d_i / 2R) (d_i: distance to the point, R the region's
+// largest), so they sum to the stiffness (parallel springs: compliance 1 / (stiffness w_i)) and the
+// region moves as one; its force is clamped at `force_limit` N (0: none), w_i of it per particle.
+// Anchored candidates are left out (counted in grab_anchored): a region all anchored holds nothing.
 void grab_begin(PbdState& state, const Vec3d& point, double compliance);
+void grab_begin_region(PbdState& state, const Vec3d& point, uint32_t piece, double stiffness, double radius,
+                       double force_limit);
 void grab_move(PbdState& state, const Vec3d& target);
 void grab_end(PbdState& state);
+// Whether a grab is on (begun and not ended; it may hold nothing: held by an anchor).
+inline bool grab_active(const PbdState& state) { return !state.grab_particles.empty() || state.grab_anchored > 0; }
 
 // Diagnostics.
 double total_mass(const PbdState& state);  // exact: density x (sum of eighths) x h^3 / 64

@@ -3,22 +3,62 @@
 #include "sim/state_hash.h"
 
 #include <algorithm>
+#include <limits>
 
 namespace dvx {
 namespace {
 
 bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.b == b.b; }
 
-// The grab's command for this step (before the cut: a grab started this step holds a particle the
-// cut may duplicate; pbd_apply_cut keeps it on its side).
-void apply_grab(PbdState& pbd, const GrabCommand& grab) {
-  if (grab.kind == GrabCommand::kRelease) grab_end(pbd);
-  if (grab.kind == GrabCommand::kTarget) {
-    if (pbd.grab_particle == ~0u) {
-      grab_begin(pbd, grab.target, grab.compliance);
-    } else {
-      grab_move(pbd, grab.target);
+// The piece a surface point a grab starts at is embedded in: the first piece whose material holds
+// the point (world_to_rest), else — a point on the material's boundary may lie just outside every
+// piece's material — the piece around the nearest live particle whose corners' centre is nearest
+// to it; kDeadIndex without pieces.
+uint32_t piece_holding(const VoxelModel& model, const PbdState& pbd, const Vec3d& point) {
+  PieceGrid grid;
+  Aabb region;
+  region.grow(point);
+  build_piece_grid(pbd, region, pbd.sim_size, pbd.fine_size, grid);
+  std::vector<RestHit> hits;
+  world_to_rest(model, pbd, grid, point, hits);
+  if (!hits.empty()) return hits.front().piece;
+  double best = std::numeric_limits<double>::infinity();
+  uint32_t nearest = kDeadIndex;
+  for (uint32_t p = 0; p < pbd.position.size(); ++p) {
+    const double d = (pbd.position[p] - point).squaredNorm();
+    if (pbd.refs[p] > 0 && d < best) {
+      best = d;
+      nearest = p;
     }
+  }
+  best = std::numeric_limits<double>::infinity();
+  uint32_t piece = kDeadIndex;
+  for (uint32_t slot = 0; slot < pbd.pieces.size() && nearest != kDeadIndex; ++slot) {
+    const SimPiece& sp = pbd.pieces[slot];
+    if (sp.sim_voxel == kDeadIndex || std::find(sp.particles, sp.particles + 8, nearest) == sp.particles + 8) continue;
+    Vec3d centre = Vec3d::Zero();
+    for (uint32_t q : sp.particles) centre += pbd.position[q];
+    const double d = (0.125 * centre - point).squaredNorm();
+    if (d < best) {
+      best = d;
+      piece = slot;
+    }
+  }
+  return piece;
+}
+
+// The grab's command for this step (before the cut: a grab started this step holds particles the
+// cut may duplicate; pbd_apply_cut keeps each on its side).
+void apply_grab(const VoxelModel& model, PbdState& pbd, const GrabCommand& grab) {
+  if (grab.kind == GrabCommand::kRelease) grab_end(pbd);
+  if (grab.kind != GrabCommand::kTarget) return;
+  if (grab_active(pbd)) {
+    grab_move(pbd, grab.target);
+  } else if (grab.stiffness > 0.0) {
+    grab_begin_region(pbd, grab.target, piece_holding(model, pbd, grab.target), grab.stiffness, grab.radius,
+                      grab.force_limit);
+  } else {
+    grab_begin(pbd, grab.target, grab.compliance);
   }
 }
 
@@ -58,7 +98,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     s.have_blade = true;
   }
   report.cutting = s.cutting;
-  if (s.pbd) apply_grab(*s.pbd, commands.grab);
+  if (s.pbd) apply_grab(model.voxels, *s.pbd, commands.grab);
   if (!(s.cutting && had_blade)) reset_sweep(s.sweep);  // a new cut starts from the blade where it is
   // A stroke through moving tissue that ends (the blade stops cutting) has its seams closed.
   const bool stroke_ends = s.pbd && s.stroke_cutting && !(s.cutting && had_blade);
@@ -96,6 +136,9 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     const double t3 = clock.now();
     pbd_step(s.cut, *s.pbd, context.tasks, context.embed_surface);
     report.timings.deform_ms = clock.now() - t3;
+    report.grab_force_n = s.pbd->grab_force.norm();
+    report.grab_held = uint32_t(s.pbd->grab_particles.size());
+    report.grab_anchored = s.pbd->grab_anchored;
   }
   report.timings.total_ms = clock.now() - t0;
   if (!s.stroke_cutting) {

@@ -27,11 +27,20 @@ struct WorldModel {
   bool physics = true;   // false: cutting only (the surface stays at rest)
 };
 
-// The grab tool's command for one step.
+// The grab tool's command for one step. kTarget starts a grab at `target` (the surface point under
+// the cursor) or moves the target of the grab under way; kRelease lets go. Two kinds of grab:
+// - stiffness > 0: the region grab (sim/pbd.h "Grab"): the particles of the point's embedding piece
+//   and those within `radius` held at their offsets from the target, `stiffness` N/m in all, the
+//   force clamped at `force_limit` N (0: no limit);
+// - stiffness 0: the single-particle grab of the recordings written before it (the live particle
+//   nearest the target on a spring of `compliance`), kept bit for bit.
 struct GrabCommand {
   enum Kind : uint8_t { kNone, kTarget, kRelease } kind = kNone;
-  Vec3d target = Vec3d::Zero();  // starts the grab at the nearest particle, or moves it
-  double compliance = 1e-4;
+  Vec3d target = Vec3d::Zero();  // starts the grab at the point, or moves its target
+  double compliance = 1e-4;      // the single-particle grab's (stiffness 0)
+  double stiffness = 0.0;        // N/m, the region grab's total
+  double radius = 0.0;           // m (scene lengths), the region's radius around the point
+  double force_limit = 0.0;      // N, 0: none
 };
 
 // Everything that applies at one step (the same for a live session and a replay).
@@ -68,6 +77,11 @@ struct StepReport {
   CutStepStats cut;
   uint32_t sim_voxels_cut = 0;
   PbdCutStats pbd;  // what the PBD model update did (with physics)
+  // The grab (with physics): the force it applies to the tissue, |sum of its multipliers| / h^2 of
+  // the step's last substep (N with lengths in metres), the particles it holds and the candidates
+  // it left out because an anchor holds them (held 0, anchored > 0: "held by an anchor").
+  double grab_force_n = 0.0;
+  uint32_t grab_held = 0, grab_anchored = 0;
 };
 
 // A clock the caller lends the step for its report (sim/ reads none): milliseconds since any origin.

@@ -90,6 +90,9 @@ void follow_simulation(AppState& app, uint64_t& generation) {
     set_trays(app);
     app.view.voxel_size = float(app.view.bounds.extent().maxCoeff() / std::max(app.status.scene.pbd.resolution, 1));
     app.tools.cut_depth = float(app.status.scene.scalpel.length);
+    app.tools.grab_stiffness = float(app.status.scene.grab.stiffness);
+    app.tools.grab_force_limit = float(app.status.scene.grab.force_limit);
+    app.tools.grab_radius = float(app.status.scene.grab.radius);
     set_cut_depth(app, app.tools.cut_depth);
     app.tools.cut_pending = false;
     app.restores_seen = app.status.restores;
@@ -109,6 +112,14 @@ void follow_simulation(AppState& app, uint64_t& generation) {
   if (app.status.undo_notes != app.undo_notes_seen) {
     app.undo_notes_seen = app.status.undo_notes;
     show_message(app, app.status.undo_note, 4.0);
+  }
+  // A grab that started on anchored tissue says why nothing moves (once per grab; also on stdout).
+  if (app.tools.grabbing && app.status.grab_on && app.status.grab_held == 0 && app.status.grab_anchored > 0 &&
+      !app.tools.grab_anchor_said) {
+    app.tools.grab_anchor_said = true;
+    show_message(app, "grab: held by an anchor (the scene's fixed tissue): nothing moves here", 6.0);
+    std::printf("grab: held by an anchor (%u anchored particles under the cursor)\n", app.status.grab_anchored);
+    std::fflush(stdout);
   }
   if (app.panel.message_until > 0.0 && glfwGetTime() > app.panel.message_until) {
     app.panel.message.clear();

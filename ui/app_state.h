@@ -39,6 +39,7 @@ struct ViewState {
   Aabb bounds;
   float radius = 1.0f, voxel_size = 0.1f;
   DrawOptions draw;
+  bool show_anchors = true;  // View: "Show anchors" (the anchored particles' pins)
   bool show_trail = false;
   int trail_length = 48;
   std::vector<PlayPose> play_poses;  // the played recording's blade poses by step (drawn while playing)
@@ -79,7 +80,10 @@ struct ToolState {
   bool grabbing = false;
   uint32_t grab_vertex = 0;
   Vec3f grab_anchor = Vec3f::Zero(), grab_target = Vec3f::Zero();
-  float grab_strength = 7.0f;  // -log10 of the grab compliance (7: 1e-7)
+  // The region grab's strength (sim/pbd.h "Grab"; from the scene's "grab" block, set live in Tools):
+  // total stiffness N/m, force limit N (0: none), the radius of the tissue held (scene lengths).
+  float grab_stiffness = 500.0f, grab_force_limit = 30.0f, grab_radius = 0.015f;
+  bool grab_anchor_said = false;  // the status line said this grab is held by an anchor
 };
 
 // The panel's fields (ui/panels.cpp): the status line's message, text fields, scene and solver edits.

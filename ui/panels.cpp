@@ -167,8 +167,8 @@ void tools_panel(AppState& app) {
     app.tools.cut_depth = depth;
   }
   ImGui::TextDisabled("ctrl+wheel or [ ] also set it");
-  ImGui::SliderFloat("pull strength", &app.tools.grab_strength, 3.0f, 9.0f, "%.1f");
-  ImGui::TextDisabled("grab compliance 1e-%.1f", app.tools.grab_strength);
+  ImGui::SliderFloat("grab stiffness", &app.tools.grab_stiffness, 10.0f, 1e5f, "%.0f N/m", ImGuiSliderFlags_Logarithmic);
+  ImGui::SliderFloat("force limit", &app.tools.grab_force_limit, 0.0f, 200.0f, app.tools.grab_force_limit > 0.0f ? "%.0f N" : "none");
   const SimStatus& s = app.status;
   ImGui::BeginDisabled(s.undo_levels == 0 || s.recording || s.playing);
   if (ImGui::Button("Undo (ctrl+z)")) request_undo(app, false);
@@ -187,6 +187,7 @@ void view_panel(AppState& app) {
   ImGui::Checkbox("blade trail (T)", &app.view.show_trail);
   ImGui::SliderInt("trail length", &app.view.trail_length, 2, 200);
   ImGui::Checkbox("shadow on the tray", &app.view.draw.shadows);
+  ImGui::Checkbox("Show anchors", &app.view.show_anchors);
   ImGui::ColorEdit3("cut colour", app.view.draw.cut_color.data());
   ImGui::ColorEdit3("surface colour", app.view.draw.surface_color.data());
   if (ImGui::Button("Reset view (R)")) {
@@ -213,6 +214,7 @@ void performance_panel(AppState& app) {
   plot("surface ms", surface, "ms", true);
   plot("deform ms", deform, "ms");
   plot("step ms", total, "ms");
+  plot("grab force N", app.status.grab_force_n, "N");
   plot("upload ms", app.history.upload_ms, "ms");
   plot("normals ms", app.history.normals_ms, "ms");
   plot("render ms", app.history.render_ms, "ms");
@@ -327,6 +329,14 @@ void draw_panels(AppState& app) {
     ImGui::PushStyleColor(ImGuiCol_Text, ImVec4(1.0f, 0.85f, 0.45f, 1.0f));
     ImGui::TextWrapped("%s", app.panel.message.c_str());
     ImGui::PopStyleColor();
+  } else if (s.grab_on && app.tools.grabbing) {
+    // The grab's reading: its force, or why it moves nothing.
+    if (s.grab_held == 0 && s.grab_anchored > 0) {
+      ImGui::TextColored(ImVec4(1.0f, 0.6f, 0.4f, 1.0f), "grab: held by an anchor (nothing moves)");
+    } else {
+      ImGui::Text("grab: %.1f N on %u particles%s", s.grab_force_n.empty() ? 0.0f : s.grab_force_n.back(), s.grab_held,
+                  s.grab_anchored > 0 ? ", partly held by an anchor" : "");
+    }
   } else if (s.playing && !s.play_done) {
     ImGui::TextWrapped("playing step %u / %u", std::min(s.step, s.play_last), s.play_last);
   } else {

@@ -29,6 +29,16 @@ void merge(StepCommands& into, const StepCommands& from) {
   if (from.grab.kind != GrabCommand::kNone) into.grab = from.grab;
 }
 
+// The anchored particles' positions, for the window's pins (status under the runner's lock).
+void collect_anchors(const Session& session, SimStatus& status) {
+  status.anchors.clear();
+  const std::optional<PbdState>& pbd = session.state.pbd;
+  for (size_t p = 0; pbd && p < pbd->position.size(); ++p) {
+    if (pbd->refs[p] > 0 && pbd->inv_mass[p] == 0.0) status.anchors.push_back(pbd->position[p].cast<float>());
+  }
+  ++status.anchors_version;
+}
+
 int default_workers() {
   const unsigned n = std::thread::hardware_concurrency();
   return int(std::clamp(n > 1 ? n - 1 : 1u, 1u, 4u));
@@ -210,6 +220,10 @@ void SimRunner::do_open(OpenRequest& request) {
   ++status_.generation;
   status_.step = 0;
   status_.timings.clear();
+  status_.grab_force_n.clear();
+  status_.grab_on = false;
+  status_.grab_held = status_.grab_anchored = 0;
+  collect_anchors(*session_, status_);
   status_.recording = recorder_ != nullptr;
   status_.recording_path = request.record_path;
   status_.playing = playing_ != nullptr;
@@ -280,6 +294,12 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   status_.step = s.state.step;
   status_.timings.push_back(report.timings);
   if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
+  status_.grab_force_n.push_back(float(report.grab_force_n));
+  if (status_.grab_force_n.size() > kTimingHistory) status_.grab_force_n.erase(status_.grab_force_n.begin());
+  status_.grab_on = s.state.pbd && grab_active(*s.state.pbd);
+  status_.grab_held = report.grab_held;
+  status_.grab_anchored = report.grab_anchored;
+  if (report.sim_voxels_cut > 0) collect_anchors(s, status_);
   status_.divided_voxels = uint32_t(s.state.cut.divided.size());
   status_.voxels_cut += report.cut.voxels_cut;
   if (s.state.pbd) {
@@ -384,6 +404,7 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   status_.undo_levels = uint32_t(undo_stack_.size());
   status_.redo_levels = uint32_t(redo_stack_.size());
   ++status_.restores;
+  collect_anchors(*session_, status_);
   status_.restore_ms = ms;
   char note[96];
   std::snprintf(note, sizeof note, "%s: back to step %u (%.0f ms)", what, s.state.step, ms);

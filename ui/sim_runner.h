@@ -37,6 +37,13 @@ struct SimStatus {
   uint64_t generation = 0;  // +1 per (re)built session
   uint32_t occupied_voxels = 0, divided_voxels = 0, sim_voxels_divided = 0, particles = 0;
   std::vector<StepTimings> timings;  // recent steps, oldest first
+  std::vector<float> grab_force_n;   // the grab's force (N) of the same steps (StepReport::grab_force_n)
+  // The grab now (the last step's report): on, the particles it holds, the candidates an anchor holds.
+  bool grab_on = false;
+  uint32_t grab_held = 0, grab_anchored = 0;
+  // The anchored particles' positions (they do not move; refreshed at open and after cut steps).
+  std::vector<Vec3f> anchors;
+  uint64_t anchors_version = 0;  // +1 per refresh
   std::string error;                 // the last failed open/record request
   // Recording and playback.
   bool recording = false;

@@ -50,7 +50,10 @@ void send_grab(AppState& app, GrabCommand::Kind kind, const Vec3f& target) {
   StepCommands c;
   c.grab.kind = kind;
   c.grab.target = target.cast<double>();
-  c.grab.compliance = std::pow(10.0, -double(app.tools.grab_strength));
+  // The region grab: the Tools panel's stiffness (N/m) and force limit (N), the scene's radius.
+  c.grab.stiffness = std::max(1e-3, double(app.tools.grab_stiffness));
+  c.grab.force_limit = std::max(0.0, double(app.tools.grab_force_limit));
+  c.grab.radius = std::max(0.0, double(app.tools.grab_radius));
   app.sim->push_now(c);
   if (app.status.paused) app.sim->step_once();
 }
@@ -219,6 +222,7 @@ void grab_mouse(AppState& app, bool left, bool free_mouse, const Ray& ray) {
       app.tools.grabbing = true;
       app.tools.grab_vertex = best;
       app.tools.grab_anchor = app.tools.grab_target = hit.point;
+      app.tools.grab_anchor_said = false;
       send_grab(app, GrabCommand::kTarget, hit.point);
     } else {
       show_message(app, "grab: no tissue under the cursor");

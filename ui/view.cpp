@@ -174,6 +174,12 @@ void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector
       }
     }
   }
+  // Anchored tissue: a small steel-blue pin on each anchored particle (they never move), seen through
+  // the surface as ghosts where the tissue covers them.
+  if (app.view.show_anchors) {
+    const float pin = 0.35f * std::max(app.view.voxel_size * 4.0f, 0.004f * app.view.radius);
+    for (const Vec3f& p : app.status.anchors) marker_mesh(p, pin, Vec3f(0.35f, 0.55f, 1.0f), solids);
+  }
   if (app.tools.grabbing && app.current && app.tools.grab_vertex < app.current->positions.size()) {
     const Vec3f p = app.current->positions[app.tools.grab_vertex];
     if (p.allFinite()) {
@@ -188,8 +194,20 @@ void overlay_geometry(AppState& app, std::vector<LineVertex>& lines, std::vector
 
 // The depth next to the cursor while aiming (ImGui's foreground layer, so it is never hidden).
 void cursor_label(AppState& app) {
-  if (app.tools.tool != Tool::kScalpel || !app.tools.cursor_in_view || app.status.playing) return;
   char text[96];
+  // The grab: its force in newtons beside the cursor while it pulls (or that an anchor holds it).
+  if (app.tools.tool == Tool::kGrab && app.tools.grabbing && app.status.grab_on && !app.status.playing) {
+    const SimStatus& s = app.status;
+    if (s.grab_held == 0 && s.grab_anchored > 0) {
+      std::snprintf(text, sizeof text, "held by an anchor");
+    } else {
+      std::snprintf(text, sizeof text, "%.1f N", s.grab_force_n.empty() ? 0.0 : double(s.grab_force_n.back()));
+    }
+    const ImVec2 at(float(app.view.view_x) + app.tools.cursor.x() + 18.0f, app.tools.cursor.y() + 12.0f);
+    ImGui::GetForegroundDrawList()->AddText(at, IM_COL32(200, 255, 210, 240), text);
+    return;
+  }
+  if (app.tools.tool != Tool::kScalpel || !app.tools.cursor_in_view || app.status.playing) return;
   if (app.tools.hover_hit || app.tools.left_down) {
     if (app.tools.reach_depth > app.tools.cut_depth) {
       std::snprintf(text, sizeof text, "depth %.2f (through %.2f)", app.tools.cut_depth, app.tools.reach_depth);

@@ -7,6 +7,7 @@
 #include "support.h"
 
 #include <doctest/doctest.h>
+#include <nlohmann/json.hpp>
 
 #include <fstream>
 #include <limits>
@@ -45,10 +46,11 @@ TEST_SUITE("playback") {
                        R"({"step":0,"blade":[[0,0,0],[0,0,1]],"cutting":false})" "\n"
                        R"({"step":3,"grab":{"target":[1,2,3],"compliance":0.5}})" "\n"
                        R"({"step":3,"hash":"ABC"})" "\n"
-                       R"({"step":7,"grab":"release","future":1})" "\n");
+                       R"({"step":7,"grab":"release","future":1})" "\n"
+                       R"({"step":9,"grab":{"target":[1,2,3],"stiffness":500,"radius":0.015,"force_limit":30}})" "\n");
     const Playback p = load_playback(file);
-    REQUIRE(p.steps.size() == 3);
-    CHECK(p.last_step() == 7);
+    REQUIRE(p.steps.size() == 4);
+    CHECK(p.last_step() == 9);
     const PlaybackStep& s0 = p.steps[0];
     CHECK(s0.step == 0);
     CHECK(s0.line == 2);
@@ -63,9 +65,18 @@ TEST_SUITE("playback") {
     CHECK_FALSE(s3.commands.has_blade);
     CHECK(s3.commands.grab.kind == GrabCommand::kTarget);
     CHECK(s3.commands.grab.compliance == 0.5);
+    CHECK(s3.commands.grab.stiffness == 0.0);  // the single-particle grab of older recordings
     CHECK(s3.has_hash);
     CHECK(s3.hash == "abc");
     CHECK(p.steps[2].commands.grab.kind == GrabCommand::kRelease);
+    // The region grab, and its JSON written back as read.
+    const GrabCommand& g = p.steps[3].commands.grab;
+    CHECK(g.kind == GrabCommand::kTarget);
+    CHECK(g.stiffness == 500.0);
+    CHECK(g.radius == 0.015);
+    CHECK(g.force_limit == 30.0);
+    CHECK(grab_to_json(g) == nlohmann::json::parse(R"({"target":[1,2,3],"stiffness":500,"radius":0.015,"force_limit":30})"));
+    CHECK(grab_to_json(s3.commands.grab) == nlohmann::json::parse(R"({"target":[1,2,3],"compliance":0.5})"));
   }
 
   TEST_CASE("next_commands hands out each recorded step once, in step order") {
@@ -101,6 +112,15 @@ TEST_SUITE("playback") {
     CHECK(refused(R"({"step":4,"grab":{"target":[1,2]}})").find(": line 3: grab must be") != std::string::npos);
     CHECK(refused(R"({"step":4,"grab":{"target":[1,2,3],"compliance":-1}})").find("line 3: grab") != std::string::npos);
     CHECK(refused(R"({"step":4,"grab":"hold"})").find("line 3: grab") != std::string::npos);
+    CHECK(refused(R"({"step":4,"grab":{"target":[1,2,3],"stiffness":0}})").find("line 3: grab.stiffness must be") !=
+          std::string::npos);
+    CHECK(refused(R"({"step":4,"grab":{"target":[1,2,3],"stiffness":5,"radius":-1}})").find("line 3: grab.radius") !=
+          std::string::npos);
+    CHECK(refused(R"({"step":4,"grab":{"target":[1,2,3],"stiffness":5,"force_limit":"x"}})").find("line 3: grab.force_limit") !=
+          std::string::npos);
+    CHECK(refused(R"({"step":4,"grab":{"target":[1,2,3],"stiffness":5,"compliance":1}})").find("line 3: grab has both") !=
+          std::string::npos);
+    CHECK(refused(R"({"step":4,"grab":{"target":[1,2,3],"radius":1}})").find("line 3: grab.radius and") != std::string::npos);
     CHECK(refused(R"({"step":4,"camera":{"target":[1,2,3],"distance":1,"yaw":0}})").find("line 3: camera must be") !=
           std::string::npos);
     CHECK(refused(R"({"step":4,"camera":{"fov":45}})").find("line 3: camera") != std::string::npos);

@@ -122,6 +122,34 @@ TEST_SUITE("scene") {
           std::string::npos);
   }
 
+  TEST_CASE("the grab block: defaults for the liver, validated, scaled into metres, round-tripped") {
+    // Defaults: 500 N/m, 15 mm, 30 N; no block: the key is left out of the JSON (older headers stay).
+    const Scene plain = parse_scene(json{{"mesh", "m.obj"}}, "s.json");
+    CHECK(plain.grab.stiffness == 500.0);
+    CHECK(plain.grab.radius == 0.015);
+    CHECK(plain.grab.force_limit == 30.0);
+    CHECK_FALSE(scene_to_json(plain).contains("grab"));
+    const Scene scene = parse_scene(json{{"mesh", "m.obj"}, {"units", {{"metres_per_unit", 0.01}}},
+                                         {"grab", {{"stiffness", 800}, {"radius", 2}, {"force_limit", 0}}}},
+                                    "s.json");
+    CHECK(scene.grab.stiffness == 800.0);
+    CHECK(scene.grab.radius == doctest::Approx(0.02));  // a length: scaled like the others
+    CHECK(scene.grab.force_limit == 0.0);                // no limit
+    const Scene again = parse_scene(scene_to_json(scene), "s.json");
+    CHECK(again.grab.stiffness == 800.0);
+    CHECK(again.grab.radius == scene.grab.radius);
+    CHECK(again.grab.force_limit == 0.0);
+    // Bad values: one line naming the key.
+    const auto grab = [](json g) { return parse_error(json{{"mesh", "m.obj"}, {"grab", g}}); };
+    CHECK(grab({{"stiffness", 0}}).find("grab.stiffness: must be positive") != std::string::npos);
+    CHECK(grab({{"stiffness", -5}}).find("grab.stiffness: must be in") != std::string::npos);
+    CHECK(grab({{"stiffness", "stiff"}}).find("grab.stiffness: must be a number") != std::string::npos);
+    CHECK(grab({{"radius", -1}}).find("grab.radius: must be in") != std::string::npos);
+    CHECK(grab({{"force_limit", -1}}).find("grab.force_limit: must be in") != std::string::npos);
+    CHECK(grab({{"strength", 7}}).find("grab.strength: unknown key") != std::string::npos);
+    CHECK(grab(5).find("grab: must be an object") != std::string::npos);
+  }
+
   TEST_CASE("a scene round-trips through JSON") {
     Scene scene = parse_scene(json{{"mesh", "m.obj"}, {"resolution", 64}, {"sim_resolution", 8}}, "s.json");
     scene.pbd.fixed.push_back({Vec3d(0, 0, 0), Vec3d(1, 1, 1)});

@@ -19,10 +19,12 @@
 #define STB_IMAGE_IMPLEMENTATION
 #include <stb/stb_image.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <string>
 
 using namespace dvx;
 namespace fs = std::filesystem;
@@ -128,6 +130,33 @@ TEST_SUITE("replay") {
     }
     CHECK(fs::file_size(dir.path / "final.ply") > 1000);
     CHECK(fs::file_size(dir.path / "timings.csv") > 1000);
+  }
+
+  TEST_CASE("timings.csv ends with grab_force_n: the grab's force in newtons, non-zero while a grab holds") {
+    TempDir dir;
+    ReplayOptions options = replay_of(dvx_test::source_path("assets/recordings/bunny_grab.jsonl"), dir.path);
+    const ReplayResult r = run_replay(options);
+    CHECK(r.hash_mismatched == 0);
+    std::istringstream csv(read_file(dir.path / "timings.csv"));
+    std::string line;
+    REQUIRE(std::getline(csv, line));
+    // The columns before it keep their names and order (other tools read them).
+    CHECK(line == "step,cut_ms,surface_ms,deform_ms,total_ms,cut_voxels,edges_hit,edges_cut,voxels_divided,"
+                  "vertices_changed,triangles_changed,cutting,sim_voxels_cut,grab_force_n");
+    int rows = 0, pulling = 0;
+    double first = -1.0, largest = 0.0;
+    while (std::getline(csv, line)) {
+      const double force = std::stod(line.substr(line.rfind(',') + 1));
+      if (rows++ == 0) first = force;
+      CHECK(force >= 0.0);
+      pulling += force > 0.0;
+      largest = std::max(largest, force);
+    }
+    MESSAGE(pulling << " of " << rows << " steps with a grab force, largest " << largest);
+    CHECK(first == 0.0);  // no grab at step 0
+    CHECK(pulling > 20);
+    CHECK(pulling < rows);
+    CHECK(largest > 0.0);
   }
 
   TEST_CASE("a replay plots its timings with gnuplot, and still succeeds without gnuplot") {

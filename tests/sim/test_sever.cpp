@@ -233,7 +233,7 @@ TEST_SUITE("sever") {
         return grab_to(centre + radius * Vec3d(std::sin(angle), -std::cos(angle), 0.0));
       };
       drive(b, 210, target);
-      REQUIRE(b.pbd().position[b.pbd().grab_particle].y() > 1.2);  // bent: the end points up
+      REQUIRE(b.pbd().position[b.pbd().grab_particles.at(0)].y() > 1.2);  // bent: the end points up
       // A horizontal blade at y = 1 swept across the bar while the grab holds it bent.
       SweepResult r = sweep(b, blade_at(-2.0, 1.0137, 1.0), blade_at(2.0, 1.0137, 1.0), steps,
                             [&](int) { return target(210); });
@@ -251,7 +251,7 @@ TEST_SUITE("sever") {
       // Pull the free end out by 1.5 (half the bar's length), then keep pulling during the sweep.
       const auto target = [&](int i) { return grab_to(Vec3d(1.5 + 0.015 * std::min(i, 100) + 0.005 * std::max(0, i - 100), 0.0, 0.0)); };
       drive(b, 100, target);
-      const double span = b.pbd().position[b.pbd().grab_particle].x() + 1.5;
+      const double span = b.pbd().position[b.pbd().grab_particles.at(0)].x() + 1.5;
       MESSAGE("stretched to " << span / 3.0 << " x");
       // A vertical blade along z at x = 0.4 swept down across the bar, the grab still pulling.
       const BladePose from{Vec3d(0.4137, 1.0, -1.0), Vec3d(0.4137, 1.0, 1.0)};

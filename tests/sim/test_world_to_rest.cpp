@@ -165,7 +165,7 @@ TEST_SUITE("world_to_rest") {
       grab_move(b.pbd(), centre + radius * Vec3d(std::sin(angle), -std::cos(angle), 0.0));
       pbd_step(b.state.cut, b.pbd());
     }
-    const Vec3d end = b.pbd().position[b.pbd().grab_particle];
+    const Vec3d end = b.pbd().position[b.pbd().grab_particles.at(0)];
     REQUIRE(end.y() > 1.2);  // bent: the end points up
     // A horizontal blade at y = 1, swept across the bar in one step.
     const double plane = 1.0137;
