@@ -272,8 +272,9 @@ void add_bench_replay_report(CLI::App& bench, CliCommand& c, Subcommands& sub) {
   sub.bench_contact->add_option("--liver-cut-steps", k.liver_cut_steps, "Steps of the liver's cut")->check(CLI::Range(0, 100000))->capture_default_str();
   sub.bench_contact->add_option("--liver-rest-steps", k.liver_rest_steps, "Steps after it (cut + rest = 0: no liver)")
       ->check(CLI::Range(0, 100000))->capture_default_str();
+  sub.bench_contact->add_option("--sever-scene", k.sever_scene, "Scene sliced for the sever steps (default: assets/scenes/bunny.json)");
   sub.bench_contact->add_option("--sever-resolution", k.sever_resolution,
-                                "Resolution of the liver sliced for the sever steps (0: skipped)")
+                                "Resolution of the scene sliced for the sever steps (0: skipped)")
       ->check(CLI::Range(0, kMaxResolution))
       ->capture_default_str();
   sub.bench_contact->add_option("--sever-strokes", k.sever_strokes, "Vertical through-cuts of the sliced liver")

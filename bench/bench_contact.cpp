@@ -101,7 +101,7 @@ struct SeverStep {
   StepTimings t;
 };
 
-// The liver sliced by vertical through-cuts: every step that makes more bodies, with its phases.
+// A scene sliced by vertical through-cuts: every step that makes more bodies, with its phases.
 std::vector<SeverStep> run_sever(const Scene& scene, int workers, const BenchContactOptions& o, uint32_t& steps_run) {
   Session session;
   open_session(scene, scene.pbd.dt, true, workers, session);
@@ -212,16 +212,17 @@ std::string bench_contact(const BenchContactOptions& options) {
     }
   }
 
-  // Sever steps: the liver at the sever resolution sliced through (contact on, as the scene says).
+  // Sever steps: the sever scene at the sever resolution sliced through (contact on, as the scene says).
   std::ostringstream sever_csv;
   sever_csv << "case,resolution,stroke,step,bodies_before,bodies_after,total_ms,cut_ms,map_ms,surface_ms,model_ms,"
                "deform_ms,contact_ms,solve_ms\n";
   nlohmann::json sever = nullptr;
   if (options.sever_resolution > 0 && options.sever_strokes > 0) {
-    Scene scene = load_scene(liver);
+    const std::string sever_path = options.sever_scene.empty() ? (source / "assets/scenes/bunny.json").string() : options.sever_scene;
+    Scene scene = load_scene(sever_path);
     scene.pbd.resolution = options.sever_resolution;
     scene.pbd.sim_resolution = std::min(scene.pbd.sim_resolution, scene.pbd.resolution);
-    const std::string name = fs::path(liver).filename().string() + " (sliced)";
+    const std::string name = fs::path(sever_path).filename().string() + " (sliced)";
     if (options.progress) std::fprintf(stderr, "divvox bench contact: %s at %d\n", name.c_str(), options.sever_resolution);
     uint32_t steps_run = 0;
     const std::vector<SeverStep> severs = run_sever(scene, options.workers, options, steps_run);

@@ -16,10 +16,12 @@ struct BenchContactOptions {
   int liver_cut_steps = 60;      // the blade's sweep across the liver (a horizontal through-cut)
   int liver_rest_steps = 180;    // steps after the cut (the halves rest on each other and on the tray)
   int workers = 2;
-  // Sever steps: the liver scene at `sever_resolution` (0: skipped) sliced by `sever_strokes` vertical
+  // Sever steps: `sever_scene` (default: the default recording's, assets/scenes/bunny.json: tray and piece
+  // contact) at `sever_resolution` (0: skipped) sliced by `sever_strokes` vertical
   // through-cuts (planes x = const), each swept over `sever_stroke_steps` steps and followed by
   // `sever_rest_steps` steps at rest; a step after which the pieces form more bodies (components not
   // joined by material) than before is a sever step.
+  std::string sever_scene;
   int sever_resolution = 256;
   int sever_strokes = 4;
   int sever_stroke_steps = 30;
