@@ -49,7 +49,6 @@
 #include "sim/surface_mesh.h"
 #include "sim/voxel_model.h"
 
-#include <array>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -138,10 +137,6 @@ struct CutScratch {
   std::vector<uint32_t> blade_voxels;  // the blade edge's points' voxels and points (update_front)
   std::vector<Vec3f> blade_points;
   std::vector<uint32_t> corners;       // the next touched_vertices, as cut_update_surface fills it
-  // refresh_voxels: the vertex slots and half-edge masks of each refreshed voxel's patches (patch
-  // order), and per voxel (voxel, first, count) into them, ascending voxels once merged.
-  std::vector<uint32_t> patch_slots, patch_masks;
-  std::vector<std::array<uint32_t, 3>> patch_runs;
   CutScratch() = default;
   CutScratch(const CutScratch&) {}
   CutScratch& operator=(const CutScratch&) { return *this; }

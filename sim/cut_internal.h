@@ -220,22 +220,9 @@ struct EdgeQuads {
   bool on_cut[2] = {false, false};
 };
 
-// The patches' vertex slots of a sorted run of voxels, read when they were refreshed (CutScratch
-// patch_runs, patch_slots, patch_masks): plan_edge_quads finds a listed voxel's vertices there, not
-// through the patch map (one lookup per patch of each of the four voxels of each quad side, mostly
-// cache misses).
-struct PatchSlotCache {
-  const std::array<uint32_t, 3>* runs = nullptr;  // (voxel, first, count), ascending voxels
-  uint32_t run_count = 0;
-  const uint32_t* slots = nullptr;
-  const uint32_t* masks = nullptr;
-};
-
-// The quads of a lattice edge's two half-edges (slit quads that coincide cancel). `cache` (optional):
-// the vertex slots of the voxels it lists (the others are looked up in the patch map).
+// The quads of a lattice edge's two half-edges (slit quads that coincide cancel).
 void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t edge, const EdgeCut* cut,
-                     const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out,
-                     const PatchSlotCache* cache = nullptr);
+                     const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out);
 
 // Recomputes pieces, patches, vertices and quads of the given voxels and of the edges they hold.
 void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats,

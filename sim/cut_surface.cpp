@@ -77,21 +77,6 @@ uint32_t vertex_holding(const CutSurface& s, uint32_t voxel, int h) {
   return kDeadIndex;
 }
 
-// The same through the patch slots read at the refresh, for a voxel the cache lists; `found` false
-// (and kDeadIndex) for one it does not.
-uint32_t cached_vertex_holding(const PatchSlotCache& cache, uint32_t voxel, int h, bool& found) {
-  const std::array<uint32_t, 3>* end = cache.runs + cache.run_count;
-  const std::array<uint32_t, 3>* run =
-      std::lower_bound(cache.runs, end, voxel, [](const std::array<uint32_t, 3>& r, uint32_t v) { return r[0] < v; });
-  found = run != end && (*run)[0] == voxel;
-  if (!found) return kDeadIndex;
-  // Patches 0..count-1 are the voxel's (contiguous in the patch map): the first holding h.
-  for (uint32_t k = (*run)[1]; k < (*run)[1] + (*run)[2]; ++k) {
-    if ((cache.masks[k] >> h) & 1u) return cache.slots[k];
-  }
-  return kDeadIndex;
-}
-
 // Appends the corners of quad slot `quad`'s two triangles to `corners` (when given and live).
 void note_quad_corners(const CutSurface& s, uint32_t quad, std::vector<uint32_t>* corners) {
   if (corners == nullptr || s.quad_half_edge[quad] == CutSurface::kFreeKey) return;
@@ -632,7 +617,7 @@ Vec3f patch_vertex_position(const VoxelModel& model, const CutState& state, uint
 // width: they cancel. Two that share one diagonal are split along the other (a diagonal is used
 // by the two triangles of each quad; shared, it would be a non-manifold edge).
 void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t edge, const EdgeCut* cut,
-                     const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out, const PatchSlotCache* cache) {
+                     const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out) {
   const CutSurface& s = state.surface;
   const int axis = int(edge % 3);
   uint32_t ring[2][4];  // vertices in the ring order about the axis
@@ -647,9 +632,7 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     bool ok = true;
     for (int q = 0; q < 4; ++q) {
       const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
-      bool found = false;
-      if (cache) ring[side][q] = cached_vertex_holding(*cache, around[q], h, found);
-      if (!found) ring[side][q] = vertex_holding(s, around[q], h);
+      ring[side][q] = vertex_holding(s, around[q], h);
       ok = ok && ring[side][q] != kDeadIndex;
     }
     out.exists[side] = ok;
@@ -676,8 +659,7 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
 namespace {
 
 // Patches and vertices of one voxel (its pieces already up to date). Returns its half-edge mask.
-uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, CutStepStats& stats,
-                                bool record = false) {
+uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, CutStepStats& stats) {
   CutSurface& s = state.surface;
   int32_t vc[3];
   model.lattice.voxel_coords(voxel, vc);
@@ -690,10 +672,6 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
     const uint64_t piece = piece_key(voxel, patches.patch_piece[p]);
     bool created = false;
     const uint32_t slot = ensure_vertex(s, key, created);
-    if (record) {  // for plan_edge_quads (PatchSlotCache)
-      state.scratch.patch_slots.push_back(slot);
-      state.scratch.patch_masks.push_back(patches.patch_half_edges[p]);
-    }
     if (created || s.positions[slot] != position || s.vertex_piece[slot] != piece ||
         s.vertex_half_edges[slot] != patches.patch_half_edges[p]) {
       s.positions[slot] = position;
@@ -703,10 +681,6 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
       state.changed_vertices.push_back(slot);
       ++stats.vertices_changed;
     }
-  }
-  if (record) {
-    const uint32_t count = patches.patch_count;
-    state.scratch.patch_runs.push_back({voxel, uint32_t(state.scratch.patch_slots.size()) - count, count});
   }
   // Patches that no longer exist.
   for (; p < uint32_t(kMaxPatches); ++p) {
@@ -744,14 +718,8 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     dv.piece_count = shape.piece_count;
     dv.partial_mask = shape.piece_partial;
   }
-  // A short list (a cut step's) keeps its voxels' vertex slots for the quads (PatchSlotCache).
-  const bool record = voxels.size() <= 4096;
-  CutScratch& scratch = state.scratch;
-  scratch.patch_slots.clear();
-  scratch.patch_masks.clear();
-  scratch.patch_runs.clear();
   for (uint32_t voxel : voxels) {
-    const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats, record));
+    const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
     if (faces == 0) continue;
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
@@ -765,21 +733,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
   if (!across.empty()) {
     sorted_unique(across);
-    for (uint32_t voxel : across) refresh_voxel_vertices(model, state, voxel, stats, record);
+    for (uint32_t voxel : across) refresh_voxel_vertices(model, state, voxel, stats);
     const size_t n = voxels.size();
     voxels.insert(voxels.end(), across.begin(), across.end());
     std::inplace_merge(voxels.begin(), voxels.begin() + std::ptrdiff_t(n), voxels.end());
-    if (record) {  // the runs in the same order
-      std::inplace_merge(scratch.patch_runs.begin(), scratch.patch_runs.begin() + std::ptrdiff_t(n), scratch.patch_runs.end(),
-                         [](const std::array<uint32_t, 3>& a, const std::array<uint32_t, 3>& b) { return a[0] < b[0]; });
-    }
-  }
-  PatchSlotCache cache;
-  if (record) {
-    cache.runs = scratch.patch_runs.data();
-    cache.run_count = uint32_t(scratch.patch_runs.size());
-    cache.slots = scratch.patch_slots.data();
-    cache.masks = scratch.patch_masks.data();
   }
 
   // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
@@ -813,7 +770,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       const uint32_t edge = voxel_edge_id(l, vc, e);
       const EdgeCut* cut = cut_edge ? find_cut(state, edge) : nullptr;
       EdgeQuads quads;
-      plan_edge_quads(model, state, edge, cut, around, corners, quads, record ? &cache : nullptr);
+      plan_edge_quads(model, state, edge, cut, around, corners, quads);
       for (int side = 0; side < 2; ++side) {
         const uint64_t key = half_edge_key(edge, side);
         if (quads.exists[side]) {
