@@ -227,63 +227,35 @@ bool embedded_triangle(const ContactIndex& x, const Tri& tri) {
   return true;
 }
 
-// A new stamp for `marks` (an entry equal to it was marked since): 1, 2, ... and all entries reset
-// when the count wraps.
-uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
-  if (++stamp == 0) {
-    std::fill(marks.begin(), marks.end(), 0u);
-    stamp = 1;
-  }
-  return stamp;
-}
-
-// The index's triangles under each piece whose contact points are still to be built (the others
-// never read it: a piece goes stale only in refresh_reps, which drops the index): the live triangles
-// whose three corners are embedded, listed under each distinct such piece of their corners,
-// ascending. One sequential pass over the whole surface, built when piece_reps has many pieces to
-// build at once (after a sever, or a rebuild): there it is cheaper than finding each piece's quads
-// through the half-edge map, whose lookups miss the cache (bunny at 256: the sever step's PBD 25-28
-// ms with it, 47-50 ms without). The pass reads only the triangles and a mark per corner slot (the
-// slots of the pieces to build); a triangle with no marked corner is skipped (a free quad's
-// triangles name kDeadIndex, no slot), and only the marked ones are listed, in one more pass over them.
+// The index's triangles under each piece: the live triangles whose three corners are embedded,
+// listed under each distinct piece of their corners, ascending. One sequential pass over the whole
+// surface, built when piece_reps has many pieces to build at once (after a sever, or a rebuild):
+// there it is cheaper than finding each piece's quads through the half-edge map, whose lookups
+// miss the cache (bunny at 256: the sever step's PBD 25-28 ms with it, 47-50 ms without).
 void index_triangles(const CutState& cut, PbdState& s) {
   ContactIndex& x = s.piece_contacts.index;
-  PieceContacts& pc = s.piece_contacts;
   if (x.triangles_ready) return;
   x.triangles_ready = true;
   const CutSurface& surface = cut.surface;
   const uint32_t triangles = uint32_t(surface.triangles.size());
-  // The slots of the pieces to build.
-  if (pc.slot_marks.size() < x.slots) pc.slot_marks.resize(x.slots, 0u);
-  const uint32_t stamp = next_stamp(pc.slot_marks, pc.slot_stamp);
-  for (uint32_t i = 0; i < x.pieces; ++i) {
-    if (pc.rep_begin[i] != ~0u) continue;
-    for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) pc.slot_marks[x.piece_slots[n]] = stamp;
-  }
-  const uint32_t* marks = pc.slot_marks.data();
-  const uint32_t slots = x.slots;
-  const auto marked = [&](uint32_t v) { return v < slots && marks[v] == stamp; };
-  x.triangle_begin.assign(x.pieces + 1, 0);
-  std::vector<uint64_t>& pairs = x.triangle_pairs;
-  pairs.clear();
-  const auto add = [&](uint32_t t, uint32_t piece) {
-    if (pc.rep_begin[piece] != ~0u) return;  // built already: not listed
-    pairs.push_back(uint64_t(t) << 32 | piece);
-    ++x.triangle_begin[piece + 1];
+  // Calls f(t, piece) for each distinct piece of each such triangle.
+  const auto for_pieces_of = [&](auto&& f) {
+    for (uint32_t t = 0; t < triangles; ++t) {
+      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
+      const Tri& tri = surface.triangles[t];
+      if (!embedded_triangle(x, tri)) continue;
+      const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
+      f(t, p0);
+      if (p1 != p0) f(t, p1);
+      if (p2 != p0 && p2 != p1) f(t, p2);
+    }
   };
-  for (uint32_t t = 0; t < triangles; ++t) {
-    const Tri& tri = surface.triangles[t];
-    if (!(marked(tri[0]) || marked(tri[1]) || marked(tri[2]))) continue;  // no corner in a piece to build
-    if (!embedded_triangle(x, tri)) continue;
-    const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
-    add(t, p0);
-    if (p1 != p0) add(t, p1);
-    if (p2 != p0 && p2 != p1) add(t, p2);
-  }
+  x.triangle_begin.assign(x.pieces + 1, 0);
+  for_pieces_of([&](uint32_t, uint32_t piece) { ++x.triangle_begin[piece + 1]; });
   for (uint32_t i = 0; i < x.pieces; ++i) x.triangle_begin[i + 1] += x.triangle_begin[i];
   x.piece_triangles.resize(x.triangle_begin[x.pieces]);
   x.scratch.assign(x.triangle_begin.begin(), x.triangle_begin.end() - 1);
-  for (const uint64_t pair : pairs) x.piece_triangles[x.scratch[uint32_t(pair)]++] = uint32_t(pair >> 32);
+  for_pieces_of([&](uint32_t t, uint32_t piece) { x.piece_triangles[x.scratch[piece]++] = t; });
 }
 
 // How far each live piece may move in this step: (its fastest corner's speed + g dt) dt (what bounds
@@ -306,6 +278,16 @@ void piece_motions(PbdState& s) {
 // surface's triangles / kRepSlotsPerIndex (a slot's ~5 half-edge lookups, mostly cache misses,
 // against the index's sequential pass over every triangle).
 constexpr uint32_t kRepSlotsPerIndex = 128;
+
+// A new stamp for `marks` (an entry equal to it was marked since): 1, 2, ... and all entries reset
+// when the count wraps.
+uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
+  if (++stamp == 0) {
+    std::fill(marks.begin(), marks.end(), 0u);
+    stamp = 1;
+  }
+  return stamp;
+}
 
 // Marks stale the contact points of the pieces whose points a cut may have changed, after the
 // contact index's update (refresh_slots): a piece's points follow from its slots, their rest
