@@ -12,6 +12,7 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <string>
@@ -38,7 +39,24 @@ struct RawFlags {
   bool headless = false, no_physics = false;
   std::string bench_voxelize_resolutions = "64,128,256", bench_cut_resolutions = "64,128,256";
   std::string bench_scaling_resolutions = "64,128,256,512", bench_quality_resolutions = "64,128,256";
+  std::string bench_cut_directions = "x,y,z";
 };
+
+// A comma-separated list of axes (x, y, z) as 0, 1, 2, in the order given; repeats are refused.
+std::vector<int> parse_axis_list(const std::string& flag, const std::string& text) {
+  std::vector<int> axes;
+  size_t start = 0;
+  while (start <= text.size()) {
+    const size_t end = std::min(text.find(',', start), text.size());
+    const std::string item = text.substr(start, end - start);
+    const int axis = item == "x" ? 0 : item == "y" ? 1 : item == "z" ? 2 : -1;
+    if (axis < 0) throw_input(flag, "'" + item + "' is not one of x, y, z");
+    if (std::find(axes.begin(), axes.end(), axis) != axes.end()) throw_input(flag, "'" + item + "' is given twice");
+    axes.push_back(axis);
+    start = end + 1;
+  }
+  return axes;
+}
 
 // The subcommands, to tell which one was parsed.
 struct Subcommands {
@@ -138,6 +156,9 @@ void add_bench_geometry(CLI::App& bench, CliCommand& c, RawFlags& raw, Subcomman
              "p50/p99 of divide + surface update, time per newly cut voxel, explicit bytes per divided voxel.");
   sub.bench_cut->add_option("--mesh", k.mesh, "Mesh file (default: armadillo from ../shared/assets)");
   sub.bench_cut->add_option("--resolutions", raw.bench_cut_resolutions, "Comma-separated resolutions")->capture_default_str();
+  sub.bench_cut->add_option("--directions", raw.bench_cut_directions,
+                            "Comma-separated normal axes of the cut planes (x, y, z; y: the plane the peers clip with)")
+      ->capture_default_str();
   sub.bench_cut->add_option("--steps", k.steps, "Blade poses across the object")->check(CLI::Range(1, 100000))->capture_default_str();
   sub.bench_cut->add_option("--repeats", k.repeats, "Whole cuts per resolution (median per step)")
       ->check(CLI::Range(1, 1000))
@@ -251,6 +272,20 @@ void add_bench_replay_report(CLI::App& bench, CliCommand& c, Subcommands& sub) {
   sub.bench_contact->add_option("--liver-cut-steps", k.liver_cut_steps, "Steps of the liver's cut")->check(CLI::Range(0, 100000))->capture_default_str();
   sub.bench_contact->add_option("--liver-rest-steps", k.liver_rest_steps, "Steps after it (cut + rest = 0: no liver)")
       ->check(CLI::Range(0, 100000))->capture_default_str();
+  sub.bench_contact->add_option("--sever-scene", k.sever_scene, "Scene sliced for the sever steps (default: assets/scenes/bunny.json)");
+  sub.bench_contact->add_option("--sever-resolution", k.sever_resolution,
+                                "Resolution of the scene sliced for the sever steps (0: skipped)")
+      ->check(CLI::Range(0, kMaxResolution))
+      ->capture_default_str();
+  sub.bench_contact->add_option("--sever-strokes", k.sever_strokes, "Vertical through-cuts of the sliced liver")
+      ->check(CLI::Range(0, 8))
+      ->capture_default_str();
+  sub.bench_contact->add_option("--sever-stroke-steps", k.sever_stroke_steps, "Steps of each such stroke")
+      ->check(CLI::Range(1, 100000))
+      ->capture_default_str();
+  sub.bench_contact->add_option("--sever-rest-steps", k.sever_rest_steps, "Steps at rest after each stroke")
+      ->check(CLI::Range(0, 100000))
+      ->capture_default_str();
   sub.bench_contact->add_option("--workers", k.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
   sub.bench_contact->add_option("--out,-o", k.out_dir, "Output folder")->capture_default_str();
 
@@ -275,6 +310,7 @@ void finish_parse(const Subcommands& sub, const RawFlags& raw, CliCommand& c) {
   }
   c.bench_voxelize.resolutions = parse_int_list("--resolutions", raw.bench_voxelize_resolutions, 1, kMaxResolution);
   c.bench_cut.resolutions = parse_int_list("--resolutions", raw.bench_cut_resolutions, 1, kMaxResolution);
+  c.bench_cut.directions = parse_axis_list("--directions", raw.bench_cut_directions);
   c.bench_scaling.resolutions = parse_int_list("--resolutions", raw.bench_scaling_resolutions, 1, kMaxResolution);
   c.bench_quality.resolutions = parse_int_list("--resolutions", raw.bench_quality_resolutions, 1, kMaxResolution);
   c.replay.physics = !raw.no_physics;

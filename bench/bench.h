@@ -33,13 +33,16 @@ struct BenchCutOptions {
   std::vector<int> resolutions = {64, 128, 256};
   int steps = 100;                  // blade poses across the object
   int repeats = 3;                  // whole cuts per resolution; per-step medians are reported
+  // The cut planes' normal axes (0 x, 1 y, 2 z; cut_pose in bench_common.h), one row each: y is the
+  // plane the peers clip with, x and z sweep across the other ways.
+  std::vector<int> directions = {0, 1, 2};
   std::string out_dir;
   bool progress = false;
 };
 
 // The paper's Fig. 8 / Fig. 10 experiment: the same planar cut (in scene units) across the whole
-// object at each resolution, timed per step (divide, surface update). Writes DIR/bench_cut.csv (one
-// row per resolution: p50/p99 per step, time per newly cut voxel, explicit bytes per divided voxel),
+// object at each resolution and direction, timed per step (divide, surface update). Writes DIR/bench_cut.csv (one
+// row per resolution and direction: p50/p99 per step, time per newly cut voxel, explicit bytes per divided voxel),
 // DIR/bench_cut_steps.csv (one row per step and resolution) and DIR/bench_cut.json.
 std::string bench_cut(const BenchCutOptions& options);
 

@@ -16,16 +16,24 @@ std::string shared_or_bunny(const std::string& file_name) {
   return (std::filesystem::path(DIVVOX_SOURCE_DIR_DEFAULT) / "assets/meshes/bunny_npm.obj").string();
 }
 
-BladePose cut_pose_at(const Aabb& box, double fraction, double height) {
+BladePose cut_pose_at(const Aabb& box, double fraction, double height, int axis) {
+  // The plane's normal axis n; the blade lies along n + 1 and moves along n + 2 (mod 3): for y, along z
+  // moving along x.
+  const int n = axis, along = (axis + 1) % 3, move = (axis + 2) % 3;
   const Vec3d e = box.extent();
   const double margin = 0.05 * e.maxCoeff();
-  const double x = box.min.x() - margin + (e.x() + 2 * margin) * fraction;
-  const double y = box.min.y() + height * e.y();
-  return {Vec3d(x, y, box.min.z() - margin), Vec3d(x, y, box.max.z() + margin)};
+  const double x = box.min[move] - margin + (e[move] + 2 * margin) * fraction;
+  const double y = box.min[n] + height * e[n];
+  Vec3d a, b;
+  a[move] = b[move] = x;
+  a[n] = b[n] = y;
+  a[along] = box.min[along] - margin;
+  b[along] = box.max[along] + margin;
+  return {a, b};
 }
 
-BladePose cut_pose(const Aabb& box, int s, int steps, double height) {
-  return cut_pose_at(box, double(s) / double(steps), height);
+BladePose cut_pose(const Aabb& box, int s, int steps, double height, int axis) {
+  return cut_pose_at(box, double(s) / double(steps), height, axis);
 }
 
 void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolution, VoxelModel& model) {
@@ -37,7 +45,7 @@ void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolu
 }
 
 std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const Aabb& box, int steps, int repeats,
-                                                CutState& state, std::vector<double>* init_ms) {
+                                                CutState& state, std::vector<double>* init_ms, int axis) {
   // Every repeat's phase times per step; the stats are the same in every repeat.
   const size_t n = size_t(steps);
   std::vector<CutStepSample> samples(n);
@@ -51,7 +59,7 @@ std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const A
       sample.stats = CutStepStats{};
       const size_t divided_before = state.divided.size();
       const Clock::time_point t0 = Clock::now();
-      cut_divide(model, state, cut_pose(box, s, steps), cut_pose(box, s + 1, steps), sample.stats);
+      cut_divide(model, state, cut_pose(box, s, steps, 0.55, axis), cut_pose(box, s + 1, steps, 0.55, axis), sample.stats);
       const Clock::time_point t1 = Clock::now();
       cut_update_surface(model, state, sample.stats);
       const Clock::time_point t2 = Clock::now();

@@ -20,10 +20,13 @@ std::string shared_or_bunny(const std::string& file_name);
 // The benchmark cut's blade at step s of `steps`: along z across the whole box, at `height` (fraction
 // of the box's y extent), moving along x from 5 % of the box before it to 5 % after it. The blade
 // sweeps the plane y = box.min.y + height * extent.y (tools/peers clips with the same plane).
-BladePose cut_pose(const Aabb& box, int s, int steps, double height = 0.55);
+// `axis` (0 x, 1 y, 2 z) names the plane's normal: the blade lies along axis + 1 and moves along
+// axis + 2 (mod 3); 1 is the cut above (x: a plane x = const, blade along y, moving along z; z: a
+// plane z = const, blade along x, moving along y).
+BladePose cut_pose(const Aabb& box, int s, int steps, double height = 0.55, int axis = 1);
 
-// The blade pose with its x at `fraction` of the way along the same path (0: before the box).
-BladePose cut_pose_at(const Aabb& box, double fraction, double height = 0.55);
+// The blade pose with its motion coordinate at `fraction` of the way along the same path (0: before the box).
+BladePose cut_pose_at(const Aabb& box, double fraction, double height = 0.55, int axis = 1);
 
 // The voxel model of a mesh at a resolution, refused (InputError naming `path`) before allocating
 // when it would not fit in memory.
@@ -36,11 +39,10 @@ struct CutStepSample {
   uint32_t newly_divided = 0;  // voxels that became divided in this step
 };
 
-// The benchmark cut path (cut_pose) in `steps` steps, `repeats` times on a fresh state, timed per
-// phase (cut_divide, cut_update_surface). Returns the per-step medians; `state` holds the cut at
-// the end, `init_ms` (when given) the time of each init_cut_state.
+// The benchmark cut path (cut_pose, plane normal `axis`) in `steps` steps, `repeats` times on a fresh
+// state, timed per phase (cut_divide, cut_update_surface). Returns the per-step medians; `state` holds the cut at the end, `init_ms` (when given) the time of each init_cut_state.
 std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const Aabb& box, int steps, int repeats,
-                                                CutState& state, std::vector<double>* init_ms = nullptr);
+                                                CutState& state, std::vector<double>* init_ms = nullptr, int axis = 1);
 
 // Least-squares line y = intercept + slope * x and its coefficient of determination.
 struct LineFit {

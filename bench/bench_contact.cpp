@@ -1,11 +1,14 @@
 #include "bench/bench_contact.h"
 
+#include "bench/bench_common.h"
+
 #include "engine/errors.h"
 #include "engine/output.h"
 #include "engine/playback.h"
 #include "engine/session.h"
 #include "engine/stats.h"
 #include "harness/plot.h"
+#include "sim/union_find.h"
 
 #include <nlohmann/json.hpp>
 
@@ -70,6 +73,75 @@ StepCommands liver_cut(const Session& session, uint32_t step, int cut_steps, Aab
   c.cutting = step > 0;
   c.blade = {Vec3d(x, y, box.min.z() - m), Vec3d(x, y, box.max.z() + m)};
   return c;
+}
+
+// The bodies of the live pieces: the connected components of the particle-sharing graph.
+uint32_t count_bodies(const PbdState& s, std::vector<uint32_t>& parent) {
+  const uint32_t n = uint32_t(s.position.size());
+  parent.resize(2 * size_t(n));  // parents, then a mark per root
+  for (uint32_t p = 0; p < n; ++p) parent[p] = p;
+  std::fill(parent.begin() + n, parent.end(), 0u);
+  for (const auto& piece : s.pieces) {
+    if (piece.sim_voxel == kDeadIndex) continue;
+    for (int c = 1; c < 8; ++c) uf_unite(parent.data(), piece.particles[0], piece.particles[c]);
+  }
+  uint32_t bodies = 0;
+  for (const auto& piece : s.pieces) {
+    if (piece.sim_voxel == kDeadIndex) continue;
+    uint32_t& mark = parent[n + uf_find(parent.data(), piece.particles[0])];
+    bodies += mark == 0;
+    mark = 1;
+  }
+  return bodies;
+}
+
+// One sever step: its phases (ms) and where it happened.
+struct SeverStep {
+  uint32_t stroke = 0, step = 0, bodies_before = 0, bodies_after = 0;
+  StepTimings t;
+};
+
+// A scene sliced by vertical through-cuts: every step that makes more bodies, with its phases.
+std::vector<SeverStep> run_sever(const Scene& scene, int workers, const BenchContactOptions& o, uint32_t& steps_run) {
+  Session session;
+  open_session(scene, scene.pbd.dt, true, workers, session);
+  Aabb box{Vec3d::Constant(1e300), Vec3d::Constant(-1e300)};
+  const CutSurface& surface = session.state.cut.surface;
+  for (size_t v = 0; v < surface.positions.size(); ++v) {
+    if (surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
+    box.min = box.min.cwiseMin(surface.positions[v].cast<double>());
+    box.max = box.max.cwiseMax(surface.positions[v].cast<double>());
+  }
+  std::vector<SeverStep> out;
+  std::vector<uint32_t> parent;
+  uint32_t bodies = count_bodies(*session.state.pbd, parent);
+  steps_run = 0;
+  const auto step = [&](uint32_t stroke, const StepCommands& c) {
+    const StepReport report = session_step(session, c);
+    ++steps_run;
+    const uint32_t now = count_bodies(*session.state.pbd, parent);
+    if (now > bodies) out.push_back({stroke, report.step, bodies, now, report.timings});
+    bodies = now;
+  };
+  // Slices at 15 %, 30 %, 45 % ... of the width from either end in turn (the anchor holds the middle).
+  for (int k = 0; k < o.sever_strokes; ++k) {
+    const double at = 0.15 * (1 + k / 2);
+    const double height = k % 2 ? 1.0 - at : at;
+    for (int j = 0; j <= o.sever_stroke_steps; ++j) {
+      StepCommands c;
+      c.has_blade = true;
+      c.cutting = j > 0;
+      c.blade = cut_pose(box, j, o.sever_stroke_steps, height, 0);
+      step(uint32_t(k), c);
+    }
+    StepCommands lift;  // the stroke ends
+    lift.has_blade = true;
+    lift.cutting = false;
+    lift.blade = cut_pose(box, o.sever_stroke_steps, o.sever_stroke_steps, height, 0);
+    step(uint32_t(k), lift);
+    for (int j = 0; j < o.sever_rest_steps; ++j) step(uint32_t(k), StepCommands());
+  }
+  return out;
 }
 
 }  // namespace
@@ -140,14 +212,58 @@ std::string bench_contact(const BenchContactOptions& options) {
     }
   }
 
+  // Sever steps: the sever scene at the sever resolution sliced through (contact on, as the scene says).
+  std::ostringstream sever_csv;
+  sever_csv << "case,resolution,stroke,step,bodies_before,bodies_after,total_ms,cut_ms,map_ms,surface_ms,model_ms,"
+               "deform_ms,contact_ms,solve_ms\n";
+  nlohmann::json sever = nullptr;
+  if (options.sever_resolution > 0 && options.sever_strokes > 0) {
+    const std::string sever_path = options.sever_scene.empty() ? (source / "assets/scenes/bunny.json").string() : options.sever_scene;
+    Scene scene = load_scene(sever_path);
+    scene.pbd.resolution = options.sever_resolution;
+    scene.pbd.sim_resolution = std::min(scene.pbd.sim_resolution, scene.pbd.resolution);
+    const std::string name = fs::path(sever_path).filename().string() + " (sliced)";
+    if (options.progress) std::fprintf(stderr, "divvox bench contact: %s at %d\n", name.c_str(), options.sever_resolution);
+    uint32_t steps_run = 0;
+    const std::vector<SeverStep> severs = run_sever(scene, options.workers, options, steps_run);
+    std::vector<double> total, cut, surface, model, contact, solve;
+    for (const SeverStep& v : severs) {
+      // cut_ms holds the model update; deform_ms the contacts' gathering.
+      const double divide = v.t.cut_ms - v.t.model_ms, solver = v.t.deform_ms - v.t.contact_ms;
+      sever_csv << name << ',' << options.sever_resolution << ',' << v.stroke << ',' << v.step << ',' << v.bodies_before << ','
+                << v.bodies_after << ',' << v.t.total_ms << ',' << divide << ',' << v.t.map_ms << ',' << v.t.surface_ms << ','
+                << v.t.model_ms << ',' << v.t.deform_ms << ',' << v.t.contact_ms << ',' << solver << '\n';
+      total.push_back(v.t.total_ms);
+      cut.push_back(divide);
+      surface.push_back(v.t.surface_ms);
+      model.push_back(v.t.model_ms);
+      contact.push_back(v.t.contact_ms);
+      solve.push_back(solver);
+    }
+    sever = {{"case", name},
+             {"resolution", options.sever_resolution},
+             {"sim_resolution", scene.pbd.sim_resolution},
+             {"strokes", options.sever_strokes},
+             {"steps", steps_run},
+             {"sever_steps", severs.size()},
+             {"step_ms", percentiles_json(total)},
+             {"phases_ms", {{"cut", percentiles_json(cut)},
+                            {"surface", percentiles_json(surface)},
+                            {"model", percentiles_json(model)},
+                            {"contact", percentiles_json(contact)},
+                            {"solve", percentiles_json(solve)}}}};
+  }
+
   const fs::path out(options.out_dir);
   write_text_file((out / "bench_contact.csv").string(), csv.str());
+  write_text_file((out / "bench_contact_sever.csv").string(), sever_csv.str());
   write_json_file((out / "bench_contact.json").string(), {{"benchmark", "contact"},
                                                           {"machine", machine_summary()},
                                                           {"workers", options.workers},
                                                           {"liver_cut_steps", options.liver_cut_steps},
                                                           {"liver_rest_steps", options.liver_rest_steps},
-                                                          {"rows", rows}});
+                                                          {"rows", rows},
+                                                          {"sever", sever}});
   return (out / "bench_contact.csv").string();
 }
 
@@ -183,6 +299,19 @@ void report_contact(const nlohmann::json& results, std::ostream& md, std::ostrea
     }
   }
   md << "\n";
+  const nlohmann::json& sever = results.contains("sever") ? results["sever"] : nlohmann::json();
+  if (!sever.is_null()) {
+    const auto cell = [&](const nlohmann::json& p) {
+      return fixed(p.value("p50", 0.0)) + " / " + fixed(p.value("p99", 0.0)) + " / " + fixed(p.value("max", 0.0));
+    };
+    md << "**Sever steps** (the steps after which the pieces form more bodies): " << sever["case"].get<std::string>() << " at "
+       << sever["resolution"] << ", " << sever["strokes"] << " vertical through-cuts, " << sever["sever_steps"]
+       << " sever steps in " << sever["steps"] << " steps; p50 / p99 / max in ms:\n\n"
+       << "| step | cut | surface | model update | contact gathering | solver + embedding |\n|---|---|---|---|---|---|\n"
+       << "| " << cell(sever["step_ms"]) << " | " << cell(sever["phases_ms"]["cut"]) << " | " << cell(sever["phases_ms"]["surface"])
+       << " | " << cell(sever["phases_ms"]["model"]) << " | " << cell(sever["phases_ms"]["contact"]) << " | "
+       << cell(sever["phases_ms"]["solve"]) << " |\n\n";
+  }
 }
 
 }  // namespace dvx

@@ -30,33 +30,40 @@ std::string bench_cut(const BenchCutOptions& options) {
   std::ostringstream rows_csv, steps_csv;
   rows_csv << "mesh,resolution,nx,ny,nz,occupied_voxels,steps,cutting_steps,init_ms,step_p50_ms,step_p99_ms,"
               "step_max_ms,divide_p50_ms,surface_p50_ms,voxels_cut,edges_cut,us_per_cut_voxel,divided_voxels,"
-              "explicit_bytes,bytes_per_divided_voxel,components,boundary_edges,newly_divided,us_per_newly_divided_voxel\n";
-  steps_csv << "mesh,resolution,step,divide_ms,surface_ms,total_ms,voxels_cut,edges_cut,triangles_changed\n";
+              "explicit_bytes,bytes_per_divided_voxel,components,boundary_edges,newly_divided,us_per_newly_divided_voxel,"
+              "direction,divide_p99_ms,surface_p99_ms,surface_max_ms,us_per_cut_voxel_surface\n";
+  steps_csv << "mesh,resolution,step,divide_ms,surface_ms,total_ms,voxels_cut,edges_cut,triangles_changed,direction\n";
   nlohmann::json json_rows = nlohmann::json::array();
 
   for (int resolution : options.resolutions) {
-    if (options.progress) std::fprintf(stderr, "divvox bench cut: %s at %d\n", name.c_str(), resolution);
     VoxelModel model;
     voxelize_for_bench(input.mesh, mesh_path, resolution, model);
+   // One row per direction (the cut plane's normal axis: the blade along the next axis, moving along
+   // the one after; y is the cut the peers clip with).
+   for (int axis : options.directions) {
+    const char direction[2] = {char('x' + axis), 0};
+    if (options.progress) std::fprintf(stderr, "divvox bench cut: %s at %d, plane normal %s\n", name.c_str(), resolution, direction);
 
     // Repeat the whole cut on a fresh state: per-step medians; statistics over the steps that cut.
     std::vector<double> init_ms;
     CutState state;
     const std::vector<CutStepSample> samples =
-        time_progressive_cut(model, box, options.steps, options.repeats, state, &init_ms);
+        time_progressive_cut(model, box, options.steps, options.repeats, state, &init_ms, axis);
     std::vector<double> totals, divides, surfaces;
+    double sum_surface = 0.0;
     double sum_total = 0.0;
     uint64_t sum_voxels = 0, sum_edges = 0, sum_new = 0;
     for (int s = 0; s < options.steps; ++s) {
       const CutStepSample& step = samples[size_t(s)];
       steps_csv << name << ',' << resolution << ',' << s + 1 << ',' << step.divide_ms << ',' << step.surface_ms << ','
                 << step.total_ms << ',' << step.stats.voxels_cut << ',' << step.stats.edges_cut << ','
-                << step.stats.triangles_changed << '\n';
+                << step.stats.triangles_changed << ',' << direction << '\n';
       if (step.stats.voxels_cut == 0) continue;
       totals.push_back(step.total_ms);
       divides.push_back(step.divide_ms);
       surfaces.push_back(step.surface_ms);
       sum_total += step.total_ms;
+      sum_surface += step.surface_ms;
       sum_voxels += step.stats.voxels_cut;
       sum_new += step.newly_divided;
       sum_edges += step.stats.edges_cut;
@@ -65,6 +72,7 @@ std::string bench_cut(const BenchCutOptions& options) {
     const uint64_t explicit_bytes = cut_memory_bytes(state);
     const double us_per_voxel = sum_voxels ? 1000.0 * sum_total / double(sum_voxels) : 0.0;
     const double us_per_new = sum_new ? 1000.0 * sum_total / double(sum_new) : 0.0;
+    const double us_per_voxel_surface = sum_voxels ? 1000.0 * sum_surface / double(sum_voxels) : 0.0;
     const double bytes_per_divided = state.divided.empty() ? 0.0 : double(explicit_bytes) / double(state.divided.size());
     const Lattice& l = model.lattice;
     rows_csv << name << ',' << resolution << ',' << l.nx << ',' << l.ny << ',' << l.nz << ',' << model.occupied_voxels
@@ -73,7 +81,8 @@ std::string bench_cut(const BenchCutOptions& options) {
              << quantile(divides, 0.5) << ',' << quantile(surfaces, 0.5) << ',' << sum_voxels << ',' << sum_edges
              << ',' << us_per_voxel << ',' << state.divided.size() << ',' << explicit_bytes << ','
              << bytes_per_divided << ',' << stats.components << ',' << stats.boundary_edges << ',' << sum_new << ','
-             << us_per_new << '\n';
+             << us_per_new << ',' << direction << ',' << quantile(divides, 0.99) << ',' << quantile(surfaces, 0.99) << ','
+             << quantile(surfaces, 1.0) << ',' << us_per_voxel_surface << '\n';
     json_rows.push_back({{"mesh", name},
                          {"resolution", resolution},
                          {"lattice", {l.nx, l.ny, l.nz}},
@@ -91,13 +100,21 @@ std::string bench_cut(const BenchCutOptions& options) {
                          {"explicit_bytes", explicit_bytes},
                          {"bytes_per_divided_voxel", bytes_per_divided},
                          {"components", stats.components},
-                         {"boundary_edges", stats.boundary_edges}});
+                         {"boundary_edges", stats.boundary_edges},
+                         {"direction", direction},
+                         {"divide_ms", percentiles_json(divides)},
+                         {"surface_ms", percentiles_json(surfaces)},
+                         {"us_per_cut_voxel_surface", us_per_voxel_surface}});
+   }
   }
+  nlohmann::json directions_json = nlohmann::json::array();
+  for (int axis : options.directions) directions_json.push_back(std::string(1, char('x' + axis)));
   const std::filesystem::path out(options.out_dir);
   write_text_file((out / "bench_cut.csv").string(), rows_csv.str());
   write_text_file((out / "bench_cut_steps.csv").string(), steps_csv.str());
   write_json_file((out / "bench_cut.json").string(),
                   {{"benchmark", "cut"}, {"machine", machine_summary()}, {"mesh", name}, {"steps", options.steps}, {"repeats", options.repeats},
+                   {"directions", directions_json},
                    {"statistic", "per-step median over repeats; p50/p99 over steps that cut"}, {"rows", json_rows}});
   return (out / "bench_cut.csv").string();
 }

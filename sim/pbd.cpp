@@ -582,7 +582,7 @@ void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
   run_batches(tasks, &batch, 1, [&](uint32_t, uint32_t begin, uint32_t end) { embed_rows(corners, rows, begin, end, out); });
 }
 
-void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool embed) {
+void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool embed, const StepClock* clock, double* contact_ms) {
   const PbdParams& params = s.params;
   const int substeps = std::max(1, params.substeps);
   const double h = params.dt / substeps;
@@ -600,7 +600,9 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   const ElasticConstants material = elastic && h > 0.0 ? elastic_constants(params.youngs_modulus, params.poisson_ratio,
                                                                            params.stiffness_damping, s.sim_size, h)
                                                        : ElasticConstants{};
+  const double t_contact = clock ? clock->now() : 0.0;
   gather_contacts(cut, s);  // contact (sim/contact.h)
+  if (clock && contact_ms) *contact_ms = clock->now() - t_contact;
   build_step_batches(s, elastic ? h > 0.0 : stretch_on, substeps);
   s.cache.grab_lambda.assign(3 * s.grab_particles.size(), 0.0);
   double* grab_lambda = s.cache.grab_lambda.data();

@@ -47,6 +47,7 @@
 #include "sim/flat_map.h"
 #include "sim/pbd_elastic.h"
 #include "sim/pbd_kernels.h"
+#include "sim/step_timings.h"
 #include "sim/voxel_model.h"
 
 #include <Eigen/Geometry>
@@ -367,7 +368,9 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
 // One time step (substeps x iterations), then (with `embed`) the deformed surface positions. A
 // caller that reads PbdData::deformed only now and then (a headless replay: the state hash and
 // contact read the particles, not the surface) passes false and calls pbd_embed before it reads.
-void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}, bool embed = true);
+// With a clock, `contact_ms` gets the time gathering the contacts took (StepTimings::contact_ms).
+void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}, bool embed = true,
+              const StepClock* clock = nullptr, double* contact_ms = nullptr);
 
 // Makes the caches derived from the model (the solver's blocks, the contact index, the embedding's
 // rows, the contact allowances' fresh slots) rebuild from scratch at their next use instead of following the recorded cuts (tests

@@ -128,13 +128,15 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     if (s.pbd && !stroke_ends) remember_stroke_voxels(s.cut.changed_voxels, s);
     const double t2 = clock.now();
     if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(model.voxels, s.cut, *s.pbd, &report.pbd);
-    report.timings.cut_ms = (t1 - t0) + (clock.now() - t2);  // map, divide, fine and coarse
+    const double t_model = clock.now();
+    report.timings.model_ms = t_model - t2;
+    report.timings.cut_ms = (t1 - t0) + (t_model - t2);  // map, divide, fine and coarse
     report.timings.surface_ms = t2 - t1;
     if (context.after_cut) context.after_cut(model, s, context.after_cut_user);
   }
   if (s.pbd) {
     const double t3 = clock.now();
-    pbd_step(s.cut, *s.pbd, context.tasks, context.embed_surface);
+    pbd_step(s.cut, *s.pbd, context.tasks, context.embed_surface, &clock, &report.timings.contact_ms);
     report.timings.deform_ms = clock.now() - t3;
     report.grab_force_n = s.pbd->grab_force.norm();
     report.grab_held = uint32_t(s.pbd->grab_particles.size());

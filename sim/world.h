@@ -84,12 +84,7 @@ struct StepReport {
   uint32_t grab_held = 0, grab_anchored = 0;
 };
 
-// A clock the caller lends the step for its report (sim/ reads none): milliseconds since any origin.
-struct StepClock {
-  void* context = nullptr;
-  double (*now_ms)(void* context) = nullptr;
-  double now() const { return now_ms ? now_ms(context) : 0.0; }
-};
+// StepClock (sim/step_timings.h): the clock the caller lends the step for its report.
 
 // How the caller runs a step: its workers, its clock, and whether the deformed surface is embedded
 // every step (a headless replay that draws nothing turns it off and calls world_embed before reading).

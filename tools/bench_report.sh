@@ -85,7 +85,7 @@ case "$mode" in
     quality=(--mesh "$armadillo" --resolutions 64,128 --repeats 2)
     deform=(--sim-resolutions 8,16 --iterations 2,5,10,20 --seconds 1 --target-resolution 128)
     replay=(--repeats 1)
-    contact=(--liver-cut-steps 40 --liver-rest-steps 80)
+    contact=(--liver-cut-steps 40 --liver-rest-steps 80 --sever-resolution 128)
     vdb=(--resolutions 64,128,256 --repeats 1)
     bullet=(--iterations 10 --reference-iterations 50 --seconds 0.5)
     clip=(--repeats 2)
@@ -99,7 +99,8 @@ case "$mode" in
     deform=(--mesh "$bunny" --resolution 32 --sim-resolutions 4,8 --iterations 2,5 --substep-budgets 4 --seconds 0.2
             --target-mesh "$bunny" --target-resolution 32)
     replay=(--repeats 1 --recording "$here/assets/recordings/bunny_cut.jsonl")
-    contact=(--liver-resolution 32 --liver-cut-steps 10 --liver-rest-steps 10)
+    contact=(--liver-resolution 32 --liver-cut-steps 10 --liver-rest-steps 10 --sever-resolution 32 --sever-strokes 2
+             --sever-stroke-steps 10 --sever-rest-steps 2)
     ;;
 esac
 

@@ -88,6 +88,11 @@ TEST_SUITE("cli") {
     REQUIRE(d.kind == CliCommand::kBenchDeform);
     CHECK(d.bench_deform.iterations == std::vector<int>{1, 3});
     CHECK(parse({"bench", "cut"}).bench_cut.resolutions == std::vector<int>{64, 128, 256});
+    CHECK(parse({"bench", "cut"}).bench_cut.directions == std::vector<int>{0, 1, 2});
+    CHECK(parse({"bench", "cut", "--directions", "z,x"}).bench_cut.directions == std::vector<int>{2, 0});
+    CHECK_THROWS_AS(parse({"bench", "cut", "--directions", "x,w"}), InputError);
+    CHECK_THROWS_AS(parse({"bench", "cut", "--directions", "y,y"}), InputError);
+    CHECK(parse({"bench", "contact", "--sever-resolution", "0"}).bench_contact.sever_resolution == 0);
     CHECK(parse({"bench", "scaling"}).bench_scaling.resolutions == std::vector<int>{64, 128, 256, 512});
     CHECK(parse({"bench", "report"}).bench_report.results_dir == "bench/results");
     CHECK(parse({"bench", "replay", "--repeats", "4"}).bench_replay.repeats == 4);
