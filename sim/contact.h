@@ -321,7 +321,6 @@ struct ContactIndex {
   bool triangles_ready = false;
   std::vector<uint32_t> triangle_begin;  // (pieces + 1)
   std::vector<uint32_t> piece_triangles;
-  std::vector<uint64_t> triangle_pairs;  // unused (left by a reverted change; to drop with the next rebuild of everything)
 };
 
 // A contact point of a piece: a representative surface vertex slot (see "Contact points") and its
