@@ -1,4 +1,24 @@
-# Sourced by the window's xdotool scripts (window_input.sh, window_screenshots.sh).
+# Sourced by the window's xdotool scripts (window_input.sh, window_sever.sh, window_tools.sh,
+# window_grab.sh, window_screenshots.sh). They set $divvox and $out and define fail().
+
+# Starts the window with the given arguments (stdout to $out/win.out, stderr to $out/win.err) and
+# kills it when the script exits early; sets $pid.
+start_window() {
+  "$divvox" "$@" >"$out/win.out" 2>"$out/win.err" &
+  pid=$!
+  trap 'kill $pid 2>/dev/null' EXIT
+}
+
+# Waits (up to $2 s) until the window's stdout has a line matching $1.
+wait_for() {
+  local deadline=$((SECONDS + $2))
+  while ! grep -q "$1" "$out/win.out" 2>/dev/null; do
+    kill -0 $pid 2>/dev/null || fail "the window exited before printing '$1': $(cat "$out/win.err")"
+    ((SECONDS < deadline)) || fail "no '$1' within $2 s"
+    sleep 0.5
+  done
+}
+
 # A left drag from ($1,$2) to ($3,$4) in $5 moves, slow enough for a few frames per move on a
 # loaded software rasteriser.
 drag() {

@@ -41,19 +41,8 @@ fi
 
 mkdir -p "$out"
 cd "$out" || exit 1
-"$divvox" --size 1280x720 --record "$out/session.jsonl" >"$out/win.out" 2>"$out/win.err" &
-pid=$!
-trap 'kill $pid 2>/dev/null' EXIT
-
-# Waits (up to $2 s) until the window's stdout has a line matching $1.
-wait_for() {
-  local deadline=$((SECONDS + $2))
-  while ! grep -q "$1" "$out/win.out" 2>/dev/null; do
-    kill -0 $pid 2>/dev/null || fail "the window exited before printing '$1': $(cat "$out/win.err")"
-    ((SECONDS < deadline)) || fail "no '$1' within $2 s"
-    sleep 0.5
-  done
-}
+source "$repo/tests/cli/window_drag.sh"
+start_window --size 1280x720 --record "$out/session.jsonl"
 
 # The simulation's step as the recording shows it (a line per step with commands, a hash line every
 # 60 steps, flushed line by line), and a wait (up to 60 s) until it reaches $1: the simulation may
@@ -96,7 +85,7 @@ sleep 4  # the liver settles on its ligaments and the tray
 xdotool key g
 sleep 0.5
 # The default view: the upper left, the middle, the lower right lobe (the ligaments are the ridge at
-# the top right). Not the left lobe's tip: it lies on the tray, whose friction (0.6) keeps part of a
+# the top middle). Not the left lobe's tip: it lies on the tray, whose friction (0.6) keeps part of a
 # drag there (docs/window.md).
 pull 760 360 -106 -106
 pull 850 420 0 -150 shot

@@ -25,21 +25,8 @@ record=()
 [[ $case != undo ]] && record=(--record "$out/session.jsonl")
 scene=()  # the window's default scene (the liver), except for the bunny's ear
 [[ $case == ear ]] && scene=("$repo/assets/scenes/bunny.json")
-"$divvox" "${scene[@]}" --size 1280x720 "${record[@]}" >"$out/win.out" 2>"$out/win.err" &
-pid=$!
-trap 'kill $pid 2>/dev/null' EXIT
-
-# Waits (up to $2 s) until the window's stdout has a line matching $1.
-wait_for() {
-  local deadline=$((SECONDS + $2))
-  while ! grep -q "$1" "$out/win.out" 2>/dev/null; do
-    kill -0 $pid 2>/dev/null || fail "the window exited before printing '$1': $(cat "$out/win.err")"
-    ((SECONDS < deadline)) || fail "no '$1' within $2 s"
-    sleep 0.5
-  done
-}
-# drag X0 Y0 X1 Y1 MOVES
 source "$repo/tests/cli/window_drag.sh"
+start_window "${scene[@]}" --size 1280x720 "${record[@]}"
 
 wait_for "^window: ready" 150
 panel=$(sed -n 's/^window: ready.*panel \([0-9]*\) px.*/\1/p' "$out/win.out" | head -1)

@@ -16,19 +16,8 @@ fail() {
   exit 1
 }
 
-"$divvox" --size 1280x720 --record "$out/session.jsonl" >"$out/win.out" 2>"$out/win.err" &
-pid=$!
-trap 'kill $pid 2>/dev/null' EXIT
-
-# Waits (up to $2 s) until the window's stdout has a line matching $1.
-wait_for() {
-  local deadline=$((SECONDS + $2))
-  while ! grep -q "$1" "$out/win.out" 2>/dev/null; do
-    kill -0 $pid 2>/dev/null || fail "the window exited before printing '$1': $(cat "$out/win.err")"
-    ((SECONDS < deadline)) || fail "no '$1' within $2 s"
-    sleep 0.5
-  done
-}
+source "$repo/tests/cli/window_drag.sh"
+start_window --size 1280x720 --record "$out/session.jsonl"
 
 wait_for "^window: ready" 150
 sleep 2
