@@ -93,6 +93,109 @@ std::vector<ContactPlane> parse_planes(const Reader& r, const json& planes) {
   return out;
 }
 
+// Length unit: the mesh's (and, unless they are metres already, the scene's lengths'). Returns the
+// factor that takes the scene's lengths into metres.
+double parse_units(const Reader& r, const json& u, Scene& scene) {
+  r.check_keys(u, "units", {"metres_per_unit", "scene_lengths"});
+  if (u.contains("metres_per_unit")) {
+    scene.metres_per_unit = r.number(u["metres_per_unit"], "units.metres_per_unit", 1e-9, 1e9);
+  }
+  double scale = scene.metres_per_unit;
+  if (u.contains("scene_lengths")) {
+    const json& l = u["scene_lengths"];
+    if (!l.is_string() || (l != "mesh" && l != "metres")) r.fail("units.scene_lengths", "must be \"mesh\" or \"metres\"");
+    if (l == "metres") scale = 1.0;
+  }
+  return scale;
+}
+
+// Material: physical (E, nu, rho: the corotated hexahedra) or the paper's solver knobs.
+void parse_material(const Reader& r, const json& m, PbdParams& pbd) {
+  r.check_keys(m, "material",
+               {"model", "density", "youngs_modulus", "poisson_ratio", "stiffness_damping", "stretch_compliance",
+                "shape_stiffness"});
+  const bool physical_keys = m.contains("youngs_modulus") || m.contains("poisson_ratio") || m.contains("stiffness_damping");
+  const bool paper_keys = m.contains("stretch_compliance") || m.contains("shape_stiffness");
+  pbd.elastic = physical_keys ? ElasticModel::kNeoHookean : ElasticModel::kPaper;
+  if (m.contains("model")) {
+    const json& model = m["model"];
+    if (!model.is_string() || (model != "neo_hookean" && model != "paper")) {
+      r.fail("material.model", "must be \"neo_hookean\" or \"paper\"");
+    }
+    pbd.elastic = model == "paper" ? ElasticModel::kPaper : ElasticModel::kNeoHookean;
+  }
+  const bool physical = pbd.elastic == ElasticModel::kNeoHookean;
+  if (physical && paper_keys) {
+    r.fail(m.contains("stretch_compliance") ? "material.stretch_compliance" : "material.shape_stiffness",
+           "belongs to the paper's model, not to a physical material (youngs_modulus, poisson_ratio)");
+  }
+  if (!physical && physical_keys) {
+    r.fail(m.contains("youngs_modulus") ? "material.youngs_modulus"
+           : m.contains("poisson_ratio") ? "material.poisson_ratio"
+                                          : "material.stiffness_damping",
+           "needs \"model\": \"neo_hookean\" (the paper's model has no Young's modulus)");
+  }
+  if (m.contains("density")) pbd.density = r.number(m["density"], "material.density", 1e-9, 1e9);
+  if (m.contains("youngs_modulus")) {
+    pbd.youngs_modulus = r.number(m["youngs_modulus"], "material.youngs_modulus", 1e-3, 1e12);
+    if (!(pbd.youngs_modulus > 0.0)) r.fail("material.youngs_modulus", "must be positive (Pa)");
+  }
+  if (m.contains("poisson_ratio")) {
+    // nu < 0 (auxetic) is not modelled: the volume term's lambda would be negative.
+    pbd.poisson_ratio = r.number(m["poisson_ratio"], "material.poisson_ratio", 0.0, 0.5);
+    if (!(pbd.poisson_ratio < 0.5)) {
+      r.fail("material.poisson_ratio", "must be below 0.5 (0.5 is incompressible: use 0.45-0.499 for tissue)");
+    }
+  }
+  if (m.contains("stiffness_damping")) {
+    pbd.stiffness_damping = r.number(m["stiffness_damping"], "material.stiffness_damping", 0.0, 10.0);
+  }
+  if (m.contains("stretch_compliance")) {
+    pbd.stretch_compliance = r.number(m["stretch_compliance"], "material.stretch_compliance", 0.0, 1e6);
+  }
+  if (m.contains("shape_stiffness")) {
+    pbd.shape_stiffness = r.number(m["shape_stiffness"], "material.shape_stiffness", 0.0, 1.0);
+  }
+}
+
+// Anchor boxes: [{"box": [[min], [max]]}, ...].
+void parse_fixed(const Reader& r, const json& fixed, std::vector<Aabb>& boxes) {
+  if (!fixed.is_array()) r.fail("fixed", "must be an array of {\"box\": [[min],[max]]}");
+  for (size_t i = 0; i < fixed.size(); ++i) {
+    const std::string key = "fixed[" + std::to_string(i) + "]";
+    r.check_keys(fixed[i], key, {"box"});
+    const json& box = fixed[i].contains("box") ? fixed[i]["box"] : json();
+    if (!box.is_array() || box.size() != 2) r.fail(key + ".box", "must be [[xmin,ymin,zmin],[xmax,ymax,zmax]]");
+    Aabb b;
+    b.min = r.vec3(box[0], key + ".box[0]", 1e30);
+    b.max = r.vec3(box[1], key + ".box[1]", 1e30);
+    if ((b.min.array() > b.max.array()).any()) r.fail(key + ".box", "min is greater than max");
+    boxes.push_back(b);
+  }
+}
+
+// The grab tool: stiffness (N/m) > 0, radius (scene lengths) >= 0, force limit (N) >= 0 (0: none).
+void parse_grab(const Reader& r, const json& g, Scene::Grab& grab) {
+  r.check_keys(g, "grab", {"stiffness", "radius", "force_limit"});
+  if (g.contains("stiffness")) {
+    grab.stiffness = r.number(g["stiffness"], "grab.stiffness", 0.0, 1e12);
+    if (!(grab.stiffness > 0.0)) r.fail("grab.stiffness", "must be positive (N/m)");
+  }
+  if (g.contains("radius")) grab.radius = r.number(g["radius"], "grab.radius", 0.0, 1e9);
+  if (g.contains("force_limit")) grab.force_limit = r.number(g["force_limit"], "grab.force_limit", 0.0, 1e12);
+  grab.given = true;
+}
+
+// Contact between pieces: on or off, its friction.
+void parse_contact(const Reader& r, const json& c, PbdParams& pbd) {
+  r.check_keys(c, "contact", {"pieces", "friction"});
+  if (c.contains("pieces")) {
+    if (!c["pieces"].is_boolean()) r.fail("contact.pieces", "must be true or false");
+    pbd.piece_contact = c["pieces"].get<bool>();
+  }
+  if (c.contains("friction")) pbd.piece_friction = r.number(c["friction"], "contact.friction", 0.0, 1e3);
+}
+
 }  // namespace
 
 Scene parse_scene(const json& root, const std::string& file) {
@@ -127,69 +230,8 @@ Scene parse_scene(const json& root, const std::string& file) {
 
   // Length unit: the mesh's (and, unless they are metres already, the scene's lengths').
   double scale = 1.0;
-  if (root.contains("units")) {
-    const json& u = root["units"];
-    r.check_keys(u, "units", {"metres_per_unit", "scene_lengths"});
-    if (u.contains("metres_per_unit")) {
-      scene.metres_per_unit = r.number(u["metres_per_unit"], "units.metres_per_unit", 1e-9, 1e9);
-    }
-    scale = scene.metres_per_unit;
-    if (u.contains("scene_lengths")) {
-      const json& l = u["scene_lengths"];
-      if (!l.is_string() || (l != "mesh" && l != "metres")) r.fail("units.scene_lengths", "must be \"mesh\" or \"metres\"");
-      if (l == "metres") scale = 1.0;
-    }
-  }
-
-  // Material: physical (E, nu, rho: the corotated hexahedra) or the paper's solver knobs.
-  if (root.contains("material")) {
-    const json& m = root["material"];
-    r.check_keys(m, "material",
-                 {"model", "density", "youngs_modulus", "poisson_ratio", "stiffness_damping", "stretch_compliance",
-                  "shape_stiffness"});
-    const bool physical_keys = m.contains("youngs_modulus") || m.contains("poisson_ratio") || m.contains("stiffness_damping");
-    const bool paper_keys = m.contains("stretch_compliance") || m.contains("shape_stiffness");
-    pbd.elastic = physical_keys ? ElasticModel::kNeoHookean : ElasticModel::kPaper;
-    if (m.contains("model")) {
-      const json& model = m["model"];
-      if (!model.is_string() || (model != "neo_hookean" && model != "paper")) {
-        r.fail("material.model", "must be \"neo_hookean\" or \"paper\"");
-      }
-      pbd.elastic = model == "paper" ? ElasticModel::kPaper : ElasticModel::kNeoHookean;
-    }
-    const bool physical = pbd.elastic == ElasticModel::kNeoHookean;
-    if (physical && paper_keys) {
-      r.fail(m.contains("stretch_compliance") ? "material.stretch_compliance" : "material.shape_stiffness",
-             "belongs to the paper's model, not to a physical material (youngs_modulus, poisson_ratio)");
-    }
-    if (!physical && physical_keys) {
-      r.fail(m.contains("youngs_modulus") ? "material.youngs_modulus"
-             : m.contains("poisson_ratio") ? "material.poisson_ratio"
-                                            : "material.stiffness_damping",
-             "needs \"model\": \"neo_hookean\" (the paper's model has no Young's modulus)");
-    }
-    if (m.contains("density")) pbd.density = r.number(m["density"], "material.density", 1e-9, 1e9);
-    if (m.contains("youngs_modulus")) {
-      pbd.youngs_modulus = r.number(m["youngs_modulus"], "material.youngs_modulus", 1e-3, 1e12);
-      if (!(pbd.youngs_modulus > 0.0)) r.fail("material.youngs_modulus", "must be positive (Pa)");
-    }
-    if (m.contains("poisson_ratio")) {
-      // nu < 0 (auxetic) is not modelled: the volume term's lambda would be negative.
-      pbd.poisson_ratio = r.number(m["poisson_ratio"], "material.poisson_ratio", 0.0, 0.5);
-      if (!(pbd.poisson_ratio < 0.5)) {
-        r.fail("material.poisson_ratio", "must be below 0.5 (0.5 is incompressible: use 0.45-0.499 for tissue)");
-      }
-    }
-    if (m.contains("stiffness_damping")) {
-      pbd.stiffness_damping = r.number(m["stiffness_damping"], "material.stiffness_damping", 0.0, 10.0);
-    }
-    if (m.contains("stretch_compliance")) {
-      pbd.stretch_compliance = r.number(m["stretch_compliance"], "material.stretch_compliance", 0.0, 1e6);
-    }
-    if (m.contains("shape_stiffness")) {
-      pbd.shape_stiffness = r.number(m["shape_stiffness"], "material.shape_stiffness", 0.0, 1.0);
-    }
-  }
+  if (root.contains("units")) scale = parse_units(r, root["units"], scene);
+  if (root.contains("material")) parse_material(r, root["material"], pbd);
   if (root.contains("solver")) {
     const json& s = root["solver"];
     r.check_keys(s, "solver", {"dt", "substeps", "iterations", "damping"});
@@ -199,48 +241,15 @@ Scene parse_scene(const json& root, const std::string& file) {
     if (s.contains("damping")) pbd.damping = r.number(s["damping"], "solver.damping", 0.0, 1.0);
   }
   if (root.contains("gravity")) pbd.gravity = r.vec3(root["gravity"], "gravity", 1e6);
-  if (root.contains("fixed")) {
-    const json& fixed = root["fixed"];
-    if (!fixed.is_array()) r.fail("fixed", "must be an array of {\"box\": [[min],[max]]}");
-    for (size_t i = 0; i < fixed.size(); ++i) {
-      const std::string key = "fixed[" + std::to_string(i) + "]";
-      r.check_keys(fixed[i], key, {"box"});
-      const json& box = fixed[i].contains("box") ? fixed[i]["box"] : json();
-      if (!box.is_array() || box.size() != 2) r.fail(key + ".box", "must be [[xmin,ymin,zmin],[xmax,ymax,zmax]]");
-      Aabb b;
-      b.min = r.vec3(box[0], key + ".box[0]", 1e30);
-      b.max = r.vec3(box[1], key + ".box[1]", 1e30);
-      if ((b.min.array() > b.max.array()).any()) r.fail(key + ".box", "min is greater than max");
-      pbd.fixed.push_back(b);
-    }
-  }
+  if (root.contains("fixed")) parse_fixed(r, root["fixed"], pbd.fixed);
   if (root.contains("scalpel")) {
     const json& s = root["scalpel"];
     r.check_keys(s, "scalpel", {"length"});
     if (s.contains("length")) scene.scalpel.length = r.number(s["length"], "scalpel.length", 1e-9, 1e9);
   }
   if (root.contains("planes")) pbd.planes = parse_planes(r, root["planes"]);
-  // The grab tool: stiffness (N/m) > 0, radius (scene lengths) >= 0, force limit (N) >= 0 (0: none).
-  if (root.contains("grab")) {
-    const json& g = root["grab"];
-    r.check_keys(g, "grab", {"stiffness", "radius", "force_limit"});
-    if (g.contains("stiffness")) {
-      scene.grab.stiffness = r.number(g["stiffness"], "grab.stiffness", 0.0, 1e12);
-      if (!(scene.grab.stiffness > 0.0)) r.fail("grab.stiffness", "must be positive (N/m)");
-    }
-    if (g.contains("radius")) scene.grab.radius = r.number(g["radius"], "grab.radius", 0.0, 1e9);
-    if (g.contains("force_limit")) scene.grab.force_limit = r.number(g["force_limit"], "grab.force_limit", 0.0, 1e12);
-    scene.grab.given = true;
-  }
-  if (root.contains("contact")) {
-    const json& c = root["contact"];
-    r.check_keys(c, "contact", {"pieces", "friction"});
-    if (c.contains("pieces")) {
-      if (!c["pieces"].is_boolean()) r.fail("contact.pieces", "must be true or false");
-      pbd.piece_contact = c["pieces"].get<bool>();
-    }
-    if (c.contains("friction")) pbd.piece_friction = r.number(c["friction"], "contact.friction", 0.0, 1e3);
-  }
+  if (root.contains("grab")) parse_grab(r, root["grab"], scene.grab);
+  if (root.contains("contact")) parse_contact(r, root["contact"], pbd);
   // Every length into metres (gravity is m/s^2 whatever the unit).
   if (scale != 1.0) {
     for (Aabb& b : pbd.fixed) {
