@@ -110,6 +110,21 @@ BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry,
   return pose;
 }
 
+TissueUnderRay tissue_under_ray(const Camera& camera, const Ray& ray, const std::vector<Vec3f>& positions,
+                                const std::vector<Tri>& triangles, const std::vector<uint8_t>& flags, bool dragging,
+                                float voxel, std::vector<Eigen::Vector2f>* scratch) {
+  TissueUnderRay t;
+  const uint8_t skip = dragging ? kTriangleCut : 0;
+  t.hit = pick_surface(ray, positions, triangles, flags, skip, camera.z_near, t.entry, scratch,
+                       dragging ? Facing::kEntering : Facing::kBoth);
+  if (!t.hit) return t;
+  const BladePose line = scalpel_pose(camera, ray, t.entry.point, 1.0, 0.0);
+  const Ray inward{t.entry.point, (line.b - line.a).cast<float>().normalized()};
+  t.exits = pick_surface(inward, positions, triangles, flags, skip, 0.5f * voxel, t.exit, scratch, Facing::kLeaving);
+  if (t.exits) t.through = t.exit.t + voxel;
+  return t;
+}
+
 BladePose cover_crossed_path(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& from_pixel,
                              const Eigen::Vector2f& to_pixel, const BladePose& from, const BladePose& to,
                              const std::vector<Vec3f>& positions, const std::vector<Tri>& triangles,
@@ -130,21 +145,12 @@ BladePose cover_crossed_path(const Camera& camera, const Viewport& viewport, con
     const float f = float(i) / float(n + 1);
     const Ray ray = cursor_ray(camera, viewport, from_pixel + f * (to_pixel - from_pixel));
     ++st.samples;
-    SurfaceHit entry_hit;
-    if (!pick_surface(ray, positions, triangles, flags, kTriangleCut, camera.z_near, entry_hit, scratch,
-                      Facing::kEntering)) {
-      continue;
-    }
+    const TissueUnderRay tissue = tissue_under_ray(camera, ray, positions, triangles, flags, true, float(voxel), scratch);
+    if (!tissue.hit) continue;
     ++st.hits;
-    const Vec3f entry = entry_hit.point;
+    const Vec3f entry = tissue.entry.point;
     const BladePose aim = scalpel_pose(camera, ray, entry, 1.0, 0.0);
-    const Ray inward{entry, (aim.b - aim.a).cast<float>().normalized()};
-    double reach = depth;
-    SurfaceHit exit_hit;
-    if (pick_surface(inward, positions, triangles, flags, kTriangleCut, 0.5f * float(voxel), exit_hit, scratch,
-                     Facing::kLeaving)) {
-      reach = std::max(reach, double(exit_hit.t) + voxel);
-    }
+    const double reach = tissue.exits ? std::max(depth, double(tissue.exit.t) + voxel) : depth;
     const Vec3d e = entry.cast<double>();
     const Vec3d reach_point = e + reach * (aim.b - aim.a).normalized();
     // Where along the sweep the blade passes this point: its projection on the top's path.

@@ -53,6 +53,23 @@ bool nearest_surface_depth(const Ray& ray, const std::vector<Vec3f>& positions, 
 BladePose scalpel_pose(const Camera& camera, const Ray& ray, const Vec3f& entry, double depth, double lead,
                        float tilt = 0.35f);
 
+// The tissue under a ray, as the window aims the scalpel at it (every frame of a stroke, and at each
+// sample of a fast drag's path): the entry is the first face the ray meets — while `dragging`, the
+// first outer face it enters through (cut faces skipped: through the slit the blade opens the ray
+// crosses cut faces and then the tissue's far side from within, and taking either as the entry would
+// move the blade deep behind the surface it cuts). `exit` is the far side under the entry: from it
+// along the blade's line (scalpel_pose), the first face the blade leaves through (the same faces
+// skipped); `through` is its distance plus `voxel`, so a blade that reaches it cuts what it crosses
+// (0: it leaves nowhere, `exits` false). `hit` false: nothing under the ray.
+struct TissueUnderRay {
+  bool hit = false, exits = false;
+  SurfaceHit entry, exit;
+  float through = 0.0f;
+};
+TissueUnderRay tissue_under_ray(const Camera& camera, const Ray& ray, const std::vector<Vec3f>& positions,
+                                const std::vector<Tri>& triangles, const std::vector<uint8_t>& flags, bool dragging,
+                                float voxel, std::vector<Eigen::Vector2f>* scratch = nullptr);
+
 // A fast drag (issue 29): between two frames the blade sweeps the straight ruled quad from `from` to
 // `to`; under a curved surface its top dips below the tissue the cursor crossed between the frames,
 // which stays uncut (an incision of dashes). The screen path between `from_pixel` and `to_pixel` is

@@ -107,16 +107,16 @@ namespace {
 // the outer surface only, so the blade does not dive into the slit it opens); off the tissue the
 // entry keeps its last eye distance (a drag that leaves the object stays at its depth).
 void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
-  app.tools.hover_hit = false;
+  // The tissue under the cursor: the entry and the far side under it (while dragging, outer faces
+  // only: see tissue_under_ray).
+  TissueUnderRay tissue;
   if (app.current && app.tools.cursor_in_view) {
-    // While dragging: the outer faces the ray enters through only. Through the slit the blade opens
-    // the ray crosses cut faces and then the tissue's far side from within; taking either as the
-    // entry would move the blade deep behind the surface it is cutting (a gap in the incision).
-    const uint8_t skip = app.tools.left_down ? kTriangleCut : 0;
-    app.tools.hover_hit = pick_surface(ray, app.current->positions, app.current->triangles, app.current->triangle_flags,
-                                       skip, app.view.camera.z_near, app.tools.hover, &app.tools.pick_scratch,
-                                       app.tools.left_down ? Facing::kEntering : Facing::kBoth);
+    tissue = tissue_under_ray(app.view.camera, ray, app.current->positions, app.current->triangles,
+                              app.current->triangle_flags, app.tools.left_down, app.view.voxel_size,
+                              &app.tools.pick_scratch);
   }
+  app.tools.hover_hit = tissue.hit;
+  if (tissue.hit) app.tools.hover = tissue.entry;
   if (app.tools.hover_hit) {
     app.tools.entry_t = app.tools.hover.t;
   } else if (!app.tools.left_down || !app.tools.drag_touched || app.tools.entry_t <= 0.0f) {
@@ -138,20 +138,10 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
     const Vec3f d = delta.x() * camera_right(app.view.camera) - delta.y() * camera_up(app.view.camera);
     app.tools.edge_dir = d.normalized();
   }
-  // The far side of the tissue under the cursor: from the entry along the blade's direction, the
-  // first surface it crosses (where the blade leaves the tissue; the same faces skipped as for the
-  // entry). The stroke cuts what it crosses: the blade reaches at least a voxel past it (a drag that
-  // leaves the tissue keeps the last reach).
-  app.tools.through_depth = 0.0f;
-  if (app.tools.hover_hit) {
-    const BladePose aim = scalpel_pose(app.view.camera, ray, entry, 1.0, 0.0);
-    const Ray inward{entry, (aim.b - aim.a).cast<float>().normalized()};
-    const uint8_t skip = app.tools.left_down ? kTriangleCut : 0;
-    if (pick_surface(inward, app.current->positions, app.current->triangles, app.current->triangle_flags, skip,
-                     0.5f * app.view.voxel_size, app.tools.exit_hit, &app.tools.pick_scratch, Facing::kLeaving)) {
-      app.tools.through_depth = app.tools.exit_hit.t + app.view.voxel_size;
-    }
-  }
+  // The stroke cuts what it crosses: the blade reaches at least a voxel past the far side of the
+  // tissue under the cursor (a drag that leaves the tissue keeps the last reach).
+  app.tools.through_depth = tissue.through;
+  if (tissue.exits) app.tools.exit_hit = tissue.exit;
   if (app.tools.hover_hit) app.tools.reach_depth = std::max(app.tools.cut_depth, app.tools.through_depth);
   if (!app.tools.left_down && !app.tools.hover_hit) app.tools.reach_depth = app.tools.cut_depth;
   app.tools.blade_pose = scalpel_pose(app.view.camera, ray, entry, std::max(app.tools.cut_depth, app.tools.reach_depth),

@@ -138,18 +138,12 @@ TEST_CASE("scalpel: a fast drag's sweep covers the surface the cursor crossed") 
   const double voxel = 0.02, depth = 0.3;
   const auto aim = [&](const Eigen::Vector2f& pixel, Vec3f& entry) {
     const Ray ray = cursor_ray(camera, viewport, pixel);
-    SurfaceHit hit;
-    REQUIRE(pick_surface(ray, positions, sphere.triangles, flags, 0, camera.z_near, hit, nullptr, Facing::kEntering));
-    entry = hit.point;
     // As the window aims it: the set depth, or through the tissue under the cursor and a voxel.
-    const BladePose line = scalpel_pose(camera, ray, entry, 1.0, 0.0);
-    SurfaceHit exit;
-    double reach = depth;
-    if (pick_surface({entry, (line.b - line.a).cast<float>().normalized()}, positions, sphere.triangles, flags, 0,
-                     0.5f * float(voxel), exit, nullptr, Facing::kLeaving)) {
-      reach = std::max(reach, double(exit.t) + voxel);
-    }
-    return scalpel_pose(camera, ray, entry, reach, 2.0 * voxel);
+    const TissueUnderRay tissue = tissue_under_ray(camera, ray, positions, sphere.triangles, flags, true, float(voxel));
+    REQUIRE(tissue.hit);
+    REQUIRE(tissue.exits);
+    entry = tissue.entry.point;
+    return scalpel_pose(camera, ray, entry, std::max(depth, double(tissue.exit.t) + voxel), 2.0 * voxel);
   };
   const Eigen::Vector2f from_pixel(520, 360), to_pixel(760, 360);
   Vec3f e0, e1;
