@@ -172,6 +172,13 @@ void FrameStats::print(const AppState& app) const {
       "window: simulation x%.2f real time (%llu steps, %.2f s simulated in %.2f s running; paused time left out, "
       "counted since the last reset or undo)\n",
       pace.rate(), static_cast<unsigned long long>(pace.steps), pace.sim_seconds, pace.run_seconds);
+  if (!pace.per_second.empty()) {
+    std::vector<double> rates(pace.per_second.begin(), pace.per_second.end());
+    std::printf("window: simulation pace per second of running: min x%.2f p1 x%.2f p50 x%.2f over %zu s (seconds under "
+                "x1.0: %zu)\n",
+                *std::min_element(rates.begin(), rates.end()), quantile(rates, 0.01), quantile(rates, 0.5),
+                rates.size(), size_t(std::count_if(rates.begin(), rates.end(), [](double r) { return r < 1.0; })));
+  }
   if (!app.history.latency_frames.empty()) {
     double latency = 0.0;
     for (double l : app.history.latency_frames) latency += l;
@@ -196,6 +203,12 @@ void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool r
     pace.run_seconds += now - pace.last_time;
     pace.steps += step - pace.last_step;
     pace.sim_seconds += double(step - pace.last_step) * dt;
+    pace.window_run += now - pace.last_time;
+    pace.window_sim += double(step - pace.last_step) * dt;
+    if (pace.window_run >= 1.0 - 1e-6) {  // (a tolerance for the sum's rounding)
+      pace.per_second.push_back(float(pace.window_sim / pace.window_run));
+      pace.window_run = pace.window_sim = 0.0;
+    }
   }
   pace.running = running;
   pace.last_time = now;

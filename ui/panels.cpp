@@ -319,10 +319,15 @@ void draw_panels(AppState& app) {
   const SimStatus& s = app.status;
   const float fps = app.history.fps.empty() ? 0.0f : mean_of(app.history.fps);
   // The simulation's pace, as printed at exit (SimPace: since the last reset or undo, paused time
-  // left out), once half a second of running is counted.
-  char pace[48] = "";
-  if (s.ready && !s.paused && !s.loading && app.history.pace.run_seconds >= 0.5) {
-    std::snprintf(pace, sizeof pace, "sim x%.2f real time", app.history.pace.rate());
+  // left out), once half a second of running is counted; with the last full second's pace.
+  char pace[64] = "";
+  const SimPace& p = app.history.pace;
+  if (s.ready && !s.paused && !s.loading && p.run_seconds >= 0.5) {
+    if (p.per_second.empty()) {
+      std::snprintf(pace, sizeof pace, "sim x%.2f real time", p.rate());
+    } else {
+      std::snprintf(pace, sizeof pace, "sim x%.2f real time (last s x%.2f)", p.rate(), double(p.per_second.back()));
+    }
   }
   ImGui::Text("divvox  %.0f fps  %s", fps, s.loading ? "loading..." : s.paused ? "paused" : pace);
   if (!app.panel.message.empty()) {

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstdint>
+#include <vector>
 
 namespace dvx {
 
@@ -22,6 +23,11 @@ struct SimPace {
   double run_seconds = 0.0;               // wall-clock time counted
   double sim_seconds = 0.0;               // simulated time of the steps run in it (steps x their dt)
   uint64_t steps = 0;                     // the steps run in it
+  // The pace must hold in every second, not only on average (a sever that stalls the simulation for
+  // a second is what a user sees): consecutive windows of one second of counted time, each closed
+  // window's rate in order (a window ends at the first sample at or past its second).
+  double window_run = 0.0, window_sim = 0.0;  // the open window's counted and simulated time
+  std::vector<float> per_second;
 
   // Simulated seconds per wall-clock second (1: real time); 0 before any time was counted.
   double rate() const { return run_seconds > 0.0 ? sim_seconds / run_seconds : 0.0; }

@@ -48,6 +48,26 @@ TEST_SUITE("ui") {
     CHECK(pace.rate() == doctest::Approx(3.9 / 4.9));
   }
 
+  TEST_CASE("sim pace: each second of running has its own rate, so a stall shows where the average hides it") {
+    SimPace pace;
+    double t = 0.0;
+    uint32_t step = 0;
+    sim_pace_sample(pace, t, step, kDt, true, 1, 0);
+    run(pace, t, step, 3.0, 10, true);   // 3 s at real time
+    run(pace, t, step, 4.0, 3, true);    // a 1 s stall at x0.3
+    run(pace, t, step, 5.0, 0, false);   // paused: no window grows
+    run(pace, t, step, 8.05, 12, true);  // 3 s at x1.2 (the first frame's span began paused)
+    CHECK(pace.rate() == doctest::Approx(6.9 / 7.0));
+    REQUIRE(pace.per_second.size() == 7);
+    for (int i : {0, 1, 2}) CHECK(pace.per_second[i] == doctest::Approx(1.0));
+    CHECK(pace.per_second[3] == doctest::Approx(0.3));
+    for (int i : {4, 5, 6}) CHECK(pace.per_second[i] == doctest::Approx(1.2));
+    CHECK(pace.window_run < 1e-6);  // every second closed
+    // A Reset empties them with the rest.
+    sim_pace_sample(pace, t, 0, kDt, true, 2, 0);
+    CHECK(pace.per_second.empty());
+  }
+
   TEST_CASE("sim pace: a Reset (new session) and an undo / redo start the count again") {
     SimPace pace;
     double t = 0.0;
