@@ -46,10 +46,10 @@ ContactRun run_case(const Scene& scene, double dt, int workers, uint32_t steps, 
     const StepReport report = session_step(session, commands(session, step));
     run.deform_ms.push_back(report.timings.deform_ms);
     run.step_ms.push_back(report.timings.total_ms);
-    run.plane_contacts += double(session.state.pbd->contacts.points.size());
-    run.piece_contacts += double(session.state.pbd->piece_contacts.set.points.size());
+    run.plane_contacts += double(session.state.pbd->data.contacts.points.size());
+    run.piece_contacts += double(session.state.pbd->data.piece_contacts.set.points.size());
   }
-  run.counters = session.state.pbd->piece_contacts.counters;
+  run.counters = session.state.pbd->data.piece_contacts.counters;
   return run;
 }
 
@@ -77,16 +77,16 @@ StepCommands liver_cut(const Session& session, uint32_t step, int cut_steps, Aab
 
 // The bodies of the live pieces: the connected components of the particle-sharing graph.
 uint32_t count_bodies(const PbdState& s, std::vector<uint32_t>& parent) {
-  const uint32_t n = uint32_t(s.position.size());
+  const uint32_t n = uint32_t(s.data.position.size());
   parent.resize(2 * size_t(n));  // parents, then a mark per root
   for (uint32_t p = 0; p < n; ++p) parent[p] = p;
   std::fill(parent.begin() + n, parent.end(), 0u);
-  for (const auto& piece : s.pieces) {
+  for (const auto& piece : s.model.pieces) {
     if (piece.sim_voxel == kDeadIndex) continue;
     for (int c = 1; c < 8; ++c) uf_unite(parent.data(), piece.particles[0], piece.particles[c]);
   }
   uint32_t bodies = 0;
-  for (const auto& piece : s.pieces) {
+  for (const auto& piece : s.model.pieces) {
     if (piece.sim_voxel == kDeadIndex) continue;
     uint32_t& mark = parent[n + uf_find(parent.data(), piece.particles[0])];
     bodies += mark == 0;

@@ -73,18 +73,18 @@ PbdParams anchored_params(const Scenario& s, int resolution, int sim_resolution,
 // Runs `steps` steps; returns per-step times (ms) and leaves the deformed surface in `pbd`.
 std::vector<double> simulate(const Scenario& s, const PbdParams& params, int steps, TaskPool& pool, PbdState& pbd) {
   std::string error;
-  if (!init_pbd(s.model, s.cut, params, pbd, error)) throw std::runtime_error(error);
+  if (!init_pbd(s.model, s.cut, params, pbd.model, pbd.data, error)) throw std::runtime_error(error);
   std::vector<double> times;
   for (int i = 0; i < steps; ++i) {
     const Clock::time_point t0 = Clock::now();
-    pbd_step(s.cut, pbd, pool.runner());
+    pbd_step(s.cut, pbd.model, pbd.data, pool.runner());
     times.push_back(ms_between(t0, Clock::now()));
   }
   return times;
 }
 
 // Relative L2 distance of the deformed surfaces: |p - ref| / |ref - rest| summed over live vertices.
-double relative_error(const CutState& cut, const PbdState& run, const PbdState& ref) {
+double relative_error(const CutState& cut, const PbdData& run, const PbdData& ref) {
   double num = 0.0, den = 0.0;
   for (size_t v = 0; v < cut.surface.positions.size(); ++v) {
     if (cut.surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
@@ -113,7 +113,7 @@ struct PathTimes {
 
 // `pass(path)` (-1: the scalar reference, else paths[path]) `repeats` times after `reset()`, per path.
 template <class Reset, class Pass>
-PathTimes time_paths(const PbdState& pbd, const KernelPaths& paths, int repeats, double ns_per_ms, Reset reset,
+PathTimes time_paths(const PbdData& pbd, const KernelPaths& paths, int repeats, double ns_per_ms, Reset reset,
                      Pass pass) {
   PathTimes t;
   std::vector<Vec3d> reference_end;
@@ -138,18 +138,19 @@ PathTimes time_paths(const PbdState& pbd, const KernelPaths& paths, int repeats,
 // rest frame: the solver's code before the blocks) and with the blocks (solve_shape_blocks) on each
 // kernel path the CPU has (the solver's is the last, the best), from the same start. All must end on
 // the same bits (checked: "identical"); time per cluster solve, the fastest pass of `repeats`.
-nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
+nlohmann::json kernel_comparison(const PbdModel& model, PbdData& pbd, int repeats) {
   const std::vector<Vec3d> start = pbd.position;
   const std::vector<Eigen::Quaterniond> rotations = pbd.rotation;
-  std::vector<ShapeRest> frames(pbd.pieces.size());
+  std::vector<ShapeRest> frames(model.pieces.size());
   uint64_t clusters = 0;
-  for (const std::vector<uint32_t>& group : pbd.piece_groups) {
+  for (const std::vector<uint32_t>& group : model.piece_groups) {
     for (const uint32_t slot : group) {
       double rest[24];
       for (int k = 0; k < 8; ++k) {
-        for (int a = 0; a < 3; ++a) rest[3 * k + a] = pbd.rest[pbd.pieces[slot].particles[k]][a];
+        for (int a = 0; a < 3; ++a) rest[3 * k + a] = model.rest[model.pieces[slot].particles[k]][a];
       }
-      clusters += shape_matching_rest(pbd.inv_mass.data(), pbd.pieces[slot].particles, rest, 8, frames[slot]) ? 1 : 0;
+      const uint32_t* particles = model.pieces[slot].particles;
+      clusters += shape_matching_rest(model.inv_mass.data(), particles, rest, 8, frames[slot]) ? 1 : 0;
     }
   }
   const KernelPaths paths = kernel_paths();
@@ -163,8 +164,8 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
                            uint32_t(pbd.cache.shape_blocks[c].size()), 1.0, pbd.rotation.data(), c != kOverflowColour);
         continue;
       }
-      for (const uint32_t slot : pbd.piece_groups[c]) {
-        if (frames[slot].count > 0) solve_shape_matching(x, pbd.pieces[slot].particles, frames[slot], 1.0, pbd.rotation[slot], 0);
+      for (const uint32_t slot : model.piece_groups[c]) {
+        if (frames[slot].count > 0) solve_shape_matching(x, model.pieces[slot].particles, frames[slot], 1.0, pbd.rotation[slot], 0);
       }
     }
     return ms_between(t0, Clock::now());
@@ -185,7 +186,7 @@ nlohmann::json kernel_comparison(PbdState& pbd, int repeats) {
   // multipliers.
   uint64_t constraints = 0;
   for (int c = 0; c < kOverflowColour; ++c) constraints += pbd.cache.stretch_rows[c].size();
-  const double alpha = pbd.params.stretch_compliance / (pbd.params.dt * pbd.params.dt);
+  const double alpha = model.params.stretch_compliance / (model.params.dt * model.params.dt);
   std::vector<std::vector<double>> lambdas(kColourGroups);
   const auto stretch_pass = [&](int path) {
     double* x = pbd.position[0].data();
@@ -248,7 +249,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
     PbdState reference;
     simulate(s, anchored_params(s, options.resolution, finest, most), steps, pool, reference);
     // The kernels before and after (issue 17), on the uncut scenario's settled reference state.
-    if (!through) kernels_json = kernel_comparison(reference, 20);
+    if (!through) kernels_json = kernel_comparison(reference.model, reference.data, 20);
     // One run: a CSV row and a JSON row.
     const auto measure = [&](int sim, int iterations, int substeps) {
       if (options.progress) {
@@ -258,14 +259,15 @@ std::string bench_deform(const BenchDeformOptions& options) {
       PbdState run;
       const std::vector<double> times =
           simulate(s, anchored_params(s, options.resolution, sim, iterations, substeps), steps, pool, run);
-      const double error = relative_error(s.cut, run, reference);
+      const double error = relative_error(s.cut, run.data, reference.data);
       const double p50 = quantile(times, 0.5);
       csv << name << ',' << scenario << ',' << options.resolution << ',' << sim << ',' << iterations << ',' << steps
-          << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ',' << live_particles(run) << ','
-          << live_pieces(run) << ',' << stretch_count(run) << ',' << substeps << '\n';
+          << ',' << p50 << ',' << quantile(times, 0.99) << ',' << error << ',' << live_particles(run.model) << ','
+          << live_pieces(run.model) << ',' << stretch_count(run.model) << ',' << substeps << '\n';
       rows.push_back({{"scenario", scenario}, {"sim_resolution", sim}, {"iterations", iterations},
                       {"substeps", substeps}, {"step_p50_ms", p50}, {"step_p99_ms", quantile(times, 0.99)},
-                      {"relative_error", error}, {"particles", run.position.size() - run.free_particles.size()}});
+                      {"relative_error", error},
+                      {"particles", run.data.position.size() - run.model.free_particles.size()}});
     };
     for (int sim : options.sim_resolutions) {
       for (int iterations : options.iterations) measure(sim, iterations, 1);
@@ -301,7 +303,7 @@ std::string bench_deform(const BenchDeformOptions& options) {
     t << std::filesystem::path(target).filename().string() << ',' << options.target_resolution << ','
       << options.target_sim_resolution << ',' << options.target_iterations << ',' << pool.workers() << ','
       << options.target_steps << ',' << s.cut.surface.live_vertices() << ','
-      << run.position.size() - run.free_particles.size() << ',' << quantile(times, 0.5) << ','
+      << run.data.position.size() - run.model.free_particles.size() << ',' << quantile(times, 0.5) << ','
       << quantile(times, 0.99) << ',' << quantile(times, 1.0) << '\n';
     write_text_file((out / "bench_deform_target.csv").string(), t.str());
     target_json = {{"mesh", std::filesystem::path(target).filename().string()},

@@ -349,7 +349,7 @@ ElasticMeasure measure_elastic(const ElasticCase& c, const ElasticReference& ref
     step_world(c, w, context);
     times.push_back(ms_between(t0, Clock::now()));
     if (int(w.state.step) <= average_from) continue;
-    const std::vector<Vec3f>& deformed = w.state.pbd->deformed;
+    const std::vector<Vec3f>& deformed = w.state.pbd->data.deformed;
     for (size_t v = 0; v < mean.size() && v < deformed.size(); ++v) mean[v] += deformed[v].cast<double>();
     ++averaged;
   }
@@ -357,8 +357,8 @@ ElasticMeasure measure_elastic(const ElasticCase& c, const ElasticReference& ref
   m.step_p50_ms = quantile(times, 0.5);
   m.step_p99_ms = quantile(times, 0.99);
   const PbdState& pbd = *w.state.pbd;
-  for (size_t i = 0; i < pbd.mass.size(); ++i) m.mass += pbd.refs[i] > 0 ? pbd.mass[i] : 0.0;
-  m.particles = uint32_t(pbd.position.size() - pbd.free_particles.size());
+  for (size_t i = 0; i < pbd.model.mass.size(); ++i) m.mass += pbd.model.refs[i] > 0 ? pbd.model.mass[i] : 0.0;
+  m.particles = uint32_t(pbd.data.position.size() - pbd.model.free_particles.size());
   // The surface: divvox's displacement at each live vertex against the reference's at its rest point.
   const CutSurface& s = w.state.cut.surface;
   const std::vector<Vec3d> normals = rest_normals(s);
@@ -368,7 +368,7 @@ ElasticMeasure measure_elastic(const ElasticCase& c, const ElasticReference& ref
     if (s.vertex_piece[v] == CutSurface::kFreeKey) continue;
     ++m.vertices;
     const Vec3d rest = s.positions[v].cast<double>();
-    const Vec3d u = (averaged > 0 ? Vec3d(mean[v] / averaged) : Vec3d(pbd.deformed[v].cast<double>())) - rest;
+    const Vec3d u = (averaged > 0 ? Vec3d(mean[v] / averaged) : Vec3d(pbd.data.deformed[v].cast<double>())) - rest;
     m.finite = m.finite && u.allFinite();
     Vec3d u_ref;
     if (!interpolate_displacement(reference.mesh, reference.result.displacement, rest, u_ref, 3, -nudge * normals[v])) continue;
@@ -407,7 +407,7 @@ FrequencyMeasure measure_frequency(const ElasticCase& bar, const ElasticRun& run
   for (int i = 0; i < steps; ++i) {
     step_world(bar, w, context);
     double sum = 0.0;
-    for (uint32_t v : end) sum += double(w.state.pbd->deformed[v].y() - s.positions[v].y());
+    for (uint32_t v : end) sum += double(w.state.pbd->data.deformed[v].y() - s.positions[v].y());
     y.push_back(end.empty() ? 0.0 : sum / double(end.size()));
   }
   FrequencyMeasure f;

@@ -43,7 +43,7 @@ void write_step_mesh(const ReplayOptions& options, uint32_t step, Replay& replay
   char name[32];
   std::snprintf(name, sizeof(name), "mesh_%05u.ply", step);
   write_cut_mesh_ply((std::filesystem::path(options.out_dir) / "meshes" / name).string(), session.state.cut.surface,
-                     session.state.pbd ? &session.state.pbd->deformed : nullptr);
+                     session.state.pbd ? &session.state.pbd->data.deformed : nullptr);
   replay.last_mesh = step;
 }
 
@@ -102,8 +102,9 @@ void simulate(const ReplayOptions& options, SnapshotExchange* exchange, Replay& 
       const bool capture = options.frames_every > 0 && step % options.frames_every == 0;
       exchange->publish(
           [&](Snapshot& slot, uint64_t slot_sequence) {
-            fill_snapshot(slot, slot_sequence, session.state.cut.surface, session.state.pbd ? &session.state.pbd->deformed : nullptr,
-                          dirty_history, step, row.timings);
+            fill_snapshot(slot, slot_sequence, session.state.cut.surface,
+                          session.state.pbd ? &session.state.pbd->data.deformed : nullptr, dirty_history, step,
+                          row.timings);
             publish_camera(slot, camera_on, camera);
           },
           capture);

@@ -45,9 +45,10 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   if (physics) {
     // DIVVOX_CHUNK_WORK: the work per chunk of a step's shared batches (sim/pbd.h kDefaultChunkWork;
     // lower splits smaller batches across the workers, the same bits either way).
-    if (const uint32_t chunk_work = read_env_options().chunk_work; chunk_work != 0) s.state.pbd->chunk_work = chunk_work;
+    if (const uint32_t chunk_work = read_env_options().chunk_work; chunk_work != 0)
+      s.state.pbd->data.chunk_work = chunk_work;
     s.pool = std::make_unique<TaskPool>(workers);
-    s.initial_mass = total_mass(*s.state.pbd);
+    s.initial_mass = total_mass(s.state.pbd->model);
   }
 }
 

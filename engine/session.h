@@ -27,7 +27,7 @@ struct Session {
   std::unique_ptr<TaskPool> pool;
   double init_ms = 0.0, initial_mass = 0.0;
   double map_ms = 0.0;  // time spent mapping the blade to rest space, accumulated
-  // Whether each step embeds the deformed surface (pbd->deformed). A headless replay that draws no
+  // Whether each step embeds the deformed surface (pbd->data.deformed). A headless replay that draws no
   // frames and writes no meshes turns it off (a quarter of a step's instructions on the default
   // recording) and calls session_embed before it reads the surface.
   bool embed_surface = true;
@@ -43,7 +43,7 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
 // Runs one step at the fixed dt (world_step on the session's pool, timed by the engine's clock).
 StepReport session_step(Session& session, const StepCommands& commands);
 
-// Brings pbd->deformed up to date after steps that skipped the embedding (embed_surface false).
+// Brings pbd->data.deformed up to date after steps that skipped the embedding (embed_surface false).
 void session_embed(Session& session);
 
 // State hash: the cut surface, and the live particles when the physics runs.

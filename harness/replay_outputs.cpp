@@ -155,7 +155,8 @@ FinalSurface final_surface(const Session& session) {
   const SurfaceMesh rest = compact_surface(session.state.cut.surface);
   f.stats = surface_stats(rest);
   for (const Vec3f& p : rest.positions) f.nonfinite += p.allFinite() ? 0 : 1;
-  if (const PbdState* pbd = session.state.pbd ? &*session.state.pbd : nullptr) f.nonfinite += count_nonfinite(*pbd);
+  if (const PbdState* pbd = session.state.pbd ? &*session.state.pbd : nullptr)
+    f.nonfinite += count_nonfinite(pbd->model, pbd->data);
   return f;
 }
 
@@ -207,7 +208,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Replay& replay, 
        {{"voxels_cut", replay.voxels_cut},
         {"voxels_divided", state.divided.size()},
         {"edges_cut", state.edge_cuts.size()},
-        {"sim_voxels_divided", pbd ? sim_voxels_divided(*pbd) : 0},
+        {"sim_voxels_divided", pbd ? sim_voxels_divided(pbd->model) : 0},
         {"explicit_bytes", cut_memory_bytes(state)}}},
       {"surface", surface_stats_json(final.stats)},
       {"nonfinite_values", final.nonfinite},
@@ -227,11 +228,11 @@ nlohmann::json summary_json(const ReplayOptions& options, const Replay& replay, 
     summary["strokes"] = strokes;
   }
   if (pbd) {
-    summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(*pbd)}};
-    summary["kinetic_energy"] = kinetic_energy(*pbd);
-    summary["particles"] = pbd->position.size() - pbd->free_particles.size();
-    summary["shape_constraints"] = live_pieces(*pbd);
-    summary["stretch_constraints"] = stretch_count(*pbd);
+    summary["mass"] = {{"initial", session.initial_mass}, {"final", total_mass(pbd->model)}};
+    summary["kinetic_energy"] = kinetic_energy(pbd->model, pbd->data);
+    summary["particles"] = pbd->data.position.size() - pbd->model.free_particles.size();
+    summary["shape_constraints"] = live_pieces(pbd->model);
+    summary["stretch_constraints"] = stretch_count(pbd->model);
     summary["pool"] = pool_json(session.pool->stats());
   }
   return summary;
@@ -269,7 +270,8 @@ ReplayResult run_replay(const ReplayOptions& options) {
   const PhaseSamples phases = write_timings_csv(replay.rows, session.state.pbd.has_value(), out);
   const FrameSamples frame_samples = write_frame_timings(replay.frames, out);
   // The same binary PLY as the --meshes files (world space, cut faces marked).
-  write_cut_mesh_ply((out / "final.ply").string(), session.state.cut.surface, session.state.pbd ? &session.state.pbd->deformed : nullptr);
+  write_cut_mesh_ply((out / "final.ply").string(), session.state.cut.surface,
+                     session.state.pbd ? &session.state.pbd->data.deformed : nullptr);
   if (!plotter.finish(plot_error)) std::fprintf(stderr, "divvox: timings.svg skipped: %s\n", plot_error.c_str());
   const double wall_s = std::chrono::duration<double>(Clock::now() - start).count();  // the steps and the outputs
   result.summary_path = (out / "summary.json").string();

@@ -16,8 +16,8 @@ namespace {
 // ---- Contact hook (sim/contact.h) ----------------------------------------------------------
 
 // The corner positions of a piece (corner c = dx | dy<<1 | dz<<2), read once for all its points.
-void piece_corner_positions(const PbdState& s, uint32_t piece, Vec3d corners[8]) {
-  for (int c = 0; c < 8; ++c) corners[c] = s.position[s.pieces[piece].particles[c]];
+void piece_corner_positions(const PbdModel& s, const PbdData& data, uint32_t piece, Vec3d corners[8]) {
+  for (int c = 0; c < 8; ++c) corners[c] = data.position[s.pieces[piece].particles[c]];
 }
 
 // The deformed position of a surface point at rest coordinates `local` in its piece (corner
@@ -37,8 +37,8 @@ void slot_point(const Vec3d corners[8], const Vec3f& local, Vec3d& point, double
 }
 
 // The slots of each piece from scratch (counting sort: ascending within a piece).
-void build_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
-  ContactIndex& x = s.piece_contacts.index;
+void build_slots(const PbdModel& s, PbdData& data, uint32_t slots, uint32_t pieces) {
+  ContactIndex& x = data.piece_contacts.index;
   x.slot_piece.resize(slots);
   x.piece_begin.assign(pieces + 1, 0);
   for (uint32_t slot = 0; slot < slots; ++slot) {
@@ -58,7 +58,7 @@ void build_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
 // those of the relabelled voxels' pieces -- before (a vertex keeps its node, whose label may now name
 // another piece slot) and after. Their pieces before are the current pieces of the voxels relabelled
 // since (a piece slot is made only by a relabel) and the slots freed since.
-void collect_revisited(const PbdState& s, uint32_t slots, ContactIndex& x) {
+void collect_revisited(const PbdModel& s, uint32_t slots, ContactIndex& x) {
   const PbdEdits& e = s.edits;
   const EditRange from = edits_after(e, x.edits);
   std::vector<uint32_t>& out = x.revisited;
@@ -84,8 +84,8 @@ void collect_revisited(const PbdState& s, uint32_t slots, ContactIndex& x) {
 // Brings the slots of each piece up to date from the recorded cuts: looks up the revisited slots'
 // pieces, then copies the piece lists that did not change and merges the others (the same arrays a
 // build from scratch makes).
-void update_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
-  ContactIndex& x = s.piece_contacts.index;
+void update_slots(const PbdModel& s, PbdData& data, uint32_t slots, uint32_t pieces) {
+  ContactIndex& x = data.piece_contacts.index;
   collect_revisited(s, slots, x);
   x.slot_piece.resize(slots, kDeadIndex);
   x.arrivals.clear();
@@ -153,8 +153,8 @@ void update_slots(PbdState& s, uint32_t slots, uint32_t pieces) {
 
 // Brings the slots of each piece (ContactIndex: slot_piece, piece_begin, piece_slots) up to date
 // with the model and the surface: from the recorded cuts when it can, else from scratch.
-void refresh_slots(const CutState& cut, PbdState& s) {
-  ContactIndex& x = s.piece_contacts.index;
+void refresh_slots(const CutState& cut, const PbdModel& s, PbdData& data) {
+  ContactIndex& x = data.piece_contacts.index;
   const uint32_t slots = uint32_t(std::min(s.embedding.size(), cut.surface.positions.size()));
   const uint32_t pieces = uint32_t(s.pieces.size());
   if (x.revision == s.revision && x.cut_steps == cut.steps && x.slots == slots && x.pieces == pieces &&
@@ -165,9 +165,9 @@ void refresh_slots(const CutState& cut, PbdState& s) {
   x.rebuilt = !(edits_replayable(s, cut, x.edits, x.revision, x.cut_steps, true) && slots >= x.slots && pieces >= x.pieces);
   if (x.rebuilt) {
     x.revisited.clear();
-    build_slots(s, slots, pieces);
+    build_slots(s, data, slots, pieces);
   } else {
-    update_slots(s, slots, pieces);
+    update_slots(s, data, slots, pieces);
   }
   x.revisited_since = x.cut_steps;
   x.revision = s.revision;
@@ -181,19 +181,19 @@ void refresh_slots(const CutState& cut, PbdState& s) {
 
 namespace {
 
-void refresh_reps(const CutState& cut, PbdState& s);
+void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data);
 
 // Brings the contact index (sim/contact.h) up to date when a cut changed the model or the surface:
 // the piece of each vertex slot and the slots of each piece (refresh_slots), which pieces can move,
 // the bodies (O(pieces), from scratch).
-void refresh_index(const CutState& cut, PbdState& s) {
-  refresh_slots(cut, s);
-  refresh_reps(cut, s);
-  ContactIndex& x = s.piece_contacts.index;
-  PieceContacts& pc = s.piece_contacts;
+void refresh_index(const CutState& cut, const PbdModel& s, PbdData& data) {
+  refresh_slots(cut, s, data);
+  refresh_reps(cut, s, data);
+  ContactIndex& x = data.piece_contacts.index;
+  PieceContacts& pc = data.piece_contacts;
   if (x.bodies_updates == x.updates) return;
   x.bodies_updates = x.updates;
-  const uint32_t pieces = x.pieces, particles = uint32_t(s.position.size());
+  const uint32_t pieces = x.pieces, particles = uint32_t(data.position.size());
   // Live pieces, their corners, whether they can move (a piece pinned at every corner cannot be pushed).
   pc.corners.resize(size_t(pieces) * 8);
   pc.live.assign(pieces, 0);
@@ -232,8 +232,8 @@ bool embedded_triangle(const ContactIndex& x, const Tri& tri) {
 // surface, built when piece_reps has many pieces to build at once (after a sever, or a rebuild):
 // there it is cheaper than finding each piece's quads through the half-edge map, whose lookups
 // miss the cache (bunny at 256: the sever step's PBD 25-28 ms with it, 47-50 ms without).
-void index_triangles(const CutState& cut, PbdState& s) {
-  ContactIndex& x = s.piece_contacts.index;
+void index_triangles(const CutState& cut, PbdData& data) {
+  ContactIndex& x = data.piece_contacts.index;
   if (x.triangles_ready) return;
   x.triangles_ready = true;
   const CutSurface& surface = cut.surface;
@@ -260,15 +260,15 @@ void index_triangles(const CutState& cut, PbdState& s) {
 
 // How far each live piece may move in this step: (its fastest corner's speed + g dt) dt (what bounds
 // its contact reach: a piece's own, so a falling piece does not widen everyone's).
-void piece_motions(PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
+void piece_motions(const PbdModel& s, PbdData& data) {
+  PieceContacts& pc = data.piece_contacts;
   const double dt = s.params.dt, fall = s.params.gravity.norm() * dt;
   pc.motion.assign(s.pieces.size(), 0.0);
   for (uint32_t i = 0; i < s.pieces.size(); ++i) {
     if (s.pieces[i].sim_voxel == kDeadIndex) continue;
     double speed2 = 0.0;
     for (uint32_t p : s.pieces[i].particles) {
-      if (s.inv_mass[p] > 0.0) speed2 = std::max(speed2, s.velocity[p].squaredNorm());
+      if (s.inv_mass[p] > 0.0) speed2 = std::max(speed2, data.velocity[p].squaredNorm());
     }
     pc.motion[i] = (std::sqrt(speed2) + fall) * dt;
   }
@@ -298,8 +298,8 @@ uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
 // around a vertex has its corners in the fine voxels next to the vertex's) are rebuilt, on their
 // next need; otherwise all are. The points of the others stay where they are in `reps`, which is
 // compacted when mostly stale.
-void refresh_reps(const CutState& cut, PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
+void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data) {
+  PieceContacts& pc = data.piece_contacts;
   const ContactIndex& x = pc.index;
   if (pc.rep_updates == x.updates && pc.rep_surface_changes == cut.surface_changes) return;
   const bool index_changed = pc.rep_updates != x.updates;
@@ -383,8 +383,9 @@ void refresh_reps(const CutState& cut, PbdState& s) {
 // and each of six normal directions (the dominant axis of the rest normal and its sign), the slot
 // nearest the cell's centre (ties: the lowest). Built on the piece's first need after a cut changed
 // it (refresh_reps), so the choice never flickers between steps.
-std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState& s, uint32_t piece) {
-  PieceContacts& pc = s.piece_contacts;
+std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, const PbdModel& s, PbdData& data,
+                                                  uint32_t piece) {
+  PieceContacts& pc = data.piece_contacts;
   const ContactIndex& x = pc.index;
   if (pc.rep_begin[piece] != ~0u) return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
   // Rest normals of the piece's slots: area-weighted sums over the live triangles holding each
@@ -394,7 +395,7 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, PbdState&
   const CutSurface& surface = cut.surface;
   const uint32_t first = x.piece_begin[piece], count = x.piece_begin[piece + 1] - first;
   pc.rep_slots_built += count;
-  if (!x.triangles_ready && pc.rep_slots_built > x.triangle_count / kRepSlotsPerIndex) index_triangles(cut, s);
+  if (!x.triangles_ready && pc.rep_slots_built > x.triangle_count / kRepSlotsPerIndex) index_triangles(cut, data);
   std::vector<Vec3d>& normal = pc.rep_normal;
   normal.assign(count, Vec3d::Zero());
   if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
@@ -497,27 +498,27 @@ Vec3d deformed_normal(const Vec3d corners[8], const Vec3f& local, const float re
 // Gathers this step's contact points: the surface vertices that may reach a plane within the step,
 // grouped by piece. A piece is skipped when even its lowest corner particle (every embedded point is a
 // convex combination of the corners) stays out of reach.
-void gather_plane_contacts(const CutState& cut, PbdState& s) {
-  ContactSet& set = s.contacts;
+void gather_plane_contacts(const CutState& cut, const PbdModel& s, PbdData& data) {
+  ContactSet& set = data.contacts;
   contacts_clear(set);
   const std::vector<ContactPlane>& planes = s.params.planes;
   if (planes.empty()) return;
-  const ContactIndex& x = s.piece_contacts.index;
+  const ContactIndex& x = data.piece_contacts.index;
   const uint32_t plane_count = uint32_t(std::min<size_t>(planes.size(), 32));
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!x.mobile[i]) continue;  // free slot, or pinned at every corner
-    const double reach = 2.0 * s.piece_contacts.motion[i] + 2.0 * s.sim_size / s.ratio;
+    const double reach = 2.0 * data.piece_contacts.motion[i] + 2.0 * s.sim_size / s.ratio;
     uint32_t near = 0;           // bit k: may reach plane k
     for (uint32_t k = 0; k < plane_count; ++k) {
       double lowest = 1e300;
-      for (uint32_t p : s.pieces[i].particles) lowest = std::min(lowest, plane_distance(planes[k], s.position[p]));
+      for (uint32_t p : s.pieces[i].particles) lowest = std::min(lowest, plane_distance(planes[k], data.position[p]));
       if (lowest < reach) near |= 1u << k;
     }
     if (near == 0) continue;
     const uint32_t* particles = s.pieces[i].particles;
-    const auto [reps, count] = piece_reps(cut, s, i);
+    const auto [reps, count] = piece_reps(cut, s, data, i);
     Vec3d corners[8];
-    piece_corner_positions(s, i, corners);
+    piece_corner_positions(s, data, i, corners);
     for (uint32_t r = 0; r < count; ++r) {
       double weights[8], mobility = 0.0;
       Vec3d point;
@@ -576,17 +577,17 @@ void refresh_allowances(const CutState& cut, PieceContacts& pc) {
 
 // The contact points of the exposed pieces within reach of a partner (by piece, then slot), with
 // their allowances and deformed normals.
-void gather_surface_points(const CutState& cut, PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
+void gather_surface_points(const CutState& cut, const PbdModel& s, PbdData& data) {
+  PieceContacts& pc = data.piece_contacts;
   const ContactIndex& x = pc.index;
   pc.points.clear();
   pc.gathered.clear();
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!pc.exposed[i]) continue;
-    const auto [reps, count] = piece_reps(cut, s, i);
+    const auto [reps, count] = piece_reps(cut, s, data, i);
     partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, pc.region_lo, pc.region_hi);
     Vec3d corners[8];
-    piece_corner_positions(s, i, corners);
+    piece_corner_positions(s, data, i, corners);
     for (uint32_t r = 0; r < count; ++r) {
       const uint32_t slot = reps[r].slot;
       const Vec3f& local = s.embedding[slot].local;
@@ -614,11 +615,11 @@ void gather_surface_points(const CutState& cut, PbdState& s) {
 
 // Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
 // vertices with deformed normals, the nearest facing vertex of another body.
-void collect_piece_contacts(const CutState& cut, PbdState& s) {
-  PieceContacts& pc = s.piece_contacts;
+void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& data) {
+  PieceContacts& pc = data.piece_contacts;
   contacts_clear(pc.set);
   pc.exposed_pieces = 0;
-  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(s.position.size());
+  const uint32_t pieces = uint32_t(s.pieces.size()), particles = uint32_t(data.position.size());
   if (!s.params.piece_contact || pieces == 0) return;
   refresh_allowances(cut, pc);  // every step, so a cut is fresh when its sides first touch
   const ContactIndex& x = pc.index;
@@ -634,10 +635,10 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
   for (uint32_t i = 0; i < pieces; ++i) {
     if (!pc.live[i]) continue;
     pc.reach[i] = std::min(s.sim_size, base + 2.0 * pc.motion[i]);
-    pc.lo[i] = pc.hi[i] = s.position[s.pieces[i].particles[0]];
+    pc.lo[i] = pc.hi[i] = data.position[s.pieces[i].particles[0]];
     for (uint32_t p : s.pieces[i].particles) {
-      pc.lo[i] = pc.lo[i].cwiseMin(s.position[p]);
-      pc.hi[i] = pc.hi[i].cwiseMax(s.position[p]);
+      pc.lo[i] = pc.lo[i].cwiseMin(data.position[p]);
+      pc.hi[i] = pc.hi[i].cwiseMax(data.position[p]);
     }
   }
   // Bodies near another body, then their pieces near another body's pieces.
@@ -653,10 +654,10 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
                                                  0.25 * s.sim_size, x.updates, pc.exposed, pc.scratch,
                                                  &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
-  gather_surface_points(cut, s);
+  gather_surface_points(cut, s, data);
   ++pc.counters.gathers;
   pc.counters.points += pc.points.size();
-  pc.counters.contacts += gather_piece_contacts(pc.points.data(), uint32_t(pc.points.size()), s.position[0].data(), particles,
+  pc.counters.contacts += gather_piece_contacts(pc.points.data(), uint32_t(pc.points.size()), data.position[0].data(), particles,
                                                 kMaxPush * fine, s.params.piece_friction, pc.set, pc.scratch,
                                                 &pc.counters.point_pairs);
   contacts_finish(pc.set);
@@ -668,15 +669,15 @@ void collect_piece_contacts(const CutState& cut, PbdState& s) {
 }  // namespace
 
 // This step's contacts with the planes and between pieces, from one index and the pieces' motions.
-void gather_contacts(const CutState& cut, PbdState& s) {
-  contacts_clear(s.contacts);
-  contacts_clear(s.piece_contacts.set);
-  s.piece_contacts.exposed_pieces = 0;
+void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data) {
+  contacts_clear(data.contacts);
+  contacts_clear(data.piece_contacts.set);
+  data.piece_contacts.exposed_pieces = 0;
   if (s.params.planes.empty() && !s.params.piece_contact) return;
-  refresh_index(cut, s);
-  piece_motions(s);
-  gather_plane_contacts(cut, s);
-  collect_piece_contacts(cut, s);
+  refresh_index(cut, s, data);
+  piece_motions(s, data);
+  gather_plane_contacts(cut, s, data);
+  collect_piece_contacts(cut, s, data);
 }
 
 }  // namespace pbd_internal

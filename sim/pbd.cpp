@@ -43,7 +43,7 @@ void copy_lane(ShapeBlock& dst, int to, const ShapeBlock& src, int from) {
 // Adds a live piece's cluster (its rest frame from the particles' rest positions and masses) at the
 // end of its colour's blocks; the overflow colour's clusters may share particles: one per block,
 // solved in order. A cluster without a rest frame (no mass) joins no block.
-void add_cluster(PbdState& s, uint32_t slot) {
+void add_cluster(const PbdModel& s, PbdData& data, uint32_t slot) {
   const SimPiece& piece = s.pieces[slot];
   const uint32_t* particles = piece.particles;
   double rest[24];
@@ -52,59 +52,59 @@ void add_cluster(PbdState& s, uint32_t slot) {
   }
   ShapeRest r;
   if (!shape_matching_rest(s.inv_mass.data(), particles, rest, 8, r)) return;
-  std::vector<ShapeBlock>& blocks = s.cache.shape_blocks[piece.colour];
+  std::vector<ShapeBlock>& blocks = data.cache.shape_blocks[piece.colour];
   const int lanes = piece.colour == kOverflowColour ? 1 : kShapeLanes;
   if (blocks.empty() || blocks.back().lanes == lanes) blocks.emplace_back();
-  s.cache.shape_lane[slot] = lane_code(piece.colour, blocks.size() - 1, blocks.back().lanes);
+  data.cache.shape_lane[slot] = lane_code(piece.colour, blocks.size() - 1, blocks.back().lanes);
   shape_block_add(blocks.back(), slot, particles, r);
 }
 
 // Takes a piece's cluster out of its block: the colour's last lane moves into its place (the unused
 // lanes of the last block repeat its last, as shape_block_add leaves them).
-void remove_cluster(PbdState& s, uint32_t slot) {
-  const uint32_t code = s.cache.shape_lane[slot];
+void remove_cluster(PbdData& data, uint32_t slot) {
+  const uint32_t code = data.cache.shape_lane[slot];
   const uint32_t colour = code >> 26, block = (code & ((1u << 26) - 1)) >> kLaneBits;
   const int lane = int(code & kLaneMask);
-  std::vector<ShapeBlock>& blocks = s.cache.shape_blocks[colour];
+  std::vector<ShapeBlock>& blocks = data.cache.shape_blocks[colour];
   ShapeBlock& last = blocks.back();
   const int last_lane = last.lanes - 1;
   if (block + 1 != blocks.size() || lane != last_lane) {
     copy_lane(blocks[block], lane, last, last_lane);
-    s.cache.shape_lane[blocks[block].piece[lane]] = code;
+    data.cache.shape_lane[blocks[block].piece[lane]] = code;
   }
   if (--last.lanes == 0) {
     blocks.pop_back();
   } else {
     for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, last.lanes - 1);
   }
-  s.cache.shape_lane[slot] = kDeadIndex;
+  data.cache.shape_lane[slot] = kDeadIndex;
 }
 
 // Shape-matching rest frames of the live pieces in blocks of kShapeLanes per colour, from scratch
 // (in their colour groups' order).
-void build_shape_blocks(PbdState& s) {
-  s.cache.shape_lane.assign(s.pieces.size(), kDeadIndex);
+void build_shape_blocks(const PbdModel& s, PbdData& data) {
+  data.cache.shape_lane.assign(s.pieces.size(), kDeadIndex);
   for (int c = 0; c < kColourGroups; ++c) {
-    s.cache.shape_blocks[c].clear();
-    for (const uint32_t slot : s.piece_groups[c]) add_cluster(s, slot);
+    data.cache.shape_blocks[c].clear();
+    for (const uint32_t slot : s.piece_groups[c]) add_cluster(s, data, slot);
   }
 }
 
 // The same from the recorded cuts: the clusters of the pieces freed or using a changed particle
 // (rest position, mass, or the piece's particles and colour) leave their blocks and the live ones
 // join again at the end of their colour; the overflow colour is rebuilt in its group's order.
-void update_shape_blocks(PbdState& s) {
+void update_shape_blocks(const PbdModel& s, PbdData& data) {
   const PbdEdits& e = s.edits;
-  const EditRange from = edits_after(e, s.cache.blocks_edits);
-  std::vector<uint8_t>& mark = s.cache.blocks_mark;
-  mark.resize(s.position.size(), 0);
+  const EditRange from = edits_after(e, data.cache.blocks_edits);
+  std::vector<uint8_t>& mark = data.cache.blocks_mark;
+  mark.resize(data.position.size(), 0);
   for (size_t i = from.particles; i < e.particles.size(); ++i) mark[e.particles[i]] = 1;
-  s.cache.shape_lane.resize(s.pieces.size(), kDeadIndex);
-  for (const ShapeBlock& b : s.cache.shape_blocks[kOverflowColour]) {
-    for (int l = 0; l < b.lanes; ++l) s.cache.shape_lane[b.piece[l]] = kDeadIndex;
+  data.cache.shape_lane.resize(s.pieces.size(), kDeadIndex);
+  for (const ShapeBlock& b : data.cache.shape_blocks[kOverflowColour]) {
+    for (int l = 0; l < b.lanes; ++l) data.cache.shape_lane[b.piece[l]] = kDeadIndex;
   }
-  s.cache.shape_blocks[kOverflowColour].clear();
-  std::vector<uint32_t>& dirty = s.cache.blocks_dirty;
+  data.cache.shape_blocks[kOverflowColour].clear();
+  std::vector<uint32_t>& dirty = data.cache.blocks_dirty;
   dirty.clear();
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
     const SimPiece& piece = s.pieces[slot];
@@ -112,11 +112,11 @@ void update_shape_blocks(PbdState& s) {
     bool changed = !live;
     for (int k = 0; live && k < 8 && !changed; ++k) changed = mark[piece.particles[k]] != 0;
     if (!changed) continue;
-    if (s.cache.shape_lane[slot] != kDeadIndex) remove_cluster(s, slot);
+    if (data.cache.shape_lane[slot] != kDeadIndex) remove_cluster(data, slot);
     if (live && piece.colour != kOverflowColour) dirty.push_back(slot);
   }
-  for (const uint32_t slot : dirty) add_cluster(s, slot);
-  for (const uint32_t slot : s.piece_groups[kOverflowColour]) add_cluster(s, slot);
+  for (const uint32_t slot : dirty) add_cluster(s, data, slot);
+  for (const uint32_t slot : s.piece_groups[kOverflowColour]) add_cluster(s, data, slot);
   for (size_t i = from.particles; i < e.particles.size(); ++i) mark[e.particles[i]] = 0;
 }
 
@@ -128,11 +128,11 @@ void update_shape_blocks(PbdState& s) {
 // covers about the same particles in every colour, so their cache lines stay on one core. Without
 // it the blocks mix clusters from all over after a few cuts (remove_cluster moves the colour's last
 // lane into each hole).
-void sort_shape_lanes(PbdState& s) {
+void sort_shape_lanes(PbdData& data) {
   std::vector<std::pair<uint32_t, uint32_t>> order;  // (key, block << kLaneBits | lane)
   std::vector<ShapeBlock> sorted;
   for (int c = 0; c < kOverflowColour; ++c) {
-    std::vector<ShapeBlock>& blocks = s.cache.shape_blocks[c];
+    std::vector<ShapeBlock>& blocks = data.cache.shape_blocks[c];
     order.clear();
     for (uint32_t b = 0; b < blocks.size(); ++b) {
       for (int l = 0; l < blocks[b].lanes; ++l) {
@@ -149,7 +149,7 @@ void sort_shape_lanes(PbdState& s) {
       const int lane = int(i % kShapeLanes);
       copy_lane(dst, lane, blocks[order[i].second >> kLaneBits], int(order[i].second & kLaneMask));
       dst.lanes = lane + 1;
-      s.cache.shape_lane[dst.piece[lane]] = lane_code(uint32_t(c), i / kShapeLanes, lane);
+      data.cache.shape_lane[dst.piece[lane]] = lane_code(uint32_t(c), i / kShapeLanes, lane);
     }
     if (!sorted.empty()) {
       ShapeBlock& last = sorted.back();
@@ -164,16 +164,17 @@ void sort_shape_lanes(PbdState& s) {
 // masses: O(constraints), a copy each), those of the parallel colours in particle order (as the
 // blocks above; a row's multiplier is its substep's, so they follow the rows), the overflow's in its
 // group's order (it is solved in order).
-void refresh_blocks(const CutState& cut, PbdState& s) {
-  if (s.cache.blocks_revision != s.revision) {
-    if (edits_replayable(s, cut, s.cache.blocks_edits, s.cache.blocks_revision, 0, false) && s.cache.shape_lane.size() <= s.pieces.size()) {
-      update_shape_blocks(s);
+void refresh_blocks(const CutState& cut, const PbdModel& s, PbdData& data) {
+  if (data.cache.blocks_revision != s.revision) {
+    if (edits_replayable(s, cut, data.cache.blocks_edits, data.cache.blocks_revision, 0, false) &&
+        data.cache.shape_lane.size() <= s.pieces.size()) {
+      update_shape_blocks(s, data);
     } else {
-      build_shape_blocks(s);
+      build_shape_blocks(s, data);
     }
-    sort_shape_lanes(s);
+    sort_shape_lanes(data);
     for (int c = 0; c < kColourGroups; ++c) {
-      std::vector<StretchRow>& rows = s.cache.stretch_rows[c];
+      std::vector<StretchRow>& rows = data.cache.stretch_rows[c];
       rows.clear();
       for (const StretchConstraint& k : s.stretch_groups[c]) rows.push_back(stretch_row(s.inv_mass.data(), k.a, k.b, k.rest));
       if (c != kOverflowColour) {
@@ -185,7 +186,7 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
     const bool elastic = s.params.elastic == ElasticModel::kNeoHookean;
     const double eighth = s.fine_size * s.fine_size * s.fine_size / 8.0;
     for (int c = 0; c < kColourGroups; ++c) {
-      std::vector<ElasticRow>& rows = s.cache.elastic_rows[c];
+      std::vector<ElasticRow>& rows = data.cache.elastic_rows[c];
       rows.clear();
       for (const uint32_t slot : s.piece_groups[c]) {
         if (!elastic) break;
@@ -209,11 +210,11 @@ void refresh_blocks(const CutState& cut, PbdState& s) {
         }
         rows.push_back(row);
       }
-      s.cache.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
+      data.cache.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
     }
-    s.cache.blocks_revision = s.revision;
+    data.cache.blocks_revision = s.revision;
   }
-  s.cache.blocks_edits = s.edits.count();
+  data.cache.blocks_edits = s.edits.count();
 }
 
 // Grains of the step's batches: a batch below its grain is one chunk (one thread, no barrier inside
@@ -234,13 +235,13 @@ constexpr uint32_t kSerial = ~0u;
 
 // Grab: whether held particle i is solved (a region grab skips particles a cut freed; the
 // single-particle grab keeps its former rule, a particle with mass).
-bool grab_holds(const PbdState& s, size_t i) {
-  const uint32_t p = s.grab_particles[i];
-  return p < s.position.size() && s.inv_mass[p] > 0.0 && (!s.grab_region || s.refs[p] > 0);
+bool grab_holds(const PbdModel& s, const PbdData& data, size_t i) {
+  const uint32_t p = data.grab_particles[i];
+  return p < data.position.size() && s.inv_mass[p] > 0.0 && (!data.grab_region || s.refs[p] > 0);
 }
-bool grab_moves(const PbdState& s) {
-  for (size_t i = 0; i < s.grab_particles.size(); ++i) {
-    if (grab_holds(s, i)) return true;
+bool grab_moves(const PbdModel& s, const PbdData& data) {
+  for (size_t i = 0; i < data.grab_particles.size(); ++i) {
+    if (grab_holds(s, data, i)) return true;
   }
   return false;
 }
@@ -251,9 +252,9 @@ bool grab_moves(const PbdState& s) {
 // more sweeps of the piece contacts and one of the planes; then the velocities fused with the next
 // substep's predict (index 1; one pass over the particles, both per particle), or alone after the
 // last substep (index 0). The first chunk of each predict batch resets the substep's multipliers.
-void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
-  std::vector<StepBatch>& steps = s.cache.step_batches;
-  std::vector<TaskBatch>& batches = s.cache.task_batches;
+void build_step_batches(const PbdModel& s, PbdData& data, bool stretch_on, int substeps) {
+  std::vector<StepBatch>& steps = data.cache.step_batches;
+  std::vector<TaskBatch>& batches = data.cache.task_batches;
   steps.clear();
   batches.clear();
   const auto add = [&](uint8_t kind, uint32_t index, uint32_t count, uint32_t grain) {
@@ -261,7 +262,7 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
     steps.push_back(StepBatch{kind, index});
     batches.push_back(TaskBatch{count, grain});
   };
-  const auto grain = [&](uint32_t cost) { return std::max<uint32_t>(1, s.chunk_work / cost); };
+  const auto grain = [&](uint32_t cost) { return std::max<uint32_t>(1, data.chunk_work / cost); };
   const uint32_t particle_grain = grain(kParticleCost), stretch_grain = grain(kStretchCost);
   const uint32_t shape_grain = grain(kShapeBlockCost), contact_grain = grain(kContactGroupCost);
   const uint32_t elastic_grain = grain(kElasticCost);
@@ -272,33 +273,36 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
       add(kind, b, set.batch_begin[b + 1] - set.batch_begin[b], serial ? kSerial : contact_grain);
     }
   };
-  const uint32_t n = uint32_t(s.position.size());
+  const uint32_t n = uint32_t(data.position.size());
   if (n == 0) return;
   // The first substep: its predict, then the rest of its batches (the body).
   add(StepBatch::kPredict, 0, n, particle_grain);
   for (int it = 0; it < s.params.iterations; ++it) {
     // The material's hexahedra (kNeoHookean), or the paper's stretch and shape matching.
     for (int c = 0; elastic && stretch_on && c < kColourGroups; ++c) {
-      add(StepBatch::kElastic, uint32_t(c), uint32_t(s.cache.elastic_rows[c].size()), c == kOverflowColour ? kSerial : elastic_grain);
+      add(StepBatch::kElastic, uint32_t(c), uint32_t(data.cache.elastic_rows[c].size()),
+          c == kOverflowColour ? kSerial : elastic_grain);
     }
     for (int c = 0; !elastic && stretch_on && c < kColourGroups; ++c) {
       add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : stretch_grain);
     }
     for (int c = 0; !elastic && c < kColourGroups; ++c) {
-      add(StepBatch::kShape, uint32_t(c), uint32_t(s.cache.shape_blocks[c].size()), c == kOverflowColour ? kSerial : shape_grain);
+      add(StepBatch::kShape, uint32_t(c), uint32_t(data.cache.shape_blocks[c].size()),
+          c == kOverflowColour ? kSerial : shape_grain);
     }
-    if (grab_moves(s)) add(StepBatch::kGrab, 0, 1, kSerial);
+    if (grab_moves(s, data)) add(StepBatch::kGrab, 0, 1, kSerial);
     // Contact between pieces, then with the static planes, last so each iteration ends with the
     // surface above them.
     static_assert(kContactOverflow == kOverflowColour, "one overflow batch for both contact sets");
-    add_contacts(StepBatch::kPieceContact, s.piece_contacts.set);
-    add_contacts(StepBatch::kPlaneContact, s.contacts);
+    add_contacts(StepBatch::kPieceContact, data.piece_contacts.set);
+    add_contacts(StepBatch::kPlaneContact, data.contacts);
   }
   // The piece contacts' own sweeps (sim/contact.h, "Resting offset"), then the planes again so the
   // substep still ends with the surface above them.
-  if (!s.piece_contacts.set.points.empty()) {
-    for (int sweep = 0; sweep < kFinalContactSweeps; ++sweep) add_contacts(StepBatch::kPieceContact, s.piece_contacts.set);
-    add_contacts(StepBatch::kPlaneContact, s.contacts);
+  if (!data.piece_contacts.set.points.empty()) {
+    for (int sweep = 0; sweep < kFinalContactSweeps; ++sweep)
+      add_contacts(StepBatch::kPieceContact, data.piece_contacts.set);
+    add_contacts(StepBatch::kPlaneContact, data.contacts);
   }
   // The other substeps: velocities fused with the next predict, then the body again.
   const size_t body = steps.size() - 1;
@@ -317,33 +321,33 @@ void build_step_batches(PbdState& s, bool stretch_on, int substeps) {
 // Grab: each held particle's compliant attachment to target + offset (XPBD, per axis), in order. A
 // particle's multipliers (lambda / h^2: the force on it) are clamped to its force limit by scaling the
 // vector, the position following the clamped multipliers.
-void solve_grab(PbdState& s, double h, double* lambda) {
-  for (size_t i = 0; i < s.grab_particles.size(); ++i) {
-    if (!grab_holds(s, i)) continue;
-    const uint32_t p = s.grab_particles[i];
+void solve_grab(const PbdModel& s, PbdData& data, double h, double* lambda) {
+  for (size_t i = 0; i < data.grab_particles.size(); ++i) {
+    if (!grab_holds(s, data, i)) continue;
+    const uint32_t p = data.grab_particles[i];
     const double w = s.inv_mass[p];
-    const double alpha = s.grab_compliance[i] / (h * h);
-    const Vec3d goal = s.grab_target + s.grab_offsets[i];
+    const double alpha = data.grab_compliance[i] / (h * h);
+    const Vec3d goal = data.grab_target + data.grab_offsets[i];
     double* l = lambda + 3 * i;
     double dl[3];
     for (int a = 0; a < 3; ++a) {
-      const double constraint = s.position[p][a] - goal[a];
+      const double constraint = data.position[p][a] - goal[a];
       dl[a] = (-constraint - alpha * l[a]) / (w + alpha);
     }
-    const double limit = s.grab_limit[i] * (h * h);
+    const double limit = data.grab_limit[i] * (h * h);
     const double l_new[3] = {l[0] + dl[0], l[1] + dl[1], l[2] + dl[2]};
     const double norm = std::sqrt(l_new[0] * l_new[0] + l_new[1] * l_new[1] + l_new[2] * l_new[2]);
     if (!(norm > limit)) {
       for (int a = 0; a < 3; ++a) {
         l[a] += dl[a];
-        s.position[p][a] += w * dl[a];
+        data.position[p][a] += w * dl[a];
       }
     } else {
       // Over the limit: the multipliers scaled back onto it.
       const double scale = limit / norm;
       for (int a = 0; a < 3; ++a) {
         const double clamped = l_new[a] * scale;
-        s.position[p][a] += w * (clamped - l[a]);
+        data.position[p][a] += w * (clamped - l[a]);
         l[a] = clamped;
       }
     }
@@ -354,7 +358,8 @@ void solve_grab(PbdState& s, double h, double* lambda) {
 
 // ---- Public API ----------------------------------------------------------------------------
 
-bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& params, PbdState& s, std::string& error) {
+bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& params, PbdModel& s, PbdData& data,
+              std::string& error) {
   if (params.sim_resolution < 1 || params.resolution < params.sim_resolution ||
       params.resolution % params.sim_resolution != 0 ||
       ((params.resolution / params.sim_resolution) & (params.resolution / params.sim_resolution - 1)) != 0) {
@@ -362,7 +367,8 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
             std::to_string(params.sim_resolution) + ")";
     return false;
   }
-  s = PbdState{};
+  s = PbdModel{};
+  data = PbdData{};
   s.params = params;
   ++s.revision;
   const Lattice& l = model.lattice;
@@ -384,7 +390,7 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   s.scratch.labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
     const uint8_t count = label_block(model, cut, s, sv, s.scratch.parent, s.scratch.labels.data());
-    if (count > 0) set_voxel_pieces(model, s, sv, s.scratch.labels.data(), count, nullptr, nullptr, 0);
+    if (count > 0) set_voxel_pieces(model, s, data, sv, s.scratch.labels.data(), count, nullptr, nullptr, 0);
   }
   // Octants of every piece (the material model's quadrature weights).
   for (uint32_t sv = 0; sv < voxels; ++sv) {
@@ -394,27 +400,27 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   CornerMembers members;
   for (int32_t K = 0; K <= s.sz; ++K) {
     for (int32_t J = 0; J <= s.sy; ++J) {
-      for (int32_t I = 0; I <= s.sx; ++I) assign_corner(model, s, I, J, K, members);
+      for (int32_t I = 0; I <= s.sx; ++I) assign_corner(model, s, data, I, J, K, members);
     }
   }
   s.scratch.face_cache = FaceCache{};
   // Constraints, colours and masses.
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
-    if (s.pieces[slot].sim_voxel != kDeadIndex) attach_piece(s, slot);
+    if (s.pieces[slot].sim_voxel != kDeadIndex) attach_piece(s, data, slot);
   }
   for (uint32_t p = 0; p < s.rest.size(); ++p) update_mass(s, p);
   // The embedding of every live vertex.
-  grow_embedding(cut, s);
+  grow_embedding(cut, s, data);
   for (uint32_t slot = 0; slot < cut.surface.positions.size(); ++slot) embed_vertex(model, cut, s, slot);
   warm_block_arrays(s, true);
   reserve_edits(s.edits);
   s.edits.base_revision = s.revision;  // the caches follow the cuts from here
   s.edits.base_cut_steps = cut.steps;
-  pbd_embed(cut, s);
+  pbd_embed(cut, s, data);
   return true;
 }
 
-uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s, PbdCutStats* stats) {
+uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, PbdCutStats* stats) {
   // The simulation voxels holding fine voxels whose pieces may have changed (new cut or air edges;
   // the others only moved vertices). Up to kSpanRatio a block is relabelled whole, so only the
   // voxels are needed (consecutive fine voxels mostly share one: deduplicated on the fly, then
@@ -469,7 +475,7 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
           near.push_back(n);
           for_pieces(s, n, [&](uint32_t slot) {
             for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
-            detach_piece(s, slot);
+            detach_piece(s, data, slot);
             ++pieces_touched;
           });
         }
@@ -488,13 +494,13 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
         if (stats) ++stats->kept_by_search;
         continue;
       }
-      relabel_spans(model, cut, s, sv, stats, [&] { detach_around(sv); });
+      relabel_spans(model, cut, s, data, sv, stats, [&] { detach_around(sv); });
       if (stats) ++stats->span_relabels;
       continue;
     }
     detach_around(sv);
-    const bool local = relabel_local(model, cut, s, sv, fine.data(), fine.data() + fine.size());
-    if (!local) relabel_block(model, cut, s, sv);
+    const bool local = relabel_local(model, cut, s, data, sv, fine.data(), fine.data() + fine.size());
+    if (!local) relabel_block(model, cut, s, data, sv);
     if (stats) {
       stats->nodes_searched += s.scratch.search.visited.size();
       ++(local ? stats->local_relabels : stats->block_relabels);
@@ -520,14 +526,14 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
     for (uint64_t id : corners) {
       int32_t I, J, K;
       corner_coords(s, id, I, J, K);
-      assign_corner(model, s, I, J, K, members);
+      assign_corner(model, s, data, I, J, K, members);
     }
     // The relabelled voxels' octants; re-attach; masses of every particle involved; unused particles
     // go to the free list.
     for (uint32_t sv : relabelled) piece_octants(model, s, sv);
     for (uint32_t sv : near) {
       for_pieces(s, sv, [&](uint32_t slot) {
-        attach_piece(s, slot);
+        attach_piece(s, data, slot);
         for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
         ++pieces_touched;
       });
@@ -548,48 +554,49 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& s
   }
 
   // Re-embed the changed vertex slots (vertices of relabelled voxels follow their node's label).
-  grow_embedding(cut, s);
+  grow_embedding(cut, s, data);
   for (uint32_t slot : cut.changed_vertices) {
     if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
   }
-  record_edits(cut, s, relabelled, relabelled.empty() ? nullptr : &touched);  // for the caches
+  record_edits(cut, s, data, relabelled, relabelled.empty() ? nullptr : &touched);  // for the caches
   warm_block_arrays(s, false);
   if (stats) stats->sim_voxels += uint32_t(affected.size());
   return uint32_t(affected.size());
 }
 
-void pbd_embed(const CutState& cut, PbdState& s, const TaskRunner& tasks) {
+void pbd_embed(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   // Each piece's 8 corners in float, once (a piece serves ~40 surface vertices), padded to 4 floats
   // a corner so one corner is one 4-float vector.
-  s.cache.piece_corners.resize(s.pieces.size() * 32);
+  data.cache.piece_corners.resize(s.pieces.size() * 32);
   for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
     if (s.pieces[slot].sim_voxel == kDeadIndex) continue;
-    float* out = &s.cache.piece_corners[32 * size_t(slot)];
+    float* out = &data.cache.piece_corners[32 * size_t(slot)];
     for (int c = 0; c < 8; ++c) {
-      const Vec3d& p = s.position[s.pieces[slot].particles[c]];
+      const Vec3d& p = data.position[s.pieces[slot].particles[c]];
       for (int a = 0; a < 3; ++a) out[4 * c + a] = float(p[a]);
       out[4 * c + 3] = 0.0f;
     }
   }
-  refresh_embed_rows(cut, s);
+  refresh_embed_rows(cut, s, data);
   // The interpolation (pbd_kernels.h embed_rows); the deformed surface is float anyway and not part
   // of the state hash.
   static_assert(sizeof(Vec3f) == 3 * sizeof(float), "deformed positions are packed float triples");
-  const float* corners = s.cache.piece_corners.data();
-  const EmbedRow* rows = s.cache.embed_rows.data();
-  float* out = s.deformed.empty() ? nullptr : s.deformed[0].data();
-  const TaskBatch batch{uint32_t(s.cache.embed_rows.size()), 4096};
+  const float* corners = data.cache.piece_corners.data();
+  const EmbedRow* rows = data.cache.embed_rows.data();
+  float* out = data.deformed.empty() ? nullptr : data.deformed[0].data();
+  const TaskBatch batch{uint32_t(data.cache.embed_rows.size()), 4096};
   run_batches(tasks, &batch, 1, [&](uint32_t, uint32_t begin, uint32_t end) { embed_rows(corners, rows, begin, end, out); });
 }
 
-void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool embed, const StepClock* clock, double* contact_ms) {
+void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks, bool embed,
+              const StepClock* clock, double* contact_ms) {
   const PbdParams& params = s.params;
   const int substeps = std::max(1, params.substeps);
   const double h = params.dt / substeps;
-  double* x = s.position.empty() ? nullptr : s.position[0].data();
+  double* x = data.position.empty() ? nullptr : data.position[0].data();
   const double* w = s.inv_mass.data();
   // The constraint blocks change only with the model (a cut, or init).
-  refresh_blocks(cut, s);
+  refresh_blocks(cut, s, data);
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;
@@ -601,19 +608,19 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
                                                                            params.stiffness_damping, s.sim_size, h)
                                                        : ElasticConstants{};
   const double t_contact = clock ? clock->now() : 0.0;
-  gather_contacts(cut, s);  // contact (sim/contact.h)
+  gather_contacts(cut, s, data);  // contact (sim/contact.h)
   if (clock && contact_ms) *contact_ms = clock->now() - t_contact;
-  build_step_batches(s, elastic ? h > 0.0 : stretch_on, substeps);
-  s.cache.grab_lambda.assign(3 * s.grab_particles.size(), 0.0);
-  double* grab_lambda = s.cache.grab_lambda.data();
+  build_step_batches(s, data, elastic ? h > 0.0 : stretch_on, substeps);
+  data.cache.grab_lambda.assign(3 * data.grab_particles.size(), 0.0);
+  double* grab_lambda = data.cache.grab_lambda.data();
   // A substep starts with zero multipliers (the first chunk of its predict pass resets them; nothing
   // else reads them then).
   const auto begin_substep = [&] {
-    for (std::vector<double>& lambda : s.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
-    for (std::vector<double>& lambda : s.cache.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
-    contacts_begin_substep(s.contacts);
-    contacts_begin_substep(s.piece_contacts.set);
-    std::fill(s.cache.grab_lambda.begin(), s.cache.grab_lambda.end(), 0.0);
+    for (std::vector<double>& lambda : data.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    for (std::vector<double>& lambda : data.cache.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    contacts_begin_substep(data.contacts);
+    contacts_begin_substep(data.piece_contacts.set);
+    std::fill(data.cache.grab_lambda.begin(), data.cache.grab_lambda.end(), 0.0);
   };
   // Per particle: the end of a substep (the planes' backstop, velocities), then the start of the next
   // (previous positions, gravity, prediction), in one pass over the particles (raw arrays: Eigen's
@@ -622,8 +629,8 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   const double gravity_h[3] = {h * params.gravity.x(), h * params.gravity.y(), h * params.gravity.z()};
   const double keep_h = keep / h;
   double* __restrict xp = x;
-  double* __restrict vp = s.velocity.empty() ? nullptr : s.velocity[0].data();
-  double* __restrict pp = s.previous.empty() ? nullptr : s.previous[0].data();
+  double* __restrict vp = data.velocity.empty() ? nullptr : data.velocity[0].data();
+  double* __restrict pp = data.previous.empty() ? nullptr : data.previous[0].data();
   const auto advance = [&](uint32_t begin, uint32_t end, bool velocity, bool predict) {
     if (velocity && !params.planes.empty()) {
       project_particles_to_planes(x, w, begin, end, params.planes.data(), uint32_t(params.planes.size()), s.sim_size);
@@ -654,7 +661,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
   };
   // One job for the whole step: the batches of build_step_batches in order (a barrier between batches).
   const auto run = [&](uint32_t batch, uint32_t begin, uint32_t end) {
-    const StepBatch& b = s.cache.step_batches[batch];
+    const StepBatch& b = data.cache.step_batches[batch];
     switch (b.kind) {
       case StepBatch::kPredict:
         if (begin == 0) begin_substep();
@@ -662,28 +669,28 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
       case StepBatch::kStretch: {
         // Four at a time where a colour shares no particle (pbd_kernels.h); the overflow group in order.
-        solve_stretch_rows(x, s.cache.stretch_rows[b.index].data(), s.stretch_lambda[b.index].data(), begin, end, alpha,
-                           b.index != kOverflowColour);
+        solve_stretch_rows(x, data.cache.stretch_rows[b.index].data(), data.stretch_lambda[b.index].data(), begin, end,
+                           alpha, b.index != kOverflowColour);
         break;
       }
       case StepBatch::kShape:
         // Two blocks at once where a colour shares no particle (pbd_kernels.h); the overflow's in order.
-        solve_shape_blocks(x, s.cache.shape_blocks[b.index].data(), begin, end, params.shape_stiffness, s.rotation.data(),
-                           b.index != kOverflowColour);
+        solve_shape_blocks(x, data.cache.shape_blocks[b.index].data(), begin, end, params.shape_stiffness,
+                           data.rotation.data(), b.index != kOverflowColour);
         break;
       case StepBatch::kElastic:
         // One colour's hexahedra share no particle; the overflow's in order (pbd_elastic.h).
-        solve_elastic_rows(x, s.previous[0].data(), s.cache.elastic_rows[b.index].data(), s.cache.elastic_lambda[b.index].data(), begin,
-                           end, material, s.rotation.data());
+        solve_elastic_rows(x, data.previous[0].data(), data.cache.elastic_rows[b.index].data(),
+                           data.cache.elastic_lambda[b.index].data(), begin, end, material, data.rotation.data());
         break;
       case StepBatch::kGrab:
-        solve_grab(s, h, grab_lambda);
+        solve_grab(s, data, h, grab_lambda);
         break;
       case StepBatch::kPieceContact:
       case StepBatch::kPlaneContact: {
-        ContactSet& set = b.kind == StepBatch::kPieceContact ? s.piece_contacts.set : s.contacts;
+        ContactSet& set = b.kind == StepBatch::kPieceContact ? data.piece_contacts.set : data.contacts;
         const uint32_t first = set.batch_begin[b.index];
-        for (uint32_t g = begin; g < end; ++g) solve_contact_group(x, s.previous[0].data(), w, set, first + g);
+        for (uint32_t g = begin; g < end; ++g) solve_contact_group(x, data.previous[0].data(), w, set, first + g);
         break;
       }
       case StepBatch::kVelocity:
@@ -692,32 +699,32 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
         break;
     }
   };
-  run_batches(tasks, s.cache.task_batches.data(), uint32_t(s.cache.task_batches.size()), run);
+  run_batches(tasks, data.cache.task_batches.data(), uint32_t(data.cache.task_batches.size()), run);
   // The grab's force: its multipliers of the last substep over h^2, summed in order.
-  s.grab_force = Vec3d::Zero();
+  data.grab_force = Vec3d::Zero();
   if (h > 0.0) {
-    for (size_t i = 0; i < s.grab_particles.size(); ++i) {
-      for (int a = 0; a < 3; ++a) s.grab_force[a] += s.cache.grab_lambda[3 * i + a] / (h * h);
+    for (size_t i = 0; i < data.grab_particles.size(); ++i) {
+      for (int a = 0; a < 3; ++a) data.grab_force[a] += data.cache.grab_lambda[3 * i + a] / (h * h);
     }
   }
-  ++s.steps;
-  if (embed) pbd_embed(cut, s, tasks);
+  ++data.steps;
+  if (embed) pbd_embed(cut, s, data, tasks);
 }
 
-void pbd_forget_caches(PbdState& s) {
-  s.cache.blocks_revision = s.cache.blocks_edits = ~uint64_t(0);
-  s.cache.embed_revision = kNoRows;
-  s.piece_contacts.index.revision = s.piece_contacts.index.edits = ~uint64_t(0);
-  s.piece_contacts.seen_steps = ~uint64_t(0);  // the allowances compare every slot
+void pbd_forget_caches(PbdData& data) {
+  data.cache.blocks_revision = data.cache.blocks_edits = ~uint64_t(0);
+  data.cache.embed_revision = kNoRows;
+  data.piece_contacts.index.revision = data.piece_contacts.index.edits = ~uint64_t(0);
+  data.piece_contacts.seen_steps = ~uint64_t(0);  // the allowances compare every slot
 }
 
-uint32_t piece_slot(const PbdState& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }
+uint32_t piece_slot(const PbdModel& s, uint32_t sv, uint8_t label) { return slot_of_label(s, sv, label); }
 
-uint32_t vertex_sim_piece(const PbdState& s, uint32_t slot) {
+uint32_t vertex_sim_piece(const PbdModel& s, uint32_t slot) {
   return slot < s.embedding.size() ? embedded_piece(s, s.embedding[slot]) : kDeadIndex;
 }
 
-uint32_t piece_at_rest(const VoxelModel& model, const PbdState& s, const Vec3d& rest) {
+uint32_t piece_at_rest(const VoxelModel& model, const PbdModel& s, const Vec3d& rest) {
   const Vec3d g = (rest - s.origin) / s.sim_size;
   if (!g.allFinite()) return kDeadIndex;
   const int32_t c[3] = {int32_t(std::floor(g.x())), int32_t(std::floor(g.y())), int32_t(std::floor(g.z()))};
@@ -734,7 +741,7 @@ uint32_t piece_at_rest(const VoxelModel& model, const PbdState& s, const Vec3d& 
   return slot_of_label(s, sv, node_label(model, s, sv, c, node[0], node[1], node[2]));
 }
 
-bool piece_holds(const VoxelModel& model, const PbdState& s, uint32_t piece, const Vec3d& u) {
+bool piece_holds(const VoxelModel& model, const PbdModel& s, uint32_t piece, const Vec3d& u) {
   const SimPiece& p = s.pieces[piece];
   if (p.sim_voxel == kDeadIndex || !u.allFinite()) return false;
   int32_t c[3], node[3];
@@ -747,52 +754,52 @@ bool piece_holds(const VoxelModel& model, const PbdState& s, uint32_t piece, con
   return node_label(model, s, p.sim_voxel, c, node[0], node[1], node[2]) == p.piece;
 }
 
-Vec3d piece_rest_origin(const PbdState& s, uint32_t piece) {
+Vec3d piece_rest_origin(const PbdModel& s, uint32_t piece) {
   int32_t c[3];
   sim_voxel_coords(s, s.pieces[piece].sim_voxel, c);
   return corner_rest(s, c[0], c[1], c[2]);
 }
 
-void piece_corners(const PbdState& s, uint32_t piece, Vec3d corners[8]) {
-  for (int c = 0; c < 8; ++c) corners[c] = s.position[s.pieces[piece].particles[c]];
+void piece_corners(const PbdModel& s, const PbdData& data, uint32_t piece, Vec3d corners[8]) {
+  for (int c = 0; c < 8; ++c) corners[c] = data.position[s.pieces[piece].particles[c]];
 }
 
-void grab_begin(PbdState& s, const Vec3d& point, double compliance) {
-  grab_end(s);
+void grab_begin(const PbdModel& s, PbdData& data, const Vec3d& point, double compliance) {
+  grab_end(data);
   double best = std::numeric_limits<double>::infinity();
   uint32_t nearest = ~0u;
-  for (uint32_t p = 0; p < s.position.size(); ++p) {
+  for (uint32_t p = 0; p < data.position.size(); ++p) {
     if (s.refs[p] == 0) continue;
-    const double d = (s.position[p] - point).squaredNorm();
+    const double d = (data.position[p] - point).squaredNorm();
     if (d < best) {
       best = d;
       nearest = p;
     }
   }
-  s.grab_target = point;
+  data.grab_target = point;
   if (nearest == ~0u) return;
-  s.grab_particles.push_back(nearest);
-  s.grab_offsets.push_back(Vec3d::Zero());
-  s.grab_compliance.push_back(compliance);
-  s.grab_limit.push_back(std::numeric_limits<double>::infinity());
+  data.grab_particles.push_back(nearest);
+  data.grab_offsets.push_back(Vec3d::Zero());
+  data.grab_compliance.push_back(compliance);
+  data.grab_limit.push_back(std::numeric_limits<double>::infinity());
 }
 
-void grab_begin_region(PbdState& s, const Vec3d& point, uint32_t piece, double stiffness, double radius,
-                       double force_limit) {
-  grab_end(s);
-  s.grab_region = true;
-  s.grab_target = point;
+void grab_begin_region(const PbdModel& s, PbdData& data, const Vec3d& point, uint32_t piece, double stiffness,
+                       double radius, double force_limit) {
+  grab_end(data);
+  data.grab_region = true;
+  data.grab_target = point;
   // The candidates: the piece's corners, the live particles within the radius (in slot order, once
   // each), or else the nearest live particle.
-  std::vector<uint32_t>& held = s.grab_particles;
+  std::vector<uint32_t>& held = data.grab_particles;
   if (piece < s.pieces.size() && s.pieces[piece].sim_voxel != kDeadIndex) {
     for (int c = 0; c < 8; ++c) held.push_back(s.pieces[piece].particles[c]);
   }
   double best = std::numeric_limits<double>::infinity();
   uint32_t nearest = ~0u;
-  for (uint32_t p = 0; p < s.position.size(); ++p) {
+  for (uint32_t p = 0; p < data.position.size(); ++p) {
     if (s.refs[p] == 0) continue;
-    const double d = (s.position[p] - point).squaredNorm();
+    const double d = (data.position[p] - point).squaredNorm();
     if (d <= radius * radius) held.push_back(p);
     if (d < best) {
       best = d;
@@ -808,79 +815,79 @@ void grab_begin_region(PbdState& s, const Vec3d& point, uint32_t piece, double s
     if (s.inv_mass[p] > 0.0) {
       held[kept++] = p;
     } else {
-      ++s.grab_anchored;
+      ++data.grab_anchored;
     }
   }
   held.resize(kept);
   // Weights: mass x (1 - d / 2R), R the farthest held particle's distance; normalised to sum 1.
   double reach = 0.0;
-  for (uint32_t p : held) reach = std::max(reach, (s.position[p] - point).norm());
+  for (uint32_t p : held) reach = std::max(reach, (data.position[p] - point).norm());
   std::vector<double> weight(held.size());
   double total = 0.0;
   for (size_t i = 0; i < held.size(); ++i) {
-    const double d = (s.position[held[i]] - point).norm();
+    const double d = (data.position[held[i]] - point).norm();
     weight[i] = s.mass[held[i]] * (reach > 0.0 ? 1.0 - 0.5 * d / reach : 1.0);
     total += weight[i];
   }
   const double limit = force_limit > 0.0 ? force_limit : std::numeric_limits<double>::infinity();
   for (size_t i = 0; i < held.size(); ++i) {
     const double w = weight[i] / total;
-    s.grab_offsets.push_back(s.position[held[i]] - point);
-    s.grab_compliance.push_back(1.0 / (stiffness * w));
-    s.grab_limit.push_back(limit * w);
+    data.grab_offsets.push_back(data.position[held[i]] - point);
+    data.grab_compliance.push_back(1.0 / (stiffness * w));
+    data.grab_limit.push_back(limit * w);
   }
 }
 
-void grab_move(PbdState& s, const Vec3d& target) { s.grab_target = target; }
+void grab_move(PbdData& data, const Vec3d& target) { data.grab_target = target; }
 
-void grab_end(PbdState& s) {
-  s.grab_particles.clear();
-  s.grab_offsets.clear();
-  s.grab_compliance.clear();
-  s.grab_limit.clear();
-  s.grab_region = false;
-  s.grab_anchored = 0;
-  s.grab_force = Vec3d::Zero();
+void grab_end(PbdData& data) {
+  data.grab_particles.clear();
+  data.grab_offsets.clear();
+  data.grab_compliance.clear();
+  data.grab_limit.clear();
+  data.grab_region = false;
+  data.grab_anchored = 0;
+  data.grab_force = Vec3d::Zero();
 }
 
-double total_mass(const PbdState& s) {
+double total_mass(const PbdModel& s) {
   uint64_t eighths = 0;
   for (size_t p = 0; p < s.mass_eighths.size(); ++p) eighths += s.refs[p] ? s.mass_eighths[p] : 0;
   const double h = s.fine_size;
   return s.params.density * (double(eighths) * (h * h * h / 64.0));
 }
 
-double kinetic_energy(const PbdState& s) {
+double kinetic_energy(const PbdModel& s, const PbdData& data) {
   double e = 0.0;
-  for (size_t p = 0; p < s.position.size(); ++p) {
-    if (s.inv_mass[p] > 0.0) e += 0.5 * s.mass[p] * s.velocity[p].squaredNorm();
+  for (size_t p = 0; p < data.position.size(); ++p) {
+    if (s.inv_mass[p] > 0.0) e += 0.5 * s.mass[p] * data.velocity[p].squaredNorm();
   }
   return e;
 }
 
-uint64_t count_nonfinite(const PbdState& s) {
+uint64_t count_nonfinite(const PbdModel& s, const PbdData& data) {
   uint64_t bad = 0;
-  for (size_t p = 0; p < s.position.size(); ++p) {
+  for (size_t p = 0; p < data.position.size(); ++p) {
     if (s.refs[p] == 0) continue;
-    bad += !s.position[p].allFinite() + !s.velocity[p].allFinite();
+    bad += !data.position[p].allFinite() + !data.velocity[p].allFinite();
   }
   for (size_t v = 0; v < s.embedding.size(); ++v) {
-    if (s.embedding[v].sim_voxel != kDeadIndex && !s.deformed[v].allFinite()) ++bad;
+    if (s.embedding[v].sim_voxel != kDeadIndex && !data.deformed[v].allFinite()) ++bad;
   }
   return bad;
 }
 
-uint32_t sim_voxels_divided(const PbdState& s) { return uint32_t(s.divided.size()); }
-uint32_t live_pieces(const PbdState& s) { return uint32_t(s.pieces.size() - s.free_pieces.size()); }
-uint32_t live_particles(const PbdState& s) { return uint32_t(s.rest.size() - s.free_particles.size()); }
+uint32_t sim_voxels_divided(const PbdModel& s) { return uint32_t(s.divided.size()); }
+uint32_t live_pieces(const PbdModel& s) { return uint32_t(s.pieces.size() - s.free_pieces.size()); }
+uint32_t live_particles(const PbdModel& s) { return uint32_t(s.rest.size() - s.free_particles.size()); }
 
-uint32_t stretch_count(const PbdState& s) {
+uint32_t stretch_count(const PbdModel& s) {
   size_t n = 0;
   for (const auto& group : s.stretch_groups) n += group.size();
   return uint32_t(n);
 }
 
-uint32_t overflow_constraints(const PbdState& s) {
+uint32_t overflow_constraints(const PbdModel& s) {
   return uint32_t(s.stretch_groups[kOverflowColour].size() + s.piece_groups[kOverflowColour].size());
 }
 

@@ -32,8 +32,10 @@
 // trilinear interpolation of that piece's 8 particles. Interior fine nodes are never materialised.
 //
 // Model and data. PbdModel is the topology (pieces, labels, constraints, colours, embedding); PbdData
-// the dynamic state (positions, velocities, lambdas, rotations' warm starts, grab, deformed surface).
-// Cuts edit the model between steps; a step reads the model and writes the data.
+// the dynamic state (positions, velocities, lambdas, rotations' warm starts, grab, deformed surface)
+// and the caches the solver derives from the model. They are two objects passed apart, as MuJoCo's
+// mj_step(const mjModel*, mjData*): cuts edit the model (and resize the data with it) between steps;
+// a step reads the model (const) and writes the data; read-only queries take only what they read.
 //
 // Threads. Each step is one TaskRunner job (run_batches: per substep predict, per iteration the colour
 // groups of each constraint type and the contact batches, velocities fused with the next substep's
@@ -211,7 +213,8 @@ struct PbdEdits {
   uint64_t count() const { return first + records.size(); }
 };
 
-// The topology: what cuts edit.
+// The topology: what cuts edit (pbd_apply_cut, between steps). A step takes it const: whatever the
+// solver writes, scratch and caches included, lives in PbdData.
 struct PbdModel {
   // Simulation grid.
   int32_t ratio = 1;                 // fine voxels per simulation voxel side
@@ -324,7 +327,8 @@ struct PbdCache {
   PbdCache& operator=(PbdCache&&) = default;
 };
 
-// The dynamic state: what a step writes.
+// The dynamic state: what a step writes. Its per-particle, per-piece and per-constraint arrays are
+// parallel to the model's slots, so a cut that adds slots resizes them with it.
 struct PbdData {
   std::vector<Vec3d> position, velocity, previous;  // (particle slots)
   std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_groups
@@ -350,49 +354,53 @@ struct PbdData {
   PbdCache cache;  // derived from the model; a copy starts empty (see PbdCache)
 };
 
-// Model and data together (what the engine holds). Field names of the data are forwarded for the
-// callers that only read positions.
-struct PbdState : PbdModel, PbdData {};
+// Model and data side by side (what the world holds, sim/world.h; undo copies it whole). Not one
+// object to the functions: each takes the part it reads or writes, so a step cannot edit the model.
+struct PbdState {
+  PbdModel model;
+  PbdData data;
+};
 
 // Builds simulation voxels, particles, constraints and the embedding of the current surface.
 // Returns false with a reason when sim_resolution does not divide the lattice into 2^l blocks.
-bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& params, PbdState& state,
+bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& params, PbdModel& pbd, PbdData& data,
               std::string& error);
 
 // Updates the PBD model after a cut step (uses cut.changed_voxels / changed_vertices): relabels the
 // simulation voxels holding changed fine voxels, duplicates corner particles where material separated,
 // updates constraints and masses of the pieces around them, re-embeds the changed vertices. Returns
 // the number of simulation voxels relabelled.
-uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdState& state, PbdCutStats* stats = nullptr);
+uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdModel& pbd, PbdData& data,
+                       PbdCutStats* stats = nullptr);
 
 // One time step (substeps x iterations), then (with `embed`) the deformed surface positions. A
 // caller that reads PbdData::deformed only now and then (a headless replay: the state hash and
 // contact read the particles, not the surface) passes false and calls pbd_embed before it reads.
 // With a clock, `contact_ms` gets the time gathering the contacts took (StepTimings::contact_ms).
-void pbd_step(const CutState& cut, PbdState& state, const TaskRunner& tasks = {}, bool embed = true,
+void pbd_step(const CutState& cut, const PbdModel& pbd, PbdData& data, const TaskRunner& tasks = {}, bool embed = true,
               const StepClock* clock = nullptr, double* contact_ms = nullptr);
 
 // Makes the caches derived from the model (the solver's blocks, the contact index, the embedding's
 // rows, the contact allowances' fresh slots) rebuild from scratch at their next use instead of following the recorded cuts (tests
 // compare the two).
-void pbd_forget_caches(PbdState& state);
+void pbd_forget_caches(PbdData& data);
 
 // Recomputes deformed positions of all live surface vertices (pbd_step calls it).
-void pbd_embed(const CutState& cut, PbdState& state, const TaskRunner& tasks = {});
+void pbd_embed(const CutState& cut, const PbdModel& pbd, PbdData& data, const TaskRunner& tasks = {});
 
 // The piece slot holding rest point `rest` (the label of the fine node nearest to it, in the
 // simulation voxel containing it), kDeadIndex when that node holds no material.
-uint32_t piece_at_rest(const VoxelModel& model, const PbdState& state, const Vec3d& rest);
+uint32_t piece_at_rest(const VoxelModel& model, const PbdModel& pbd, const Vec3d& rest);
 // The piece slot a surface vertex slot is embedded in, kDeadIndex when none.
-uint32_t vertex_sim_piece(const PbdState& state, uint32_t slot);
+uint32_t vertex_sim_piece(const PbdModel& pbd, uint32_t slot);
 // The piece slot of label `label` in simulation voxel sv, kDeadIndex when none.
-uint32_t piece_slot(const PbdState& state, uint32_t sv, uint8_t label);
+uint32_t piece_slot(const PbdModel& pbd, uint32_t sv, uint8_t label);
 // True when the fine node nearest to local point u ([0,1]^3 in the piece's simulation voxel, clamped
 // to it) belongs to the piece: u is in the piece's material to within half a fine voxel.
-bool piece_holds(const VoxelModel& model, const PbdState& state, uint32_t piece, const Vec3d& u);
+bool piece_holds(const VoxelModel& model, const PbdModel& pbd, uint32_t piece, const Vec3d& u);
 // The rest position of a piece's corner 0, and its 8 deformed corner positions.
-Vec3d piece_rest_origin(const PbdState& state, uint32_t piece);
-void piece_corners(const PbdState& state, uint32_t piece, Vec3d corners[8]);
+Vec3d piece_rest_origin(const PbdModel& pbd, uint32_t piece);
+void piece_corners(const PbdModel& pbd, const PbdData& data, uint32_t piece, Vec3d corners[8]);
 
 // Grab. The tool holds particles, each on an XPBD attachment to the target plus its offset (per axis,
 // solved serially after the shape matching in every iteration; its multipliers give the force).
@@ -405,23 +413,23 @@ void piece_corners(const PbdState& state, uint32_t piece, Vec3d corners[8]);
 // largest), so they sum to the stiffness (parallel springs: compliance 1 / (stiffness w_i)) and the
 // region moves as one; its force is clamped at `force_limit` N (0: none), w_i of it per particle.
 // Anchored candidates are left out (counted in grab_anchored): a region all anchored holds nothing.
-void grab_begin(PbdState& state, const Vec3d& point, double compliance);
-void grab_begin_region(PbdState& state, const Vec3d& point, uint32_t piece, double stiffness, double radius,
-                       double force_limit);
-void grab_move(PbdState& state, const Vec3d& target);
-void grab_end(PbdState& state);
+void grab_begin(const PbdModel& pbd, PbdData& data, const Vec3d& point, double compliance);
+void grab_begin_region(const PbdModel& pbd, PbdData& data, const Vec3d& point, uint32_t piece, double stiffness,
+                       double radius, double force_limit);
+void grab_move(PbdData& data, const Vec3d& target);
+void grab_end(PbdData& data);
 // Whether a grab is on (begun and not ended; it may hold nothing: held by an anchor).
-inline bool grab_active(const PbdState& state) { return !state.grab_particles.empty() || state.grab_anchored > 0; }
+inline bool grab_active(const PbdData& data) { return !data.grab_particles.empty() || data.grab_anchored > 0; }
 
 // Diagnostics.
-double total_mass(const PbdState& state);  // exact: density x (sum of eighths) x h^3 / 64
-double kinetic_energy(const PbdState& state);
-uint64_t count_nonfinite(const PbdState& state);
-uint32_t sim_voxels_divided(const PbdState& state);
-uint32_t live_pieces(const PbdState& state);
-uint32_t live_particles(const PbdState& state);
-uint32_t stretch_count(const PbdState& state);
-uint32_t overflow_constraints(const PbdState& state);  // stretch + shape constraints in the overflow colour
+double total_mass(const PbdModel& pbd);  // exact: density x (sum of eighths) x h^3 / 64
+double kinetic_energy(const PbdModel& pbd, const PbdData& data);
+uint64_t count_nonfinite(const PbdModel& pbd, const PbdData& data);
+uint32_t sim_voxels_divided(const PbdModel& pbd);
+uint32_t live_pieces(const PbdModel& pbd);
+uint32_t live_particles(const PbdModel& pbd);
+uint32_t stretch_count(const PbdModel& pbd);
+uint32_t overflow_constraints(const PbdModel& pbd);  // stretch + shape constraints in the overflow colour
 
 // Full consistency check (tests call it after every cut step, like check_cut_state): every
 // simulation voxel's pieces are the material components of its block, recomputed from scratch;
@@ -430,6 +438,7 @@ uint32_t overflow_constraints(const PbdState& state);  // stretch + shape constr
 // exactly the unique particle pairs along piece edges, each in one colour group whose members share
 // no particle (overflow excepted); every live embedding slot names a live piece. Returns false with
 // the first problem in `error`.
-bool check_pbd_state(const VoxelModel& model, const CutState& cut, const PbdState& state, std::string& error);
+bool check_pbd_state(const VoxelModel& model, const CutState& cut, const PbdModel& pbd, const PbdData& data,
+                     std::string& error);
 
 }  // namespace dvx

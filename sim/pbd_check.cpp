@@ -18,7 +18,7 @@ bool fail(std::string& error, const std::string& what) {
 }
 
 // Pieces of every simulation voxel = material components of its block, recomputed from scratch.
-bool check_pieces(const VoxelModel& model, const CutState& cut, const PbdState& s, std::string& error) {
+bool check_pieces(const VoxelModel& model, const CutState& cut, const PbdModel& s, std::string& error) {
   const uint32_t nodes = block_nodes(s);
   std::vector<uint8_t> fresh(nodes);
   std::vector<uint32_t> parent;
@@ -69,7 +69,7 @@ bool check_pieces(const VoxelModel& model, const CutState& cut, const PbdState& 
 }
 
 // Particle sharing = material adjacency at every coarse corner.
-bool check_corners(const VoxelModel& model, const PbdState& s, std::string& error) {
+bool check_corners(const VoxelModel& model, const PbdModel& s, std::string& error) {
   CornerMembers m;
   FaceCache cache;
   for (int32_t K = 0; K <= s.sz; ++K) {
@@ -93,7 +93,7 @@ bool check_corners(const VoxelModel& model, const PbdState& s, std::string& erro
 }
 
 // Masses, references and free lists of particles and pieces.
-bool check_particles(const PbdState& s, std::string& error) {
+bool check_particles(const PbdModel& s, const PbdData& data, std::string& error) {
   const size_t n = s.rest.size();
   std::vector<uint64_t> eighths(n, 0);
   std::vector<uint32_t> refs(n, 0);
@@ -118,7 +118,7 @@ bool check_particles(const PbdState& s, std::string& error) {
     if (refs[p] == 0) continue;
     if (eighths[p] != s.mass_eighths[p]) return fail(error, where + ": mass is not its pieces' volume");
     if (s.mass[p] != s.params.density * (double(eighths[p]) * (h * h * h / 64.0))) return fail(error, where + ": mass is not density x volume");
-    if (!s.position[p].allFinite()) return fail(error, where + ": position is not finite");
+    if (!data.position[p].allFinite()) return fail(error, where + ": position is not finite");
   }
   std::vector<uint8_t> free_piece_slot(s.pieces.size(), 0);
   for (uint32_t slot : s.free_pieces) {
@@ -134,7 +134,7 @@ bool check_particles(const PbdState& s, std::string& error) {
 }
 
 // Stretch constraints = unique particle pairs along piece edges; colour groups race-free.
-bool check_constraints(const PbdState& s, std::string& error) {
+bool check_constraints(const PbdModel& s, const PbdData& data, std::string& error) {
   FlatMap expected;
   for (const SimPiece& piece : s.pieces) {
     if (piece.sim_voxel == kDeadIndex) continue;
@@ -148,7 +148,7 @@ bool check_constraints(const PbdState& s, std::string& error) {
   std::vector<uint64_t> stretch_busy(n, 0), shape_busy(n, 0);
   uint32_t count = 0;
   for (int c = 0; c < kColourGroups; ++c) {
-    if (s.stretch_lambda[c].size() != s.stretch_groups[c].size()) return fail(error, "lambdas out of step with constraints");
+    if (data.stretch_lambda[c].size() != s.stretch_groups[c].size()) return fail(error, "lambdas out of step with constraints");
     for (uint32_t i = 0; i < s.stretch_groups[c].size(); ++i) {
       const StretchConstraint& k = s.stretch_groups[c][i];
       const StretchHandle& h = s.stretch_handles[k.handle];
@@ -185,9 +185,10 @@ bool check_constraints(const PbdState& s, std::string& error) {
 
 }  // namespace
 
-bool check_pbd_state(const VoxelModel& model, const CutState& cut, const PbdState& s, std::string& error) {
-  if (!check_pieces(model, cut, s, error) || !check_corners(model, s, error) || !check_particles(s, error) ||
-      !check_constraints(s, error)) {
+bool check_pbd_state(const VoxelModel& model, const CutState& cut, const PbdModel& s, const PbdData& data,
+                     std::string& error) {
+  if (!check_pieces(model, cut, s, error) || !check_corners(model, s, error) || !check_particles(s, data, error) ||
+      !check_constraints(s, data, error)) {
     return false;
   }
   // Every live vertex slot is embedded in a live piece.

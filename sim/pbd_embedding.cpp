@@ -12,7 +12,7 @@ namespace pbd_internal {
 
 // Embeds a live surface vertex slot: its fine piece's simulation voxel, one node of the fine piece,
 // and its local position.
-void embed_vertex(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t slot) {
+void embed_vertex(const VoxelModel& model, const CutState& cut, PbdModel& s, uint32_t slot) {
   const CutSurface& surface = cut.surface;
   VertexEmbedding& e = s.embedding[slot];
   e.sim_voxel = kDeadIndex;
@@ -43,19 +43,19 @@ void embed_vertex(const VoxelModel& model, const CutState& cut, PbdState& s, uin
 // The new capacity is touched right away (grown to it and shrunk back, which keeps the pages): the
 // surface grows by about a thousand vertices per cutting step at 512, and first touches of their
 // pages inside the steps cost ~0.1 ms each step on a virtual machine.
-void grow_embedding(const CutState& cut, PbdState& s) {
+void grow_embedding(const CutState& cut, PbdModel& s, PbdData& data) {
   if (s.embedding.size() < cut.surface.positions.size()) {
     if (s.embedding.capacity() < cut.surface.positions.capacity()) {
       const size_t size = s.embedding.size(), capacity = cut.surface.positions.capacity();
       s.embedding.reserve(capacity);
-      s.deformed.reserve(capacity);
+      data.deformed.reserve(capacity);
       s.embedding.resize(capacity, VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
-      s.deformed.resize(capacity, Vec3f::Zero());
+      data.deformed.resize(capacity, Vec3f::Zero());
       s.embedding.resize(size);
-      s.deformed.resize(size);
+      data.deformed.resize(size);
     }
     s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
-    s.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
+    data.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
   }
 }
 
@@ -97,11 +97,11 @@ void drop_edits(PbdEdits& e, uint64_t n) {
 // Records what a pbd_apply_cut changed: the re-embedded slots, the relabelled voxels, the particles
 // whose pieces or masses changed (sorted). Records every cache has seen are dropped first; all of
 // them when they outgrow a bound (a cache not read every step then rebuilds once).
-void record_edits(const CutState& cut, PbdState& s, const std::vector<uint32_t>& voxels,
+void record_edits(const CutState& cut, PbdModel& s, const PbdData& data, const std::vector<uint32_t>& voxels,
                   const std::vector<uint64_t>* particles) {
   PbdEdits& e = s.edits;
   uint64_t seen = e.count();
-  for (const uint64_t c : {s.piece_contacts.index.edits, s.cache.blocks_edits}) {
+  for (const uint64_t c : {data.piece_contacts.index.edits, data.cache.blocks_edits}) {
     if (c >= e.first && c < seen) seen = c;
   }
   drop_edits(e, seen - e.first);
@@ -125,26 +125,26 @@ namespace {
 
 // Sets the row of a vertex slot from its piece in the contact index (none: the slot keeps its rest
 // position), swapping the last row into a removed one.
-void set_embed_row(const CutState& cut, PbdState& s, uint32_t slot) {
-  const uint32_t piece = s.piece_contacts.index.slot_piece[slot];
-  uint32_t& row = s.cache.embed_row_of[slot];
+void set_embed_row(const CutState& cut, const PbdModel& s, PbdData& data, uint32_t slot) {
+  const uint32_t piece = data.piece_contacts.index.slot_piece[slot];
+  uint32_t& row = data.cache.embed_row_of[slot];
   if (piece != kDeadIndex) {
     const VertexEmbedding& e = s.embedding[slot];
     const EmbedRow r{slot, piece, e.local.x(), e.local.y(), e.local.z()};
     if (row == kDeadIndex) {
-      row = uint32_t(s.cache.embed_rows.size());
-      s.cache.embed_rows.push_back(r);
+      row = uint32_t(data.cache.embed_rows.size());
+      data.cache.embed_rows.push_back(r);
     } else {
-      s.cache.embed_rows[row] = r;
+      data.cache.embed_rows[row] = r;
     }
     return;
   }
-  s.deformed[slot] = cut.surface.positions[slot];
+  data.deformed[slot] = cut.surface.positions[slot];
   if (row == kDeadIndex) return;
-  const EmbedRow last = s.cache.embed_rows.back();
-  s.cache.embed_rows[row] = last;
-  s.cache.embed_row_of[last.slot] = row;
-  s.cache.embed_rows.pop_back();
+  const EmbedRow last = data.cache.embed_rows.back();
+  data.cache.embed_rows[row] = last;
+  data.cache.embed_row_of[last.slot] = row;
+  data.cache.embed_rows.pop_back();
   row = kDeadIndex;
 }
 
@@ -154,26 +154,26 @@ void set_embed_row(const CutState& cut, PbdState& s, uint32_t slot) {
 // once per model, cut or slot count, by refresh_slots): after one update of the index only the
 // slots it revisited, else all (grouped by piece, so the interpolation reads each piece's corners
 // in a run).
-void refresh_embed_rows(const CutState& cut, PbdState& s) {
-  refresh_slots(cut, s);
-  const ContactIndex& x = s.piece_contacts.index;
-  const bool valid = s.cache.embed_revision != kNoRows;
-  if (valid && s.cache.embed_updates == x.updates) return;
-  s.cache.embed_row_of.resize(x.slots, kDeadIndex);
-  if (valid && s.cache.embed_updates + 1 == x.updates && !x.rebuilt) {
-    for (uint32_t slot : x.revisited) set_embed_row(cut, s, slot);
+void refresh_embed_rows(const CutState& cut, const PbdModel& s, PbdData& data) {
+  refresh_slots(cut, s, data);
+  const ContactIndex& x = data.piece_contacts.index;
+  const bool valid = data.cache.embed_revision != kNoRows;
+  if (valid && data.cache.embed_updates == x.updates) return;
+  data.cache.embed_row_of.resize(x.slots, kDeadIndex);
+  if (valid && data.cache.embed_updates + 1 == x.updates && !x.rebuilt) {
+    for (uint32_t slot : x.revisited) set_embed_row(cut, s, data, slot);
   } else {
-    s.cache.embed_rows.clear();
-    std::fill(s.cache.embed_row_of.begin(), s.cache.embed_row_of.end(), kDeadIndex);
+    data.cache.embed_rows.clear();
+    std::fill(data.cache.embed_row_of.begin(), data.cache.embed_row_of.end(), kDeadIndex);
     for (uint32_t i = 0; i < x.pieces; ++i) {
-      for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) set_embed_row(cut, s, x.piece_slots[n]);
+      for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) set_embed_row(cut, s, data, x.piece_slots[n]);
     }
     for (uint32_t slot = 0; slot < x.slots; ++slot) {
-      if (x.slot_piece[slot] == kDeadIndex) s.deformed[slot] = cut.surface.positions[slot];
+      if (x.slot_piece[slot] == kDeadIndex) data.deformed[slot] = cut.surface.positions[slot];
     }
   }
-  s.cache.embed_revision = s.revision;
-  s.cache.embed_updates = x.updates;
+  data.cache.embed_revision = s.revision;
+  data.cache.embed_updates = x.updates;
 }
 
 }  // namespace pbd_internal

@@ -61,8 +61,8 @@ inline void edit_state(const PbdEdits& e, uint64_t n, uint64_t& revision, uint64
 // Whether a cache built at (revision, cut_steps) that has seen `seen` records can replay the rest to
 // be current: the records it missed are kept, it matches the state after the last it saw, and
 // nothing changed the model (or, with `surface`, the cut) since the last record.
-inline bool edits_replayable(const PbdState& s, const CutState& cut, uint64_t seen, uint64_t revision, uint64_t cut_steps,
-                      bool surface) {
+inline bool edits_replayable(const PbdModel& s, const CutState& cut, uint64_t seen, uint64_t revision,
+                             uint64_t cut_steps, bool surface) {
   const PbdEdits& e = s.edits;
   if (seen < e.first || seen > e.count()) return false;
   uint64_t r, c, now_r, now_c;
@@ -151,18 +151,18 @@ void label_eighths(const VoxelModel& model, const PbdModel& s, uint32_t sv, cons
 // Gives the count labels of simulation voxel sv their piece slots: the first label whose first node
 // held old label inherit[p] reuses that label's slot (old_slots), the others get new slots starting
 // from its particles and rotation; old slots nobody inherits are freed. eighths: each label's volume.
-void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eighths, const uint8_t* inherit,
-                  const uint32_t* old_slots, uint8_t old_count);
+void assign_slots(PbdModel& s, PbdData& data, uint32_t sv, uint8_t count, const uint64_t* eighths,
+                  const uint8_t* inherit, const uint32_t* old_slots, uint8_t old_count);
 
 // Label storage for simulation voxel sv (a divided voxel's labels and slots), created on first use.
-uint32_t ensure_divided(PbdState& s, uint32_t sv);
+uint32_t ensure_divided(PbdModel& s, uint32_t sv);
 
 // Gives simulation voxel sv the pieces of `labels` (count components): storage as one piece or as a
 // divided voxel, new piece slots inheriting particles and rotation from the old piece that held the
 // same fine node (old labels in `old`, old slots in `old_slots`; `old_count` 0: no pieces before).
 // Old slots nobody inherits are freed.
-void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const uint8_t* labels, uint8_t count,
-                      const uint8_t* old, const uint32_t* old_slots, uint8_t old_count);
+void set_voxel_pieces(const VoxelModel& model, PbdModel& s, PbdData& data, uint32_t sv, const uint8_t* labels,
+                      uint8_t count, const uint8_t* old, const uint32_t* old_slots, uint8_t old_count);
 
 // Splits the pieces of simulation voxel sv that the changed fine voxels [first, last) (in the block)
 // separated. Cuts only remove material connections, so only labels of the changed voxels' nodes can
@@ -172,11 +172,11 @@ void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const u
 // the label. The cost is the material around the new cut (the smaller side of a split), not the block.
 // Returns false (having changed nothing) when the search grew past a quarter of the block: a full
 // relabel is then cheaper (it looks each fine voxel up once, the search once per corner).
-bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, const uint32_t* first,
-                   const uint32_t* last);
+bool relabel_local(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, uint32_t sv,
+                   const uint32_t* first, const uint32_t* last);
 
 // Relabels a whole (labelled) block; new pieces inherit from the old piece of the same node.
-void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv);
+void relabel_block(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, uint32_t sv);
 
 // The block arrays' warm reserves: at init their address space and whole reserves, after a cut step
 // a few more pages.
@@ -213,8 +213,8 @@ bool keeps_components(const VoxelModel& model, const CutState& cut, const PbdMod
 // (a slit still joined around its front) leaves the block alone. When they changed, calls
 // before_write() before changing anything. Returns whether they changed.
 template <typename BeforeWrite>
-bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, PbdCutStats* stats,
-                   BeforeWrite&& before_write) {
+bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, uint32_t sv,
+                   PbdCutStats* stats, BeforeWrite&& before_write) {
   SpanScratch& w = s.scratch.spans;
   build_spans(model, cut, s, sv, w);
   const Lattice& l = model.lattice;
@@ -278,7 +278,7 @@ bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
       if (labels) std::fill(labels + row * uint32_t(n) + uint32_t(x0), labels + row * uint32_t(n) + uint32_t(x1) + 1, w.label[i]);
     }
   }
-  assign_slots(s, sv, count, eighths, inherit, old_slots, old_count);
+  assign_slots(s, data, sv, count, eighths, inherit, old_slots, old_count);
   return true;
 }
 
@@ -286,28 +286,28 @@ bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdState& s, ui
 
 // A piece slot (from the free list, else a new one) for label `label` of simulation voxel sv: no
 // particles, volume or colour yet.
-uint32_t new_piece(PbdState& s, uint32_t sv, uint8_t label);
+uint32_t new_piece(PbdModel& s, PbdData& data, uint32_t sv, uint8_t label);
 
 // Returns a piece slot to the free list.
-void free_piece(PbdState& s, uint32_t slot);
+void free_piece(PbdModel& s, uint32_t slot);
 
 // Mass of a particle from its eighths (exact: one rounding of an integer product).
-void update_mass(PbdState& s, uint32_t p);
+void update_mass(PbdModel& s, uint32_t p);
 
 // Key of particle pair (a, b), a <= b, in PbdModel::stretch_of.
 uint64_t pair_key(uint32_t a, uint32_t b);
 
 // A piece joins the dynamics: masses, constraint references, shape-matching colour.
-void attach_piece(PbdState& s, uint32_t slot);
+void attach_piece(PbdModel& s, PbdData& data, uint32_t slot);
 
 // The reverse of attach_piece.
-void detach_piece(PbdState& s, uint32_t slot);
+void detach_piece(PbdModel& s, PbdData& data, uint32_t slot);
 
 // Material of each octant of the pieces of simulation voxel sv (SimPiece::octants), from their labels:
 // each inside node's eighths (one per block voxel around it, as label_eighths counts them) go to the
 // octant holding the point halfway between the node and that voxel's centre (for ratio 1, the node's
 // own corner octant). The octants of a piece sum to its eighths.
-void piece_octants(const VoxelModel& model, PbdState& s, uint32_t sv);
+void piece_octants(const VoxelModel& model, PbdModel& s, uint32_t sv);
 
 // The pieces around a coarse corner and the groups that material joins them into.
 struct CornerMembers {
@@ -327,7 +327,8 @@ void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_
 
 // Assigns particles at coarse corner (I,J,K): one per material group of the pieces around it.
 // Existing particles are kept where possible (the smallest not yet claimed by another group).
-void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, int32_t K, CornerMembers& m);
+void assign_corner(const VoxelModel& model, PbdModel& s, PbdData& data, int32_t I, int32_t J, int32_t K,
+                   CornerMembers& m);
 
 // The face pairs of a face follow from the labels of its two simulation voxels alone, so the cache
 // outlives a cut step: only the 6 faces of each relabelled voxel are forgotten. Their old pairs stay
@@ -344,14 +345,14 @@ void corner_coords(const PbdModel& s, uint64_t id, int32_t& I, int32_t& J, int32
 
 // Embeds a live surface vertex slot: its fine piece's simulation voxel, one node of the fine piece,
 // and its local position.
-void embed_vertex(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t slot);
+void embed_vertex(const VoxelModel& model, const CutState& cut, PbdModel& s, uint32_t slot);
 
 // Grows the embedding with the surface's vertex slots. Capacity follows the surface's own (it keeps
 // headroom for cuts): growing past a capacity copies every slot, a p99 spike of the cut step.
 // The new capacity is touched right away (grown to it and shrunk back, which keeps the pages): the
 // surface grows by about a thousand vertices per cutting step at 512, and first touches of their
 // pages inside the steps cost ~0.1 ms each step on a virtual machine.
-void grow_embedding(const CutState& cut, PbdState& s);
+void grow_embedding(const CutState& cut, PbdModel& s, PbdData& data);
 
 constexpr uint64_t kNoRows = ~uint64_t(0);  // PbdCache::embed_revision of rows to build from scratch
 
@@ -361,19 +362,19 @@ void reserve_edits(PbdEdits& e);
 // Records what a pbd_apply_cut changed: the re-embedded slots, the relabelled voxels, the particles
 // whose pieces or masses changed (sorted). Records every cache has seen are dropped first; all of
 // them when they outgrow a bound (a cache not read every step then rebuilds once).
-void record_edits(const CutState& cut, PbdState& s, const std::vector<uint32_t>& voxels,
+void record_edits(const CutState& cut, PbdModel& s, const PbdData& data, const std::vector<uint32_t>& voxels,
                   const std::vector<uint64_t>* particles);
 
 // The rows of the embedded slots, following the contact index's slot pieces (labels are looked up
 // once per model, cut or slot count, by refresh_slots): after one update of the index only the
 // slots it revisited, else all (grouped by piece, so the interpolation reads each piece's corners
 // in a run).
-void refresh_embed_rows(const CutState& cut, PbdState& s);
+void refresh_embed_rows(const CutState& cut, const PbdModel& s, PbdData& data);
 
 // Contact points (contact_points.cpp): brings the contact index's vertex slots up to date with the
 // surface (after init and every cut), and gathers this step's plane and piece contacts.
-void refresh_slots(const CutState& cut, PbdState& s);
-void gather_contacts(const CutState& cut, PbdState& s);
+void refresh_slots(const CutState& cut, const PbdModel& s, PbdData& data);
+void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data);
 
 }  // namespace pbd_internal
 }  // namespace dvx

@@ -112,8 +112,8 @@ void label_eighths(const VoxelModel& model, const PbdModel& s, uint32_t sv, cons
 // Gives the count labels of simulation voxel sv their piece slots: the first label whose first node
 // held old label inherit[p] reuses that label's slot (old_slots), the others get new slots starting
 // from its particles and rotation; old slots nobody inherits are freed. eighths: each label's volume.
-void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eighths, const uint8_t* inherit,
-                  const uint32_t* old_slots, uint8_t old_count) {
+void assign_slots(PbdModel& s, PbdData& data, uint32_t sv, uint8_t count, const uint64_t* eighths,
+                  const uint8_t* inherit, const uint32_t* old_slots, uint8_t old_count) {
   const uint32_t d = s.voxel_divided[sv];
   if (d != kDeadIndex) s.divided[d].piece_count = count;
   s.pieces_in_voxel[sv] = count;
@@ -126,10 +126,10 @@ void assign_slots(PbdState& s, uint32_t sv, uint8_t count, const uint64_t* eight
       reused[was] = true;
       s.pieces[slot].piece = p;
     } else {
-      slot = new_piece(s, sv, p);
+      slot = new_piece(s, data, sv, p);
       if (was != kNoPiece && was < old_count) {
         std::copy(s.pieces[old_slots[was]].particles, s.pieces[old_slots[was]].particles + 8, s.pieces[slot].particles);
-        s.rotation[slot] = s.rotation[old_slots[was]];
+        data.rotation[slot] = data.rotation[old_slots[was]];
       }
     }
     s.pieces[slot].eighths = eighths[p];
@@ -189,7 +189,7 @@ uint32_t append_block(std::vector<T>& v, size_t used, size_t count, T fill) {
 }  // namespace
 
 // Label storage for simulation voxel sv (a divided voxel's labels and slots), created on first use.
-uint32_t ensure_divided(PbdState& s, uint32_t sv) {
+uint32_t ensure_divided(PbdModel& s, uint32_t sv) {
   uint32_t d = s.voxel_divided[sv];
   if (d != kDeadIndex) return d;
   d = uint32_t(s.divided.size());
@@ -204,8 +204,8 @@ uint32_t ensure_divided(PbdState& s, uint32_t sv) {
 // divided voxel, new piece slots inheriting particles and rotation from the old piece that held the
 // same fine node (old labels in `old`, old slots in `old_slots`; `old_count` 0: no pieces before).
 // Old slots nobody inherits are freed.
-void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const uint8_t* labels, uint8_t count,
-                      const uint8_t* old, const uint32_t* old_slots, uint8_t old_count) {
+void set_voxel_pieces(const VoxelModel& model, PbdModel& s, PbdData& data, uint32_t sv, const uint8_t* labels,
+                      uint8_t count, const uint8_t* old, const uint32_t* old_slots, uint8_t old_count) {
   const uint32_t nodes = block_nodes(s);
   // Storage of the labels.
   const uint32_t d = count > 1 ? ensure_divided(s, sv) : s.voxel_divided[sv];
@@ -222,7 +222,7 @@ void set_voxel_pieces(const VoxelModel& model, PbdState& s, uint32_t sv, const u
     seen[p] = true;
     inherit[p] = old_count ? old[b] : uint8_t(kNoPiece);
   }
-  assign_slots(s, sv, count, eighths, inherit, old_slots, old_count);
+  assign_slots(s, data, sv, count, eighths, inherit, old_slots, old_count);
 }
 
 // ---- Local relabelling after a cut ---------------------------------------------------------
@@ -252,7 +252,7 @@ void fine_pieces(const VoxelModel& model, const CutState& cut, int32_t i, int32_
 }
 
 // Gives an undivided simulation voxel explicit labels (all inside nodes: its one piece).
-void materialise_labels(const VoxelModel& model, PbdState& s, uint32_t sv) {
+void materialise_labels(const VoxelModel& model, PbdModel& s, uint32_t sv) {
   if (s.voxel_divided[sv] != kDeadIndex) return;
   const uint32_t d = ensure_divided(s, sv);
   s.divided[d].piece_count = s.pieces_in_voxel[sv];
@@ -297,7 +297,8 @@ void assign_group_labels(LocalSearch& w, const uint8_t* labels, SimDivided& div)
 // Relabels the searched nodes of the new pieces of simulation voxel sv (block coordinates c); their
 // volumes move from the old piece to the new, which starts with the old one's particles and rotation.
 // Clears the search's owners.
-void apply_group_labels(const VoxelModel& model, PbdState& s, uint32_t sv, const int32_t c[3], uint8_t* labels) {
+void apply_group_labels(const VoxelModel& model, PbdModel& s, PbdData& data, uint32_t sv, const int32_t c[3],
+                        uint8_t* labels) {
   LocalSearch& w = s.scratch.search;
   SimDivided& div = s.divided[s.voxel_divided[sv]];
   const Lattice& l = model.lattice;
@@ -316,9 +317,9 @@ void apply_group_labels(const VoxelModel& model, PbdState& s, uint32_t sv, const
     uint32_t& slot = s.label_slots[div.first_slot + to];
     if (slot == kDeadIndex) {
       const uint32_t old = s.label_slots[div.first_slot + from];
-      slot = new_piece(s, sv, to);
+      slot = new_piece(s, data, sv, to);
       std::copy(s.pieces[old].particles, s.pieces[old].particles + 8, s.pieces[slot].particles);
-      s.rotation[slot] = s.rotation[old];
+      data.rotation[slot] = data.rotation[old];
     }
     s.pieces[s.label_slots[div.first_slot + from]].eighths -= e;
     s.pieces[slot].eighths += e;
@@ -335,8 +336,8 @@ void apply_group_labels(const VoxelModel& model, PbdState& s, uint32_t sv, const
 // the label. The cost is the material around the new cut (the smaller side of a split), not the block.
 // Returns false (having changed nothing) when the search grew past a quarter of the block: a full
 // relabel is then cheaper (it looks each fine voxel up once, the search once per corner).
-bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv, const uint32_t* first,
-                   const uint32_t* last) {
+bool relabel_local(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, uint32_t sv,
+                   const uint32_t* first, const uint32_t* last) {
   materialise_labels(model, s, sv);
   SimDivided& div = s.divided[s.voxel_divided[sv]];
   uint8_t* labels = s.labels.data() + div.first_label;
@@ -421,12 +422,12 @@ bool relabel_local(const VoxelModel& model, const CutState& cut, PbdState& s, ui
     if (w.pending[g] == 0) --w.active[label];
   }
   assign_group_labels(w, labels, div);
-  apply_group_labels(model, s, sv, c, labels);
+  apply_group_labels(model, s, data, sv, c, labels);
   return true;
 }
 
 // Relabels a whole (labelled) block; new pieces inherit from the old piece of the same node.
-void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, uint32_t sv) {
+void relabel_block(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, uint32_t sv) {
   const uint32_t nodes = block_nodes(s);
   s.scratch.labels.resize(2 * size_t(nodes));
   s.scratch.old_slots.resize(kLabelSlots);
@@ -437,7 +438,7 @@ void relabel_block(const VoxelModel& model, const CutState& cut, PbdState& s, ui
   std::copy(s.label_slots.begin() + div.first_slot, s.label_slots.begin() + div.first_slot + kLabelSlots,
             s.scratch.old_slots.begin());
   const uint8_t count = label_block(model, cut, s, sv, s.scratch.parent2, s.scratch.labels.data());
-  set_voxel_pieces(model, s, sv, s.scratch.labels.data(), count, old, s.scratch.old_slots.data(), old_count);
+  set_voxel_pieces(model, s, data, sv, s.scratch.labels.data(), count, old, s.scratch.old_slots.data(), old_count);
 }
 
 // ---- Span relabelling ----------------------------------------------------------------------

@@ -14,13 +14,13 @@ namespace pbd_internal {
 namespace {
 
 // Arguments by value: they may point into the arrays this grows.
-uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const Vec3d velocity) {
+uint32_t new_particle(PbdModel& s, PbdData& data, const Vec3d rest, const Vec3d position, const Vec3d velocity) {
   uint32_t p;
   if (!take_free_slot(s.free_particles, p)) {
     p = uint32_t(s.rest.size());
-    s.position.emplace_back();
-    s.velocity.emplace_back();
-    s.previous.emplace_back();
+    data.position.emplace_back();
+    data.velocity.emplace_back();
+    data.previous.emplace_back();
     s.rest.emplace_back();
     s.mass_eighths.push_back(0);
     s.mass.push_back(0.0);
@@ -31,9 +31,9 @@ uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const
     s.shape_busy.push_back(0);
   }
   s.rest[p] = rest;
-  s.position[p] = position;
-  s.previous[p] = position;
-  s.velocity[p] = velocity;
+  data.position[p] = position;
+  data.previous[p] = position;
+  data.velocity[p] = velocity;
   s.mass_eighths[p] = 0;
   s.refs[p] = 0;
   bool anchored = false;
@@ -46,12 +46,12 @@ uint32_t new_particle(PbdState& s, const Vec3d rest, const Vec3d position, const
 
 }  // namespace
 
-uint32_t new_piece(PbdState& s, uint32_t sv, uint8_t label) {
+uint32_t new_piece(PbdModel& s, PbdData& data, uint32_t sv, uint8_t label) {
   uint32_t slot;
   if (!take_free_slot(s.free_pieces, slot)) {
     slot = uint32_t(s.pieces.size());
     s.pieces.emplace_back();
-    s.rotation.push_back(Eigen::Quaterniond::Identity());
+    data.rotation.push_back(Eigen::Quaterniond::Identity());
   }
   SimPiece& piece = s.pieces[slot];
   piece.sim_voxel = sv;
@@ -61,17 +61,17 @@ uint32_t new_piece(PbdState& s, uint32_t sv, uint8_t label) {
   std::fill(piece.particles, piece.particles + 8, kDeadIndex);
   piece.eighths = 0;
   std::fill(piece.octants, piece.octants + 8, 0u);
-  s.rotation[slot] = Eigen::Quaterniond::Identity();
+  data.rotation[slot] = Eigen::Quaterniond::Identity();
   return slot;
 }
 
-void free_piece(PbdState& s, uint32_t slot) {
+void free_piece(PbdModel& s, uint32_t slot) {
   s.pieces[slot].sim_voxel = kDeadIndex;
   s.free_pieces.push_back(slot);
 }
 
 // Mass of a particle from its eighths (exact: one rounding of an integer product).
-void update_mass(PbdState& s, uint32_t p) {
+void update_mass(PbdModel& s, uint32_t p) {
   const double h = s.fine_size;
   s.mass[p] = s.params.density * (double(s.mass_eighths[p]) * (h * h * h / 64.0));
   s.inv_mass[p] = s.anchored[p] || s.mass[p] <= 0.0 ? 0.0 : 1.0 / s.mass[p];
@@ -84,7 +84,7 @@ uint64_t pair_key(uint32_t a, uint32_t b) { return (uint64_t(a) << 32) | b; }
 namespace {
 
 // One more piece edge uses particle pair (a, b): the constraint is created (and coloured) on first use.
-void add_stretch(PbdState& s, uint32_t a, uint32_t b) {
+void add_stretch(PbdModel& s, PbdData& data, uint32_t a, uint32_t b) {
   if (a > b) std::swap(a, b);
   const uint64_t key = pair_key(a, b);
   const uint32_t existing = s.stretch_of.get(key);
@@ -102,12 +102,12 @@ void add_stretch(PbdState& s, uint32_t a, uint32_t b) {
   std::vector<StretchConstraint>& group = s.stretch_groups[colour];
   s.stretch_handles[handle] = {colour, uint32_t(group.size()), 1};
   group.push_back({a, b, (s.rest[a] - s.rest[b]).norm(), handle});
-  s.stretch_lambda[colour].push_back(0.0);
+  data.stretch_lambda[colour].push_back(0.0);
   s.stretch_of.set(key, handle);
 }
 
 // One piece edge fewer uses (a, b): the last use removes the constraint by swap-with-last in its group.
-void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
+void remove_stretch(PbdModel& s, PbdData& data, uint32_t a, uint32_t b) {
   if (a > b) std::swap(a, b);
   const uint64_t key = pair_key(a, b);
   const uint32_t handle = s.stretch_of.get(key);
@@ -115,7 +115,7 @@ void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
   StretchHandle& h = s.stretch_handles[handle];
   if (--h.refs > 0) return;
   std::vector<StretchConstraint>& group = s.stretch_groups[h.colour];
-  std::vector<double>& lambda = s.stretch_lambda[h.colour];
+  std::vector<double>& lambda = data.stretch_lambda[h.colour];
   const uint32_t ends[2] = {a, b};
   release_colour(s.stretch_busy.data(), ends, 2, h.colour);
   const uint32_t last = uint32_t(group.size() - 1);
@@ -134,27 +134,27 @@ void remove_stretch(PbdState& s, uint32_t a, uint32_t b) {
 }  // namespace
 
 // A piece joins the dynamics: masses, constraint references, shape-matching colour.
-void attach_piece(PbdState& s, uint32_t slot) {
+void attach_piece(PbdModel& s, PbdData& data, uint32_t slot) {
   SimPiece& piece = s.pieces[slot];
   for (uint32_t p : piece.particles) {
     ++s.refs[p];
     s.mass_eighths[p] += piece.eighths;
   }
-  for (const VoxelEdge& e : kVoxelEdges) add_stretch(s, piece.particles[e.c0], piece.particles[e.c1]);
+  for (const VoxelEdge& e : kVoxelEdges) add_stretch(s, data, piece.particles[e.c0], piece.particles[e.c1]);
   piece.colour = take_colour(s.shape_busy.data(), piece.particles, 8);
   piece.colour_slot = uint32_t(s.piece_groups[piece.colour].size());
   s.piece_groups[piece.colour].push_back(slot);
 }
 
 // The reverse of attach_piece.
-void detach_piece(PbdState& s, uint32_t slot) {
+void detach_piece(PbdModel& s, PbdData& data, uint32_t slot) {
   SimPiece& piece = s.pieces[slot];
   for (uint32_t p : piece.particles) {
     --s.refs[p];
     s.mass_eighths[p] -= piece.eighths;
   }
   release_colour(s.shape_busy.data(), piece.particles, 8, piece.colour);
-  for (const VoxelEdge& e : kVoxelEdges) remove_stretch(s, piece.particles[e.c0], piece.particles[e.c1]);
+  for (const VoxelEdge& e : kVoxelEdges) remove_stretch(s, data, piece.particles[e.c0], piece.particles[e.c1]);
   std::vector<uint32_t>& group = s.piece_groups[piece.colour];
   const uint32_t last = uint32_t(group.size() - 1);
   if (piece.colour_slot != last) {
@@ -171,7 +171,7 @@ void detach_piece(PbdState& s, uint32_t slot) {
 // each inside node's eighths (one per block voxel around it, as label_eighths counts them) go to the
 // octant holding the point halfway between the node and that voxel's centre (for ratio 1, the node's
 // own corner octant). The octants of a piece sum to its eighths.
-void piece_octants(const VoxelModel& model, PbdState& s, uint32_t sv) {
+void piece_octants(const VoxelModel& model, PbdModel& s, uint32_t sv) {
   for_pieces(s, sv, [&](uint32_t slot) { std::fill(s.pieces[slot].octants, s.pieces[slot].octants + 8, 0u); });
   int32_t c[3];
   sim_voxel_coords(s, sv, c);
@@ -324,7 +324,8 @@ void corner_groups(const VoxelModel& model, const PbdModel& s, int32_t I, int32_
 
 // Assigns particles at coarse corner (I,J,K): one per material group of the pieces around it.
 // Existing particles are kept where possible (the smallest not yet claimed by another group).
-void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, int32_t K, CornerMembers& m) {
+void assign_corner(const VoxelModel& model, PbdModel& s, PbdData& data, int32_t I, int32_t J, int32_t K,
+                   CornerMembers& m) {
   corner_groups(model, s, I, J, K, m, s.scratch.face_cache);
   uint32_t claimed[CornerMembers::kMax];
   int claimed_count = 0;
@@ -341,8 +342,8 @@ void assign_corner(const VoxelModel& model, PbdState& s, int32_t I, int32_t J, i
       // A new particle, starting where the group's previous particle was.
       const uint32_t from = s.pieces[m.slot[g]].particles[m.corner[g]];
       const Vec3d rest = corner_rest(s, I, J, K);
-      best = from == kDeadIndex ? new_particle(s, rest, rest, Vec3d::Zero())
-                                : new_particle(s, rest, s.position[from], s.velocity[from]);
+      best = from == kDeadIndex ? new_particle(s, data, rest, rest, Vec3d::Zero())
+                                : new_particle(s, data, rest, data.position[from], data.velocity[from]);
     }
     claimed[claimed_count++] = best;
     for (int n = g; n < m.count; ++n) {

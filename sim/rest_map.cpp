@@ -113,7 +113,8 @@ bool invert_trilinear(const Vec3d corners[8], const Vec3d& target, Vec3d& u, dou
 
 // ---- Grid over deformed pieces ---------------------------------------------------------------
 
-void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, double margin, PieceGrid& grid) {
+void build_piece_grid(const PbdModel& pbd, const PbdData& data, const Aabb& region, double cell, double margin,
+                      PieceGrid& grid) {
   grid.candidates.clear();
   grid.ranges.clear();
   grid.everywhere.clear();
@@ -133,10 +134,10 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
   grid.jinv_valid.resize(pbd.pieces.size());
   for (uint32_t slot = 0; slot < pbd.pieces.size(); ++slot) {
     if (pbd.pieces[slot].sim_voxel == kDeadIndex) continue;
-    Vec3d lo = pbd.position[pbd.pieces[slot].particles[0]], hi = lo;
+    Vec3d lo = data.position[pbd.pieces[slot].particles[0]], hi = lo;
     for (int c = 1; c < 8; ++c) {
-      lo = lo.cwiseMin(pbd.position[pbd.pieces[slot].particles[c]]);
-      hi = hi.cwiseMax(pbd.position[pbd.pieces[slot].particles[c]]);
+      lo = lo.cwiseMin(data.position[pbd.pieces[slot].particles[c]]);
+      hi = hi.cwiseMax(data.position[pbd.pieces[slot].particles[c]]);
     }
     grid.piece_lo[slot] = lo;
     grid.piece_hi[slot] = hi;
@@ -148,7 +149,7 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
     }
     grid.candidates.push_back(slot);
     Vec3d corners[8];
-    piece_corners(pbd, slot, corners);
+    piece_corners(pbd, data, slot, corners);
     grid.piece_map[slot] = trilinear_map(corners);
     grid.piece_origin[slot] = piece_rest_origin(pbd, slot);
     grid.jinv_valid[slot] = 0;
@@ -210,7 +211,7 @@ void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, doub
 
 // ---- Points --------------------------------------------------------------------------------
 
-uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& grid, const Vec3d& world,
+uint32_t world_to_rest(const VoxelModel& model, const PbdModel& pbd, PieceGrid& grid, const Vec3d& world,
                        std::vector<RestHit>& out, uint32_t* tests, uint32_t near_begin, uint32_t near_end) {
   const size_t before = out.size();
   constexpr double kInside = 1e-6;  // local-coordinate slack on the hexahedron's faces

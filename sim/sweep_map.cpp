@@ -37,7 +37,8 @@ double segment_distance(const Vec3d& p, const Vec3d& a, const Vec3d& b) {
 }
 
 // Where the blade's previous samples are now: carried with the material, or where they were.
-void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& from, uint32_t nu, SweepMapper& m) {
+void sweep_start(const VoxelModel& model, const PbdModel& pbd, const PbdData& data, const BladePose& from, uint32_t nu,
+                 SweepMapper& m) {
   m.from_world.resize(nu + 1);
   for (uint32_t i = 0; i <= nu; ++i) {
     const double t = double(i) / nu;
@@ -61,7 +62,7 @@ void sweep_start(const VoxelModel& model, const PbdState& pbd, const BladePose& 
       u = (m.carried[i] - piece_rest_origin(pbd, piece)) / pbd.sim_size;
     }
     Vec3d corners[8];
-    piece_corners(pbd, piece, corners);
+    piece_corners(pbd, data, piece, corners);
     m.from_world[i] = trilinear(corners, u);
   }
 }
@@ -77,7 +78,7 @@ bool ended_through(const SweepMapper& m, uint32_t i, uint32_t piece, Vec3d& rest
 }
 
 // The rest image through `piece` of grid point k: its hit when it has one, else Newton from `start`.
-bool rest_through(const PbdState& pbd, SweepMapper& m, uint32_t k, uint32_t piece, const Vec3d& start, Vec3d& rest) {
+bool rest_through(const PbdModel& pbd, SweepMapper& m, uint32_t k, uint32_t piece, const Vec3d& start, Vec3d& rest) {
   for (uint32_t h = m.hit_begin[k]; h < m.hit_begin[k + 1]; ++h) {
     if (m.hits[h].piece != piece) continue;
     rest = m.hits[h].rest;
@@ -202,14 +203,14 @@ struct SweepSize {
 
 // The samples of the sweep from `from` to `to` (the first row where the last step's samples are now)
 // and the rest images of each through the pieces near the sweep. False when the poses are not finite.
-bool sample_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
-                  SweepMapper& m, SweepSize& z, uint32_t& tests) {
+bool sample_sweep(const VoxelModel& model, const PbdModel& pbd, const PbdData& data, const BladePose& from,
+                  const BladePose& to, SweepMapper& m, SweepSize& z, uint32_t& tests) {
   const double h = pbd.fine_size;
   const double length = std::max((from.b - from.a).norm(), (to.b - to.a).norm());
   if (!std::isfinite(length)) return false;
   z.nu = uint32_t(std::clamp(std::ceil(length / h), 1.0, double(kMaxSweepPoints / 2)));
   const uint32_t nu = z.nu;
-  sweep_start(model, pbd, from, nu, m);
+  sweep_start(model, pbd, data, from, nu, m);
   m.to_world.resize(nu + 1);
   z.motion = 0.0;
   for (uint32_t i = 0; i <= nu; ++i) {
@@ -226,7 +227,7 @@ bool sample_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose&
   }
   region.min.array() -= h;
   region.max.array() += h;
-  build_piece_grid(pbd, region, pbd.sim_size, 1e-3 * h, m.grid);
+  build_piece_grid(pbd, data, region, pbd.sim_size, 1e-3 * h, m.grid);
   const uint32_t row = z.row(), count = row * (z.nv + 1);
   m.points.resize(count);
   m.hit_begin.resize(size_t(count) + 1);
@@ -249,7 +250,7 @@ bool sample_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose&
 // Cell (i, j) of the sweep: one rest quad per piece holding one of its corners (a neighbour piece
 // mapping the cell the same way adds none). The first row starts where the last step's quads
 // through each piece ended (`carry`); the last row records where they end.
-void cell_quads(const PbdState& pbd, SweepMapper& m, const SweepSize& z, uint32_t i, uint32_t j, bool carry,
+void cell_quads(const PbdModel& pbd, SweepMapper& m, const SweepSize& z, uint32_t i, uint32_t j, bool carry,
                 size_t& prev_first, size_t& prev_last) {
   const double h = pbd.fine_size;
   const uint32_t row = z.row();
@@ -322,7 +323,7 @@ void record_ends(SweepMapper& m, uint32_t nu) {
 // closing in on it is then cut by the relative motion. The samples in no piece are carried through
 // the piece of the nearest sample along the blade that has one (its map extrapolated, as the cells'
 // quads map them), so they move with the tissue too.
-void carry_samples(const PbdState& pbd, SweepMapper& m, const SweepSize& z) {
+void carry_samples(const PbdModel& pbd, SweepMapper& m, const SweepSize& z) {
   const uint32_t nu = z.nu, nv = z.nv, row = z.row();
   m.carried.assign(nu + 1, Vec3d::Constant(std::numeric_limits<double>::quiet_NaN()));
   m.carried_piece.assign(nu + 1, kDeadIndex);
@@ -378,13 +379,13 @@ void carry_samples(const PbdState& pbd, SweepMapper& m, const SweepSize& z) {
 
 }  // namespace
 
-void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
-               SweepMapper& m, SweepMapStats* stats) {
+void map_sweep(const VoxelModel& model, const PbdModel& pbd, const PbdData& data, const BladePose& from,
+               const BladePose& to, SweepMapper& m, SweepMapStats* stats) {
   const double h = pbd.fine_size;
   m.quads.clear();
   SweepSize z;
   uint32_t tests = 0;
-  if (!sample_sweep(model, pbd, from, to, m, z, tests)) return;
+  if (!sample_sweep(model, pbd, data, from, to, m, z, tests)) return;
 
   // Cells: one rest quad per piece holding one of the cell's corners; rows merged as they come.
   const bool carry = m.ended_begin.size() == size_t(z.nu) + 2;

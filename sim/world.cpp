@@ -14,18 +14,18 @@ bool same_pose(const BladePose& a, const BladePose& b) { return a.a == b.a && a.
 // the point (world_to_rest), else — a point on the material's boundary may lie just outside every
 // piece's material — the piece around the nearest live particle whose corners' centre is nearest
 // to it; kDeadIndex without pieces.
-uint32_t piece_holding(const VoxelModel& model, const PbdState& pbd, const Vec3d& point) {
+uint32_t piece_holding(const VoxelModel& model, const PbdModel& pbd, const PbdData& data, const Vec3d& point) {
   PieceGrid grid;
   Aabb region;
   region.grow(point);
-  build_piece_grid(pbd, region, pbd.sim_size, pbd.fine_size, grid);
+  build_piece_grid(pbd, data, region, pbd.sim_size, pbd.fine_size, grid);
   std::vector<RestHit> hits;
   world_to_rest(model, pbd, grid, point, hits);
   if (!hits.empty()) return hits.front().piece;
   double best = std::numeric_limits<double>::infinity();
   uint32_t nearest = kDeadIndex;
-  for (uint32_t p = 0; p < pbd.position.size(); ++p) {
-    const double d = (pbd.position[p] - point).squaredNorm();
+  for (uint32_t p = 0; p < data.position.size(); ++p) {
+    const double d = (data.position[p] - point).squaredNorm();
     if (pbd.refs[p] > 0 && d < best) {
       best = d;
       nearest = p;
@@ -37,7 +37,7 @@ uint32_t piece_holding(const VoxelModel& model, const PbdState& pbd, const Vec3d
     const SimPiece& sp = pbd.pieces[slot];
     if (sp.sim_voxel == kDeadIndex || std::find(sp.particles, sp.particles + 8, nearest) == sp.particles + 8) continue;
     Vec3d centre = Vec3d::Zero();
-    for (uint32_t q : sp.particles) centre += pbd.position[q];
+    for (uint32_t q : sp.particles) centre += data.position[q];
     const double d = (0.125 * centre - point).squaredNorm();
     if (d < best) {
       best = d;
@@ -49,16 +49,16 @@ uint32_t piece_holding(const VoxelModel& model, const PbdState& pbd, const Vec3d
 
 // The grab's command for this step (before the cut: a grab started this step holds particles the
 // cut may duplicate; pbd_apply_cut keeps each on its side).
-void apply_grab(const VoxelModel& model, PbdState& pbd, const GrabCommand& grab) {
-  if (grab.kind == GrabCommand::kRelease) grab_end(pbd);
+void apply_grab(const VoxelModel& model, const PbdModel& pbd, PbdData& data, const GrabCommand& grab) {
+  if (grab.kind == GrabCommand::kRelease) grab_end(data);
   if (grab.kind != GrabCommand::kTarget) return;
-  if (grab_active(pbd)) {
-    grab_move(pbd, grab.target);
+  if (grab_active(data)) {
+    grab_move(data, grab.target);
   } else if (grab.stiffness > 0.0) {
-    grab_begin_region(pbd, grab.target, piece_holding(model, pbd, grab.target), grab.stiffness, grab.radius,
+    grab_begin_region(pbd, data, grab.target, piece_holding(model, pbd, data, grab.target), grab.stiffness, grab.radius,
                       grab.force_limit);
   } else {
-    grab_begin(pbd, grab.target, grab.compliance);
+    grab_begin(pbd, data, grab.target, grab.compliance);
   }
 }
 
@@ -80,7 +80,7 @@ bool world_init(const WorldModel& model, WorldState& state, std::string& error) 
   init_cut_state(model.voxels, state.cut);
   if (!model.physics) return true;
   state.pbd.emplace();
-  return init_pbd(model.voxels, state.cut, model.params, *state.pbd, error);
+  return init_pbd(model.voxels, state.cut, model.params, state.pbd->model, state.pbd->data, error);
 }
 
 void world_step(const WorldModel& model, WorldState& s, const StepCommands& commands, const StepContext& context,
@@ -98,7 +98,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     s.have_blade = true;
   }
   report.cutting = s.cutting;
-  if (s.pbd) apply_grab(model.voxels, *s.pbd, commands.grab);
+  if (s.pbd) apply_grab(model.voxels, s.pbd->model, s.pbd->data, commands.grab);
   if (!(s.cutting && had_blade)) reset_sweep(s.sweep);  // a new cut starts from the blade where it is
   // A stroke through moving tissue that ends (the blade stops cutting) has its seams closed.
   const bool stroke_ends = s.pbd && s.stroke_cutting && !(s.cutting && had_blade);
@@ -112,7 +112,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
       cut_close_seams(model.voxels, s.cut, s.stroke_voxels, report.cut);
     } else if (s.pbd) {
       // The world-space sweep mapped into rest space through the deformed pieces, then cut quad by quad.
-      map_sweep(model.voxels, *s.pbd, previous, s.blade, s.sweep, &s.sweep_stats);
+      map_sweep(model.voxels, s.pbd->model, s.pbd->data, previous, s.blade, s.sweep, &s.sweep_stats);
       report.timings.map_ms = clock.now() - t0;
       uint32_t hits = 0;
       for (const RestQuad& q : s.sweep.quads) {
@@ -127,7 +127,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
     cut_update_surface(model.voxels, s.cut, report.cut);
     if (s.pbd && !stroke_ends) remember_stroke_voxels(s.cut.changed_voxels, s);
     const double t2 = clock.now();
-    if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(model.voxels, s.cut, *s.pbd, &report.pbd);
+    if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(model.voxels, s.cut, s.pbd->model, s.pbd->data, &report.pbd);
     const double t_model = clock.now();
     report.timings.model_ms = t_model - t2;
     report.timings.cut_ms = (t1 - t0) + (t_model - t2);  // map, divide, fine and coarse
@@ -136,11 +136,12 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
   }
   if (s.pbd) {
     const double t3 = clock.now();
-    pbd_step(s.cut, *s.pbd, context.tasks, context.embed_surface, &clock, &report.timings.contact_ms);
+    pbd_step(s.cut, s.pbd->model, s.pbd->data, context.tasks, context.embed_surface, &clock,
+             &report.timings.contact_ms);
     report.timings.deform_ms = clock.now() - t3;
-    report.grab_force_n = s.pbd->grab_force.norm();
-    report.grab_held = uint32_t(s.pbd->grab_particles.size());
-    report.grab_anchored = s.pbd->grab_anchored;
+    report.grab_force_n = s.pbd->data.grab_force.norm();
+    report.grab_held = uint32_t(s.pbd->data.grab_particles.size());
+    report.grab_anchored = s.pbd->data.grab_anchored;
   }
   report.timings.total_ms = clock.now() - t0;
   if (!s.stroke_cutting) {
@@ -151,7 +152,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
 }
 
 void world_embed(const WorldModel& /*model*/, WorldState& s, const TaskRunner& tasks) {
-  if (s.pbd) pbd_embed(s.cut, *s.pbd, tasks);
+  if (s.pbd) pbd_embed(s.cut, s.pbd->model, s.pbd->data, tasks);
 }
 
 uint64_t world_hash(const WorldState& s) {
@@ -159,8 +160,8 @@ uint64_t world_hash(const WorldState& s) {
   if (s.pbd) {
     Fnv1a f;
     f.add(h);
-    for (size_t p = 0; p < s.pbd->position.size(); ++p) {
-      if (s.pbd->refs[p] > 0) f.bytes(s.pbd->position[p].data(), 3 * sizeof(double));
+    for (size_t p = 0; p < s.pbd->data.position.size(); ++p) {
+      if (s.pbd->model.refs[p] > 0) f.bytes(s.pbd->data.position[p].data(), 3 * sizeof(double));
     }
     h = f.value;
   }

@@ -108,7 +108,7 @@ bool world_init(const WorldModel& model, WorldState& state, std::string& error);
 void world_step(const WorldModel& model, WorldState& state, const StepCommands& commands, const StepContext& context,
                 StepReport* report = nullptr);
 
-// Brings pbd->deformed up to date after steps that skipped the embedding (embed_surface false).
+// Brings pbd->data.deformed up to date after steps that skipped the embedding (embed_surface false).
 void world_embed(const WorldModel& model, WorldState& state, const TaskRunner& tasks = {});
 
 // State hash: the cut surface, and the live particles when the physics runs.

@@ -82,7 +82,8 @@ struct PieceGrid {
 
 // Builds the grid over the live pieces whose deformed bounds, grown by `margin`, overlap `region`.
 // Cells of about `cell` (at most 64 per axis).
-void build_piece_grid(const PbdState& pbd, const Aabb& region, double cell, double margin, PieceGrid& grid);
+void build_piece_grid(const PbdModel& pbd, const PbdData& data, const Aabb& region, double cell, double margin,
+                      PieceGrid& grid);
 
 // Calls f(piece slot) for each piece whose grown bounds may contain `point` (each at most once).
 template <typename F>
@@ -107,7 +108,7 @@ struct RestHit {
 };
 // `tests` (optional) counts the Newton inversions. out[near_begin, near_end) (optional): hits of a
 // neighbouring point; Newton starts from their local coordinates in the same piece (else the centre).
-uint32_t world_to_rest(const VoxelModel& model, const PbdState& pbd, PieceGrid& grid, const Vec3d& world,
+uint32_t world_to_rest(const VoxelModel& model, const PbdModel& pbd, PieceGrid& grid, const Vec3d& world,
                        std::vector<RestHit>& out, uint32_t* tests = nullptr, uint32_t near_begin = 0, uint32_t near_end = 0);
 
 // A rest-space quad to cut: the sweep from one blade segment to another.
@@ -170,7 +171,7 @@ void reset_sweep(SweepMapper& mapper);
 
 // Maps the sweep from world pose `from` to world pose `to` into rest-space quads (mapper.quads) and
 // records the rest points of `to` for the next step.
-void map_sweep(const VoxelModel& model, const PbdState& pbd, const BladePose& from, const BladePose& to,
-               SweepMapper& mapper, SweepMapStats* stats = nullptr);
+void map_sweep(const VoxelModel& model, const PbdModel& pbd, const PbdData& data, const BladePose& from,
+               const BladePose& to, SweepMapper& mapper, SweepMapStats* stats = nullptr);
 
 }  // namespace dvx

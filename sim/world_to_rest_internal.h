@@ -10,7 +10,8 @@ namespace world_to_rest_internal {
 
 // Inverts a piece's map at `world` (a candidate of the grid): local coordinates u (from `start`),
 // false when Newton fails. Warm: chord steps with the inverse Jacobian of the piece's last inversion.
-inline bool piece_local(const PbdState& pbd, PieceGrid& grid, uint32_t piece, const Vec3d& world, const Vec3d& start, Vec3d& u) {
+inline bool piece_local(const PbdModel& pbd, PieceGrid& grid, uint32_t piece, const Vec3d& world, const Vec3d& start,
+                        Vec3d& u) {
   u = start;
   bool have = grid.jinv_valid[piece] != 0;
   const bool ok = invert_trilinear_warm(grid.piece_map[piece], world, u, 1e-7 * pbd.sim_size, grid.piece_jinv[piece], have);

@@ -33,8 +33,9 @@ void merge(StepCommands& into, const StepCommands& from) {
 void collect_anchors(const Session& session, SimStatus& status) {
   status.anchors.clear();
   const std::optional<PbdState>& pbd = session.state.pbd;
-  for (size_t p = 0; pbd && p < pbd->position.size(); ++p) {
-    if (pbd->refs[p] > 0 && pbd->inv_mass[p] == 0.0) status.anchors.push_back(pbd->position[p].cast<float>());
+  for (size_t p = 0; pbd && p < pbd->data.position.size(); ++p) {
+    if (pbd->model.refs[p] > 0 && pbd->model.inv_mass[p] == 0.0)
+      status.anchors.push_back(pbd->data.position[p].cast<float>());
   }
   ++status.anchors_version;
 }
@@ -163,7 +164,8 @@ void SimRunner::publish(const StepTimings& timings, bool force) {
   const bool normals = cpu_normals_.load();
   exchange_.publish(
       [&](Snapshot& slot, uint64_t slot_sequence) {
-        fill_snapshot(slot, slot_sequence, s.state.cut.surface, s.state.pbd ? &s.state.pbd->deformed : nullptr, history_, step, timings);
+        fill_snapshot(slot, slot_sequence, s.state.cut.surface, s.state.pbd ? &s.state.pbd->data.deformed : nullptr,
+                      history_, step, timings);
         const Clock::time_point t0 = Clock::now();
         if (normals) {
           split_vertex_normals(slot.positions, slot.triangles, slot.triangle_flags, slot.normals, slot.cut_normals);
@@ -296,15 +298,15 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
   status_.grab_force_n.push_back(float(report.grab_force_n));
   if (status_.grab_force_n.size() > kTimingHistory) status_.grab_force_n.erase(status_.grab_force_n.begin());
-  status_.grab_on = s.state.pbd && grab_active(*s.state.pbd);
+  status_.grab_on = s.state.pbd && grab_active(s.state.pbd->data);
   status_.grab_held = report.grab_held;
   status_.grab_anchored = report.grab_anchored;
   if (report.sim_voxels_cut > 0) collect_anchors(s, status_);
   status_.divided_voxels = uint32_t(s.state.cut.divided.size());
   status_.voxels_cut += report.cut.voxels_cut;
   if (s.state.pbd) {
-    status_.sim_voxels_divided = uint32_t(sim_voxels_divided(*s.state.pbd));
-    status_.particles = uint32_t(s.state.pbd->position.size() - s.state.pbd->free_particles.size());
+    status_.sim_voxels_divided = uint32_t(sim_voxels_divided(s.state.pbd->model));
+    status_.particles = uint32_t(s.state.pbd->data.position.size() - s.state.pbd->model.free_particles.size());
   }
   status_.recording = recorder_ != nullptr;
   status_.hash_checked += checks.checked;
@@ -452,9 +454,9 @@ void SimRunner::run() {
       s.scene.pbd.gravity = req_gravity_;
       s.world.params = pbd_params(s.scene, req_dt_);
       if (s.state.pbd) {
-        s.state.pbd->params.dt = req_dt_;
-        s.state.pbd->params.iterations = req_iterations_;
-        s.state.pbd->params.gravity = req_gravity_;
+        s.state.pbd->model.params.dt = req_dt_;
+        s.state.pbd->model.params.iterations = req_iterations_;
+        s.state.pbd->model.params.gravity = req_gravity_;
       }
       status_.dt = req_dt_;
       status_.scene = s.scene;

@@ -229,30 +229,30 @@ TEST_SUITE("scene") {
     open_session(scene, scene.pbd.dt, true, 1, session);
     const PbdState& s = *session.state.pbd;
     const Aabb bounds = mesh_bounds(session.input.mesh);
-    MESSAGE("liver " << bounds.extent().transpose() << " m, " << total_mass(s) << " kg");
+    MESSAGE("liver " << bounds.extent().transpose() << " m, " << total_mass(s.model) << " kg");
     CHECK(std::abs(bounds.extent().maxCoeff() / 0.2 - 1.0) < 0.02);  // 0.1996 m
-    CHECK(total_mass(s) > 1.0);
-    CHECK(total_mass(s) < 2.0);
-    const double mass = total_mass(s);
+    CHECK(total_mass(s.model) > 1.0);
+    CHECK(total_mass(s.model) < 2.0);
+    const double mass = total_mass(s.model);
     for (int i = 0; i < 60; ++i) session_step(session, StepCommands());
-    CHECK(count_nonfinite(s) == 0);
-    CHECK(total_mass(s) == mass);
+    CHECK(count_nonfinite(s.model, s.data) == 0);
+    CHECK(total_mass(s.model) == mass);
     // The anchored particles stay; the rest sags (down, not away), and the surface stays on the tray
     // (its lowest vertex within a millimetre of it: the contact's resting offset).
     double sag = 0.0, moving = 0.0;
-    for (size_t p = 0; p < s.position.size(); ++p) {
-      if (s.refs[p] == 0) continue;
-      if (s.inv_mass[p] == 0.0) {
-        CHECK(s.position[p] == s.rest[p]);
+    for (size_t p = 0; p < s.data.position.size(); ++p) {
+      if (s.model.refs[p] == 0) continue;
+      if (s.model.inv_mass[p] == 0.0) {
+        CHECK(s.data.position[p] == s.model.rest[p]);
         continue;
       }
-      sag += s.mass[p] * (s.rest[p].y() - s.position[p].y());
-      moving += s.mass[p];
+      sag += s.model.mass[p] * (s.model.rest[p].y() - s.data.position[p].y());
+      moving += s.model.mass[p];
     }
     const double tray = scene.pbd.planes[0].point.y();
     double lowest = 1e30;
-    for (size_t v = 0; v < s.embedding.size() && v < s.deformed.size(); ++v) {
-      if (s.embedding[v].sim_voxel != kDeadIndex) lowest = std::min(lowest, double(s.deformed[v].y()));
+    for (size_t v = 0; v < s.model.embedding.size() && v < s.data.deformed.size(); ++v) {
+      if (s.model.embedding[v].sim_voxel != kDeadIndex) lowest = std::min(lowest, double(s.data.deformed[v].y()));
     }
     MESSAGE("mean sag " << sag / moving << " m, lowest surface vertex " << lowest - tray << " m above the tray");
     CHECK(sag / moving > 0.001);
@@ -306,7 +306,7 @@ TEST_SUITE("scene") {
       }
       std::vector<double> w;
       for (const auto& [point, slots] : at) {
-        if (slots.size() == 2) w.push_back((s.deformed[slots[0]] - s.deformed[slots[1]]).norm());
+        if (slots.size() == 2) w.push_back((s.data.deformed[slots[0]] - s.data.deformed[slots[1]]).norm());
       }
       std::sort(w.begin(), w.end());
       return w;
@@ -320,7 +320,7 @@ TEST_SUITE("scene") {
     MESSAGE("cut " << voxels_cut << " voxels, " << after.size() << " twin vertices; the incision's width: median "
                    << 1e3 * quantile(at_cut, 0.5) << " mm at the stroke's end, median / p90 " << 1e3 * quantile(after, 0.5)
                    << " / " << 1e3 * quantile(after, 0.9) << " mm 1 s later");
-    CHECK(count_nonfinite(*session.state.pbd) == 0);
+    CHECK(count_nonfinite(session.state.pbd->model, session.state.pbd->data) == 0);
     CHECK(quantile(after, 0.5) > 0.001);  // open by more than a millimetre
     CHECK(quantile(after, 0.5) < 0.05);   // and not a piece that fell away: the lobe still hangs on
     std::vector<Tri> live;

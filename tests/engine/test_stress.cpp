@@ -70,7 +70,7 @@ void random_session(int steps, bool piece_contact) {
     const VoxelModel& model_ref = world.voxels;
     CutState& cut = state.cut;
     PbdState& pbd = *state.pbd;
-    const double mass = total_mass(pbd);
+    const double mass = total_mass(pbd.model);
     const double scale = box.extent().maxCoeff();
 
     Random random(20261122);
@@ -108,7 +108,9 @@ void random_session(int steps, bool piece_contact) {
         grabbing = true;
       } else if (grabbing) {
         commands.grab = {GrabCommand::kTarget,
-                         pbd.grab_target + 0.01 * scale * Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1)), 1e-5};
+                         pbd.data.grab_target +
+                             0.01 * scale * Vec3d(random.uniform(-1, 1), random.uniform(-1, 1), random.uniform(-1, 1)),
+                         1e-5};
         if (random.uniform(0, 1) < 0.01) {
           commands.grab.kind = GrabCommand::kRelease;
           grabbing = false;
@@ -120,11 +122,11 @@ void random_session(int steps, bool piece_contact) {
         const SurfaceStats stats = surface_stats(compact_surface(cut.surface));
         CHECK(stats.boundary_edges == 0);
         CHECK(stats.misoriented_edges == 0);
-        CHECK(count_nonfinite(pbd) == 0);
-        CHECK(std::abs(total_mass(pbd) - mass) <= 1e-12 * mass);
+        CHECK(count_nonfinite(pbd.model, pbd.data) == 0);
+        CHECK(std::abs(total_mass(pbd.model) - mass) <= 1e-12 * mass);
         // Kinetic energy bounded by that of the whole mass falling for the whole session (nothing explodes).
         const double fall = 9.81 * params.dt * step;
-        CHECK(kinetic_energy(pbd) < 0.5 * mass * fall * fall + 1.0);
+        CHECK(kinetic_energy(pbd.model, pbd.data) < 0.5 * mass * fall * fall + 1.0);
       }
     }
     // After cutting stopped, grabs and steps allocate nothing that lasts. (Not under AddressSanitizer:
@@ -146,13 +148,14 @@ void random_session(int steps, bool piece_contact) {
     std::string problem;
     CHECK_MESSAGE(check_cut_state(model_ref, cut, problem), problem);
     MESSAGE("resident memory: " << memory_after_cutting / 1024 << " KiB when cutting stopped, " << memory_end / 1024
-                                << " KiB at the end; kinetic energy " << kinetic_energy(pbd) << ", mass "
-                                << total_mass(pbd) << " (initial " << mass << ")");
-    const PieceContacts::Counters& pcc = pbd.piece_contacts.counters;
+                                << " KiB at the end; kinetic energy " << kinetic_energy(pbd.model, pbd.data)
+                                << ", mass " << total_mass(pbd.model) << " (initial " << mass << ")");
+    const PieceContacts::Counters& pcc = pbd.data.piece_contacts.counters;
     MESSAGE("piece contact: " << pcc.gathers << " gathers, " << pcc.piece_pairs << " piece pairs, " << pcc.points
                               << " points, " << pcc.point_pairs << " point pairs, " << pcc.contacts << " contacts");
-    MESSAGE("after " << steps << " steps: " << cut.divided.size() << " divided voxels, " << sim_voxels_divided(pbd)
-                                  << " divided simulation voxels, " << live_pieces(pbd) << " sim pieces");
+    MESSAGE("after " << steps << " steps: " << cut.divided.size() << " divided voxels, "
+                     << sim_voxels_divided(pbd.model) << " divided simulation voxels, " << live_pieces(pbd.model)
+                     << " sim pieces");
 }
 
 // Steps from the environment variable `name` (to run a longer or shorter session by hand), else `steps`.

@@ -155,7 +155,7 @@ TEST_SUITE("pbd_recording") {
     }
     const PbdState& pbd = *s.state.pbd;
     std::string error;
-    REQUIRE_MESSAGE(check_pbd_state(s.world.voxels, s.state.cut, pbd, error), error);
+    REQUIRE_MESSAGE(check_pbd_state(s.world.voxels, s.state.cut, pbd.model, pbd.data, error), error);
     // Surface components (vertex slots joined by triangles).
     const CutSurface& surface = s.state.cut.surface;
     std::vector<uint32_t> component(surface.positions.size());
@@ -166,9 +166,9 @@ TEST_SUITE("pbd_recording") {
       unite(component, t[0], t[2]);
     }
     // Particle components (particles joined by the pieces using them).
-    std::vector<uint32_t> body(pbd.rest.size());
+    std::vector<uint32_t> body(pbd.model.rest.size());
     std::iota(body.begin(), body.end(), 0u);
-    for (const SimPiece& piece : pbd.pieces) {
+    for (const SimPiece& piece : pbd.model.pieces) {
       if (piece.sim_voxel == kDeadIndex) continue;
       for (int c = 1; c < 8; ++c) unite(body, piece.particles[0], piece.particles[c]);
     }
@@ -194,20 +194,21 @@ TEST_SUITE("pbd_recording") {
     size_t head_vertices = 0, unembedded = 0;
     for (uint32_t v = 0; v < surface.positions.size(); ++v) {
       if (surface.vertex_piece[v] == CutSurface::kFreeKey) continue;
-      const uint32_t piece = vertex_sim_piece(pbd, v);
+      const uint32_t piece = vertex_sim_piece(pbd.model, v);
       if (piece == kDeadIndex) {
         ++unembedded;
         continue;
       }
       const bool is_head = find(component, v) == head;
-      for (uint32_t p : pbd.pieces[piece].particles) (is_head ? head_bodies : rest_bodies).push_back(find(body, p));
+      for (uint32_t p : pbd.model.pieces[piece].particles)
+        (is_head ? head_bodies : rest_bodies).push_back(find(body, p));
       if (is_head) {
-        head_min_y = std::min(head_min_y, double(pbd.deformed[v].y()));
-        head_max_x = std::max(head_max_x, double(pbd.deformed[v].x()));
-        head_drop += double(surface.positions[v].y() - pbd.deformed[v].y());
+        head_min_y = std::min(head_min_y, double(pbd.data.deformed[v].y()));
+        head_max_x = std::max(head_max_x, double(pbd.data.deformed[v].x()));
+        head_drop += double(surface.positions[v].y() - pbd.data.deformed[v].y());
         ++head_vertices;
       } else {
-        rest_min_x = std::min(rest_min_x, double(pbd.deformed[v].x()));
+        rest_min_x = std::min(rest_min_x, double(pbd.data.deformed[v].x()));
       }
     }
     std::sort(head_bodies.begin(), head_bodies.end());

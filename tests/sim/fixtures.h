@@ -40,7 +40,7 @@ inline void make_pbd_scene(PbdScene& scene, const dvx::TriMesh& mesh, int resolu
   params.resolution = resolution;
   params.sim_resolution = sim_resolution;
   std::string error;
-  REQUIRE_MESSAGE(dvx::init_pbd(scene.model, scene.cut, params, scene.pbd, error), error);
+  REQUIRE_MESSAGE(dvx::init_pbd(scene.model, scene.cut, params, scene.pbd.model, scene.pbd.data, error), error);
 }
 
 // A voxelized mesh as the product steps it (sim/world.h): the world's model and its state.

@@ -44,8 +44,9 @@ ContactPlane plane(const Vec3d& point, const Vec3d& normal, double friction) {
 // Lowest signed distance of the live deformed surface from a plane.
 double lowest_surface(const PbdState& s, const ContactPlane& p) {
   double lowest = 1e300;
-  for (size_t v = 0; v < s.embedding.size(); ++v) {
-    if (s.embedding[v].sim_voxel != kDeadIndex) lowest = std::min(lowest, plane_distance(p, s.deformed[v].cast<double>()));
+  for (size_t v = 0; v < s.model.embedding.size(); ++v) {
+    if (s.model.embedding[v].sim_voxel != kDeadIndex)
+      lowest = std::min(lowest, plane_distance(p, s.data.deformed[v].cast<double>()));
   }
   return lowest;
 }
@@ -54,15 +55,15 @@ double lowest_surface(const PbdState& s, const ContactPlane& p) {
 Vec3d centre(const PbdState& s) {
   Vec3d c = Vec3d::Zero();
   double m = 0.0;
-  for (size_t p = 0; p < s.position.size(); ++p) {
-    c += s.mass[p] * s.position[p];
-    m += s.mass[p];
+  for (size_t p = 0; p < s.data.position.size(); ++p) {
+    c += s.model.mass[p] * s.data.position[p];
+    m += s.model.mass[p];
   }
   return c / m;
 }
 
 void run(Scene& s, int steps, const TaskRunner& tasks = {}) {
-  for (int i = 0; i < steps; ++i) pbd_step(s.cut, s.pbd, tasks);
+  for (int i = 0; i < steps; ++i) pbd_step(s.cut, s.pbd.model, s.pbd.data, tasks);
 }
 
 double fine_voxel(const Scene& s) { return s.model.lattice.voxel_size; }
@@ -172,23 +173,23 @@ TEST_SUITE("contact") {
     Scene s;
     make_scene(s, Vec3d(0.003, 0.6, 0.002), Vec3d(0.5, 0.25, 0.5), Eigen::Matrix3d::Identity(), params);
     const double h = fine_voxel(s);
-    const double mass = total_mass(s.pbd);
+    const double mass = total_mass(s.pbd.model);
     double deepest = 1e300;
     for (int i = 0; i < 180; ++i) {  // 3 s
-      pbd_step(s.cut, s.pbd);
+      pbd_step(s.cut, s.pbd.model, s.pbd.data);
       deepest = std::min(deepest, lowest_surface(s.pbd, tray));
     }
     // At rest: kinetic energy tiny against the energy of the fall (m g 0.35).
     const double fall = mass * 9.81 * 0.35;
-    MESSAGE("kinetic energy after 3 s: " << kinetic_energy(s.pbd) << " J (fall " << fall << " J); deepest dip "
-                                         << -deepest / h << " fine voxels; final lowest vertex "
+    MESSAGE("kinetic energy after 3 s: " << kinetic_energy(s.pbd.model, s.pbd.data) << " J (fall " << fall
+                                         << " J); deepest dip " << -deepest / h << " fine voxels; final lowest vertex "
                                          << lowest_surface(s.pbd, tray) / h << " fine voxels");
-    CHECK(kinetic_energy(s.pbd) < 1e-6 * fall);
+    CHECK(kinetic_energy(s.pbd.model, s.pbd.data) < 1e-6 * fall);
     // The surface never dips more than half a fine voxel below the plane, and rests on it (does not
     // float on the particles a simulation voxel below the material).
     CHECK(deepest >= -0.5 * h);
     CHECK(lowest_surface(s.pbd, tray) <= 0.5 * h);
-    CHECK(count_nonfinite(s.pbd) == 0);
+    CHECK(count_nonfinite(s.pbd.model, s.pbd.data) == 0);
   }
 
   TEST_CASE("on a tilted plane friction holds a box, and without friction it slides") {
@@ -204,7 +205,7 @@ TEST_SUITE("contact") {
       const Vec3d before = centre(s.pbd);
       run(s, 60);
       moved_last_second = (centre(s.pbd) - before).dot(downhill);
-      speed = std::sqrt(2.0 * kinetic_energy(s.pbd) / total_mass(s.pbd));
+      speed = std::sqrt(2.0 * kinetic_energy(s.pbd.model, s.pbd.data) / total_mass(s.pbd.model));
       return fine_voxel(s);
     };
     double moved = 0.0, speed = 0.0;
@@ -243,17 +244,17 @@ TEST_SUITE("contact") {
       const double x = -1.0 + 2.0 * i / 10;
       const BladePose next{Vec3d(x, -0.05, -2), Vec3d(x, -0.05, 2)};
       cut_step(s.model, s.cut, previous, next);
-      pbd_apply_cut(s.model, s.cut, s.pbd);
+      pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data);
       previous = next;
     }
     double deepest = 1e300;
     for (int i = 0; i < 180; ++i) {
-      pbd_step(s.cut, s.pbd);
+      pbd_step(s.cut, s.pbd.model, s.pbd.data);
       deepest = std::min(deepest, lowest_surface(s.pbd, tray));
     }
-    MESSAGE("cut piece: kinetic energy " << kinetic_energy(s.pbd) << " J, deepest dip " << -deepest / h
-                                         << " fine voxels");
-    CHECK(kinetic_energy(s.pbd) < 1e-6 * total_mass(s.pbd) * 9.81 * 1.0);
+    MESSAGE("cut piece: kinetic energy " << kinetic_energy(s.pbd.model, s.pbd.data) << " J, deepest dip "
+                                         << -deepest / h << " fine voxels");
+    CHECK(kinetic_energy(s.pbd.model, s.pbd.data) < 1e-6 * total_mass(s.pbd.model) * 9.81 * 1.0);
     CHECK(deepest >= -0.5 * h);
     CHECK(lowest_surface(s.pbd, tray) <= 0.5 * h);  // it landed (did not hang or stop early)
   }
@@ -267,12 +268,12 @@ TEST_SUITE("contact") {
       Scene s;
       make_scene(s, Vec3d(0.003, 0.4, 0.001), Vec3d(0.5, 0.25, 0.5), Eigen::Matrix3d::Identity(), params);
       ThreadRunner runner{workers};
-      s.pbd.chunk_work = 1;  // every batch split across the threads
+      s.pbd.data.chunk_work = 1;  // every batch split across the threads
       run(s, 90, workers > 1 ? runner.runner() : TaskRunner{});
-      CHECK(s.pbd.contacts.points.size() >= 256);  // enough contact points for the parallel path
+      CHECK(s.pbd.data.contacts.points.size() >= 256);  // enough contact points for the parallel path
       CHECK((workers == 1 || runner.splits > 1000));
       Fnv1a f;
-      for (const Vec3d& p : s.pbd.position) f.bytes(p.data(), 3 * sizeof(double));
+      for (const Vec3d& p : s.pbd.data.position) f.bytes(p.data(), 3 * sizeof(double));
       return f.value;
     };
     CHECK(final_hash(1) == final_hash(2));
@@ -291,17 +292,18 @@ void make_boxes(Scene& s, const std::vector<std::pair<Vec3d, Vec3d>>& boxes, Pbd
 // Body of each particle (the connected components of pieces under particle sharing), ~0u: unused.
 std::vector<uint32_t> particle_bodies(const PbdState& s) {
   std::vector<uint32_t> corners, body;
-  std::vector<uint8_t> live(s.pieces.size(), 0);
-  for (size_t i = 0; i < s.pieces.size(); ++i) {
-    live[i] = s.pieces[i].sim_voxel != kDeadIndex;
-    corners.insert(corners.end(), s.pieces[i].particles, s.pieces[i].particles + 8);
+  std::vector<uint8_t> live(s.model.pieces.size(), 0);
+  for (size_t i = 0; i < s.model.pieces.size(); ++i) {
+    live[i] = s.model.pieces[i].sim_voxel != kDeadIndex;
+    corners.insert(corners.end(), s.model.pieces[i].particles, s.model.pieces[i].particles + 8);
   }
   PieceContactScratch scratch;
-  find_bodies(corners.data(), live.data(), uint32_t(s.pieces.size()), uint32_t(s.position.size()), body, scratch);
-  std::vector<uint32_t> of(s.position.size(), ~0u);
-  for (size_t i = 0; i < s.pieces.size(); ++i) {
+  find_bodies(corners.data(), live.data(), uint32_t(s.model.pieces.size()), uint32_t(s.data.position.size()), body,
+              scratch);
+  std::vector<uint32_t> of(s.data.position.size(), ~0u);
+  for (size_t i = 0; i < s.model.pieces.size(); ++i) {
     if (!live[i]) continue;
-    for (uint32_t p : s.pieces[i].particles) of[p] = body[i];
+    for (uint32_t p : s.model.pieces[i].particles) of[p] = body[i];
   }
   return of;
 }
@@ -311,11 +313,11 @@ void body_motion(const PbdState& s, const std::vector<uint32_t>& of, uint32_t bo
   centre.setZero();
   velocity.setZero();
   double m = 0.0;
-  for (size_t p = 0; p < s.position.size(); ++p) {
+  for (size_t p = 0; p < s.data.position.size(); ++p) {
     if (of[p] != body) continue;
-    centre += s.mass[p] * s.position[p];
-    velocity += s.mass[p] * s.velocity[p];
-    m += s.mass[p];
+    centre += s.model.mass[p] * s.data.position[p];
+    velocity += s.model.mass[p] * s.data.velocity[p];
+    m += s.model.mass[p];
   }
   centre /= m;
   velocity /= m;
@@ -339,15 +341,15 @@ std::vector<uint32_t> bodies_bottom_up(const PbdState& s, const std::vector<uint
 // The body of a surface vertex slot (that of its piece), ~0u: none.
 uint32_t vertex_body(const PbdState& s, const std::vector<uint32_t>& of, uint32_t slot) {
   // The embedding names a simulation voxel and a fine node of the vertex's piece (sim/pbd.h).
-  const VertexEmbedding& e = s.embedding[slot];
-  if (e.sim_voxel == kDeadIndex || s.pieces_in_voxel[e.sim_voxel] == 0) return ~0u;
-  uint32_t piece = s.voxel_piece[e.sim_voxel];
-  if (s.voxel_divided[e.sim_voxel] != kDeadIndex) {
-    const SimDivided& d = s.divided[s.voxel_divided[e.sim_voxel]];
-    const uint8_t label = s.labels[d.first_label + e.node];
-    piece = label == kNoPiece ? kDeadIndex : s.label_slots[d.first_slot + label];
+  const VertexEmbedding& e = s.model.embedding[slot];
+  if (e.sim_voxel == kDeadIndex || s.model.pieces_in_voxel[e.sim_voxel] == 0) return ~0u;
+  uint32_t piece = s.model.voxel_piece[e.sim_voxel];
+  if (s.model.voxel_divided[e.sim_voxel] != kDeadIndex) {
+    const SimDivided& d = s.model.divided[s.model.voxel_divided[e.sim_voxel]];
+    const uint8_t label = s.model.labels[d.first_label + e.node];
+    piece = label == kNoPiece ? kDeadIndex : s.model.label_slots[d.first_slot + label];
   }
-  return piece == kDeadIndex ? ~0u : of[s.pieces[piece].particles[0]];
+  return piece == kDeadIndex ? ~0u : of[s.model.pieces[piece].particles[0]];
 }
 
 // Surface vertices of body `a` inside the closed deformed surface of body `b` (ray parity) by more than
@@ -360,17 +362,17 @@ uint32_t vertices_inside(const Scene& s, const std::vector<uint32_t>& of, uint32
     if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
     const Tri& tri = surface.triangles[t];
     if (vertex_body(s.pbd, of, tri[0]) != b) continue;
-    tris.push_back({s.pbd.deformed[tri[0]].cast<double>(), s.pbd.deformed[tri[1]].cast<double>(),
-                    s.pbd.deformed[tri[2]].cast<double>()});
+    tris.push_back({s.pbd.data.deformed[tri[0]].cast<double>(), s.pbd.data.deformed[tri[1]].cast<double>(),
+                    s.pbd.data.deformed[tri[2]].cast<double>()});
   }
-  for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) {
-    if (vertex_body(s.pbd, of, v) == b) b_vertices.push_back(s.pbd.deformed[v].cast<double>());
+  for (uint32_t v = 0; v < s.pbd.model.embedding.size(); ++v) {
+    if (vertex_body(s.pbd, of, v) == b) b_vertices.push_back(s.pbd.data.deformed[v].cast<double>());
   }
   const Vec3d dir = Vec3d(1.0, 0.0123, 0.0071).normalized();
   uint32_t inside = 0;
-  for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) {
+  for (uint32_t v = 0; v < s.pbd.model.embedding.size(); ++v) {
     if (vertex_body(s.pbd, of, v) != a) continue;
-    const Vec3d p = s.pbd.deformed[v].cast<double>();
+    const Vec3d p = s.pbd.data.deformed[v].cast<double>();
     int crossings = 0;
     for (const auto& t : tris) {  // Möller-Trumbore
       const Vec3d e1 = t[1] - t[0], e2 = t[2] - t[0], h = dir.cross(e2);
@@ -413,7 +415,7 @@ void cut_separation(bool piece_contact, int substeps, int iterations, int resolu
     const double x = -1.0 + 2.0 * i / 8;
     const BladePose next{Vec3d(x, 0.013, -2), Vec3d(x, 0.013, 2)};
     cut_step(s.model, s.cut, previous, next);
-    pbd_apply_cut(s.model, s.cut, s.pbd);
+    pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data);
     previous = next;
   }
   const std::vector<uint32_t> of = particle_bodies(s.pbd);
@@ -431,18 +433,18 @@ void cut_separation(bool piece_contact, int substeps, int iterations, int resolu
     int n = 0;
     for (size_t v = 0; v < side.size(); ++v) {
       if (side[v] != which) continue;
-      y += s.pbd.deformed[v].y();
+      y += s.pbd.data.deformed[v].y();
       ++n;
     }
     REQUIRE(n > 100);
     return y / n;
   };
-  pbd_embed(s.cut, s.pbd);  // deformed positions of the cut's new vertices
+  pbd_embed(s.cut, s.pbd.model, s.pbd.data);  // deformed positions of the cut's new vertices
   double gap = face_height(1) - face_height(0);
   CHECK(std::abs(gap) < 1e-6);  // the faces start together (the new particles copy the old)
   worst = 0.0;
   for (int i = 0; i < 10; ++i) {
-    pbd_step(s.cut, s.pbd);
+    pbd_step(s.cut, s.pbd.model, s.pbd.data);
     const double now = face_height(1) - face_height(0);
     const double speed = (now - gap) / PbdParams{}.dt;  // > 0: apart, < 0: sinking in
     gap = now;
@@ -471,7 +473,7 @@ void box_drop(int workers, int resolution, uint64_t& hash) {
   make_boxes(s, {{Vec3d(0.003, -0.25, 0.002), Vec3d(0.5, 0.25, 0.5)}, {Vec3d(0.053, 0.55, 0.012), Vec3d(0.3, 0.15, 0.3)}},
              params, resolution);
   ThreadRunner runner{workers};
-  s.pbd.chunk_work = 1;  // every batch split across the threads
+  s.pbd.data.chunk_work = 1;  // every batch split across the threads
   const TaskRunner tasks = workers > 1 ? runner.runner() : TaskRunner{};
   const std::vector<uint32_t> of = particle_bodies(s.pbd);
   const std::vector<uint32_t> bodies = bodies_bottom_up(s.pbd, of);
@@ -488,14 +490,14 @@ void box_drop(int workers, int resolution, uint64_t& hash) {
   body_motion(s.pbd, of, bodies[0], c0, v0);
   body_motion(s.pbd, of, bodies[1], c1, v1);
   Fnv1a f;
-  for (const Vec3d& p : s.pbd.position) f.bytes(p.data(), 3 * sizeof(double));
+  for (const Vec3d& p : s.pbd.data.position) f.bytes(p.data(), 3 * sizeof(double));
   hash = f.value;
   // The gap between the top box's lowest surface vertex and the bottom box's highest.
   double low = 1e300, high = -1e300;
-  for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) {
+  for (uint32_t v = 0; v < s.pbd.model.embedding.size(); ++v) {
     const uint32_t b = vertex_body(s.pbd, of, v);
-    if (b == bodies[1]) low = std::min(low, double(s.pbd.deformed[v].y()));
-    if (b == bodies[0]) high = std::max(high, double(s.pbd.deformed[v].y()));
+    if (b == bodies[1]) low = std::min(low, double(s.pbd.data.deformed[v].y()));
+    if (b == bodies[0]) high = std::max(high, double(s.pbd.data.deformed[v].y()));
   }
   const double gap = (low - high) / fine_voxel(s);
   MESSAGE("top box: gap to the bottom box " << gap << " fine voxels, speed " << v1.norm()
@@ -590,10 +592,10 @@ TEST_SUITE("contact") {
     make_boxes(s, {{Vec3d(0.003, -0.25, 0.002), Vec3d(0.5, 0.25, 0.5)}, {Vec3d(0.053, 0.55, 0.012), Vec3d(0.3, 0.15, 0.3)}},
                params);
     run(s, 40);  // it lands within 0.3 s
-    const PieceContacts& pc = s.pbd.piece_contacts;
+    const PieceContacts& pc = s.pbd.data.piece_contacts;
     REQUIRE(pc.counters.gathers > 0);
     uint32_t live = 0;
-    for (uint32_t v = 0; v < s.pbd.embedding.size(); ++v) live += vertex_sim_piece(s.pbd, v) != kDeadIndex;
+    for (uint32_t v = 0; v < s.pbd.model.embedding.size(); ++v) live += vertex_sim_piece(s.pbd.model, v) != kDeadIndex;
     const double points = double(pc.counters.points) / double(pc.counters.gathers);
     MESSAGE("points per gather " << points << " of " << live << " surface vertices; point pairs per gather "
                                  << double(pc.counters.point_pairs) / double(pc.counters.gathers) << ", contacts "
@@ -790,15 +792,15 @@ namespace {
 // were refreshed from.
 void check_index(const Scene& s) {
   const PbdState& pbd = s.pbd;
-  const PieceContacts& pc = pbd.piece_contacts;
+  const PieceContacts& pc = pbd.data.piece_contacts;
   const ContactIndex& x = pc.index;
-  const uint32_t slots = uint32_t(std::min(pbd.embedding.size(), s.cut.surface.positions.size()));
+  const uint32_t slots = uint32_t(std::min(pbd.model.embedding.size(), s.cut.surface.positions.size()));
   REQUIRE(x.slots == slots);
-  REQUIRE(x.pieces == pbd.pieces.size());
+  REQUIRE(x.pieces == pbd.model.pieces.size());
   uint32_t embedded = 0;
   for (uint32_t slot = 0; slot < slots; ++slot) {
-    CHECK(x.slot_piece[slot] == vertex_sim_piece(pbd, slot));
-    embedded += vertex_sim_piece(pbd, slot) != kDeadIndex;
+    CHECK(x.slot_piece[slot] == vertex_sim_piece(pbd.model, slot));
+    embedded += vertex_sim_piece(pbd.model, slot) != kDeadIndex;
   }
   CHECK(x.piece_slots.size() == embedded);
   for (uint32_t i = 0; i < x.pieces; ++i) {
@@ -807,18 +809,18 @@ void check_index(const Scene& s) {
       if (n > x.piece_begin[i]) CHECK(x.piece_slots[n - 1] < x.piece_slots[n]);
     }
     bool mobile = false;
-    if (pbd.pieces[i].sim_voxel != kDeadIndex) {
-      for (uint32_t p : pbd.pieces[i].particles) mobile = mobile || pbd.inv_mass[p] > 0.0;
+    if (pbd.model.pieces[i].sim_voxel != kDeadIndex) {
+      for (uint32_t p : pbd.model.pieces[i].particles) mobile = mobile || pbd.model.inv_mass[p] > 0.0;
     }
     CHECK(bool(x.mobile[i]) == mobile);
   }
   // Bodies: the same partition as find_bodies' from scratch.
   const std::vector<uint32_t> of = particle_bodies(pbd);
-  std::vector<uint32_t> first_of(pbd.position.size(), ~0u);  // body root -> the index of its first piece
+  std::vector<uint32_t> first_of(pbd.data.position.size(), ~0u);  // body root -> the index of its first piece
   std::vector<uint32_t> roots;
   for (uint32_t i = 0; i < x.pieces; ++i) {
-    if (pbd.pieces[i].sim_voxel == kDeadIndex) continue;
-    const uint32_t root = of[pbd.pieces[i].particles[0]];
+    if (pbd.model.pieces[i].sim_voxel == kDeadIndex) continue;
+    const uint32_t root = of[pbd.model.pieces[i].particles[0]];
     if (first_of[root] == ~0u) {
       first_of[root] = x.body_index[i];
       roots.push_back(root);
@@ -839,7 +841,7 @@ void check_index(const Scene& s) {
 
 uint64_t position_hash(const PbdState& s) {
   Fnv1a f;
-  for (const Vec3d& p : s.position) f.bytes(p.data(), 3 * sizeof(double));
+  for (const Vec3d& p : s.data.position) f.bytes(p.data(), 3 * sizeof(double));
   return f.value;
 }
 
@@ -859,20 +861,20 @@ TEST_SUITE("contact") {
     BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
     const auto cut = [&](const BladePose& next) {
       cut_step(s.model, s.cut, previous, next);
-      pbd_apply_cut(s.model, s.cut, s.pbd);
-      pbd_apply_cut(s.model, s.cut, twin);
+      pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data);
+      pbd_apply_cut(s.model, s.cut, twin.model, twin.data);
       previous = next;
     };
     uint64_t compared = 0;  // pieces whose kept points were compared
     const auto step = [&]() {
-      pbd_step(s.cut, s.pbd);
-      twin.piece_contacts.index.revision = ~uint64_t(0);  // rebuild
-      twin.piece_contacts.seen_steps = ~uint64_t(0);      // compare every slot
-      pbd_step(s.cut, twin);
+      pbd_step(s.cut, s.pbd.model, s.pbd.data);
+      twin.data.piece_contacts.index.revision = ~uint64_t(0);  // rebuild
+      twin.data.piece_contacts.seen_steps = ~uint64_t(0);      // compare every slot
+      pbd_step(s.cut, twin.model, twin.data);
       check_index(s);
       CHECK(position_hash(s.pbd) == position_hash(twin));
       // The contact points kept from before the cut equal those the twin built afresh.
-      const PieceContacts &kept = s.pbd.piece_contacts, &fresh = twin.piece_contacts;
+      const PieceContacts &kept = s.pbd.data.piece_contacts, &fresh = twin.data.piece_contacts;
       for (uint32_t i = 0; i < kept.rep_begin.size(); ++i) {
         if (kept.rep_begin[i] == ~0u || fresh.rep_begin[i] == ~0u) continue;
         REQUIRE(kept.rep_count[i] == fresh.rep_count[i]);
@@ -901,11 +903,11 @@ TEST_SUITE("contact") {
     for (int i = 0; i < 20; ++i) step();
     const std::vector<uint32_t> of = particle_bodies(s.pbd);
     CHECK(bodies_bottom_up(s.pbd, of).size() >= 3);  // the cuts made pieces
-    CHECK(s.pbd.piece_contacts.counters.contacts > 0);  // that touched
+    CHECK(s.pbd.data.piece_contacts.counters.contacts > 0);  // that touched
     // Each cut rebuilt only the contact points of the pieces it touched; the twin rebuilt every
     // piece's it needed after each step.
-    CHECK(s.pbd.piece_contacts.counters.reps_built > 0);
-    CHECK(compared > s.pbd.piece_contacts.counters.reps_built);  // mostly points kept across cuts
-    CHECK(2 * s.pbd.piece_contacts.counters.reps_built < twin.piece_contacts.counters.reps_built);
+    CHECK(s.pbd.data.piece_contacts.counters.reps_built > 0);
+    CHECK(compared > s.pbd.data.piece_contacts.counters.reps_built);  // mostly points kept across cuts
+    CHECK(2 * s.pbd.data.piece_contacts.counters.reps_built < twin.data.piece_contacts.counters.reps_built);
   }
 }

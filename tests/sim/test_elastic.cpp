@@ -94,17 +94,17 @@ double cantilever_sag(const SagRun& r) {
   int n = 0;
   for (int i = 0; i < r.steps; ++i) {
     const double t = std::min(1.0, double(i + 1) / r.ramp);
-    w.pbd().params.gravity = Vec3d(0.0, -kG * t * t * (3.0 - 2.0 * t), 0.0);
+    w.pbd().model.params.gravity = Vec3d(0.0, -kG * t * t * (3.0 - 2.0 * t), 0.0);
     world_step(w.model, w.state, StepCommands(), StepContext());
     if (i < r.steps - r.average) continue;
-    for (size_t q = 0; q < s.position.size(); ++q) {
-      if (s.refs[q] == 0 || s.rest[q].x() < 0.5 * kLength - 1e-6) continue;
-      sum += s.rest[q].y() - s.position[q].y();
+    for (size_t q = 0; q < s.data.position.size(); ++q) {
+      if (s.model.refs[q] == 0 || s.model.rest[q].x() < 0.5 * kLength - 1e-6) continue;
+      sum += s.model.rest[q].y() - s.data.position[q].y();
       ++n;
     }
   }
   REQUIRE(n > 0);
-  REQUIRE(count_nonfinite(s) == 0);
+  REQUIRE(count_nonfinite(s.model, s.data) == 0);
   return sum / n;
 }
 
@@ -113,10 +113,10 @@ double cantilever_sag(const SagRun& r) {
 Vec3d centre_of_mass(const PbdState& s) {
   Vec3d c = Vec3d::Zero();
   double m = 0.0;
-  for (size_t q = 0; q < s.position.size(); ++q) {
-    if (s.refs[q] == 0) continue;
-    c += s.mass[q] * s.position[q];
-    m += s.mass[q];
+  for (size_t q = 0; q < s.data.position.size(); ++q) {
+    if (s.model.refs[q] == 0) continue;
+    c += s.model.mass[q] * s.data.position[q];
+    m += s.model.mass[q];
   }
   return c / m;
 }
@@ -124,21 +124,21 @@ Vec3d centre_of_mass(const PbdState& s) {
 // Deformed volume of the live pieces: each hexahedron's det F integrated by 2x2x2 Gauss points (exact
 // for a trilinear hexahedron), times the piece's material fraction.
 double deformed_volume(const PbdState& s) {
-  const double q = 1.0 / std::sqrt(3.0), v_full = s.sim_size * s.sim_size * s.sim_size;
-  const double eighth = s.fine_size * s.fine_size * s.fine_size / 8.0;
+  const double q = 1.0 / std::sqrt(3.0), v_full = s.model.sim_size * s.model.sim_size * s.model.sim_size;
+  const double eighth = s.model.fine_size * s.model.fine_size * s.model.fine_size / 8.0;
   double volume = 0.0;
-  for (uint32_t slot = 0; slot < s.pieces.size(); ++slot) {
-    const SimPiece& piece = s.pieces[slot];
+  for (uint32_t slot = 0; slot < s.model.pieces.size(); ++slot) {
+    const SimPiece& piece = s.model.pieces[slot];
     if (piece.sim_voxel == kDeadIndex) continue;
     double corners[24];
     for (int a = 0; a < 8; ++a) {
-      for (int e = 0; e < 3; ++e) corners[3 * a + e] = s.position[piece.particles[a]][e];
+      for (int e = 0; e < 3; ++e) corners[3 * a + e] = s.data.position[piece.particles[a]][e];
     }
     double j = 0.0;
     for (int g = 0; g < 8; ++g) {
       const double xi[3] = {(g & 1) ? q : -q, (g & 2) ? q : -q, (g & 4) ? q : -q};
       double F[9];
-      hex_deformation_gradient(corners, xi, 1.0 / s.sim_size, F);
+      hex_deformation_gradient(corners, xi, 1.0 / s.model.sim_size, F);
       j += F[0] * (F[4] * F[8] - F[5] * F[7]) - F[1] * (F[3] * F[8] - F[5] * F[6]) + F[2] * (F[3] * F[7] - F[4] * F[6]);
     }
     volume += j / 8.0 * double(piece.eighths) * eighth / v_full * v_full;
@@ -176,7 +176,7 @@ void horizontal_cut(dvx_test::WorldScene& w, double y, double x0, double x1, int
 
 uint64_t particle_hash(const PbdState& s) {
   uint64_t h = 1469598103934665603ull;
-  for (const Vec3d& p : s.position) {
+  for (const Vec3d& p : s.data.position) {
     for (int e = 0; e < 3; ++e) {
       uint64_t bits;
       std::memcpy(&bits, &p[e], 8);
@@ -261,7 +261,7 @@ TEST_SUITE("elastic") {
       double change = 0.0;
       for (int i = 0; i < 120; ++i) {
         const double t = std::min(1.0, double(i + 1) / 60);
-        w.pbd().params.gravity = Vec3d(0.0, -kG * t * t * (3.0 - 2.0 * t), 0.0);
+        w.pbd().model.params.gravity = Vec3d(0.0, -kG * t * t * (3.0 - 2.0 * t), 0.0);
         world_step(w.model, w.state, StepCommands(), StepContext());
         if (i >= 90) change += (deformed_volume(w.pbd()) - v0) / v0 / 30.0;
       }
@@ -275,15 +275,15 @@ TEST_SUITE("elastic") {
     dvx_test::WorldScene a, b;
     dvx_test::make_world(a, liver_block(), 32, 8, hanging_liver());
     dvx_test::make_world(b, liver_block(), 32, 8, hanging_liver());
-    b.pbd().chunk_work = 1;  // every batch split across the two threads
+    b.pbd().data.chunk_work = 1;  // every batch split across the two threads
     dvx_test::ThreadRunner two;
-    const double mass = total_mass(a.pbd());
+    const double mass = total_mass(a.pbd().model);
     // Severed at once (the blade sweeps while the block starts to sag: every cut step is a step).
-    const double y = a.pbd().origin.y() + 5 * a.pbd().sim_size - 0.3 * a.voxels().lattice.voxel_size;
+    const double y = a.pbd().model.origin.y() + 5 * a.pbd().model.sim_size - 0.3 * a.voxels().lattice.voxel_size;
     horizontal_cut(a, y, -0.2, 0.2, 48);
     horizontal_cut(b, y, -0.2, 0.2, 48, two.runner());
     CHECK(surface_stats(compact_surface(a.state.cut.surface)).components == 2);
-    CHECK(total_mass(a.pbd()) == mass);
+    CHECK(total_mass(a.pbd().model) == mass);
     for (int i = 0; i < 30; ++i) {
       world_step(a.model, a.state, StepCommands(), StepContext());
       StepContext context;
@@ -293,7 +293,7 @@ TEST_SUITE("elastic") {
     CHECK(two.splits > 100);
     // The octants (the quadrature weights) of every piece partition its material exactly, cut or not.
     uint32_t partial = 0;
-    for (const SimPiece& piece : a.pbd().pieces) {
+    for (const SimPiece& piece : a.pbd().model.pieces) {
       if (piece.sim_voxel == kDeadIndex) continue;
       uint64_t sum = 0;
       for (uint32_t o : piece.octants) sum += o;
@@ -302,35 +302,36 @@ TEST_SUITE("elastic") {
     }
     CHECK(partial > 0);
     CHECK(particle_hash(a.pbd()) == particle_hash(b.pbd()));
-    CHECK(count_nonfinite(a.pbd()) == 0);
+    CHECK(count_nonfinite(a.pbd().model, a.pbd().data) == 0);
     // The part below the cut falls freely (about g t^2 / 2 in 0.5 s), the top stays.
-    CHECK(total_mass(a.pbd()) == mass);
+    CHECK(total_mass(a.pbd().model) == mass);
   }
 
   TEST_CASE("hard cases stay finite with mass exact") {
     const auto run = [](PbdParams p, int resolution, int sim, int steps, bool cuts) {
       dvx_test::WorldScene w;
       dvx_test::make_world(w, liver_block(), resolution, sim, p);
-      const double mass = total_mass(w.pbd());
+      const double mass = total_mass(w.pbd().model);
       const double y0 = centre_of_mass(w.pbd()).y();
       const double h = w.voxels().lattice.voxel_size;
       if (cuts) {
         // A flap one fine voxel thick (a cut one voxel under the bottom face, halfway across), and a
         // cut just under a simulation-voxel face through everything (sliver pieces).
         horizontal_cut(w, -0.1 + 1.02 * h, -0.2, 0.0, 24);
-        const double face = w.pbd().origin.y() + 5 * w.pbd().sim_size;
+        const double face = w.pbd().model.origin.y() + 5 * w.pbd().model.sim_size;
         horizontal_cut(w, face - 0.3 * h, -0.2, 0.2, 48);
       }
       const int components = surface_stats(compact_surface(w.state.cut.surface)).components;
       CHECK(components == (cuts ? 2 : 1));
       for (int i = 0; i < steps; ++i) world_step(w.model, w.state, StepCommands(), StepContext());
-      CHECK(count_nonfinite(w.pbd()) == 0);
-      CHECK(total_mass(w.pbd()) == mass);
+      CHECK(count_nonfinite(w.pbd().model, w.pbd().data) == 0);
+      CHECK(total_mass(w.pbd().model) == mass);
       // Energy is bounded by the potential energy released (the constraints and their damping
       // only take energy out): kinetic <= m g (drop of the centre of mass), whatever hangs or falls.
       const double drop = y0 - centre_of_mass(w.pbd()).y();
-      MESSAGE("kinetic energy " << kinetic_energy(w.pbd()) << " J, potential released " << mass * 9.81 * drop << " J");
-      CHECK(kinetic_energy(w.pbd()) <= mass * 9.81 * drop * 1.01 + 1e-3);
+      MESSAGE("kinetic energy " << kinetic_energy(w.pbd().model, w.pbd().data) << " J, potential released "
+                                << mass * 9.81 * drop << " J");
+      CHECK(kinetic_energy(w.pbd().model, w.pbd().data) <= mass * 9.81 * drop * 1.01 + 1e-3);
     };
     SUBCASE("nu = 0.499") {
       PbdParams p = hanging_liver();

@@ -74,9 +74,9 @@ StepCommands release() {
 double extension(const PbdState& s) {
   double sum = 0.0;
   int n = 0;
-  for (size_t q = 0; q < s.position.size(); ++q) {
-    if (s.refs[q] == 0 || s.rest[q].x() < 0.5 * kLength - 1e-6) continue;
-    sum += s.position[q].x() - s.rest[q].x();
+  for (size_t q = 0; q < s.data.position.size(); ++q) {
+    if (s.model.refs[q] == 0 || s.model.rest[q].x() < 0.5 * kLength - 1e-6) continue;
+    sum += s.data.position[q].x() - s.model.rest[q].x();
     ++n;
   }
   REQUIRE(n > 0);
@@ -87,8 +87,9 @@ double extension(const PbdState& s) {
 // x) / compliance over the held particles = stiffness x (target - held point).
 Vec3d spring_force(const PbdState& s) {
   Vec3d f = Vec3d::Zero();
-  for (size_t i = 0; i < s.grab_particles.size(); ++i) {
-    f += (s.grab_target + s.grab_offsets[i] - s.position[s.grab_particles[i]]) / s.grab_compliance[i];
+  for (size_t i = 0; i < s.data.grab_particles.size(); ++i) {
+    f += (s.data.grab_target + s.data.grab_offsets[i] - s.data.position[s.data.grab_particles[i]]) /
+         s.data.grab_compliance[i];
   }
   return f;
 }
@@ -116,8 +117,8 @@ TEST_SUITE("grab") {
     pull(w, kPull, 60, 180, report);
     const PbdState& s = w.pbd();
     // The region: the embedding piece's corners and the particles within the radius, none anchored.
-    CHECK(s.grab_particles.size() >= 8);
-    CHECK(report.grab_held == s.grab_particles.size());
+    CHECK(s.data.grab_particles.size() >= 8);
+    CHECK(report.grab_held == s.data.grab_particles.size());
     CHECK(report.grab_anchored == 0);
     // The force from the multipliers, the spring's at the same positions, the bar's.
     const double force = report.grab_force_n;
@@ -125,7 +126,7 @@ TEST_SUITE("grab") {
     const double delta = extension(s);
     const double bar = kE * kThick * kThick / kLength * delta;
     MESSAGE("grab force " << force << " N, spring " << spring.norm() << " N, E A / L x " << delta << " m = " << bar
-                          << " N, held " << s.grab_particles.size());
+                          << " N, held " << s.data.grab_particles.size());
     // (The voxelized bar holds 87 % of the box's volume, the outer fine nodes lying on its faces: its
     // measured stiffness, about 0.92 E A / L, is between the nominal and that share of it.)
     CHECK(force > 1.0);
@@ -172,7 +173,7 @@ TEST_SUITE("grab") {
       world_step(w.model, w.state, grab_at(Vec3d(-0.5 * kLength, 0.0, 0.0)), context, &report);
       CHECK(report.grab_anchored > 0);
       CHECK(report.grab_held > 0);
-      for (uint32_t p : w.pbd().grab_particles) CHECK(w.pbd().inv_mass[p] > 0.0);
+      for (uint32_t p : w.pbd().data.grab_particles) CHECK(w.pbd().model.inv_mass[p] > 0.0);
     }
     {
       // Two layers anchored, a small radius: every candidate is anchored; the grab is on (a move
@@ -184,12 +185,12 @@ TEST_SUITE("grab") {
       world_step(w.model, w.state, c, context, &report);
       CHECK(report.grab_held == 0);
       CHECK(report.grab_anchored > 0);
-      CHECK(grab_active(w.pbd()));
+      CHECK(grab_active(w.pbd().data));
       c.grab.target = Vec3d(-0.3, 0.0, 0.0);
       world_step(w.model, w.state, c, context, &report);
       CHECK(report.grab_held == 0);
       CHECK(report.grab_force_n == 0.0);
-      CHECK(w.pbd().grab_target.x() == -0.3);
+      CHECK(w.pbd().data.grab_target.x() == -0.3);
     }
   }
 
@@ -199,7 +200,7 @@ TEST_SUITE("grab") {
     for (int workers : {1, 2}) {
       dvx_test::WorldScene w;
       make_bar(w, 5);
-      w.pbd().chunk_work = 1;
+      w.pbd().data.chunk_work = 1;
       dvx_test::ThreadRunner runner;
       runner.workers = workers;
       StepReport report;
@@ -222,8 +223,8 @@ TEST_SUITE("grab") {
     c.grab.compliance = 1e-4;
     StepReport report;
     world_step(w.model, w.state, c, StepContext(), &report);
-    CHECK(w.pbd().grab_particles.size() == 1);
-    CHECK_FALSE(w.pbd().grab_region);
+    CHECK(w.pbd().data.grab_particles.size() == 1);
+    CHECK_FALSE(w.pbd().data.grab_region);
     CHECK(report.grab_held == 1);
   }
 }

@@ -238,22 +238,22 @@ TEST_SUITE("manifold") {
         PbdParams params;
         params.resolution = 32;
         params.sim_resolution = 8;
-        REQUIRE_MESSAGE(init_pbd(model, state, params, pbd, error), error);
+        REQUIRE_MESSAGE(init_pbd(model, state, params, pbd.model, pbd.data, error), error);
         const double volume_before = surface_stats(compact_surface(state.surface)).volume;
-        const double mass_before = total_mass(pbd);
+        const double mass_before = total_mass(pbd.model);
         for (size_t i = 1; i < path.points.size(); ++i) {
           const Vec3d& p = path.points[i - 1];
           const Vec3d& q = path.points[i];
           dvx_test::sweep_steps(model, state, z_blade(p.x(), p.y(), path.half_z), z_blade(q.x(), q.y(), path.half_z), 20,
                                 [&](int) {
                                   checked(model, state);
-                                  pbd_apply_cut(model, state, pbd);
+                                  pbd_apply_cut(model, state, pbd.model, pbd.data);
                                 });
         }
-        REQUIRE_MESSAGE(check_pbd_state(model, state, pbd, error), error);
+        REQUIRE_MESSAGE(check_pbd_state(model, state, pbd.model, pbd.data, error), error);
         const double volume_after = surface_stats(compact_surface(state.surface)).volume;
         const double volume_change = (volume_after - volume_before) / volume_before;
-        const double mass_change = (total_mass(pbd) - mass_before) / mass_before;
+        const double mass_change = (total_mass(pbd.model) - mass_before) / mass_before;
         MESSAGE(name << " (sheet at " << xf << " voxels): volume change " << 100.0 * volume_change << " %, mass change "
                      << 100.0 * mass_change << " %, dropped " << cut_dropped_length(model, state) << " voxels");
         CHECK(std::abs(volume_change) <= 0.0005);

@@ -78,7 +78,7 @@ TEST_SUITE("pbd") {
       PbdCutStats stats;
       g_allocations = 0;
       g_counting = true;
-      pbd_apply_cut(s.model, s.cut, s.pbd, &stats);
+      pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data, &stats);
       g_counting = false;
       if (stats.sim_voxels == 0) continue;
       ++cutting;
@@ -86,7 +86,7 @@ TEST_SUITE("pbd") {
       allocating += g_allocations > 0;
     }
     std::string error;
-    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd, error), error);
+    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd.model, s.pbd.data, error), error);
     MESSAGE("steps relabelling: " << cutting << ", with an allocation: " << allocating << ", allocations: " << total);
     REQUIRE(cutting > 100);
     // Growth only: a per-step allocation would show in every step.
@@ -106,7 +106,7 @@ TEST_SUITE("pbd") {
     cut_step(s.model, s.cut, {Vec3d(5, 5, -1), Vec3d(5, 5, 1)}, {Vec3d(6, 5, -1), Vec3d(6, 5, 1)});
     g_allocations = 0;
     g_counting = true;
-    const uint32_t relabelled = pbd_apply_cut(s.model, s.cut, s.pbd);
+    const uint32_t relabelled = pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data);
     g_counting = false;
     CHECK(relabelled == 0);
     CHECK(g_allocations == 0);

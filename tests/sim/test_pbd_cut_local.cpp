@@ -22,12 +22,12 @@ TEST_SUITE("pbd") {
       CAPTURE(sim_resolution);
       dvx_test::PbdScene s;
       dvx_test::make_pbd_scene(s, box, 64, sim_resolution, PbdParams{});
-      const uint32_t pieces_before = live_pieces(s.pbd);
+      const uint32_t pieces_before = live_pieces(s.pbd.model);
       PbdCutStats total, level;
       for (const auto& c : cuts) {
         dvx_test::sweep_steps(s.model, s.cut, c.from, c.to, 80, [&](int) {
           PbdCutStats step;
-          pbd_apply_cut(s.model, s.cut, s.pbd, &step);
+          pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data, &step);
           const auto add = [](PbdCutStats& t, const PbdCutStats& d) {
             t.sim_voxels += d.sim_voxels;
             t.kept_by_search += d.kept_by_search;
@@ -37,7 +37,7 @@ TEST_SUITE("pbd") {
           add(total, step);
           if (&c == cuts) add(level, step);
           std::string error;
-          REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd, error), error);
+          REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd.model, s.pbd.data, error), error);
         });
       }
       MESSAGE("blocks looked at: " << total.sim_voxels << " (level blade " << level.sim_voxels
@@ -52,17 +52,17 @@ TEST_SUITE("pbd") {
       CHECK(level.components_changed > 0);
       CHECK(total.components_changed > level.components_changed);
       CHECK(total.kept_by_search + total.span_relabels == total.sim_voxels);
-      CHECK(live_pieces(s.pbd) > pieces_before);
+      CHECK(live_pieces(s.pbd.model) > pieces_before);
       // The same pieces and particles as a model built from scratch on the cut state.
       PbdState fresh;
       std::string error;
       PbdParams params;
       params.resolution = 64;
       params.sim_resolution = sim_resolution;
-      REQUIRE(init_pbd(s.model, s.cut, params, fresh, error));
-      CHECK(live_pieces(fresh) == live_pieces(s.pbd));
-      CHECK(live_particles(fresh) == live_particles(s.pbd));
-      CHECK(total_mass(fresh) == total_mass(s.pbd));
+      REQUIRE(init_pbd(s.model, s.cut, params, fresh.model, fresh.data, error));
+      CHECK(live_pieces(fresh.model) == live_pieces(s.pbd.model));
+      CHECK(live_particles(fresh.model) == live_particles(s.pbd.model));
+      CHECK(total_mass(fresh.model) == total_mass(s.pbd.model));
     }
   }
 }

@@ -32,14 +32,14 @@ bool same_bytes(const std::vector<T>& a, const std::vector<T>& b) {
 
 uint64_t position_hash(const PbdState& s) {
   Fnv1a f;
-  for (const Vec3d& p : s.position) f.bytes(p.data(), 3 * sizeof(double));
+  for (const Vec3d& p : s.data.position) f.bytes(p.data(), 3 * sizeof(double));
   return f.value;
 }
 
 // The embedding rows as a set (their order is free: each row writes its own slot).
 std::vector<std::tuple<uint32_t, uint32_t, float, float, float>> row_set(const PbdState& s) {
   std::vector<std::tuple<uint32_t, uint32_t, float, float, float>> rows;
-  for (const EmbedRow& r : s.cache.embed_rows) rows.emplace_back(r.slot, r.piece, r.u, r.v, r.w);
+  for (const EmbedRow& r : s.data.cache.embed_rows) rows.emplace_back(r.slot, r.piece, r.u, r.v, r.w);
   std::sort(rows.begin(), rows.end());
   return rows;
 }
@@ -50,7 +50,7 @@ std::map<uint32_t, std::vector<uint8_t>> lanes_by_piece(const PbdState& s, uint3
   std::map<uint32_t, std::vector<uint8_t>> lanes;
   Fnv1a overflow;
   for (int c = 0; c < kColourGroups; ++c) {
-    for (const ShapeBlock& b : s.cache.shape_blocks[c]) {
+    for (const ShapeBlock& b : s.data.cache.shape_blocks[c]) {
       for (int l = 0; l < b.lanes; ++l) {
         std::vector<uint8_t> bytes;
         const auto put = [&](const void* p, size_t n) {
@@ -77,10 +77,10 @@ std::map<uint32_t, std::vector<uint8_t>> lanes_by_piece(const PbdState& s, uint3
 // Everything a cache holds, compared between the incremental state `a` and the rebuilt one `b`.
 void check_caches_equal(const PbdState& a, const PbdState& b) {
   CHECK(position_hash(a) == position_hash(b));
-  CHECK(a.deformed == b.deformed);
+  CHECK(a.data.deformed == b.data.deformed);
   CHECK(row_set(a) == row_set(b));
-  const ContactIndex& x = a.piece_contacts.index;
-  const ContactIndex& y = b.piece_contacts.index;
+  const ContactIndex& x = a.data.piece_contacts.index;
+  const ContactIndex& y = b.data.piece_contacts.index;
   CHECK(x.slots == y.slots);
   CHECK(x.pieces == y.pieces);
   CHECK(x.slot_piece == y.slot_piece);
@@ -92,8 +92,8 @@ void check_caches_equal(const PbdState& a, const PbdState& b) {
     CHECK(x.bodies == y.bodies);
   }
   // The contact allowances (fresh slots found from the index's revisited ones, or by comparing all).
-  const PieceContacts& pa = a.piece_contacts;
-  const PieceContacts& pb = b.piece_contacts;
+  const PieceContacts& pa = a.data.piece_contacts;
+  const PieceContacts& pb = b.data.piece_contacts;
   REQUIRE(pa.seen.size() == pb.seen.size());
   CHECK(same_bytes(pa.seen, pb.seen));
   CHECK(pa.allowance == pb.allowance);
@@ -102,9 +102,9 @@ void check_caches_equal(const PbdState& a, const PbdState& b) {
   CHECK(oa == ob);  // the overflow colour in its group's order
   for (int c = 0; c < kColourGroups; ++c) {
     // As many blocks per colour (the solver's batches), and the same stretch rows in order.
-    CHECK(a.cache.shape_blocks[c].size() == b.cache.shape_blocks[c].size());
-    REQUIRE(a.cache.stretch_rows[c].size() == b.cache.stretch_rows[c].size());
-    CHECK(same_bytes(a.cache.stretch_rows[c], b.cache.stretch_rows[c]));
+    CHECK(a.data.cache.shape_blocks[c].size() == b.data.cache.shape_blocks[c].size());
+    REQUIRE(a.data.cache.stretch_rows[c].size() == b.data.cache.stretch_rows[c].size());
+    CHECK(same_bytes(a.data.cache.stretch_rows[c], b.data.cache.stretch_rows[c]));
   }
 }
 
@@ -121,25 +121,25 @@ void cut_and_compare(const PbdParams& params, bool headless) {
   uint64_t incremental = 0;
   const auto cut = [&](const BladePose& next) {
     cut_step(s.model, s.cut, previous, next);
-    pbd_apply_cut(s.model, s.cut, s.pbd);
-    pbd_apply_cut(s.model, s.cut, fresh);
+    pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data);
+    pbd_apply_cut(s.model, s.cut, fresh.model, fresh.data);
     previous = next;
     std::string error;
-    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd, error), error);
+    REQUIRE_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd.model, s.pbd.data, error), error);
   };
   const auto step = [&]() {
-    const uint64_t updates = s.pbd.piece_contacts.index.updates;
-    pbd_step(s.cut, s.pbd, {}, !headless);
-    pbd_forget_caches(fresh);
-    pbd_step(s.cut, fresh, {}, !headless);
+    const uint64_t updates = s.pbd.data.piece_contacts.index.updates;
+    pbd_step(s.cut, s.pbd.model, s.pbd.data, {}, !headless);
+    pbd_forget_caches(fresh.data);
+    pbd_step(s.cut, fresh.model, fresh.data, {}, !headless);
     // Headless: the surface embedded every third step only (after several cuts, when nothing but
     // the embedding reads the index).
     const bool embedded = !headless || steps % 3 == 0;
     if (headless && embedded) {
-      pbd_embed(s.cut, s.pbd);
-      pbd_embed(s.cut, fresh);
+      pbd_embed(s.cut, s.pbd.model, s.pbd.data);
+      pbd_embed(s.cut, fresh.model, fresh.data);
     }
-    incremental += s.pbd.piece_contacts.index.updates != updates && !s.pbd.piece_contacts.index.rebuilt;
+    incremental += s.pbd.data.piece_contacts.index.updates != updates && !s.pbd.data.piece_contacts.index.rebuilt;
     if (embedded) {
       check_caches_equal(s.pbd, fresh);
     } else {
@@ -172,7 +172,7 @@ void cut_and_compare(const PbdParams& params, bool headless) {
     step();
   }
   for (int i = 0; i < 5; ++i) step();
-  CHECK(s.pbd.revision > 10);      // the cuts changed the model
+  CHECK(s.pbd.model.revision > 10);      // the cuts changed the model
   CHECK(incremental >= (headless ? 5u : 15u));  // and the index followed them without a rebuild
   MESSAGE("incremental index updates: " << incremental);
 }

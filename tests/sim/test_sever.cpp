@@ -107,8 +107,8 @@ SweepResult sweep(Body& b, const BladePose& from, const BladePose& to, int steps
         if (s.triangles[t][0] == kDeadIndex || !s.triangle_cut[t]) continue;
         if (!m.seen->insert(face_key(s, t)).second) continue;
         Vec3d centre = Vec3d::Zero();
-        for (uint32_t v : s.triangles[t]) centre += state.pbd->deformed[v].cast<double>() / 3.0;
-        m.r->distance.push_back(std::abs(m.normal.dot(centre - m.origin)) / state.pbd->fine_size);
+        for (uint32_t v : s.triangles[t]) centre += state.pbd->data.deformed[v].cast<double>() / 3.0;
+        m.r->distance.push_back(std::abs(m.normal.dot(centre - m.origin)) / state.pbd->model.fine_size);
       }
     };
     StepReport report;
@@ -116,7 +116,7 @@ SweepResult sweep(Body& b, const BladePose& from, const BladePose& to, int steps
     r.edges_cut += report.cut.edges_cut;
     std::string error;
     REQUIRE_MESSAGE(check_cut_state(b.voxels(), b.state.cut, error), error);
-    REQUIRE_MESSAGE(check_pbd_state(b.voxels(), b.state.cut, b.pbd(), error), error);
+    REQUIRE_MESSAGE(check_pbd_state(b.voxels(), b.state.cut, b.pbd().model, b.pbd().data, error), error);
   }
   // The stroke ends (the blade lifted, as on a mouse release): its seams close, its voxels are let go.
   CHECK(!b.state.stroke_voxels.empty());
@@ -233,7 +233,7 @@ TEST_SUITE("sever") {
         return grab_to(centre + radius * Vec3d(std::sin(angle), -std::cos(angle), 0.0));
       };
       drive(b, 210, target);
-      REQUIRE(b.pbd().position[b.pbd().grab_particles.at(0)].y() > 1.2);  // bent: the end points up
+      REQUIRE(b.pbd().data.position[b.pbd().data.grab_particles.at(0)].y() > 1.2);  // bent: the end points up
       // A horizontal blade at y = 1 swept across the bar while the grab holds it bent.
       SweepResult r = sweep(b, blade_at(-2.0, 1.0137, 1.0), blade_at(2.0, 1.0137, 1.0), steps,
                             [&](int) { return target(210); });
@@ -251,7 +251,7 @@ TEST_SUITE("sever") {
       // Pull the free end out by 1.5 (half the bar's length), then keep pulling during the sweep.
       const auto target = [&](int i) { return grab_to(Vec3d(1.5 + 0.015 * std::min(i, 100) + 0.005 * std::max(0, i - 100), 0.0, 0.0)); };
       drive(b, 100, target);
-      const double span = b.pbd().position[b.pbd().grab_particles.at(0)].x() + 1.5;
+      const double span = b.pbd().data.position[b.pbd().data.grab_particles.at(0)].x() + 1.5;
       MESSAGE("stretched to " << span / 3.0 << " x");
       // A vertical blade along z at x = 0.4 swept down across the bar, the grab still pulling.
       const BladePose from{Vec3d(0.4137, 1.0, -1.0), Vec3d(0.4137, 1.0, 1.0)};
@@ -308,7 +308,7 @@ TEST_SUITE("sever") {
       dvx_test::make_world(b, make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1), 32, 8, p);
       // The block moves up along y; the blade sweeps across it at a height it passes through while
       // it is swept (the block's middle reaches the blade's height halfway through the sweep).
-      for (Vec3d& v : b.pbd().velocity) v = Vec3d(0.2, c.speed, 0.0);
+      for (Vec3d& v : b.pbd().data.velocity) v = Vec3d(0.2, c.speed, 0.0);
       const double t_half = 0.5 * c.steps * b.model.params.dt;
       const double y = 0.0021 + c.speed * t_half + 0.0137;
       SweepResult r = sweep(b, blade_at(-1.2, y, 2.0), blade_at(1.6, y, 2.0), c.steps);
@@ -316,7 +316,7 @@ TEST_SUITE("sever") {
       CHECK(r.components == 2);
       // The material that passed the blade during a step is cut along its path relative to the
       // blade: at cut time those faces lie up to the block's motion in one step off the blade's plane.
-      const double motion = c.speed * b.model.params.dt / b.pbd().fine_size;
+      const double motion = c.speed * b.model.params.dt / b.pbd().model.fine_size;
       CHECK(r.p95() <= 1.0 + motion);
     }
   }
@@ -415,7 +415,7 @@ TEST_SUITE("sever") {
       CHECK(components(b) == before);
     }
     const std::vector<double> volumes = component_volumes(compact_surface(b.state.cut.surface));
-    const double h = b.pbd().fine_size;
+    const double h = b.pbd().model.fine_size;
     CHECK(*std::min_element(volumes.begin(), volumes.end()) >= h * h * h);
   }
 }

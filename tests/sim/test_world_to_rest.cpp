@@ -36,7 +36,7 @@ CutStepStats world_cut(Body& b, const BladePose& from, const BladePose& to) {
   const CutStepStats stats = dvx_test::world_cut_step(b.model, b.state, from, to).cut;
   std::string error;
   REQUIRE_MESSAGE(check_cut_state(b.voxels(), b.state.cut, error), error);
-  REQUIRE_MESSAGE(check_pbd_state(b.voxels(), b.state.cut, b.pbd(), error), error);
+  REQUIRE_MESSAGE(check_pbd_state(b.voxels(), b.state.cut, b.pbd().model, b.pbd().data, error), error);
   return stats;
 }
 
@@ -122,7 +122,7 @@ TEST_SUITE("world_to_rest") {
       blade = next;
     }
     REQUIRE(components(b) == 2);
-    for (int i = 0; i < 60; ++i) pbd_step(b.state.cut, b.pbd());
+    for (int i = 0; i < 60; ++i) pbd_step(b.state.cut, b.pbd().model, b.pbd().data);
     // Where the lower part was (y = -0.5): air now.
     reset_sweep(b.state.sweep);
     uint32_t edges = 0;
@@ -158,28 +158,28 @@ TEST_SUITE("world_to_rest") {
     // Drag the free end along a quarter circle about the anchored end: a 90 degree bend.
     const double radius = 2.0 * 2.8 / M_PI;
     const Vec3d centre(-1.3, radius, 0.0);
-    grab_begin(b.pbd(), Vec3d(1.5, 0.0, 0.0), 1e-7);
+    grab_begin(b.pbd().model, b.pbd().data, Vec3d(1.5, 0.0, 0.0), 1e-7);
     const int drag = 150;
     for (int i = 0; i <= drag + 60; ++i) {
       const double angle = 0.5 * M_PI * std::min(i, drag) / drag;
-      grab_move(b.pbd(), centre + radius * Vec3d(std::sin(angle), -std::cos(angle), 0.0));
-      pbd_step(b.state.cut, b.pbd());
+      grab_move(b.pbd().data, centre + radius * Vec3d(std::sin(angle), -std::cos(angle), 0.0));
+      pbd_step(b.state.cut, b.pbd().model, b.pbd().data);
     }
-    const Vec3d end = b.pbd().position[b.pbd().grab_particles.at(0)];
+    const Vec3d end = b.pbd().data.position[b.pbd().data.grab_particles.at(0)];
     REQUIRE(end.y() > 1.2);  // bent: the end points up
     // A horizontal blade at y = 1, swept across the bar in one step.
     const double plane = 1.0137;
     const CutStepStats stats = world_cut(b, {Vec3d(-2, plane, -1), Vec3d(-2, plane, 1)}, {Vec3d(2, plane, -1), Vec3d(2, plane, 1)});
     REQUIRE(stats.edges_cut > 0);
-    pbd_embed(b.state.cut, b.pbd());
+    pbd_embed(b.state.cut, b.pbd().model, b.pbd().data);
     // Cut faces, in world space, lie on the blade's plane.
     std::vector<double> distance;
     const CutSurface& s = b.state.cut.surface;
     for (size_t t = 0; t < s.triangles.size(); ++t) {
       if (s.triangles[t][0] == kDeadIndex || !s.triangle_cut[t]) continue;
       Vec3d c = Vec3d::Zero();
-      for (uint32_t v : s.triangles[t]) c += b.pbd().deformed[v].cast<double>() / 3.0;
-      distance.push_back(std::abs(c.y() - plane) / b.pbd().fine_size);
+      for (uint32_t v : s.triangles[t]) c += b.pbd().data.deformed[v].cast<double>() / 3.0;
+      distance.push_back(std::abs(c.y() - plane) / b.pbd().model.fine_size);
     }
     REQUIRE(distance.size() > 20);
     std::sort(distance.begin(), distance.end());
@@ -198,10 +198,10 @@ TEST_SUITE("world_to_rest") {
     make_body(b, make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1), 32, 8, p);
     // The blade stands still above the block; the grab pulls the block up through it.
     const BladePose parked{Vec3d(0.0137, 1.5, -2), Vec3d(0.0137, 1.5, 2)};
-    grab_begin(b.pbd(), Vec3d(0.0, 1.0, 0.0), 1e-6);
+    grab_begin(b.pbd().model, b.pbd().data, Vec3d(0.0, 1.0, 0.0), 1e-6);
     uint32_t edges = 0;
     for (int i = 1; i <= 90; ++i) {
-      grab_move(b.pbd(), Vec3d(0.0, 1.0 + 0.045 * i, 0.0));
+      grab_move(b.pbd().data, Vec3d(0.0, 1.0 + 0.045 * i, 0.0));
       edges += world_cut(b, parked, parked).edges_cut;
     }
     CHECK(edges > 0);

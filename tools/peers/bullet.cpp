@@ -41,7 +41,7 @@ double thread_ms() {
 }
 
 // The live particles of a PBD model (slots with references), in slot order.
-std::vector<uint32_t> live_slots(const PbdState& s) {
+std::vector<uint32_t> live_slots(const PbdModel& s) {
   std::vector<uint32_t> live;
   for (uint32_t p = 0; p < s.refs.size(); ++p) {
     if (s.refs[p] != 0) live.push_back(p);
@@ -54,7 +54,7 @@ struct Shape {
   std::vector<Vec3d> positions;
 };
 
-double mean_sag(const PbdState& s, const std::vector<uint32_t>& live, const Shape& shape) {
+double mean_sag(const PbdModel& s, const std::vector<uint32_t>& live, const Shape& shape) {
   double sum = 0.0;
   uint64_t count = 0;
   for (size_t i = 0; i < live.size(); ++i) {
@@ -65,7 +65,7 @@ double mean_sag(const PbdState& s, const std::vector<uint32_t>& live, const Shap
   return count ? sum / double(count) : 0.0;
 }
 
-double rms_distance(const PbdState& s, const std::vector<uint32_t>& live, const Shape& a, const Shape& b) {
+double rms_distance(const PbdModel& s, const std::vector<uint32_t>& live, const Shape& a, const Shape& b) {
   double sum = 0.0;
   uint64_t count = 0;
   for (size_t i = 0; i < live.size(); ++i) {
@@ -82,28 +82,28 @@ double rms_distance(const PbdState& s, const std::vector<uint32_t>& live, const 
 Shape run_divvox(const Session& session, const PbdState& initial, int iterations, int steps,
                  std::vector<double>& step_ms, std::vector<double>& embed_ms) {
   PbdState s = initial;
-  s.params.iterations = iterations;
-  s.params.substeps = 1;
-  s.params.planes.clear();
-  s.params.piece_contact = false;
+  s.model.params.iterations = iterations;
+  s.model.params.substeps = 1;
+  s.model.params.planes.clear();
+  s.model.params.piece_contact = false;
   for (int i = 0; i < steps; ++i) {
     const double t0 = thread_ms();
-    pbd_step(session.state.cut, s);
+    pbd_step(session.state.cut, s.model, s.data);
     step_ms.push_back(thread_ms() - t0);
   }
   // The embedding alone (pbd_step ends with it), for the PBD-only share.
   for (int i = 0; i < 10; ++i) {
     const double t0 = thread_ms();
-    pbd_embed(session.state.cut, s);
+    pbd_embed(session.state.cut, s.model, s.data);
     embed_ms.push_back(thread_ms() - t0);
   }
   Shape shape;
-  for (uint32_t p : live_slots(s)) shape.positions.push_back(s.position[p]);
+  for (uint32_t p : live_slots(s.model)) shape.positions.push_back(s.data.position[p]);
   return shape;
 }
 
 // Bullet from rest, the same particles, links and parameters.
-Shape run_bullet(const PbdState& initial, int iterations, int steps, double dt, uint64_t& links,
+Shape run_bullet(const PbdModel& initial, int iterations, int steps, double dt, uint64_t& links,
                  uint64_t& bending_links, std::vector<double>& step_ms) {
   const std::vector<uint32_t> live = live_slots(initial);
   std::vector<int> node_of(initial.refs.size(), -1);
@@ -158,13 +158,13 @@ std::string run_bullet(const BulletOptions& options) {
   Session session;
   open_session(scene, dt, true, 1, session);
   const PbdState initial = *session.state.pbd;
-  const std::vector<uint32_t> live = live_slots(initial);
+  const std::vector<uint32_t> live = live_slots(initial.model);
   const int steps = std::max(1, int(std::lround(options.seconds / dt)));
 
   // The converged reference: divvox at many iterations.
   std::vector<double> ref_ms, ref_embed_ms;
   const Shape reference = run_divvox(session, initial, options.reference_iterations, steps, ref_ms, ref_embed_ms);
-  const double reference_sag = mean_sag(initial, live, reference);
+  const double reference_sag = mean_sag(initial.model, live, reference);
 
   nlohmann::json rows = nlohmann::json::array();
   std::vector<CsvRow> csv_rows;
@@ -172,7 +172,7 @@ std::string run_bullet(const BulletOptions& options) {
     std::vector<double> divvox_ms, embed_ms, bullet_ms;
     const Shape ours = run_divvox(session, initial, iterations, steps, divvox_ms, embed_ms);
     uint64_t links = 0, bending = 0;
-    const Shape theirs = run_bullet(initial, iterations, steps, dt, links, bending, bullet_ms);
+    const Shape theirs = run_bullet(initial.model, iterations, steps, dt, links, bending, bullet_ms);
     const double embed = median(embed_ms);
     const double divvox_pbd = std::max(0.0, median(divvox_ms) - embed);
     const nlohmann::json row = {{"iterations", iterations},
@@ -184,11 +184,11 @@ std::string run_bullet(const BulletOptions& options) {
                                 {"bullet_step_ms_p50", median(bullet_ms)},
                                 {"bullet_step_ms_p99", quantile(bullet_ms, 0.99)},
                                 {"speedup_pbd", divvox_pbd > 0 ? median(bullet_ms) / divvox_pbd : 0.0},
-                                {"divvox_sag", mean_sag(initial, live, ours)},
-                                {"bullet_sag", mean_sag(initial, live, theirs)},
+                                {"divvox_sag", mean_sag(initial.model, live, ours)},
+                                {"bullet_sag", mean_sag(initial.model, live, theirs)},
                                 {"reference_sag", reference_sag},
-                                {"divvox_rms_to_reference", rms_distance(initial, live, ours, reference)},
-                                {"bullet_rms_to_reference", rms_distance(initial, live, theirs, reference)},
+                                {"divvox_rms_to_reference", rms_distance(initial.model, live, ours, reference)},
+                                {"bullet_rms_to_reference", rms_distance(initial.model, live, theirs, reference)},
                                 {"bullet_links", links},
                                 {"bullet_bending_links", bending}};
     rows.push_back(row);
@@ -202,8 +202,8 @@ std::string run_bullet(const BulletOptions& options) {
                                  {"bullet_double_precision", sizeof(btScalar) == 8},
                                  {"scene", options.scene},
                                  {"particles", live.size()},
-                                 {"pieces", live_pieces(initial)},
-                                 {"stretch_constraints", stretch_count(initial)},
+                                 {"pieces", live_pieces(initial.model)},
+                                 {"stretch_constraints", stretch_count(initial.model)},
                                  {"dt", dt},
                                  {"seconds", options.seconds},
                                  {"threads", 1},
