@@ -1,6 +1,6 @@
 // The topology of the simulation pieces (sim/pbd.h "Particles"): piece and particle slots, the stretch
-// constraints and colour groups pieces join and leave, and the particles at the coarse corners (one
-// per group of pieces that material joins there).
+// constraints and colour groups pieces join and leave, the particles at the coarse corners (one per
+// group of pieces that material joins there), and pbd_apply_cut, a cut step's update of them.
 #include "sim/pbd_internal.h"
 #include "sim/id_pool.h"
 
@@ -384,4 +384,188 @@ void corner_coords(const PbdModel& s, uint64_t id, int32_t& I, int32_t& J, int32
 }
 
 }  // namespace pbd_internal
+
+// ---- A cut step's model update ---------------------------------------------------------------
+
+using namespace pbd_internal;
+
+namespace {
+
+// pbd_apply_cut's first stage: the cut step's reshaped fine voxels by simulation voxel in
+// s.scratch.changed (sim voxel << 32 | index in reshaped_voxels up to kSpanRatio, else fine voxel),
+// and the simulation voxels with pieces among them, sorted, in s.scratch.sim.
+void collect_changed(const VoxelModel& model, const CutState& cut, PbdModel& s) {
+  // The simulation voxels holding fine voxels whose pieces may have changed (new cut or air edges;
+  // the others only moved vertices). Up to kSpanRatio a block is relabelled whole, so only the
+  // voxels are needed (consecutive fine voxels mostly share one: deduplicated on the fly, then
+  // sorted); beyond it the local search needs the changed fine voxels of each, sorted by simulation
+  // voxel (sim voxel << 32 | fine voxel).
+  const bool spans = s.ratio <= kSpanRatio;
+  std::vector<uint64_t>& changed = s.scratch.changed;
+  std::vector<uint32_t>& affected = s.scratch.sim;
+  changed.clear();
+  affected.clear();
+  for (uint32_t i = 0; i < cut.reshaped_voxels.size(); ++i) {
+    const uint32_t voxel = uint32_t(cut.reshaped_voxels[i] >> 32);
+    const uint32_t d = cut.divided_of.get(voxel);
+    if (d == kDeadIndex) continue;
+    note_cut_voxel(model, s, cut.divided[d]);
+    int32_t vc[3];
+    model.lattice.voxel_coords(voxel, vc);
+    const uint32_t sv = sim_voxel_id(s, vc[0] / s.ratio, vc[1] / s.ratio, vc[2] / s.ratio);
+    changed.push_back(uint64_t(sv) << 32 | (spans ? i : voxel));
+  }
+  std::sort(changed.begin(), changed.end());
+  for (uint64_t c : changed) {
+    const uint32_t sv = uint32_t(c >> 32);
+    if (has_pieces(s, sv) && (affected.empty() || affected.back() != sv)) affected.push_back(sv);
+  }
+
+}
+
+// The second stage: relabels the changed simulation voxels (s.scratch.changed), detaching the pieces
+// around each voxel whose components changed (s.scratch.near; the voxels in s.scratch.relabelled,
+// the particles they used in s.scratch.corners). Returns the pieces detached.
+uint32_t relabel_changed(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data,
+                         PbdCutStats* stats) {
+  const bool spans = s.ratio <= kSpanRatio;
+  const std::vector<uint64_t>& changed = s.scratch.changed;
+  const std::vector<uint32_t>& affected = s.scratch.sim;
+  // Relabel the affected voxels: by spans (O(ratio^2) row masks for the whole block); beyond
+  // kSpanRatio locally from their changed fine voxels, else node by node. Before a voxel's pieces
+  // change, the pieces that may change particles with them (its own and its neighbours') are
+  // detached, remembering the particles they used; a voxel whose components did not change touches
+  // nothing.
+  std::vector<uint32_t>& near = s.scratch.near;
+  std::vector<uint32_t>& relabelled = s.scratch.relabelled;  // the voxels whose components changed
+  std::vector<uint64_t>& touched = s.scratch.corners;
+  std::vector<uint8_t>& detached = s.scratch.mark;  // (sim voxels) in `near`
+  near.clear();
+  relabelled.clear();
+  touched.clear();
+  if (!affected.empty()) detached.resize(s.pieces_in_voxel.size(), 0);
+  uint32_t pieces_touched = 0;
+  const auto detach_around = [&](uint32_t sv) {
+    relabelled.push_back(sv);
+    int32_t c[3];
+    sim_voxel_coords(s, sv, c);
+    for (int32_t dz = -1; dz <= 1; ++dz) {
+      for (int32_t dy = -1; dy <= 1; ++dy) {
+        for (int32_t dx = -1; dx <= 1; ++dx) {
+          if (!sim_in_range(s, c[0] + dx, c[1] + dy, c[2] + dz)) continue;
+          const uint32_t n = sim_voxel_id(s, c[0] + dx, c[1] + dy, c[2] + dz);
+          if (!has_pieces(s, n) || detached[n]) continue;
+          detached[n] = 1;
+          near.push_back(n);
+          for_pieces(s, n, [&](uint32_t slot) {
+            for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+            detach_piece(s, data, slot);
+            ++pieces_touched;
+          });
+        }
+      }
+    }
+  };
+  std::vector<uint32_t>& fine = s.scratch.parent;
+  for (size_t i = 0; i < changed.size();) {
+    const uint32_t sv = uint32_t(changed[i] >> 32);
+    fine.clear();
+    for (; i < changed.size() && uint32_t(changed[i] >> 32) == sv; ++i) fine.push_back(uint32_t(changed[i]));
+    if (!has_pieces(s, sv)) continue;
+    if (spans) {
+      // The joins the cut removed mostly reconnect next to it (a slit joined around its front).
+      if (keeps_components(model, cut, s, sv, fine.data(), fine.data() + fine.size())) {
+        if (stats) ++stats->kept_by_search;
+        continue;
+      }
+      relabel_spans(model, cut, s, data, sv, stats, [&] { detach_around(sv); });
+      if (stats) ++stats->span_relabels;
+      continue;
+    }
+    detach_around(sv);
+    const bool local = relabel_local(model, cut, s, data, sv, fine.data(), fine.data() + fine.size());
+    if (!local) relabel_block(model, cut, s, data, sv);
+    if (stats) {
+      stats->nodes_searched += s.scratch.search.visited.size();
+      ++(local ? stats->local_relabels : stats->block_relabels);
+    }
+  }
+
+  return pieces_touched;
+}
+
+// The third stage, after a relabel: the relabelled voxels' corner particles and octants, the pieces
+// around them attached again, the masses of every particle involved (unused ones to the free list).
+void rebuild_relabelled(const VoxelModel& model, PbdModel& s, PbdData& data, uint32_t pieces_touched,
+                        PbdCutStats* stats) {
+  std::vector<uint32_t>& near = s.scratch.near;
+  std::vector<uint32_t>& relabelled = s.scratch.relabelled;
+  std::vector<uint64_t>& touched = s.scratch.corners;
+  std::vector<uint8_t>& detached = s.scratch.mark;
+  ++s.revision;  // pieces, particles and masses change: the solver rebuilds its blocks
+  for (uint32_t n : near) detached[n] = 0;
+  sorted_unique(near);
+  sorted_unique(relabelled);
+  // Corner particles of the relabelled voxels.
+  std::vector<uint64_t>& corners = s.scratch.corner_ids;
+  corners.clear();
+  for (uint32_t sv : relabelled) {
+    int32_t c[3];
+    sim_voxel_coords(s, sv, c);
+    for (int q = 0; q < 8; ++q) corners.push_back(corner_id(s, c[0] + (q & 1), c[1] + ((q >> 1) & 1), c[2] + ((q >> 2) & 1)));
+  }
+  sorted_unique(corners);
+  forget_faces(s, relabelled);
+  CornerMembers members;
+  for (uint64_t id : corners) {
+    int32_t I, J, K;
+    corner_coords(s, id, I, J, K);
+    assign_corner(model, s, data, I, J, K, members);
+  }
+  // The relabelled voxels' octants; re-attach; masses of every particle involved; unused particles
+  // go to the free list.
+  for (uint32_t sv : relabelled) piece_octants(model, s, sv);
+  for (uint32_t sv : near) {
+    for_pieces(s, sv, [&](uint32_t slot) {
+      attach_piece(s, data, slot);
+      for (uint32_t p : s.pieces[slot].particles) touched.push_back(p);
+      ++pieces_touched;
+    });
+  }
+  if (stats) {
+    stats->pieces_touched += pieces_touched;
+    stats->corners += uint32_t(corners.size());
+    stats->components_changed += uint32_t(relabelled.size());
+  }
+  sorted_unique(touched);
+  for (uint64_t p : touched) {
+    update_mass(s, uint32_t(p));
+    if (s.refs[p] == 0) {
+      s.mass[p] = s.inv_mass[p] = 0.0;
+      s.free_particles.push_back(uint32_t(p));
+    }
+  }
+}
+
+}  // namespace
+
+uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdModel& s, PbdData& data, PbdCutStats* stats) {
+  collect_changed(model, cut, s);
+  const std::vector<uint32_t>& affected = s.scratch.sim;
+  const std::vector<uint32_t>& relabelled = s.scratch.relabelled;
+  const uint32_t pieces_touched = relabel_changed(model, cut, s, data, stats);
+  if (!relabelled.empty()) rebuild_relabelled(model, s, data, pieces_touched, stats);
+  std::vector<uint64_t>& touched = s.scratch.corners;
+
+  // Re-embed the changed vertex slots (vertices of relabelled voxels follow their node's label).
+  grow_embedding(cut, s, data);
+  for (uint32_t slot : cut.changed_vertices) {
+    if (slot < s.embedding.size()) embed_vertex(model, cut, s, slot);
+  }
+  record_edits(cut, s, data, relabelled, relabelled.empty() ? nullptr : &touched);  // for the caches
+  warm_block_arrays(s, false);
+  if (stats) stats->sim_voxels += uint32_t(affected.size());
+  return uint32_t(affected.size());
+}
+
 }  // namespace dvx
