@@ -78,24 +78,81 @@ int material_links(const VoxelModel& model, const CutState& state, uint32_t n, u
 
 // Most nodes of a crumb: a cut leaving a component of this many nodes or fewer makes a crumb.
 constexpr int kCrumbNodes = 4;
+// Least material (node_material, in fine voxels) of a component of more than kCrumbNodes nodes that
+// is no crumb: one holding less is a flake along the surface or a lens between two cut sheets within
+// a voxel of each other (docs/cutting.md "No crumbs"). Three voxels, not one: the measure is a box
+// per node, and the surface that closes a lens tapers to its rim (the liver's two 5-node lenses of
+// issue 29 measured 1.5 and 0.9 and enclosed 0.50 and 0.42 fine voxels).
+constexpr double kCrumbVolume = 3.0;
+// Most nodes the crumb test's flood fill visits: a component reaching this many is taken as large
+// enough (the fill stays bounded; a film of 64 nodes under kCrumbVolume is ~0.05 voxel thick).
+constexpr int kCrumbFloodNodes = 64;
 
-// Whether severing `edge` would leave inside node n in a component of at most kCrumbNodes nodes
-// (a closed bit below the lattice's resolution: the organ's surface lies within a voxel or two of the
-// cut on n's side). A flood fill over the material graph from n that stops as soon as it finds a
-// node past kCrumbNodes. The divide does not make such a cut, so those nodes stay with the material across
-// the edge (the mass is unchanged: nothing is dropped). A slit re-cut anywhere along it crosses only
-// edges cut already or edges like this one: it sheds nothing.
-bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
-  uint32_t found[kCrumbNodes];
-  int count = 1, next = 0;
+// The material inside node n holds within its cell (the cube of one voxel centred on it), in fine
+// voxels: per octant the box of its owned lengths along the three axes, each at most half a voxel
+// (a node whose six edges run through uncut material holds one voxel). The owned length along an
+// edge is what the cut leaves the node (EdgeCut: with both ends inside the lower end owns [0, t_lo],
+// the upper end the rest; uncut, half each) or, on a surface edge, the way to the nearer of the
+// surface crossing and the cut. `edge` counts as cut at t (the cut being decided).
+double node_material(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, float t) {
+  const Lattice& l = model.lattice;
+  int32_t c[3];
+  l.node_coords(n, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  double volume = 1.0;  // the octants' boxes summed: the product over the axes of the two sides' lengths
+  for (int a = 0; a < 3; ++a) {
+    const uint32_t step = node_stride(l, a);
+    double span = 0.0;
+    for (int upper = 0; upper < 2; ++upper) {  // upper: n is the upper end of the edge (toward -a)
+      if (upper ? c[a] == 0 : c[a] == dims[a]) continue;
+      const uint32_t m = upper ? n - step : n + step;
+      const uint32_t e = Lattice::edge(upper ? m : n, a);
+      const EdgeCut* cut = find_cut(state, e);
+      float t_lo = cut ? cut->t_lo : 0.f, t_hi = cut ? cut->t_hi : 1.f;
+      if (e == edge) {
+        t_lo = cut ? std::min(t_lo, t) : t;
+        t_hi = cut ? std::max(t_hi, t) : t;
+      }
+      const bool severed = cut != nullptr || e == edge;
+      double length;
+      if (model.is_inside(m)) {
+        length = !severed ? 0.5 : upper ? 1.0 - t_lo : t_lo;
+      } else {
+        const EdgeCrossing* x = model.find_crossing(e);
+        const double ts = x ? x->t : 0.5;
+        length = upper ? 1.0 - ts : ts;
+        if (severed) length = std::min(length, upper ? 1.0 - double(t_hi) : double(t_lo));
+      }
+      span += std::clamp(length, 0.0, 0.5);
+    }
+    volume *= span;
+  }
+  return volume;
+}
+
+// Whether severing `edge` (crossed at t) would leave inside node n in a crumb: a component of at
+// most kCrumbNodes nodes, or of more holding less than kCrumbVolume fine voxels of material (a closed
+// bit below the lattice's resolution: the organ's surface or another cut lies within a voxel or so
+// of the cut on n's side). A flood fill over the material graph from n that stops as soon as it has
+// found more than kCrumbNodes nodes holding kCrumbVolume, or kCrumbFloodNodes nodes. The divide does
+// not make such a cut, so those nodes stay with the material across the edge (the mass is unchanged:
+// nothing is dropped). A slit re-cut anywhere along it crosses only edges cut already or edges like
+// this one: it sheds nothing.
+bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, float t) {
+  uint32_t found[kCrumbFloodNodes];
+  int count = 1, next = 0, measured = 0;
   found[0] = n;
+  double material = 0.0;  // of found[0, measured): measured only once the count is past kCrumbNodes
   while (next < count) {
     uint32_t links[18];
     const int k = material_links(model, state, found[next++], edge, links);
     for (int i = 0; i < k; ++i) {
       if (std::find(found, found + count, links[i]) != found + count) continue;
-      if (count == kCrumbNodes) return false;  // large enough
+      if (count == kCrumbFloodNodes) return false;  // large enough
       found[count++] = links[i];
+      if (count <= kCrumbNodes) continue;
+      while (measured < count && material < kCrumbVolume) material += node_material(model, state, found[measured++], edge, t);
+      if (material >= kCrumbVolume) return false;  // large enough
     }
   }
   return true;
@@ -103,7 +160,7 @@ bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t
 
 // Whether severing `edge` (a cut of a surface edge, or a crossing in the air) would take the last link
 // of an inside corner of an ambiguous face around it: the face no longer joins its diagonal.
-bool isolates_diagonal(const VoxelModel& model, const CutState& state, uint32_t edge) {
+bool isolates_diagonal(const VoxelModel& model, const CutState& state, uint32_t edge, float t) {
   const Lattice& l = model.lattice;
   const int a = int(edge % 3);
   const uint32_t n0 = edge / 3, n1 = n0 + node_stride(l, a);
@@ -119,7 +176,7 @@ bool isolates_diagonal(const VoxelModel& model, const CutState& state, uint32_t 
       const bool i0 = model.is_inside(n0), i1 = model.is_inside(n1), j0 = model.is_inside(m0), j1 = model.is_inside(m1);
       if (!(i0 == j1 && i1 == j0 && i0 != i1)) continue;  // not ambiguous
       const uint32_t p = i0 ? n0 : n1, q = i0 ? m1 : m0;   // the face's inside corners
-      if (last_material_link(model, state, p, edge) || last_material_link(model, state, q, edge)) return true;
+      if (last_material_link(model, state, p, edge, t) || last_material_link(model, state, q, edge, t)) return true;
     }
   }
   return false;
@@ -142,20 +199,22 @@ EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& h
     const float ts = c ? c->t : 0.5f;
     if (in0 ? hit.t >= ts : hit.t <= ts) {
       if (!on_ambiguous_face(model, hit.edge) || state.air_edges.contains(hit.edge)) return EdgeChange::kNone;
-      if (!state.edge_cut_of.contains(hit.edge) && isolates_diagonal(model, state, hit.edge)) return EdgeChange::kNone;
+      if (!state.edge_cut_of.contains(hit.edge) && isolates_diagonal(model, state, hit.edge, hit.t)) return EdgeChange::kNone;
       state.air_edges.set(hit.edge, 0);
       return EdgeChange::kAir;
     }
   }
   const uint32_t i = state.edge_cut_of.get(hit.edge);
   if (i == kDeadIndex) {
-    // No crumbs: a first cut of a material edge that would leave one of its nodes joined to no other
-    // node is not made (the node stays with the other end: see last_material_link).
-    if (in0 && in1 && (last_material_link(model, state, n0, hit.edge) || last_material_link(model, state, n1, hit.edge))) {
+    // No crumbs: a first cut of a material edge that would leave one of its nodes in a crumb (a few
+    // nodes, or a thin bit of little material) is not made: they stay with the other end (see
+    // last_material_link).
+    if (in0 && in1 && (last_material_link(model, state, n0, hit.edge, hit.t) ||
+                       last_material_link(model, state, n1, hit.edge, hit.t))) {
       return EdgeChange::kNone;
     }
     if (in0 != in1 && !state.air_edges.contains(hit.edge) && on_ambiguous_face(model, hit.edge) &&
-        isolates_diagonal(model, state, hit.edge)) {
+        isolates_diagonal(model, state, hit.edge, hit.t)) {
       return EdgeChange::kNone;
     }
     state.edge_cut_of.set(hit.edge, uint32_t(state.edge_cuts.size()));

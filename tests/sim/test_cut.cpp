@@ -3,6 +3,7 @@
 // state's own consistency check passes.
 #include "sim/cut.h"
 #include "sim/mesh_distance.h"
+#include "sim/random.h"
 #include "sim/shapes.h"
 #include "sim/surface_metrics.h"
 #include "sim/voxelize.h"
@@ -13,6 +14,7 @@
 
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <cmath>
 
 using namespace dvx;
@@ -290,6 +292,80 @@ TEST_SUITE("cut") {
     // The node would be a component of its own, smaller than a fine voxel: its last link is not cut.
     CHECK(stats.components == 1);
     CHECK(stats.volume == doctest::Approx(uncut).epsilon(1e-3));
+  }
+
+  // Issue 29's liver crumbs: two strips of one stroke through moving tissue landed in rest space a
+  // fraction of a voxel apart on either side of a layer of nodes near the organ's surface, and the
+  // seams closed at the stroke's end sealed the flake between them: closed bits of five nodes and
+  // 0.4-0.5 fine voxels, which the node count alone (kCrumbNodes) let go. Here: two slits down from
+  // the top face of a box that end inside it, x planes 0.06 to 0.14 voxels on either side of
+  // a node layer, and three narrow cuts across that layer (a y plane under the top one or two rows of
+  // nodes, z planes on either side), in a random order (fixed seed): the flake between them holds 5
+  // or 6 nodes and less than a fine voxel. It stays on the body, and nothing is dropped.
+  TEST_CASE("a flake of five or six nodes between two slits, sealed by three cuts, stays on the body (no crumbs)") {
+    // The top face half a voxel above the top row of nodes (the lattice centres the box).
+    const TriMesh box = make_box(kBoxCentre, Vec3d(1.0, 0.504, 0.8), Eigen::Matrix3d::Identity(), 2);
+    const VoxelModel model = voxelized(box, 24);
+    const Lattice& l = model.lattice;
+    const double h = l.voxel_size, top = kBoxCentre.y() + 0.504;
+    SplitMix64 rng{29};
+    for (int run = 0; run < 12; ++run) {
+      // The flake: nodes x = i, y in [jt - ny, jt] (jt the top row), z in [k, k + nz]: 1 x 5 or 2 x 3.
+      const int ny = run % 2, nz = ny ? 2 : 4;
+      const int i = l.nx / 2 - 2 + int(rng.uniform() * 4.0);
+      const int k = l.nz / 2 - 2 + int(rng.uniform() * 3.0);
+      int jt = 0;
+      while (model.is_inside(l.node(i, jt + 1, k)) || !model.is_inside(l.node(i, jt, k))) ++jt;
+      REQUIRE(top - l.node_position(i, jt, k).y() < 0.6 * h);
+      const Vec3d lo = l.node_position(i, jt - ny, k), hi = l.node_position(i, jt, k + nz);
+      const double below = rng.uniform(0.06, 0.14) * h, above = rng.uniform(0.06, 0.14) * h;  // the slits
+      double rim[3];  // outside the flake: y below, z below, z above
+      for (double& r : rim) r = rng.uniform(0.05, 0.25) * h;
+      CAPTURE(run);
+      CAPTURE(below / h);
+      CAPTURE(above / h);
+      CutState state;
+      init_cut_state(model, state);
+      const double uncut = stats_of(state).volume;
+      // A slit: a blade along y from above the box to 1.5 voxels under the flake, swept in z from 1.5
+      // voxels before it to 1.5 past it (it ends inside the tissue).
+      const auto slit = [&](double x) {
+        const double y0 = top + h, y1 = lo.y() - 1.5 * h;
+        sweep(model, state, {Vec3d(x, y0, lo.z() - 1.5 * h), Vec3d(x, y1, lo.z() - 1.5 * h)},
+              {Vec3d(x, y0, hi.z() + 1.5 * h), Vec3d(x, y1, hi.z() + 1.5 * h)}, 4);
+      };
+      // A cut across the layer: a blade along x over both slits, at y = c (axis 1: swept in z two
+      // voxels past the flake) or at z = c (axis 2: swept from above the box to two voxels under it).
+      const auto across = [&](int axis, double c) {
+        Vec3d p0 = lo, p1 = hi;
+        if (axis == 1) {
+          p0 = Vec3d(lo.x(), c, lo.z() - 2.0 * h);
+          p1 = Vec3d(lo.x(), c, hi.z() + 2.0 * h);
+        } else {
+          p0 = Vec3d(lo.x(), top + h, c);
+          p1 = Vec3d(lo.x(), lo.y() - 2.0 * h, c);
+        }
+        const Vec3d dx(1.5 * h, 0.0, 0.0);
+        sweep(model, state, {p0 - dx, p0 + dx}, {p1 - dx, p1 + dx}, 4);
+      };
+      std::vector<int> order = {0, 1, 2, 3, 4};  // 0, 1: the slits; 2-4: the cuts across
+      for (size_t n = order.size(); n > 1; --n) std::swap(order[n - 1], order[size_t(rng.uniform() * double(n))]);
+      for (const int cut : order) {
+        if (cut < 2) {
+          slit(cut == 0 ? lo.x() - below : lo.x() + above);
+        } else if (cut == 2) {
+          across(1, lo.y() - rim[0]);
+        } else {
+          across(2, cut == 3 ? lo.z() - rim[1] : hi.z() + rim[2]);
+        }
+      }
+      const SurfaceStats stats = check_invariants(model, state);
+      const std::vector<double> volumes = component_volumes(compact_surface(state.surface));
+      // Nothing came off (the flake would be the only piece), and no material was dropped.
+      CHECK(stats.components == 1);
+      CHECK(*std::min_element(volumes.begin(), volumes.end()) >= h * h * h);
+      CHECK(stats.volume == doctest::Approx(uncut).epsilon(1e-3));
+    }
   }
 
   TEST_CASE("two crossing cuts separate four pieces") {
