@@ -19,6 +19,19 @@ wait_for() {
   done
 }
 
+# The simulation's step as the window's recording ($out/session.jsonl, --record) shows it (a line per
+# step with commands, a hash line every 60 steps, flushed line by line), and a wait until it reaches
+# $1 (up to 120 s): the simulation may run at a fraction of real time under a loaded rasteriser, so
+# what must have settled or moved is timed in its steps, not in wall-clock seconds.
+sim_step() { grep -o '"step":[0-9]*' "$out/session.jsonl" 2>/dev/null | tail -1 | cut -d: -f2; }
+wait_step() {
+  local deadline=$((SECONDS + 120))
+  while (($(sim_step || echo 0) < $1)); do
+    ((SECONDS < deadline)) || fail "the simulation did not reach step $1 within 120 s (at $(sim_step))"
+    sleep 0.3
+  done
+}
+
 # A left drag from ($1,$2) to ($3,$4) in $5 moves, slow enough for a few frames per move on a
 # loaded software rasteriser.
 drag() {

@@ -44,18 +44,6 @@ cd "$out" || exit 1
 source "$repo/tests/cli/window_drag.sh"
 start_window --size 1280x720 --record "$out/session.jsonl"
 
-# The simulation's step as the recording shows it (a line per step with commands, a hash line every
-# 60 steps, flushed line by line), and a wait (up to 60 s) until it reaches $1: the simulation may
-# run at a fraction of real time under a loaded rasteriser, and the pulls are timed in its steps.
-sim_step() { grep -o '"step":[0-9]*' "$out/session.jsonl" 2>/dev/null | tail -1 | cut -d: -f2; }
-wait_step() {
-  local deadline=$((SECONDS + 60))
-  while (($(sim_step || echo 0) < $1)); do
-    ((SECONDS < deadline)) || fail "the simulation did not reach step $1 within 60 s (at $(sim_step))"
-    sleep 0.3
-  done
-}
-
 # A grab pull: press at ($1,$2), move by ($3,$4) px in 10 moves, hold 1.7 s (simulated), release,
 # wait 3.3 s (simulated) for the spring back. $5: take a screenshot while the pull is held.
 pull() {

@@ -27,11 +27,11 @@ fail() {
 source "$here/tests/cli/window_drag.sh"
 start_window --size 1280x720 --record "$out/session.jsonl"
 wait_for "^window: ready" 150
-sleep 2
+wait_step 120  # 2 s simulated: the liver has settled where the strokes expect it
 # Screen coordinates of the default view (the view starts right of the 384 px panel).
 for stroke in "1000 470 1005 170" "714 640 714 200" "840 640 840 150"; do
   drag $stroke 16
-  sleep 4
+  wait_step $(($(sim_step) + 240))  # 4 s simulated
   xdotool mousemove 1200 700 key F12  # out/window/divvox_*.png after each stroke
   sleep 1
 done

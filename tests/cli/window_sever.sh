@@ -27,7 +27,7 @@ command -v xdotool >/dev/null || { echo "skipped: no xdotool"; exit 0; }
 source "$repo/tests/cli/window_drag.sh"
 start_window --size 1280x720 --record "$out/session.jsonl"
 wait_for "^window: ready" 150
-sleep 2
+wait_step 120  # 2 s simulated: the lobe has settled where the stroke below expects it
 xdotool mousemove 1200 700
 xdotool key F12  # out/window/divvox_*.png: before the cut
 sleep 1
@@ -37,7 +37,7 @@ drag 1000 470 1005 170 16
 wait_for "^cut: " 60
 xdotool mousemove 1200 700
 xdotool key F12  # right after the release
-sleep 8  # the cut piece falls and settles
+wait_step $(($(sim_step) + 480))  # 8 s simulated: the cut piece falls and settles
 xdotool key F12  # the lobe on the tray
 sleep 1
 xdotool key shift+Escape
