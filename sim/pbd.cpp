@@ -601,7 +601,7 @@ void pbd_step(const CutState& cut, PbdState& s, const TaskRunner& tasks, bool em
                                                                            params.stiffness_damping, s.sim_size, h)
                                                        : ElasticConstants{};
   const double t_contact = clock ? clock->now() : 0.0;
-  gather_contacts(cut, s);  // contact (sim/contact.h)
+  gather_contacts(cut, s, tasks);  // contact (sim/contact.h)
   if (clock && contact_ms) *contact_ms = clock->now() - t_contact;
   build_step_batches(s, elastic ? h > 0.0 : stretch_on, substeps);
   s.cache.grab_lambda.assign(3 * s.grab_particles.size(), 0.0);

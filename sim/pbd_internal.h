@@ -371,9 +371,10 @@ void record_edits(const CutState& cut, PbdState& s, const std::vector<uint32_t>&
 void refresh_embed_rows(const CutState& cut, PbdState& s);
 
 // Contact points (contact_points.cpp): brings the contact index's vertex slots up to date with the
-// surface (after init and every cut), and gathers this step's plane and piece contacts.
+// surface (after init and every cut), and gathers this step's plane and piece contacts (the
+// contact points to build spread over `tasks`: the same bits whatever the worker count).
 void refresh_slots(const CutState& cut, PbdState& s);
-void gather_contacts(const CutState& cut, PbdState& s);
+void gather_contacts(const CutState& cut, PbdState& s, const TaskRunner& tasks);
 
 }  // namespace pbd_internal
 }  // namespace dvx
