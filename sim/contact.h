@@ -316,11 +316,6 @@ struct ContactIndex {
   std::vector<uint64_t> arrivals;        // (piece << 32 | slot) of the slots that changed piece
   std::vector<uint32_t> changed;         // pieces whose slots changed
   std::vector<uint32_t> flipped;         // slots that became embedded or stopped being so
-  // The live triangles whose three corners are embedded, under each piece holding a corner
-  // (ascending): built when many pieces' contact points are built at once (piece_reps).
-  bool triangles_ready = false;
-  std::vector<uint32_t> triangle_begin;  // (pieces + 1)
-  std::vector<uint32_t> piece_triangles;
 };
 
 // A contact point of a piece: a representative surface vertex slot (see "Contact points") and its
@@ -356,11 +351,15 @@ struct PieceContacts {
   std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
   std::vector<ContactRep> rep_kept;     // compaction scratch
   std::vector<uint32_t> rep_voxels;     // simulation voxels whose pieces a cut made stale, scratch
-  std::vector<Vec3d> rep_normal;        // (the piece's slots) rest normals, scratch
-  std::vector<uint32_t> rep_quads;      // the quads around the piece's slots, scratch
-  std::vector<uint32_t> rep_scratch;    // (surface vertex slots) index in the piece's slots, ~0u: none
-  std::vector<uint32_t> slot_marks, quad_marks;  // (vertex slots), (quad slots): stamps, scratch
-  uint32_t slot_stamp = 0, quad_stamp = 0;
+  std::vector<Vec3d> rep_normal;        // rest normals of the slots of the pieces built at once, scratch
+  std::vector<uint32_t> rep_offset;     // (pieces built at once + 1) offsets of their slots, scratch
+  std::vector<uint32_t> rep_scratch;    // (surface vertex slots) entry of rep_normal while built, else ~0u
+  std::vector<uint32_t> slot_marks;     // (vertex slots) stamps, scratch
+  uint32_t slot_stamp = 0;
+  std::vector<uint32_t> rep_need;       // pieces a gather needs the points of, scratch
+  std::vector<uint32_t> rep_build;      // of those, the pieces to build (built at once), scratch
+  std::vector<ContactRep> rep_staged;   // their points as built, a fixed stride a piece, scratch
+  std::vector<uint16_t> rep_staged_count;
   std::vector<Vec3d> region_lo, region_hi;  // a piece's partner regions (partner_regions), scratch
   std::vector<uint32_t> gathered;       // slots of the last gather's points (before the normals)
   std::vector<float> allowance;         // (surface vertex slots) overlap it may keep (see above)

@@ -227,37 +227,6 @@ bool embedded_triangle(const ContactIndex& x, const Tri& tri) {
   return true;
 }
 
-// The index's triangles under each piece: the live triangles whose three corners are embedded,
-// listed under each distinct piece of their corners, ascending. One sequential pass over the whole
-// surface, built when piece_reps has many pieces to build at once (after a sever, or a rebuild):
-// there it is cheaper than finding each piece's quads through the half-edge map, whose lookups
-// miss the cache (bunny at 256: the sever step's PBD 25-28 ms with it, 47-50 ms without).
-void index_triangles(const CutState& cut, PbdData& data) {
-  ContactIndex& x = data.piece_contacts.index;
-  if (x.triangles_ready) return;
-  x.triangles_ready = true;
-  const CutSurface& surface = cut.surface;
-  const uint32_t triangles = uint32_t(surface.triangles.size());
-  // Calls f(t, piece) for each distinct piece of each such triangle.
-  const auto for_pieces_of = [&](auto&& f) {
-    for (uint32_t t = 0; t < triangles; ++t) {
-      if (surface.quad_half_edge[t / 2] == CutSurface::kFreeKey) continue;
-      const Tri& tri = surface.triangles[t];
-      if (!embedded_triangle(x, tri)) continue;
-      const uint32_t p0 = x.slot_piece[tri[0]], p1 = x.slot_piece[tri[1]], p2 = x.slot_piece[tri[2]];
-      f(t, p0);
-      if (p1 != p0) f(t, p1);
-      if (p2 != p0 && p2 != p1) f(t, p2);
-    }
-  };
-  x.triangle_begin.assign(x.pieces + 1, 0);
-  for_pieces_of([&](uint32_t, uint32_t piece) { ++x.triangle_begin[piece + 1]; });
-  for (uint32_t i = 0; i < x.pieces; ++i) x.triangle_begin[i + 1] += x.triangle_begin[i];
-  x.piece_triangles.resize(x.triangle_begin[x.pieces]);
-  x.scratch.assign(x.triangle_begin.begin(), x.triangle_begin.end() - 1);
-  for_pieces_of([&](uint32_t t, uint32_t piece) { x.piece_triangles[x.scratch[piece]++] = t; });
-}
-
 // How far each live piece may move in this step: (its fastest corner's speed + g dt) dt (what bounds
 // its contact reach: a piece's own, so a falling piece does not widen everyone's).
 void piece_motions(const PbdModel& s, PbdData& data) {
@@ -274,10 +243,15 @@ void piece_motions(const PbdModel& s, PbdData& data) {
   }
 }
 
-// piece_reps builds the triangle index once the slots it built since the last cut exceed the
-// surface's triangles / kRepSlotsPerIndex (a slot's ~5 half-edge lookups, mostly cache misses,
-// against the index's sequential pass over every triangle).
-constexpr uint32_t kRepSlotsPerIndex = 128;
+// A batch of pieces to build whose slots, added to those built since the last cut, exceed the
+// surface's triangles / kRepSlotsPerScan finds their triangles in one pass over the surface
+// (scan_rest_normals); a smaller one through the half-edge map around each slot (vertex_quads: ~5
+// lookups a slot, mostly cache misses, ~350 instructions).
+constexpr uint32_t kRepSlotsPerScan = 128;
+
+// build_stale_reps hands its pieces to the workers in chunks of at least this many (a piece on a
+// cut face at 16 fine voxels per simulation voxel: ~300 slots, ~600 triangles).
+constexpr uint32_t kRepPiecesPerChunk = 4;
 
 // A new stamp for `marks` (an entry equal to it was marked since): 1, 2, ... and all entries reset
 // when the count wraps.
@@ -306,7 +280,6 @@ void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data) {
   const bool incremental = pc.rep_updates != ~uint64_t(0) && (!index_changed || (pc.rep_updates + 1 == x.updates && !x.rebuilt)) &&
                            cut.surface_changes - pc.rep_surface_changes <= 1 && pc.rep_begin.size() <= x.pieces;
   pc.rep_updates = x.updates;
-  pc.index.triangles_ready = false;  // the surface or the pieces changed
   pc.rep_slots_built = 0;
   const bool surface_changed = pc.rep_surface_changes != cut.surface_changes;
   pc.rep_surface_changes = cut.surface_changes;
@@ -378,78 +351,92 @@ void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data) {
   }
 }
 
-// The contact points of piece `piece` (sim/contact.h "Contact points"): of its surface vertex slots,
-// in each cell of a grid of contact_cells(ratio)^3 cells over its simulation voxel (in its rest frame)
-// and each of six normal directions (the dominant axis of the rest normal and its sign), the slot
-// nearest the cell's centre (ties: the lowest). Built on the piece's first need after a cut changed
-// it (refresh_reps), so the choice never flickers between steps.
-std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, const PbdModel& s, PbdData& data,
-                                                  uint32_t piece) {
-  PieceContacts& pc = data.piece_contacts;
-  const ContactIndex& x = pc.index;
-  if (pc.rep_begin[piece] != ~0u) return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
-  // Rest normals of the piece's slots: area-weighted sums over the live triangles holding each
-  // whose three corners are embedded, in ascending triangle order (the same bits either way): the
-  // triangles of the quads around the piece's slots (vertex_quads, each quad once) when few slots
-  // are to be built since the last cut, else the index's triangles under the piece.
+// The most contact points a piece has: one per contact cell and direction.
+constexpr uint32_t kRepEntries = kContactCells * kContactCells * kContactCells * 6;
+
+// The area vector of triangle `tri` (rest positions): twice its area along its normal.
+inline Vec3d triangle_area(const CutSurface& surface, const Tri& tri) {
+  const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
+              c = surface.positions[tri[2]].cast<double>();
+  return (b - a).cross(c - a);
+}
+
+// The rest normals of piece `piece`'s slots (normal[n] for its n-th slot): area-weighted sums over
+// the live triangles holding each whose three corners are embedded, in ascending triangle order,
+// found through the quads around the slots (vertex_quads, each quad once). Writes only `quads` and
+// the entries of `slot_index` of the piece's own slots (n), which it leaves at ~0u again (a slot is
+// in one piece: pieces may be built at once).
+void piece_rest_normals(const CutState& cut, const ContactIndex& x, uint32_t piece, uint32_t* slot_index,
+                        std::vector<uint32_t>& quads, Vec3d* normal) {
   const CutSurface& surface = cut.surface;
   const uint32_t first = x.piece_begin[piece], count = x.piece_begin[piece + 1] - first;
-  pc.rep_slots_built += count;
-  if (!x.triangles_ready && pc.rep_slots_built > x.triangle_count / kRepSlotsPerIndex) index_triangles(cut, data);
-  std::vector<Vec3d>& normal = pc.rep_normal;
-  normal.assign(count, Vec3d::Zero());
-  if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
-  for (uint32_t n = 0; n < count; ++n) pc.rep_scratch[x.piece_slots[first + n]] = n;
-  const auto add_triangle = [&](uint32_t t) {
-    const Tri& tri = surface.triangles[t];
-    if (!embedded_triangle(x, tri)) return;
-    const Vec3d a = surface.positions[tri[0]].cast<double>(), b = surface.positions[tri[1]].cast<double>(),
-                c = surface.positions[tri[2]].cast<double>();
-    const Vec3d area = (b - a).cross(c - a);
-    for (int k = 0; k < 3; ++k) {
-      if (x.slot_piece[tri[k]] == piece) normal[pc.rep_scratch[tri[k]]] += area;
-    }
-  };
-  if (x.triangles_ready) {
-    for (uint32_t n = x.triangle_begin[piece]; n < x.triangle_begin[piece + 1]; ++n) add_triangle(x.piece_triangles[n]);
-  } else {
-    std::vector<uint32_t>& quads = pc.rep_quads;
-    quads.clear();
-    if (pc.quad_marks.size() < surface.quad_half_edge.size()) pc.quad_marks.resize(surface.quad_half_edge.size(), 0u);
-    const uint32_t stamp = next_stamp(pc.quad_marks, pc.quad_stamp);
-    for (uint32_t n = 0; n < count; ++n) {
-      uint32_t around[kMaxVertexQuads];
-      const uint32_t found = vertex_quads(cut, x.piece_slots[first + n], around);
-      for (uint32_t q = 0; q < found; ++q) {
-        if (pc.quad_marks[around[q]] == stamp) continue;  // a quad joins up to four of the slots
-        pc.quad_marks[around[q]] = stamp;
-        quads.push_back(around[q]);
+  std::fill(normal, normal + count, Vec3d::Zero());
+  for (uint32_t n = 0; n < count; ++n) slot_index[x.piece_slots[first + n]] = n;
+  quads.clear();
+  for (uint32_t n = 0; n < count; ++n) {
+    uint32_t around[kMaxVertexQuads];
+    const uint32_t found = vertex_quads(cut, x.piece_slots[first + n], around);
+    quads.insert(quads.end(), around, around + found);
+  }
+  sorted_unique(quads);  // a quad joins up to four of the slots
+  for (const uint32_t quad : quads) {
+    for (const uint32_t t : {2 * quad, 2 * quad + 1}) {
+      const Tri& tri = surface.triangles[t];
+      if (!embedded_triangle(x, tri)) continue;
+      const Vec3d area = triangle_area(surface, tri);
+      for (int k = 0; k < 3; ++k) {
+        if (x.slot_piece[tri[k]] == piece) normal[slot_index[tri[k]]] += area;
       }
     }
-    std::sort(quads.begin(), quads.end());
-    for (const uint32_t quad : quads) {
-      add_triangle(2 * quad);
-      add_triangle(2 * quad + 1);
+  }
+  for (uint32_t n = 0; n < count; ++n) slot_index[x.piece_slots[first + n]] = ~0u;
+}
+
+// The rest normals of the slots of many pieces at once, in one pass over the surface's triangles:
+// slot_index[v] is the entry of `normal` of each slot v to build (~0u: none); each live triangle
+// whose three corners are embedded adds its area vector to the entries of its corners that have one,
+// in ascending triangle order (the sums piece_rest_normals forms). A triangle none of whose corners
+// is to be built costs three reads of slot_index.
+void scan_rest_normals(const CutState& cut, const ContactIndex& x, const uint32_t* slot_index, Vec3d* normal) {
+  const CutSurface& surface = cut.surface;
+  const uint32_t triangles = uint32_t(surface.triangles.size()), slots = x.slots;
+  for (uint32_t t = 0; t < triangles; ++t) {
+    const Tri& tri = surface.triangles[t];
+    // A free quad's triangles name kDeadIndex (>= slots); a corner beyond the index is not embedded.
+    const bool wanted = (tri[0] < slots && slot_index[tri[0]] != ~0u) || (tri[1] < slots && slot_index[tri[1]] != ~0u) ||
+                        (tri[2] < slots && slot_index[tri[2]] != ~0u);
+    if (!wanted || surface.quad_half_edge[t / 2] == CutSurface::kFreeKey || !embedded_triangle(x, tri)) continue;
+    const Vec3d area = triangle_area(surface, tri);
+    for (int k = 0; k < 3; ++k) {
+      if (slot_index[tri[k]] != ~0u) normal[slot_index[tri[k]]] += area;
     }
   }
-  // The best slot of each (cell, direction): kContactCells^3 x 6 entries at most.
+}
+
+// The contact points of piece `piece` (sim/contact.h "Contact points") from the rest normals of its
+// slots (normal[n]: its n-th slot's): in each cell of a grid of contact_cells(ratio)^3 cells over its
+// simulation voxel (in its rest frame) and each of six normal directions (the dominant axis of the
+// rest normal and its sign), the slot nearest the cell's centre (ties: the lowest), into out[0 ..)
+// by slot; returns how many (at most kRepEntries).
+uint32_t choose_piece_reps(const PbdModel& s, const PbdData& data, uint32_t piece, const Vec3d* normal, ContactRep* out) {
+  const ContactIndex& x = data.piece_contacts.index;
+  const uint32_t first = x.piece_begin[piece], count = x.piece_begin[piece + 1] - first;
   const int cells = contact_cells(s.ratio);
-  constexpr int kEntries = kContactCells * kContactCells * kContactCells * 6;
-  uint32_t best[kEntries];
-  double best_d[kEntries];
-  uint16_t used[kEntries];  // the entries taken, in order of first use
+  uint32_t best[kRepEntries];
+  double best_d[kRepEntries];
+  uint16_t used[kRepEntries];  // the entries taken, in order of first use
   uint32_t used_count = 0;
-  std::fill(best, best + kEntries, ~0u);
+  std::fill(best, best + kRepEntries, ~0u);
   for (uint32_t n = 0; n < count; ++n) {
     const uint32_t slot = x.piece_slots[first + n];
-    pc.rep_scratch[slot] = ~0u;
-    const double length = normal[n].norm();
-    if (!(length > 0.0)) continue;  // on no live triangle: no normal
+    if (!(normal[n].squaredNorm() > 0.0)) continue;  // on no live triangle: no normal (norm() > 0 exactly then)
     const Vec3f& local = s.embedding[slot].local;
     int entry = 0;
     double d = 0.0;
     for (int a = 2; a >= 0; --a) {
-      const int c = std::max(0, std::min(cells - 1, int(std::floor(double(local[a]) * cells))));
+      // The cell: floor(local * cells) clamped to [0, cells - 1]; truncation gives the same after the
+      // clamp (they differ only below 0) without a call to floor.
+      const int c = std::max(0, std::min(cells - 1, int(double(local[a]) * cells)));
       entry = entry * cells + c;
       const double off = double(local[a]) * cells - (c + 0.5);
       d += off * off;
@@ -463,17 +450,82 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const CutState& cut, const Pbd
       best_d[entry] = d;
     }
   }
-  ++pc.counters.reps_built;
-  pc.rep_begin[piece] = uint32_t(pc.reps.size());
-  uint32_t chosen[kEntries];
+  uint32_t chosen[kRepEntries];
   for (uint32_t e = 0; e < used_count; ++e) chosen[e] = best[used[e]];
   std::sort(chosen, chosen + used_count);  // by slot (ascending within the piece)
   for (uint32_t e = 0; e < used_count; ++e) {
     const Vec3d n = normal[chosen[e]].normalized();
-    pc.reps.push_back(ContactRep{x.piece_slots[first + chosen[e]], {float(n.x()), float(n.y()), float(n.z())}});
+    out[e] = ContactRep{x.piece_slots[first + chosen[e]], {float(n.x()), float(n.y()), float(n.z())}};
   }
-  pc.rep_count[piece] = uint16_t(pc.reps.size() - pc.rep_begin[piece]);
+  return used_count;
+}
+
+// The contact points of piece `piece`, built since the last cut that changed it (refresh_reps,
+// build_stale_reps before each gather).
+std::pair<const ContactRep*, uint32_t> piece_reps(const PieceContacts& pc, uint32_t piece) {
   return {pc.reps.data() + pc.rep_begin[piece], pc.rep_count[piece]};
+}
+
+// Builds the contact points of the pieces in `list` whose points are stale (refresh_reps), before a
+// gather reads them (piece_reps): each piece's rest normals (one scan of the surface for a large
+// batch, else through the quads around its slots), then its points into its own entries of a
+// staging area, the pieces in chunks through `tasks`; then appended to reps in the list's order.
+// A piece's points depend only on the model and the rest surface (the same bits whatever the
+// worker count, the batch or the way its triangles were found), and are chosen on its first need
+// after a cut changed it, so they never flicker between steps.
+void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks, const std::vector<uint32_t>& list) {
+  PieceContacts& pc = data.piece_contacts;
+  const ContactIndex& x = pc.index;
+  std::vector<uint32_t>& build = pc.rep_build;
+  std::vector<uint32_t>& offset = pc.rep_offset;  // of each piece's slots in the batch
+  build.clear();
+  offset.assign(1, 0);
+  for (const uint32_t piece : list) {
+    if (pc.rep_begin[piece] != ~0u) continue;
+    build.push_back(piece);
+    offset.push_back(offset.back() + x.piece_begin[piece + 1] - x.piece_begin[piece]);
+  }
+  if (build.empty()) return;
+  const uint32_t n = uint32_t(build.size()), slots = offset.back();
+  pc.rep_slots_built += slots;
+  const bool scan = pc.rep_slots_built > x.triangle_count / kRepSlotsPerScan;
+  if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
+  uint32_t* slot_index = pc.rep_scratch.data();
+  std::vector<Vec3d>& normal = pc.rep_normal;  // of the batch's slots, by piece then slot
+  normal.resize(slots);
+  if (scan) {
+    std::fill(normal.begin(), normal.end(), Vec3d::Zero());
+    for (uint32_t i = 0; i < n; ++i) {
+      const uint32_t first = x.piece_begin[build[i]];
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) slot_index[x.piece_slots[first + k - offset[i]]] = k;
+    }
+    scan_rest_normals(cut, x, slot_index, normal.data());
+    for (uint32_t i = 0; i < n; ++i) {
+      const uint32_t first = x.piece_begin[build[i]];
+      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) slot_index[x.piece_slots[first + k - offset[i]]] = ~0u;
+    }
+  }
+  pc.rep_staged.resize(size_t(n) * kRepEntries);
+  pc.rep_staged_count.resize(n);
+  const PbdModel& model = s;
+  const PbdData& data_read = data;  // the workers read the index only
+  const auto run = [&](uint32_t, uint32_t begin, uint32_t end) {
+    std::vector<uint32_t> quads;
+    for (uint32_t i = begin; i < end; ++i) {
+      if (!scan) piece_rest_normals(cut, x, build[i], slot_index, quads, normal.data() + offset[i]);
+      pc.rep_staged_count[i] = uint16_t(choose_piece_reps(model, data_read, build[i], normal.data() + offset[i], pc.rep_staged.data() + size_t(i) * kRepEntries));
+    }
+  };
+  const TaskBatch batch{n, kRepPiecesPerChunk};
+  run_batches(tasks, &batch, 1, run);
+  for (uint32_t i = 0; i < n; ++i) {
+    const uint32_t piece = build[i];
+    ++pc.counters.reps_built;
+    pc.rep_begin[piece] = uint32_t(pc.reps.size());
+    pc.reps.insert(pc.reps.end(), pc.rep_staged.begin() + size_t(i) * kRepEntries,
+                   pc.rep_staged.begin() + size_t(i) * kRepEntries + pc.rep_staged_count[i]);
+    pc.rep_count[piece] = pc.rep_staged_count[i];
+  }
 }
 
 // The deformed normal of a contact point of a piece (corner positions `corners`): its rest normal
@@ -498,25 +550,38 @@ Vec3d deformed_normal(const Vec3d corners[8], const Vec3f& local, const float re
 // Gathers this step's contact points: the surface vertices that may reach a plane within the step,
 // grouped by piece. A piece is skipped when even its lowest corner particle (every embedded point is a
 // convex combination of the corners) stays out of reach.
-void gather_plane_contacts(const CutState& cut, const PbdModel& s, PbdData& data) {
+void gather_plane_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   ContactSet& set = data.contacts;
   contacts_clear(set);
   const std::vector<ContactPlane>& planes = s.params.planes;
   if (planes.empty()) return;
   const ContactIndex& x = data.piece_contacts.index;
   const uint32_t plane_count = uint32_t(std::min<size_t>(planes.size(), 32));
+  // The planes each piece may reach (bit k: plane k), and the pieces that may reach one, whose
+  // contact points are built first (build_stale_reps).
+  std::vector<uint32_t>& near_planes = set.group_mask;
+  std::vector<uint32_t>& near_pieces = data.piece_contacts.rep_need;
+  near_planes.assign(x.pieces, 0u);
+  near_pieces.clear();
+  const auto reach_of = [&](uint32_t i) { return 2.0 * data.piece_contacts.motion[i] + 2.0 * s.sim_size / s.ratio; };
   for (uint32_t i = 0; i < x.pieces; ++i) {
     if (!x.mobile[i]) continue;  // free slot, or pinned at every corner
-    const double reach = 2.0 * data.piece_contacts.motion[i] + 2.0 * s.sim_size / s.ratio;
-    uint32_t near = 0;           // bit k: may reach plane k
+    const double reach = reach_of(i);
+    uint32_t near = 0;
     for (uint32_t k = 0; k < plane_count; ++k) {
       double lowest = 1e300;
       for (uint32_t p : s.pieces[i].particles) lowest = std::min(lowest, plane_distance(planes[k], data.position[p]));
       if (lowest < reach) near |= 1u << k;
     }
-    if (near == 0) continue;
+    near_planes[i] = near;
+    if (near != 0) near_pieces.push_back(i);
+  }
+  build_stale_reps(cut, s, data, tasks, near_pieces);
+  for (const uint32_t i : near_pieces) {
+    const double reach = reach_of(i);
+    const uint32_t near = near_planes[i];
     const uint32_t* particles = s.pieces[i].particles;
-    const auto [reps, count] = piece_reps(cut, s, data, i);
+    const auto [reps, count] = piece_reps(data.piece_contacts, i);
     Vec3d corners[8];
     piece_corner_positions(s, data, i, corners);
     for (uint32_t r = 0; r < count; ++r) {
@@ -577,14 +642,18 @@ void refresh_allowances(const CutState& cut, PieceContacts& pc) {
 
 // The contact points of the exposed pieces within reach of a partner (by piece, then slot), with
 // their allowances and deformed normals.
-void gather_surface_points(const CutState& cut, const PbdModel& s, PbdData& data) {
+void gather_surface_points(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   PieceContacts& pc = data.piece_contacts;
   const ContactIndex& x = pc.index;
   pc.points.clear();
   pc.gathered.clear();
+  pc.rep_need.clear();
   for (uint32_t i = 0; i < x.pieces; ++i) {
-    if (!pc.exposed[i]) continue;
-    const auto [reps, count] = piece_reps(cut, s, data, i);
+    if (pc.exposed[i]) pc.rep_need.push_back(i);
+  }
+  build_stale_reps(cut, s, data, tasks, pc.rep_need);
+  for (const uint32_t i : pc.rep_need) {
+    const auto [reps, count] = piece_reps(data.piece_contacts, i);
     partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, pc.region_lo, pc.region_hi);
     Vec3d corners[8];
     piece_corner_positions(s, data, i, corners);
@@ -615,7 +684,7 @@ void gather_surface_points(const CutState& cut, const PbdModel& s, PbdData& data
 
 // Gathers this step's piece-piece contacts (sim/contact.h): bodies, exposed pieces, their surface
 // vertices with deformed normals, the nearest facing vertex of another body.
-void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& data) {
+void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   PieceContacts& pc = data.piece_contacts;
   contacts_clear(pc.set);
   pc.exposed_pieces = 0;
@@ -654,7 +723,7 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
                                                  0.25 * s.sim_size, x.updates, pc.exposed, pc.scratch,
                                                  &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
-  gather_surface_points(cut, s, data);
+  gather_surface_points(cut, s, data, tasks);
   ++pc.counters.gathers;
   pc.counters.points += pc.points.size();
   pc.counters.contacts += gather_piece_contacts(pc.points.data(), uint32_t(pc.points.size()), data.position[0].data(), particles,
@@ -668,16 +737,17 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
 
 }  // namespace
 
-// This step's contacts with the planes and between pieces, from one index and the pieces' motions.
-void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data) {
+// This step's contacts with the planes and between pieces, from one index and the pieces' motions;
+// the contact points the gathers need are built first, the pieces spread over `tasks`.
+void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   contacts_clear(data.contacts);
   contacts_clear(data.piece_contacts.set);
   data.piece_contacts.exposed_pieces = 0;
   if (s.params.planes.empty() && !s.params.piece_contact) return;
   refresh_index(cut, s, data);
   piece_motions(s, data);
-  gather_plane_contacts(cut, s, data);
-  collect_piece_contacts(cut, s, data);
+  gather_plane_contacts(cut, s, data, tasks);
+  collect_piece_contacts(cut, s, data, tasks);
 }
 
 }  // namespace pbd_internal

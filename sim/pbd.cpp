@@ -464,7 +464,7 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
                                                                            params.stiffness_damping, s.sim_size, h)
                                                        : ElasticConstants{};
   const double t_contact = clock ? clock->now() : 0.0;
-  gather_contacts(cut, s, data);  // contact (sim/contact.h)
+  gather_contacts(cut, s, data, tasks);  // contact (sim/contact.h)
   if (clock && contact_ms) *contact_ms = clock->now() - t_contact;
   build_step_batches(s, data, elastic ? h > 0.0 : stretch_on, substeps);
   data.cache.grab_lambda.assign(3 * data.grab_particles.size(), 0.0);

@@ -372,9 +372,10 @@ void record_edits(const CutState& cut, PbdModel& s, const PbdData& data, const s
 void refresh_embed_rows(const CutState& cut, const PbdModel& s, PbdData& data);
 
 // Contact points (contact_points.cpp): brings the contact index's vertex slots up to date with the
-// surface (after init and every cut), and gathers this step's plane and piece contacts.
+// surface (after init and every cut), and gathers this step's plane and piece contacts (the
+// contact points to build spread over `tasks`: the same bits whatever the worker count).
 void refresh_slots(const CutState& cut, const PbdModel& s, PbdData& data);
-void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data);
+void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks);
 
 }  // namespace pbd_internal
 }  // namespace dvx

@@ -910,4 +910,69 @@ TEST_SUITE("contact") {
     CHECK(compared > s.pbd.data.piece_contacts.counters.reps_built);  // mostly points kept across cuts
     CHECK(2 * s.pbd.data.piece_contacts.counters.reps_built < twin.data.piece_contacts.counters.reps_built);
   }
+
+  TEST_CASE("contact points built by several workers, in one batch or piece by piece, are the serial ones bit for bit") {
+    // The block on a tray cut through horizontally, then vertically (a cut step per solver step).
+    // `one` steps serially; `many` with three workers (every batch split); `fresh` with three
+    // workers and its index rebuilt every step, so every piece it needs is built again in one batch
+    // (one scan of the surface) where the others build only what the last cut touched (through the
+    // quads around the slots). The contact points and the positions stay bit-identical.
+    PbdParams params;
+    params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
+    Scene s;
+    make_boxes(s, {{Vec3d(0.003, 0.0, 0.002), Vec3d(0.5, 0.5, 0.5)}}, params);
+    run(s, 30);
+    PbdState many = s.pbd, fresh = s.pbd;
+    many.data.chunk_work = fresh.data.chunk_work = 1;
+    ThreadRunner runner{3};
+    BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
+    const auto cut = [&](const BladePose& next) {
+      cut_step(s.model, s.cut, previous, next);
+      for (PbdState* p : {&s.pbd, &many, &fresh}) pbd_apply_cut(s.model, s.cut, p->model, p->data);
+      previous = next;
+    };
+    bool scanned = false, by_quads = false;
+    uint64_t compared = 0;
+    const auto step = [&]() {
+      pbd_step(s.cut, s.pbd.model, s.pbd.data);
+      pbd_step(s.cut, many.model, many.data, runner.runner());
+      fresh.data.piece_contacts.index.revision = ~uint64_t(0);  // rebuild
+      pbd_step(s.cut, fresh.model, fresh.data, runner.runner());
+      const PieceContacts& serial = s.pbd.data.piece_contacts;
+      const uint64_t built = serial.rep_slots_built, triangles = serial.index.triangle_count;
+      by_quads = by_quads || (built > 0 && built <= triangles / 128);
+      scanned = scanned || fresh.data.piece_contacts.rep_slots_built > triangles / 128;
+      CHECK(position_hash(many) == position_hash(s.pbd));
+      CHECK(position_hash(fresh) == position_hash(s.pbd));
+      for (const PbdState* other : {&many, &fresh}) {
+        const PieceContacts& pc = other->data.piece_contacts;
+        for (uint32_t i = 0; i < serial.rep_begin.size(); ++i) {
+          if (serial.rep_begin[i] == ~0u || pc.rep_begin[i] == ~0u) continue;
+          REQUIRE(serial.rep_count[i] == pc.rep_count[i]);
+          ++compared;
+          for (uint32_t r = 0; r < serial.rep_count[i]; ++r) {
+            const ContactRep &a = serial.reps[serial.rep_begin[i] + r], &b = pc.reps[pc.rep_begin[i] + r];
+            CHECK(a.slot == b.slot);
+            CHECK(std::equal(a.normal, a.normal + 3, b.normal));
+          }
+        }
+      }
+    };
+    for (int i = 1; i <= 8; ++i) {
+      const double x = -1.0 + 2.0 * i / 8;
+      cut(BladePose{Vec3d(x, 0.013, -2), Vec3d(x, 0.013, 2)});
+      step();
+    }
+    previous = BladePose{Vec3d(0.21, 1.0, -2), Vec3d(0.21, 1.0, 2)};
+    for (int k = 1; k <= 12; ++k) {
+      cut(BladePose{Vec3d(0.21, 1.0 - 2.0 * k / 12, -2), Vec3d(0.21, 1.0 - 2.0 * k / 12, 2)});
+      step();
+    }
+    for (int i = 0; i < 5; ++i) step();
+    CHECK(scanned);   // some batch found its triangles in one pass over the surface
+    CHECK(by_quads);  // and some through the quads around the slots
+    CHECK(s.pbd.data.piece_contacts.counters.contacts > 0);
+    CHECK(compared > 1000);
+    CHECK(runner.splits > 100);
+  }
 }
