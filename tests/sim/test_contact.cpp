@@ -839,6 +839,23 @@ void check_index(const Scene& s) {
   CHECK(stale == 0);
 }
 
+// The contact points of every piece both sets have built are the same, bit for bit (slots and
+// normals, in order); returns the pieces compared.
+uint64_t check_same_reps(const PieceContacts& x, const PieceContacts& y) {
+  uint64_t compared = 0;
+  for (uint32_t i = 0; i < x.rep_begin.size(); ++i) {
+    if (x.rep_begin[i] == ~0u || y.rep_begin[i] == ~0u) continue;
+    REQUIRE(x.rep_count[i] == y.rep_count[i]);
+    ++compared;
+    for (uint32_t r = 0; r < x.rep_count[i]; ++r) {
+      const ContactRep &a = x.reps[x.rep_begin[i] + r], &b = y.reps[y.rep_begin[i] + r];
+      CHECK(a.slot == b.slot);
+      CHECK(std::equal(a.normal, a.normal + 3, b.normal));
+    }
+  }
+  return compared;
+}
+
 uint64_t position_hash(const PbdState& s) {
   Fnv1a f;
   for (const Vec3d& p : s.data.position) f.bytes(p.data(), 3 * sizeof(double));
@@ -874,17 +891,7 @@ TEST_SUITE("contact") {
       check_index(s);
       CHECK(position_hash(s.pbd) == position_hash(twin));
       // The contact points kept from before the cut equal those the twin built afresh.
-      const PieceContacts &kept = s.pbd.data.piece_contacts, &fresh = twin.data.piece_contacts;
-      for (uint32_t i = 0; i < kept.rep_begin.size(); ++i) {
-        if (kept.rep_begin[i] == ~0u || fresh.rep_begin[i] == ~0u) continue;
-        REQUIRE(kept.rep_count[i] == fresh.rep_count[i]);
-        ++compared;
-        for (uint32_t r = 0; r < kept.rep_count[i]; ++r) {
-          const ContactRep &a = kept.reps[kept.rep_begin[i] + r], &b = fresh.reps[fresh.rep_begin[i] + r];
-          CHECK(a.slot == b.slot);
-          CHECK(std::equal(a.normal, a.normal + 3, b.normal));
-        }
-      }
+      compared += check_same_reps(s.pbd.data.piece_contacts, twin.data.piece_contacts);
     };
     for (int i = 1; i <= 8; ++i) {
       const double x = -1.0 + 2.0 * i / 8;
@@ -945,17 +952,7 @@ TEST_SUITE("contact") {
       CHECK(position_hash(many) == position_hash(s.pbd));
       CHECK(position_hash(fresh) == position_hash(s.pbd));
       for (const PbdState* other : {&many, &fresh}) {
-        const PieceContacts& pc = other->data.piece_contacts;
-        for (uint32_t i = 0; i < serial.rep_begin.size(); ++i) {
-          if (serial.rep_begin[i] == ~0u || pc.rep_begin[i] == ~0u) continue;
-          REQUIRE(serial.rep_count[i] == pc.rep_count[i]);
-          ++compared;
-          for (uint32_t r = 0; r < serial.rep_count[i]; ++r) {
-            const ContactRep &a = serial.reps[serial.rep_begin[i] + r], &b = pc.reps[pc.rep_begin[i] + r];
-            CHECK(a.slot == b.slot);
-            CHECK(std::equal(a.normal, a.normal + 3, b.normal));
-          }
-        }
+        compared += check_same_reps(serial, other->data.piece_contacts);
       }
     };
     for (int i = 1; i <= 8; ++i) {
