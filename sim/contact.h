@@ -345,7 +345,6 @@ struct PieceContacts {
   // piece's first need after a cut changed it; the index's update and the surface update they
   // follow (a cut marks stale only the pieces it touched).
   uint64_t rep_updates = ~uint64_t(0), rep_surface_changes = 0;
-  uint64_t rep_slots_built = 0;         // slots of the pieces built since then
   std::vector<uint32_t> rep_begin;      // (pieces) offset into reps, ~0u: to be built
   std::vector<uint16_t> rep_count;      // (pieces)
   std::vector<ContactRep> reps;         // by piece (in order of building), a piece's by slot
@@ -375,6 +374,7 @@ struct PieceContacts {
     uint64_t contacts = 0;      // contacts made
     uint64_t contact_pairs = 0; // pairs of pieces with contacts (their groups)
     uint64_t reps_built = 0;    // pieces whose contact points were (re)built
+    uint64_t reps_scanned = 0;  // of those, built in a batch that found its triangles in one pass over the surface
   } counters;
 };
 

@@ -243,10 +243,11 @@ void piece_motions(const PbdModel& s, PbdData& data) {
   }
 }
 
-// A batch of pieces to build whose slots, added to those built since the last cut, exceed the
-// surface's triangles / kRepSlotsPerScan finds their triangles in one pass over the surface
-// (scan_rest_normals); a smaller one through the half-edge map around each slot (vertex_quads: ~5
-// lookups a slot, mostly cache misses, ~350 instructions).
+// A batch of pieces to build whose slots exceed the surface's triangles / kRepSlotsPerScan finds
+// their triangles in one pass over the surface (scan_rest_normals: ~15 instructions a triangle); a
+// smaller one through the half-edge map around each slot (vertex_quads: ~5 lookups a slot, mostly
+// cache misses, ~350 instructions). Per batch: a pass serves only the batch it was made for (the
+// pieces a later step needs, as things move, come a few at a time).
 constexpr uint32_t kRepSlotsPerScan = 128;
 
 // build_stale_reps hands its pieces to the workers in chunks of at least this many (a piece on a
@@ -280,7 +281,6 @@ void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data) {
   const bool incremental = pc.rep_updates != ~uint64_t(0) && (!index_changed || (pc.rep_updates + 1 == x.updates && !x.rebuilt)) &&
                            cut.surface_changes - pc.rep_surface_changes <= 1 && pc.rep_begin.size() <= x.pieces;
   pc.rep_updates = x.updates;
-  pc.rep_slots_built = 0;
   const bool surface_changed = pc.rep_surface_changes != cut.surface_changes;
   pc.rep_surface_changes = cut.surface_changes;
   if (!incremental) {
@@ -487,8 +487,7 @@ void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, con
   }
   if (build.empty()) return;
   const uint32_t n = uint32_t(build.size()), slots = offset.back();
-  pc.rep_slots_built += slots;
-  const bool scan = pc.rep_slots_built > x.triangle_count / kRepSlotsPerScan;
+  const bool scan = slots > x.triangle_count / kRepSlotsPerScan;
   if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
   uint32_t* slot_index = pc.rep_scratch.data();
   std::vector<Vec3d>& normal = pc.rep_normal;  // of the batch's slots, by piece then slot
@@ -518,6 +517,7 @@ void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, con
   };
   const TaskBatch batch{n, kRepPiecesPerChunk};
   run_batches(tasks, &batch, 1, run);
+  pc.counters.reps_scanned += scan ? n : 0;
   for (uint32_t i = 0; i < n; ++i) {
     const uint32_t piece = build[i];
     ++pc.counters.reps_built;
