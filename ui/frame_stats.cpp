@@ -200,11 +200,12 @@ void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool r
     pace.restores = restores;
   } else if (pace.running && running) {
     // Running at both samples: the span and the steps run in it count.
-    pace.run_seconds += now - pace.last_time;
+    const double span = now - pace.last_time, simulated = double(step - pace.last_step) * dt;
+    pace.run_seconds += span;
     pace.steps += step - pace.last_step;
-    pace.sim_seconds += double(step - pace.last_step) * dt;
-    pace.window_run += now - pace.last_time;
-    pace.window_sim += double(step - pace.last_step) * dt;
+    pace.sim_seconds += simulated;
+    pace.window_run += span;
+    pace.window_sim += simulated;
     if (pace.window_run >= 1.0 - 1e-6) {  // (a tolerance for the sum's rounding)
       pace.per_second.push_back(float(pace.window_sim / pace.window_run));
       pace.window_run = pace.window_sim = 0.0;

@@ -14,14 +14,18 @@ if [[ -z ${DISPLAY:-} && -z ${WINDOW_PACE_IN_XVFB:-} ]]; then
   WINDOW_PACE_IN_XVFB=1 exec xvfb-run -a -s "-screen 0 1280x720x24" "$0" "$divvox" "$out"
 fi
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+# Without OUTDIR a temporary folder, removed at the end and on failure (start_window's trap only
+# kills the window).
+keep=1
 if [[ -z $out ]]; then
   out=$(mktemp -d)
-  trap 'rm -rf "$out"' EXIT
+  keep=0
 fi
 mkdir -p "$out"
 cd "$out" || exit 1
 fail() {
   echo "FAIL (pace): $*"
+  [[ $keep -eq 1 ]] || rm -rf "$out"
   exit 1
 }
 source "$here/tests/cli/window_drag.sh"
@@ -49,3 +53,4 @@ created = [s['created'] for s in d['strokes']]
 print('strokes: %d, components created by each: %s, components at the end: %d, hashes: %d checked, %d differ'
       % (len(created), created, d['pieces']['components'], d['hash_checks']['checked'], d['hash_checks']['mismatched']))
 PY
+[[ $keep -eq 1 ]] || rm -rf "$out"
