@@ -204,6 +204,8 @@ void add_bench_geometry(CLI::App& bench, CliCommand& c, RawFlags& raw, Subcomman
   sub.bench_elastic->add_option("--resolution", e.resolution, "Fine resolution of every case (0: each case's, 64; cube 32)")
       ->check(CLI::Range(0, 1024))->capture_default_str();
   sub.bench_elastic->add_option("--ref-scale", e.ref_scale, "Reference cells per axis x this")->check(CLI::Range(0.25, 8.0))->capture_default_str();
+  sub.bench_elastic->add_option("--ccx-timeout", e.ccx_timeout, "Seconds each CalculiX solve may run")
+      ->check(CLI::Range(1.0, 86400.0))->capture_default_str();
   sub.bench_elastic->add_option("--workers", e.workers, "Threads")->check(CLI::Range(1, 64))->capture_default_str();
   sub.bench_elastic->add_option("--keep-ccx", e.keep_ccx, "Keep each case's CalculiX deck, .dat and log in DIR/CASE");
   sub.bench_elastic->add_option("--out,-o", e.out_dir, "Output folder")->capture_default_str();

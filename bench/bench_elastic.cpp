@@ -523,7 +523,7 @@ std::string bench_elastic(const BenchElasticOptions& options) {
     const ElasticCase c = make_elastic_case(name, options.resolution, options.ref_scale);
     if (options.progress) std::fprintf(stderr, "divvox bench elastic: %s: CalculiX reference\n", name.c_str());
     const ElasticReference ref =
-        solve_reference(c, 60.0, options.keep_ccx.empty() ? std::string() : (fs::path(options.keep_ccx) / name).string());
+        solve_reference(c, options.ccx_timeout, options.keep_ccx.empty() ? std::string() : (fs::path(options.keep_ccx) / name).string());
     references.push_back({{"case", name},
                           {"ok", ref.result.ok},
                           {"error", ref.result.error},

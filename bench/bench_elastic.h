@@ -99,6 +99,7 @@ struct BenchElasticOptions {
   std::vector<std::string> models = {"neo_hookean", "paper"};
   int resolution = 0;         // fine resolution override (0: each case's)
   double ref_scale = 1.0;     // reference cells per axis x this
+  double ccx_timeout = 60.0;  // seconds each CalculiX solve may run (finer references need more)
   int workers = 1;
   std::string out_dir = "out/bench";
   std::string keep_ccx;  // when set: each case's CalculiX folder (deck, .dat, log) kept in KEEP/CASE
