@@ -322,6 +322,7 @@ void run_frame(AppState& app, WindowContext& w) {
     std::printf("%s\n", message.c_str());
     app.panel.screenshot_request.clear();
   }
+  w.sim.frame_done();  // the next snapshot may go out now
   if (w.profile) glFinish();
   const Clock::time_point t2 = Clock::now();
 

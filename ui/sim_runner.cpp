@@ -140,11 +140,14 @@ SimStatus SimRunner::status() {
 
 const Snapshot* SimRunner::take() {
   const Snapshot* s = exchange_.take();
-  if (s) {
-    taken_.store(s->sequence);
-    wake_.notify_all();  // a held-back step can go out now
-  }
+  if (s) in_hand_ = s->sequence;
   return s;
+}
+
+void SimRunner::frame_done() {
+  if (in_hand_ <= taken_.load()) return;
+  taken_.store(in_hand_);
+  wake_.notify_all();  // a held-back step can go out now
 }
 
 void SimRunner::publish(const StepTimings& timings, bool force) {

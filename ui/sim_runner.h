@@ -75,14 +75,14 @@ class SimRunner {
 
   SnapshotExchange& exchange() { return exchange_; }
   // Render side: the newest snapshot not seen yet, or nullptr (valid until the next take).
-  // The simulation thread publishes a step's snapshot only once the renderer has taken the previous
-  // one: one snapshot prepared ahead while the renderer draws the last, so the next frame finds a
-  // new one (waiting until the last was drawn left too little of a frame for the copy and the
-  // normals: every other frame found none). Never more than one ahead: a snapshot the renderer
-  // would skip costs its copy and normals for nothing, on the cores the rasteriser needs. A step
-  // that was held back is published at the next take.
+  // The simulation thread publishes a step's snapshot only once the renderer is done with the
+  // previous one (a snapshot the renderer would skip costs its copy and normals for nothing, on the
+  // cores the rasteriser needs); a step that was not published is published then. frame_done: the
+  // renderer has drawn the snapshot it took (call it at the end of each frame's drawing): the next
+  // one, published now, is as fresh as it can be at the next frame's start.
   // DIVVOX_SNAPSHOT_EVERY_STEP=1 publishes every step (for comparing).
   const Snapshot* take();
+  void frame_done();
   // Snapshots carry split vertex normals computed on the simulation thread (the render thread then
   // only uploads them); off: the renderer computes them (GPU passes).
   void set_cpu_normals(bool on) { cpu_normals_.store(on); }
@@ -175,7 +175,8 @@ class SimRunner {
   bool unpublished_ = false;  // a step ran whose snapshot was held back (the renderer was behind)
   bool every_step_ = false;   // DIVVOX_SNAPSHOT_EVERY_STEP=1
   StepTimings unpublished_timings_;
-  std::atomic<uint64_t> taken_{0};  // sequence of the snapshot the renderer took last
+  std::atomic<uint64_t> taken_{0};  // sequence of the snapshot the renderer is done with
+  uint64_t in_hand_ = 0;            // render thread: the sequence taken, not yet done
   std::atomic<bool> cpu_normals_{false};
   std::atomic<uint64_t> generation_first_sequence_{1};
   std::atomic<uint32_t> next_step_{0};

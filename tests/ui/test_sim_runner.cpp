@@ -1,7 +1,7 @@
-// The window's simulation thread (ui/sim_runner.h), without a window: one snapshot is prepared ahead
-// once the renderer has taken the previous one, never more (consecutive sequences, so every upload
-// can be a dirty-range one), a held-back step goes out at the next take, and snapshots carry the
-// split normals when asked.
+// The window's simulation thread (ui/sim_runner.h), without a window: snapshots are published only
+// once the renderer is done with the previous one (consecutive sequences, so every upload can be a
+// dirty-range one), a held-back step goes out when the renderer catches up, and snapshots carry
+// the split normals when asked.
 #include "ui/sim_runner.h"
 
 #include "engine/scene.h"
@@ -20,7 +20,9 @@ using namespace dvx;
 namespace {
 
 // The next snapshot from the runner, waiting up to ~20 s (a loaded machine); nullptr if none came.
+// The previous one is done with first (as the window does at the end of each frame's drawing).
 const Snapshot* next_snapshot(SimRunner& sim) {
+  sim.frame_done();
   for (int k = 0; k < 2000; ++k) {
     if (const Snapshot* s = sim.take()) return s;
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
@@ -31,7 +33,7 @@ const Snapshot* next_snapshot(SimRunner& sim) {
 }  // namespace
 
 TEST_SUITE("ui") {
-TEST_CASE("sim runner: one snapshot prepared ahead per take, consecutive, of a later step, with its normals when asked") {
+TEST_CASE("sim runner: one snapshot per frame drawn, consecutive, of a later step, with its normals when asked") {
   const std::filesystem::path mesh = std::filesystem::path(DIVVOX_SOURCE_DIR) / "assets/meshes/bunny_npm.obj";
   REQUIRE(std::filesystem::exists(mesh));
   const Scene scene = parse_scene(nlohmann::json{{"mesh", mesh.string()}, {"resolution", 24}, {"sim_resolution", 6}},
@@ -44,8 +46,9 @@ TEST_CASE("sim runner: one snapshot prepared ahead per take, consecutive, of a l
   uint64_t sequence = first->sequence;
   uint32_t step = first->step;
   for (int k = 0; k < 6; ++k) {
-    // The renderer is slow: several steps run meanwhile, yet only one snapshot goes out after a take.
+    // The renderer is slow: several steps run meanwhile, and no snapshot goes out before it is done.
     std::this_thread::sleep_for(std::chrono::milliseconds(120));
+    CHECK(sim.take() == nullptr);
     const Snapshot* s = next_snapshot(sim);
     REQUIRE(s != nullptr);
     CHECK(s->sequence == sequence + 1);  // nothing published past the one not yet taken
@@ -59,7 +62,7 @@ TEST_CASE("sim runner: one snapshot prepared ahead per take, consecutive, of a l
     sequence = s->sequence;
     step = s->step;
   }
-  // The held-back step goes out at the take: a new snapshot of a later step arrives.
+  // The held-back step goes out once the renderer is done: a new snapshot of a later step arrives.
   const SimStatus status = sim.status();
   CHECK(status.step > step);
   const Snapshot* later = next_snapshot(sim);
