@@ -67,16 +67,6 @@ bool free_vertex(CutSurface& s, uint64_t key) {
   return true;
 }
 
-// The vertex of the patch of `voxel` that holds half-edge h (2 * voxel edge + side), or kDeadIndex.
-uint32_t vertex_holding(const CutSurface& s, uint32_t voxel, int h) {
-  for (uint32_t p = 0; p < uint32_t(kMaxPatches); ++p) {
-    const uint32_t slot = s.vertex_of_patch.get(patch_key(voxel, p));
-    if (slot == kDeadIndex) return kDeadIndex;
-    if ((s.vertex_half_edges[slot] >> h) & 1u) return slot;
-  }
-  return kDeadIndex;
-}
-
 // Appends the corners of quad slot `quad`'s two triangles to `corners` (when given and live).
 void note_quad_corners(const CutSurface& s, uint32_t quad, std::vector<uint32_t>* corners) {
   if (corners == nullptr || s.quad_half_edge[quad] == CutSurface::kFreeKey) return;
@@ -621,6 +611,26 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
   const CutSurface& s = state.surface;
   const int axis = int(edge % 3);
   uint32_t ring[2][4];  // vertices in the ring order about the axis
+  // The vertex slots of each ring voxel's patches, looked up once for both sides (a cut edge with
+  // both ends inside reads the same voxels twice; each lookup is a miss in a map of the whole surface).
+  // (fetched lazily in patch order, stopping at the first absent patch: a voxel's first patch mostly holds it)
+  uint32_t slots[4][kMaxPatches];
+  uint8_t slot_count[4] = {0, 0, 0, 0};
+  bool ended[4] = {false, false, false, false};
+  const auto holding = [&](int q, int h) {
+    for (int i = 0;; ++i) {
+      if (i == slot_count[q]) {
+        if (ended[q] || i == kMaxPatches) return kDeadIndex;
+        const uint32_t slot = s.vertex_of_patch.get(patch_key(around[q], uint32_t(i)));
+        if (slot == kDeadIndex) {
+          ended[q] = true;
+          return kDeadIndex;
+        }
+        slots[q][slot_count[q]++] = slot;
+      }
+      if ((s.vertex_half_edges[slots[q][i]] >> h) & 1u) return slots[q][i];
+    }
+  };
   for (int side = 0; side < 2; ++side) {
     double t;
     Vec3d normal;
@@ -632,7 +642,7 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     bool ok = true;
     for (int q = 0; q < 4; ++q) {
       const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
-      ring[side][q] = vertex_holding(s, around[q], h);
+      ring[side][q] = holding(q, h);
       ok = ok && ring[side][q] != kDeadIndex;
     }
     out.exists[side] = ok;

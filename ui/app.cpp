@@ -271,7 +271,9 @@ void run_frame(AppState& app, WindowContext& w) {
   glfwPollEvents();
   app.status = w.sim.status();
   follow_simulation(app, w.generation);
-  sim_pace_sample(app.history.pace, glfwGetTime(), app.status.step, app.status.dt,
+  const Clock::time_point now = Clock::now();  // after the status: never before its step_done
+  sim_pace_sample(app.history.pace, std::chrono::duration<double>(now.time_since_epoch()).count(), app.status.step,
+                  app.status.dt, std::chrono::duration<double>(now - app.status.step_done).count(),
                   app.status.ready && !app.status.paused && !app.status.loading, app.status.generation,
                   app.status.restores);
   // Window resize: a new panel width and offscreen target.

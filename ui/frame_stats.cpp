@@ -190,8 +190,13 @@ void FrameStats::print(const AppState& app) const {
   }
 }
 
-void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool running, uint64_t generation,
-                     uint64_t restores) {
+double sim_pace_position(uint32_t step, double dt, double since_step_done) {
+  return double(step) * dt + std::clamp(since_step_done, 0.0, dt);
+}
+
+void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, double since_step_done, bool running,
+                     uint64_t generation, uint64_t restores) {
+  const double position = sim_pace_position(step, dt, since_step_done);
   // A new session, an undo / redo, or a step that went back: the count starts again from here.
   if (!pace.started || generation != pace.generation || restores != pace.restores || step < pace.last_step) {
     pace = SimPace{};
@@ -199,8 +204,9 @@ void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool r
     pace.generation = generation;
     pace.restores = restores;
   } else if (pace.running && running) {
-    // Running at both samples: the span and the steps run in it count.
-    const double span = now - pace.last_time, simulated = double(step - pace.last_step) * dt;
+    // Running at both samples: the span and the simulated time run in it count (never negative: a
+    // step that finished early, as after a stall, moves the position on from where the cap held it).
+    const double span = now - pace.last_time, simulated = std::max(position - pace.last_sim, 0.0);
     pace.run_seconds += span;
     pace.steps += step - pace.last_step;
     pace.sim_seconds += simulated;
@@ -214,6 +220,7 @@ void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool r
   pace.running = running;
   pace.last_time = now;
   pace.last_step = step;
+  pace.last_sim = position;
 }
 
 }  // namespace dvx

@@ -20,6 +20,7 @@ struct SimPace {
   bool running = false;                   // at the last sample
   double last_time = 0.0;                 // the last sample's wall-clock time (s)
   uint32_t last_step = 0;                 // the last sample's step (the next to run)
+  double last_sim = 0.0;                  // the last sample's simulated time (sim_pace_position)
   double run_seconds = 0.0;               // wall-clock time counted
   double sim_seconds = 0.0;               // simulated time of the steps run in it (steps x their dt)
   uint64_t steps = 0;                     // the steps run in it
@@ -33,10 +34,17 @@ struct SimPace {
   double rate() const { return run_seconds > 0.0 ? sim_seconds / run_seconds : 0.0; }
 };
 
+// The simulated time at a sample: the steps done plus the time since the last one finished, capped
+// at one step. Steps done alone are quantised: a simulation paced at exactly real time has 59 or 61
+// step boundaries in some one-second windows (x0.98, x1.02) though it never fell behind; with the
+// time since the last step it reads x1.00 there, and a stall still shows (the position stops one
+// step after the last step finished until the next one does).
+double sim_pace_position(uint32_t step, double dt, double since_step_done);
+
 // One sample (each frame): `now` wall-clock seconds, `step` the next step to run, `dt` the step's
-// length, `running`: ready, not paused, not loading. The span since the last sample counts when both
-// samples were running.
-void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, bool running, uint64_t generation,
-                     uint64_t restores);
+// length, `since_step_done` the seconds since the step before `step` finished, `running`: ready, not
+// paused, not loading. The span since the last sample counts when both samples were running.
+void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, double since_step_done, bool running,
+                     uint64_t generation, uint64_t restores);
 
 }  // namespace dvx

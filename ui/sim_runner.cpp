@@ -221,6 +221,7 @@ void SimRunner::do_open(OpenRequest& request) {
   status_.bounds = mesh_bounds(session_->input.mesh);
   ++status_.generation;
   status_.step = 0;
+  status_.step_done = Clock::now();
   status_.timings.clear();
   status_.grab_force_n.clear();
   status_.grab_on = false;
@@ -267,6 +268,7 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   lock.unlock();
 
   const StepReport report = session_step(s, commands);
+  const Clock::time_point step_done = Clock::now();
   // Record what was applied, at the step it was applied to.
   if (recorder_) {
     try {
@@ -294,6 +296,7 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   lock.lock();
   next_step_.store(s.state.step);
   status_.step = s.state.step;
+  status_.step_done = step_done;
   status_.timings.push_back(report.timings);
   if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
   status_.grab_force_n.push_back(float(report.grab_force_n));
@@ -402,6 +405,7 @@ void SimRunner::do_restore(bool redo, std::unique_lock<std::mutex>& lock) {
   to.push_back(std::move(now));
   next_step_.store(s.state.step);
   status_.step = s.state.step;
+  status_.step_done = Clock::now();
   status_.divided_voxels = uint32_t(s.state.cut.divided.size());
   status_.undo_levels = uint32_t(undo_stack_.size());
   status_.redo_levels = uint32_t(redo_stack_.size());

@@ -31,6 +31,8 @@ struct StampedCommands {
 struct SimStatus {
   bool loading = false, ready = false, paused = false;
   uint32_t step = 0;  // the next step to run
+  // When the step before `step` finished (SimPace: the simulated time between step boundaries).
+  Clock::time_point step_done = Clock::now();
   double dt = 1.0 / 60.0;
   Scene scene;
   Aabb bounds;            // the input mesh's bounds (framing, blade placement)
