@@ -270,10 +270,13 @@ TEST_CASE("ccx: the stiff cantilever converges towards CalculiX as the budget gr
   CHECK(previous < 0.35);  // measured 0.24: one element through the thickness locks (DESIGN §3: 36-64 % of the sag)
 }
 
-// The issue's bound is 10 % RMS; measured 10.2 % at the scene's defaults (sim 16, 5 x 1; 9.8 % at 5 x 2;
-// 9-11 % over the budgets up to 5 x 20: the discretisation, not the solver). Asserted at 12 % so a
-// regression shows; the 10 % goal is not met.
-TEST_CASE("ccx: the hanging liver within 12 % RMS of CalculiX at the scene's defaults (sim 16, 5 x 1)") {
+// The issue's bounds at the scene's defaults (sim 16, 5 x 2): within 10 % RMS of CalculiX (measured
+// 9.8 %, and 9.8 % against a reference with twice the cells per axis, too slow for the suite: 400 s of
+// ccx), and converged in the solver: doubling the iterations moves the sag (the largest displacement,
+// 0.15 m) by at most 1 % (measured 0.37 %). The lobe tip's vertical displacement, 6 % of that, moves
+// 2.6 % (0.23 mm; 5 x 5 / 10 / 20 read within 0.4 % of 5 x 2): bounded at 5 %. 5 x 1 was not
+// converged: its tip moved 45 % when doubled.
+TEST_CASE("ccx: the hanging liver within 10 % RMS of CalculiX at the scene's defaults, converged in the solver") {
   if (!have_ccx() || !material_model_in_build()) return;
   const PbdParams shipped = shipped_solver();
   const ElasticCase c = make_elastic_case("liver", 64);
@@ -287,5 +290,15 @@ TEST_CASE("ccx: the hanging liver within 12 % RMS of CalculiX at the scene's def
   const ElasticMeasure m = measure_elastic(c, ref, run);
   MESSAGE("liver RMS error " << m.rms_error << ", max-displacement error " << m.max_error << " at " << run.substeps
                              << " x " << run.iterations);
-  CHECK(m.rms_error < 0.12);
+  CHECK(m.rms_error < 0.10);
+  ElasticRun doubled = run;
+  doubled.iterations *= 2;
+  const ElasticMeasure d = measure_elastic(c, ref, doubled);
+  const double tip_change = std::abs(d.tip.y() / m.tip.y() - 1.0);
+  const double max_change = std::abs(d.max_displacement / m.max_displacement - 1.0);
+  MESSAGE("doubling the iterations: tip " << m.tip.y() << " -> " << d.tip.y() << " m (" << tip_change
+                                          << "), largest displacement " << m.max_displacement << " -> "
+                                          << d.max_displacement << " m (" << max_change << ")");
+  CHECK(max_change <= 0.01);
+  CHECK(tip_change <= 0.05);
 }
