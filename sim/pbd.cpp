@@ -535,9 +535,11 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
                            data.rotation.data(), b.index != kOverflowColour);
         break;
       case StepBatch::kElastic:
-        // One colour's hexahedra share no particle; the overflow's in order (pbd_elastic.h).
-        solve_elastic_rows(x, data.previous[0].data(), data.cache.elastic_rows[b.index].data(),
-                           data.cache.elastic_lambda[b.index].data(), begin, end, material, data.rotation.data());
+        // One colour's hexahedra share no particle: four or eight at once; the overflow's in order
+        // (pbd_kernels.h).
+        solve_elastic_blocks(x, data.previous[0].data(), data.cache.elastic_rows[b.index].data(),
+                             data.cache.elastic_lambda[b.index].data(), begin, end, material, data.rotation.data(),
+                             b.index != kOverflowColour);
         break;
       case StepBatch::kGrab:
         solve_grab(s, data, h, grab_lambda);

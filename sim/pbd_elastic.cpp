@@ -74,6 +74,8 @@ __attribute__((always_inline)) inline void apply(double (*xs)[3], const double (
 
 }  // namespace
 
+const double (&kHexGradients)[9][8][3] = kGrad.g;
+
 ElasticConstants elastic_constants(double youngs_modulus, double poisson_ratio, double beta, double sim_size, double h) {
   ElasticConstants k;
   const double E = youngs_modulus, nu = poisson_ratio;

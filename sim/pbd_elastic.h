@@ -59,12 +59,18 @@ struct ElasticRow {
   double octant[8];  // its share at each Gauss point (V_g, sim/pbd.cpp refresh_blocks; point c lies in octant c)
 };
 
+// Shape-function gradients of the unit-edge hexahedron at its 8 Gauss points (point g at xi =
+// +-1/sqrt(3), signs from g's bits like the corners) and at its centre (the 9th), per corner and axis.
+extern const double (&kHexGradients)[9][8][3];
+
 // Number of constraints (multipliers) of a row: 8 shear, 1 volume.
 constexpr int kElasticConstraints = 9;
 
 // Solves rows [begin, end) in order, each one's 9 constraints in turn (Gauss-Seidel), with their
 // multipliers (kElasticConstraints per row). x: positions (3 per particle); previous: positions at
 // the substep's start (for the damping); rotation: per piece slot, warm start updated in place.
+// The scalar path: solve_elastic_blocks (pbd_kernels.h) solves a colour's rows four or eight at
+// once with the same bits.
 void solve_elastic_rows(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
                         uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation);
 

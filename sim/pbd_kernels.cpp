@@ -686,6 +686,44 @@ void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uin
   solve_shape_blocks(kernel_isa(), x, blocks, begin, end, stiffness, rotations, disjoint);
 }
 
+namespace {
+
+void elastic_rows_baseline(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
+                           uint32_t end, const ElasticConstants& k, Quaterniond* rotation) {
+  lanes::elastic_rows_lanes<V4>(x, previous, rows, lambda, begin, end, k, rotation);
+}
+
+#if defined(__x86_64__)
+DVX_AVX2_PATH void elastic_rows_avx2(double* x, const double* previous, const ElasticRow* rows, double* lambda,
+                                     uint32_t begin, uint32_t end, const ElasticConstants& k, Quaterniond* rotation) {
+  avx2_lanes::elastic_rows_lanes<V4>(x, previous, rows, lambda, begin, end, k, rotation);
+}
+
+DVX_AVX512_PATH void elastic_rows_avx512(double* x, const double* previous, const ElasticRow* rows, double* lambda,
+                                         uint32_t begin, uint32_t end, const ElasticConstants& k,
+                                         Quaterniond* rotation) {
+  avx512_lanes::elastic_rows_lanes<V8>(x, previous, rows, lambda, begin, end, k, rotation);
+}
+#endif
+
+}  // namespace
+
+void solve_elastic_blocks(KernelIsa isa, double* x, const double* previous, const ElasticRow* rows, double* lambda,
+                          uint32_t begin, uint32_t end, const ElasticConstants& k, Quaterniond* rotation,
+                          bool disjoint) {
+  if (!disjoint) return solve_elastic_rows(x, previous, rows, lambda, begin, end, k, rotation);
+#if defined(__x86_64__)
+  if (isa == KernelIsa::kAvx512) return elastic_rows_avx512(x, previous, rows, lambda, begin, end, k, rotation);
+  if (isa == KernelIsa::kAvx2) return elastic_rows_avx2(x, previous, rows, lambda, begin, end, k, rotation);
+#endif
+  elastic_rows_baseline(x, previous, rows, lambda, begin, end, k, rotation);
+}
+
+void solve_elastic_blocks(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
+                          uint32_t end, const ElasticConstants& k, Quaterniond* rotation, bool disjoint) {
+  solve_elastic_blocks(kernel_isa(), x, previous, rows, lambda, begin, end, k, rotation, disjoint);
+}
+
 void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {
   solve_shape_blocks(x, &b, 0, 1, stiffness, rotations, false);
 }

@@ -3,6 +3,8 @@
 // these; tests check each kernel alone.
 #pragma once
 
+#include "sim/pbd_elastic.h"
+
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
@@ -209,5 +211,16 @@ void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uin
 // The same on a named path (at most kernel_isa(): one this CPU has).
 void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end,
                         double stiffness, Eigen::Quaterniond* rotations, bool disjoint);
+
+// The material's hexahedra (pbd_elastic.h's solve_elastic_rows) with the lanes of the best path:
+// `disjoint` (one colour group: no two rows share a particle) solves eight rows (AVX-512) or four
+// (AVX2 and SSE2's pairs) at once, one per lane; otherwise (the overflow group) in order. Each row
+// does solve_elastic_rows' IEEE operations in its order either way: the same bits on every path.
+void solve_elastic_blocks(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
+                          uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation, bool disjoint);
+// The same on a named path (at most kernel_isa(): one this CPU has).
+void solve_elastic_blocks(KernelIsa isa, double* x, const double* previous, const ElasticRow* rows, double* lambda,
+                          uint32_t begin, uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation,
+                          bool disjoint);
 
 }  // namespace dvx

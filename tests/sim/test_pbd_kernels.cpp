@@ -711,4 +711,68 @@ TEST_SUITE("pbd_kernels") {
       }
     }
   }
+
+  TEST_CASE("solve_elastic_blocks: a colour's hexahedra eight or four at a time give the bits of the rows one by one") {
+    for (const KernelIsa isa : kernel_paths()) {
+      CAPTURE(int(isa));
+      Rng rng(61);
+      for (int trial = 0; trial < 120; ++trial) {
+        const uint32_t rows_count = uint32_t(1 + trial % 19);
+        const double side = rng.uniform(0.005, 0.05);
+        std::vector<double> x(24 * rows_count), previous, inv_mass(8 * rows_count);
+        std::vector<uint32_t> order(8 * rows_count);
+        for (uint32_t i = 0; i < order.size(); ++i) order[i] = i;
+        for (uint32_t i = uint32_t(order.size()) - 1; i > 0; --i)
+          std::swap(order[i], order[uint32_t(rng.uniform(0, i + 0.999))]);
+        std::vector<ElasticRow> rows(rows_count);
+        std::vector<Quaterniond> rotation(rows_count + 3);
+        for (uint32_t r = 0; r < rows_count; ++r) {
+          ElasticRow& row = rows[r];
+          row.piece = rows_count + 2 - r;  // one slot per piece, not the row's index
+          const int kind = int(r + trial) % 8;
+          const Vector3d origin = rng.vec(-1, 1);
+          const Quaterniond turn = rng.rotation();
+          for (int c = 0; c < 8; ++c) {
+            const uint32_t p = order[8 * r + c];
+            row.p[c] = p;
+            Vector3d corner = side * Vector3d(c & 1, (c >> 1) & 1, (c >> 2) & 1);
+            if (kind == 3) corner.z() = 0.0;                  // flattened
+            if (kind == 4) corner.x() = -corner.x();          // inverted
+            if (kind == 6 && c == 7) corner = Vector3d::Zero();  // two corners on one point
+            set(x, p, origin + turn * corner + 0.2 * side * rng.vec(-1, 1));
+            inv_mass[p] = kind == 5 && c < 4 ? 0.0 : rng.uniform(0.5, 4.0);  // kind 5: anchored face
+            row.w[c] = inv_mass[p];
+            row.octant[c] = kind == 1 && c % 3 == 0 ? 0.0 : rng.uniform(0.1, 1.0) * side * side * side / 16.0;
+          }
+          row.volume = kind == 2 ? 0.0 : side * side * side * rng.uniform(0.2, 1.0);  // kind 2: no material
+          // Warm starts: near the turn, or not unit (kind 7: extract_rotation_step's fallback).
+          Quaterniond q = kind == 7 ? Quaterniond(2.0, 0.1, 0.0, 0.0) : rng.rotation();
+          rotation[row.piece] = q;
+        }
+        previous = x;
+        for (double& v : x) v += rng.uniform(-0.01, 0.01) * side;
+        std::vector<double> lambda(size_t(kElasticConstraints) * rows_count);
+        for (double& l : lambda) l = rng.uniform(-1e-3, 1e-3);
+        const double h = 1.0 / 60.0 / double(1 + trial % 5);
+        const ElasticConstants k = elastic_constants(rng.uniform(1e3, 1e7), trial % 6 == 0 ? 0.0 : rng.uniform(0.1, 0.499),
+                                                     trial % 2 ? 0.01 : 0.0, side, h);
+        const uint32_t begin = uint32_t(trial % 3) % rows_count;
+        std::vector<double> x_one = x, lambda_one = lambda;
+        std::vector<Quaterniond> rotation_one = rotation;
+        for (int sweep = 0; sweep < 3; ++sweep) {
+          solve_elastic_blocks(isa, x.data(), previous.data(), rows.data(), lambda.data(), begin, rows_count, k,
+                               rotation.data(), true);
+          solve_elastic_rows(x_one.data(), previous.data(), rows.data(), lambda_one.data(), begin, rows_count, k,
+                             rotation_one.data());
+        }
+        CAPTURE(trial);
+        for (size_t i = 0; i < x.size(); ++i) {
+          CAPTURE(i);
+          REQUIRE(x[i] == x_one[i]);
+        }
+        for (size_t i = 0; i < lambda.size(); ++i) REQUIRE(lambda[i] == lambda_one[i]);
+        for (size_t i = 0; i < rotation.size(); ++i) REQUIRE(rotation[i].coeffs() == rotation_one[i].coeffs());
+      }
+    }
+  }
 }
