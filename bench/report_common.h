@@ -62,7 +62,7 @@ PlotSeries histogram_series(const std::string& name, const json& stats, const ch
 // cheapest on the front within 10 % RMS); pointers into the results.
 struct ElasticPick {
   const json* shipped = nullptr;  // the shipped solver at the shipped simulation resolution
-  const json* chosen = nullptr;   // the cheapest Pareto-optimal row within 10 % RMS error
+  const json* chosen = nullptr;   // the cheapest row within 10 % RMS error converged in the solver
 };
 ElasticPick elastic_pick(const json& r, const std::string& name, const std::string& model);
 // "sim N, SxI" of a bench elastic row.

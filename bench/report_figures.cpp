@@ -122,7 +122,7 @@ Plot elastic_plot(const json& r) {
     }
     panel.series.push_back(front_series("Pareto front", all_x, all_y));
     for (auto& [key, s] : by_key) panel.series.push_back(s);
-    PlotSeries shipped = chosen_series("shipped solver"), chosen = chosen_series("chosen (cheapest within 10 %)");
+    PlotSeries shipped = chosen_series("shipped solver"), chosen = chosen_series("chosen (cheapest converged within 10 %)");
     chosen.point_type = 4;
     for (const char* model : {"neo_hookean", "paper"}) {
       const ElasticPick pick = elastic_pick(r, name, model);
