@@ -53,7 +53,7 @@ Aabb below_x(double x) {
 }  // namespace
 
 TEST_SUITE("ccx") {
-TEST_CASE("hex mesh: a box shares every node; a cut through duplicates its plane, a cut halfway up to its front") {
+TEST_CASE("hex mesh: a box shares every node, a cut through duplicates its plane, a cut halfway up to its front") {
   const HexMesh box = make_hex_mesh(Vec3d::Zero(), Vec3d::Constant(1.0), {4, 2, 2}, all);
   CHECK(box.elements.size() == 16);
   CHECK(box.nodes.size() == 5 * 3 * 3);
@@ -78,7 +78,7 @@ TEST_CASE("hex mesh: a box shares every node; a cut through duplicates its plane
   }
 }
 
-TEST_CASE("deck: linear and Neo-Hookean, NLGEOM, anchors; refuses what has no answer") {
+TEST_CASE("deck: linear and Neo-Hookean, NLGEOM, anchors, refuses what has no answer") {
   const HexMesh mesh = make_hex_mesh(Vec3d::Zero(), Vec3d(0.1, 0.05, 0.05), {4, 1, 1}, all);
   CcxProblem p;
   p.fixed = {below_x(1e-9)};

@@ -322,7 +322,7 @@ TEST_CASE("renderer: single-sampled, the depth texture holds the surface's depth
 
 // The window spreads one image over two frames: the outer surface's first pieces, then the rest with
 // the cut faces, into the second target of a double-buffered renderer while the last image is shown.
-TEST_CASE("renderer: an image drawn in two halves equals it drawn at once; double buffering swaps the targets") {
+TEST_CASE("renderer: an image drawn in two halves equals it drawn at once, double buffering swaps the targets") {
   GlScope gl;
   if (!gl.ok) return;
   const Shape shape = make_shape();

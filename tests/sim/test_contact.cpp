@@ -675,7 +675,7 @@ TEST_SUITE("contact") {
     CHECK(std::abs(cubes.gap()) < 1e-12);
   }
 
-  TEST_CASE("a deep overlap is pushed out by at most max_push per step; a fresh one is kept") {
+  TEST_CASE("a deep overlap is pushed out by at most max_push per step, a fresh one is kept") {
     // B sunk 0.3 into A. Not fresh (allowance 0): pushed out 0.05 per step, not 0.3 at once.
     TwoCubes deep(0.7, 0.0f);
     deep.step(0.05, 5);

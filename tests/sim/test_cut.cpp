@@ -464,7 +464,7 @@ TEST_SUITE("cut") {
 }
 
 TEST_SUITE("cut") {
-  TEST_CASE("vertex_quads finds each vertex's live triangles; touched_vertices names every vertex a step moved or re-triangulated") {
+  TEST_CASE("vertex_quads finds each vertex's live triangles, touched_vertices names every vertex a step moved or re-triangulated") {
     // A box cut by a blade that turns as it goes down (partial cuts, a crossing of its own cut),
     // then by a straight one across: after every step, each slot's triangles equal a scan of all
     // live triangles, and the corners of each triangle slot that changed (old and new) are listed.

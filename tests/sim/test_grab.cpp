@@ -109,7 +109,7 @@ void pull(dvx_test::WorldScene& w, double pull, int ramp, int hold, StepReport& 
 }  // namespace
 
 TEST_SUITE("grab") {
-  TEST_CASE("the grab's force is its spring's and the bar's E A / L x extension; the bar springs back") {
+  TEST_CASE("the grab's force is its spring's and the bar's E A / L x extension, the bar springs back") {
     dvx_test::WorldScene w;
     make_bar(w, 20);
     StepReport report;

@@ -10,7 +10,7 @@
 using namespace dvx;
 
 TEST_SUITE("pbd") {
-  TEST_CASE("a slit joined around its front keeps its blocks' pieces; crossing a block splits them, as a fresh build does") {
+  TEST_CASE("a slit joined around its front keeps its blocks' pieces, crossing a block splits them, as a fresh build does") {
     const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(1.0, 0.5, 0.5), Eigen::Matrix3d::Identity(), 1);
     // Two blades: level (it cuts y edges only: spans stay whole) and slanted in x and z (it cuts x
     // edges too: spans split), each across the whole box in steps of about one fine voxel.

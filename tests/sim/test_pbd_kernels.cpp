@@ -425,7 +425,7 @@ TEST_SUITE("pbd_kernels") {
     CHECK(get(cube.x, 1) == Vector3d(6.0, -3.0, 2.0));
   }
 
-  TEST_CASE("shape_matching_corrections: equals the in-place displacement; anchors get zero") {
+  TEST_CASE("shape_matching_corrections: equals the in-place displacement, anchors get zero") {
     Rng rng(25);
     for (int trial = 0; trial < 50; ++trial) {
       Cube cube;

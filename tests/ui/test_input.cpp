@@ -79,7 +79,7 @@ TEST_CASE("off the tissue: the depth of the surface nearest the cursor on screen
   CHECK_FALSE(nearest_surface_depth({Vec3f(3, 0, 5), Vec3f(0, 0, -1)}, m.positions, dead, 0.0f, t));
 }
 
-TEST_CASE("pick: the nearest triangle on the ray, either side; dead slots, NaN and skipped classes ignored") {
+TEST_CASE("pick: the nearest triangle on the ray, either side, dead slots, NaN and skipped classes ignored") {
   TwoSquares m;
   SurfaceHit hit;
   const Ray ray{Vec3f(0.2f, 0.3f, 5.0f), Vec3f(0, 0, -1)};
@@ -240,7 +240,7 @@ TEST_CASE("grab: drags stay in the camera plane") {
   CHECK((moved - eye).dot(f) == doctest::Approx((front - eye).dot(f)).epsilon(1e-4));
 }
 
-TEST_CASE("scene panel: edits pass the scene file's validation; bad values are rejected") {
+TEST_CASE("scene panel: edits pass the scene file's validation, bad values are rejected") {
   Scene base = parse_scene(nlohmann::json{{"mesh", "m.obj"}}, "/tmp/scene.json");
   SceneEdit e = scene_edit_of(base);
   Scene out;

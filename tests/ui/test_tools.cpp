@@ -71,7 +71,7 @@ struct ToolScene {
 }  // namespace
 
 TEST_SUITE("ui") {
-  TEST_CASE("tools: S pressed mid-grab lets the tissue go; the held button starts no stroke; no cut is reported") {
+  TEST_CASE("tools: S pressed mid-grab lets the tissue go, the held button starts no stroke, no cut is reported") {
     ToolScene s;
     AppState& app = s.app;
     app.tools.tool = Tool::kGrab;
@@ -108,7 +108,7 @@ TEST_SUITE("ui") {
     CHECK_FALSE(app.tools.last_cutting);
   }
 
-  TEST_CASE("tools: G pressed mid-stroke ends the stroke (its release sent, its cut reported); a grab reports no cut") {
+  TEST_CASE("tools: G pressed mid-stroke ends the stroke (its release sent, its cut reported), a grab reports no cut") {
     ToolScene s;
     AppState& app = s.app;
     app.tools.tool = Tool::kScalpel;
