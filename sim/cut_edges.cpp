@@ -352,13 +352,16 @@ void walk_segment(const Lattice& l, const Vec3d& p_scene, const Vec3d& q_scene, 
   std::sort(params.begin(), params.end());
   if (ends && s0 == 0.0) visit(voxel_at(0.0), scene_at(0.0));
   double previous = s0;
-  for (double s : params) {
+  for (size_t i = 0; i < params.size(); ++i) {
+    const double s = params[i];
     if (s <= previous) continue;  // a corner crossing several planes at once is one crossing
     const Vec3d point = scene_at(s);
     visit(voxel_at(0.5 * (previous + s)), point);
-    // The voxel after the crossing: look slightly ahead (next parameter or the end).
-    const auto next = std::upper_bound(params.begin(), params.end(), s);
-    const double after = next == params.end() ? s1 : *next;
+    // The voxel after the crossing: look slightly ahead (next larger parameter or the end; the
+    // parameters are sorted, so a step forward past equal ones, not a binary search).
+    size_t next = i + 1;
+    while (next < params.size() && params[next] <= s) ++next;
+    const double after = next == params.size() ? s1 : params[next];
     visit(voxel_at(0.5 * (s + after)), point);
     previous = s;
   }
