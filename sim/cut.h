@@ -137,6 +137,8 @@ struct CutScratch {
   std::vector<uint32_t> blade_voxels;  // the blade edge's points' voxels and points (update_front)
   std::vector<Vec3f> blade_points;
   std::vector<uint32_t> corners;       // the next touched_vertices, as cut_update_surface fills it
+  std::vector<uint64_t> listed;        // refresh_voxels' list as bits from a window's start: all zero
+                                       // between calls (it clears the bits it set), grown, never shrunk
   CutScratch() = default;
   CutScratch(const CutScratch&) {}
   CutScratch& operator=(const CutScratch&) { return *this; }

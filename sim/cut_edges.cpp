@@ -130,6 +130,49 @@ double node_material(const VoxelModel& model, const CutState& state, uint32_t n,
   return volume;
 }
 
+}  // namespace
+
+// The shortcut of the crumb test, exact: true when n is an end of `edge` and the slab of 2 x 2 voxels
+// beside n away from `edge` holds no cut (no voxel of it divided: divide_at divides the voxels around
+// every edge record_cut cuts, at once) and all its 18 nodes are inside. Then its 33 edges are uncut
+// material links other than `edge`, so the 18 nodes are in n's component, and each holds at least the
+// half voxel of each of its sides in the slab (node_material: an uncut edge to an inside node gives
+// 0.5 to the span on its side; the other sides give at least 0): per layer of 9 nodes the centre
+// 0.5 x 1 x 1, the four edge-centres 0.5 x 0.5 x 1, the four corners 0.5 x 0.5 x 0.5, 2 voxels in all;
+// 4 in the slab, and the flood's sum in any order is at least that (rounding is monotone, the bounds
+// are exact): more than kCrumbNodes nodes holding at least kCrumbVolume, never a crumb. Four hash
+// look-ups instead of the flood's ~40 in bulk material (a planar cut's every first cut of an edge).
+bool bulk_behind(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge) {
+  const Lattice& l = model.lattice;
+  const int a = int(edge % 3), b = (a + 1) % 3, d = (a + 2) % 3;
+  const uint32_t lower = edge / 3, sa = node_stride(l, a), sb = node_stride(l, b), sd = node_stride(l, d);
+  if (n != lower && n != lower + sa) return false;
+  int32_t c[3];
+  l.node_coords(n, c);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  // The slab's voxel layer along a, and its nodes' second layer (n's is the first).
+  const int32_t layer = n == lower ? c[a] - 1 : c[a];
+  if (layer < 0 || layer >= dims[a] || c[b] < 1 || c[b] >= dims[b] || c[d] < 1 || c[d] >= dims[d]) return false;
+  const uint32_t other = n == lower ? n - sa : n + sa;
+  // Inside bits first (a read each), then the four voxels' hash look-ups.
+  for (const uint32_t m : {n, other}) {
+    for (int i = -1; i <= 1; ++i) {
+      const uint32_t row = i < 0 ? m - sb : i > 0 ? m + sb : m;
+      if (!model.is_inside(row - sd) || !model.is_inside(row) || !model.is_inside(row + sd)) return false;
+    }
+  }
+  int32_t v[3];
+  v[a] = layer;
+  for (int i = -1; i <= 0; ++i) {
+    for (int j = -1; j <= 0; ++j) {
+      v[b] = c[b] + i;
+      v[d] = c[d] + j;
+      if (state.divided_of.contains(l.voxel(v[0], v[1], v[2]))) return false;
+    }
+  }
+  return true;
+}
+
 // Whether severing `edge` (crossed at t) would leave inside node n in a crumb: a component of at
 // most kCrumbNodes nodes, or of more holding less than kCrumbVolume fine voxels of material (a closed
 // bit below the lattice's resolution: the organ's surface or another cut lies within a voxel or so
@@ -138,7 +181,7 @@ double node_material(const VoxelModel& model, const CutState& state, uint32_t n,
 // not make such a cut, so those nodes stay with the material across the edge (the mass is unchanged:
 // nothing is dropped). A slit re-cut anywhere along it crosses only edges cut already or edges like
 // this one: it sheds nothing.
-bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, float t) {
+bool material_flood(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, float t) {
   uint32_t found[kCrumbFloodNodes];
   int count = 1, next = 0, measured = 0;
   found[0] = n;
@@ -156,6 +199,13 @@ bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t
     }
   }
   return true;
+}
+
+namespace {
+
+// The crumb test: the shortcut, else the flood.
+bool last_material_link(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, float t) {
+  return !bulk_behind(model, state, n, edge) && material_flood(model, state, n, edge, t);
 }
 
 // Whether severing `edge` (a cut of a surface edge, or a crossing in the air) would take the last link
@@ -302,13 +352,16 @@ void walk_segment(const Lattice& l, const Vec3d& p_scene, const Vec3d& q_scene, 
   std::sort(params.begin(), params.end());
   if (ends && s0 == 0.0) visit(voxel_at(0.0), scene_at(0.0));
   double previous = s0;
-  for (double s : params) {
+  for (size_t i = 0; i < params.size(); ++i) {
+    const double s = params[i];
     if (s <= previous) continue;  // a corner crossing several planes at once is one crossing
     const Vec3d point = scene_at(s);
     visit(voxel_at(0.5 * (previous + s)), point);
-    // The voxel after the crossing: look slightly ahead (next parameter or the end).
-    const auto next = std::upper_bound(params.begin(), params.end(), s);
-    const double after = next == params.end() ? s1 : *next;
+    // The voxel after the crossing: look slightly ahead (next larger parameter or the end; the
+    // parameters are sorted, so a step forward past equal ones, not a binary search).
+    size_t next = i + 1;
+    while (next < params.size() && params[next] <= s) ++next;
+    const double after = next == params.size() ? s1 : params[next];
     visit(voxel_at(0.5 * (s + after)), point);
     previous = s;
   }

@@ -236,6 +236,12 @@ enum class EdgeChange { kNone, kCut, kAir };
 // Applies one blade crossing to an edge.
 EdgeChange record_cut(const VoxelModel& model, CutState& state, const EdgeHit& hit);
 
+// The crumb test's two halves (record_cut; tests/sim/test_cut.cpp compares them): whether severing
+// `edge` at t would leave inside node n in a crumb, by the bounded flood fill; and its exact shortcut,
+// true only where the flood would say no (n an end of `edge` with uncut bulk material behind it).
+bool material_flood(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge, float t);
+bool bulk_behind(const VoxelModel& model, const CutState& state, uint32_t n, uint32_t edge);
+
 // Records the front of a sweep from `from` to `to`; appends voxels whose front changed to `changed`.
 void update_front(const VoxelModel& model, CutState& state, const BladePose& from, const BladePose& to,
                   std::vector<uint32_t>& changed);

@@ -716,6 +716,18 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   std::vector<uint32_t>& across = state.scratch.across;
   across.clear();
   const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  if (voxels.empty()) return;
+  // Membership of the list (and of the voxels across its faces, added below) as bits over the window
+  // of voxel ids it can span: a read instead of a binary search (about ten mispredicted branches)
+  // for each voxel around each edge. The bits set here are cleared at the end.
+  std::vector<uint64_t>& listed = state.scratch.listed;
+  const uint32_t layer = uint32_t(l.nx) * uint32_t(l.ny);
+  const uint32_t window = (voxels.front() > layer ? voxels.front() - layer : 0u) & ~63u;
+  const uint64_t window_end = std::min(uint64_t(voxels.back()) + layer + 1, l.voxel_count());
+  if (listed.size() < ((window_end - window) >> 6) + 1) listed.resize(((window_end - window) >> 6) + 1, 0);
+  const auto list = [&](uint32_t v) { listed[(v - window) >> 6] |= uint64_t(1) << ((v - window) & 63); };
+  const auto in_list = [&](uint32_t v) { return v >= window && v < window_end && ((listed[(v - window) >> 6] >> ((v - window) & 63)) & 1u); };
+  for (uint32_t v : voxels) list(v);
   // Pieces first: a voxel's patches look at the pieces of the voxels across its faces.
   for (uint32_t voxel : voxels) {
     const uint32_t d = state.divided_of.get(voxel);
@@ -738,7 +750,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       nc[f / 2] += f % 2 ? 1 : -1;
       if (!((faces >> f) & 1u) || nc[f / 2] < 0 || nc[f / 2] >= dims[f / 2]) continue;
       const uint32_t other = l.voxel(nc[0], nc[1], nc[2]);
-      if (!std::binary_search(voxels.begin(), voxels.end(), other)) across.push_back(other);
+      if (!in_list(other)) across.push_back(other);
     }
   }
   if (!across.empty()) {
@@ -747,19 +759,11 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     const size_t n = voxels.size();
     voxels.insert(voxels.end(), across.begin(), across.end());
     std::inplace_merge(voxels.begin(), voxels.begin() + std::ptrdiff_t(n), voxels.end());
+    for (uint32_t v : across) list(v);
   }
 
   // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
-  // lowest voxel of the list around it (the list is sorted; a long one, as when the surface is
-  // built, is looked up in a bitset).
-  std::vector<uint64_t> listed;
-  if (voxels.size() > 4096) {
-    listed.assign((l.voxel_count() + 63) / 64, 0);
-    for (uint32_t v : voxels) listed[v >> 6] |= uint64_t(1) << (v & 63);
-  }
-  const auto in_list = [&](uint32_t v) {
-    return listed.empty() ? std::binary_search(voxels.begin(), voxels.end(), v) : bool((listed[v >> 6] >> (v & 63)) & 1u);
-  };
+  // lowest voxel of the list around it.
   for (uint32_t voxel : voxels) {
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
@@ -793,6 +797,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       }
     }
   }
+  for (uint32_t v : voxels) listed[(v - window) >> 6] = 0;
 }
 
 }  // namespace cut_internal

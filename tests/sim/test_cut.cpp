@@ -2,6 +2,7 @@
 // After every step of every test: the surface is closed and consistently oriented, finite, and the
 // state's own consistency check passes.
 #include "sim/cut.h"
+#include "sim/cut_internal.h"
 #include "sim/mesh_distance.h"
 #include "sim/random.h"
 #include "sim/shapes.h"
@@ -366,6 +367,73 @@ TEST_SUITE("cut") {
       CHECK(*std::min_element(volumes.begin(), volumes.end()) >= h * h * h);
       CHECK(stats.volume == doctest::Approx(uncut).epsilon(1e-3));
     }
+  }
+
+  // The crumb test's shortcut (cut_internal::bulk_behind: uncut bulk material behind an end of the
+  // edge) must only ever answer where the flood fill would say "no crumb": after random slits and
+  // through-cuts of a box (fixed seed), at every end of every uncut edge around the cut edges and at
+  // random inside nodes, with a random crossing, the shortcut implies the flood's no.
+  TEST_CASE("the crumb test's shortcut agrees with the flood fill on random cuts") {
+    const VoxelModel model = voxelized(test_box(), 24);
+    const Lattice& l = model.lattice;
+    SplitMix64 rng{31};
+    int shortcut = 0, crumbs = 0, checked = 0, wrong = 0;
+    for (int run = 0; run < 6; ++run) {
+      CAPTURE(run);
+      CutState state;
+      init_cut_state(model, state);
+      for (int cut = 0; cut < 4; ++cut) {
+        // A blade in a random plane through a point near the centre, of random length, swept a random
+        // distance: slits that end inside and cuts across, some a voxel or two apart.
+        Vec3d normal(rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-1, 1));
+        if (rng.uniform() < 0.5) normal = Vec3d::Unit(int(rng.uniform() * 3.0)) + 0.1 * normal;
+        normal.normalize();
+        const Vec3d u = normal.unitOrthogonal(), w = normal.cross(u);
+        const Vec3d p = kBoxCentre + Vec3d(rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3));
+        const double half = rng.uniform(0.2, 2.0), from = rng.uniform(-1.5, 0.0), to = rng.uniform(0.0, 1.5);
+        dvx_test::sweep_steps(model, state, {p - half * u + from * w, p + half * u + from * w},
+                              {p - half * u + to * w, p + half * u + to * w}, 8, [](int) {});
+      }
+      check_invariants(model, state);
+      // Nodes near the cut edges (up to two voxels off) and random inside nodes.
+      std::vector<uint32_t> nodes;
+      for (const EdgeCut& c : state.edge_cuts) {
+        int32_t nc[3];
+        l.node_coords(c.edge / 3, nc);
+        for (int k = 0; k < 4; ++k) {
+          const int32_t i = nc[0] + int(rng.uniform() * 5.0) - 2, j = nc[1] + int(rng.uniform() * 5.0) - 2;
+          const int32_t m = nc[2] + int(rng.uniform() * 5.0) - 2;
+          if (i >= 0 && i <= l.nx && j >= 0 && j <= l.ny && m >= 0 && m <= l.nz) nodes.push_back(l.node(i, j, m));
+        }
+      }
+      for (int k = 0; k < 400; ++k) nodes.push_back(uint32_t(rng.uniform() * double(l.node_count())));
+      for (const uint32_t n : nodes) {
+        if (!model.is_inside(n)) continue;
+        int32_t nc[3];
+        l.node_coords(n, nc);
+        const int32_t dims[3] = {l.nx, l.ny, l.nz};
+        for (int a = 0; a < 3; ++a) {
+          for (int upper = 0; upper < 2; ++upper) {  // the edge toward -a (n its upper end) or +a
+            if (upper ? nc[a] == 0 : nc[a] == dims[a]) continue;
+            const uint32_t stride = a == 0 ? 1u : a == 1 ? uint32_t(l.nx + 1) : uint32_t(l.nx + 1) * uint32_t(l.ny + 1);
+            const uint32_t edge = Lattice::edge(upper ? n - stride : n, a);
+            if (state.edge_cut_of.contains(edge)) continue;  // record_cut tests first cuts only
+            const float t = float(rng.uniform());
+            const bool fast = cut_internal::bulk_behind(model, state, n, edge);
+            const bool crumb = cut_internal::material_flood(model, state, n, edge, t);
+            wrong += fast && crumb;
+            shortcut += fast;
+            crumbs += crumb;
+            ++checked;
+          }
+        }
+      }
+    }
+    // The shortcut answered often, and the flood found crumbs too (the cases are not all one kind).
+    MESSAGE("checked " << checked << ", shortcut " << shortcut << ", crumbs " << crumbs);
+    CHECK(wrong == 0);
+    CHECK(shortcut > checked / 10);
+    CHECK(crumbs > 0);
   }
 
   TEST_CASE("two crossing cuts separate four pieces") {
