@@ -121,8 +121,34 @@ TissueUnderRay tissue_under_ray(const Camera& camera, const Ray& ray, const std:
   const BladePose line = scalpel_pose(camera, ray, t.entry.point, 1.0, 0.0);
   const Ray inward{t.entry.point, (line.b - line.a).cast<float>().normalized()};
   t.exits = pick_surface(inward, positions, triangles, flags, skip, 0.5f * voxel, t.exit, scratch, Facing::kLeaving);
-  if (t.exits) t.through = t.exit.t + voxel;
+  if (t.exits) t.through = t.exit.t + kReachPastFarSide * voxel;
   return t;
+}
+
+BladePose reach_through_along_blade(const BladePose& pose, const std::vector<Vec3f>& positions,
+                                    const std::vector<Tri>& triangles, const std::vector<uint8_t>& flags, double voxel,
+                                    double max_extra, std::vector<Eigen::Vector2f>* scratch) {
+  const Vec3d d = pose.b - pose.a;
+  const double length = d.norm();
+  if (!(length > 0.0)) return pose;
+  const Vec3f u = (d / length).cast<float>();
+  // The first tissue the blade's line enters within the blade, and where the line leaves it.
+  SurfaceHit entry, exit;
+  const Ray line{pose.a.cast<float>(), u};
+  if (!pick_surface(line, positions, triangles, flags, kTriangleCut, 0.0f, entry, scratch, Facing::kEntering) ||
+      double(entry.t) >= length) {
+    return pose;
+  }
+  const Ray inward{entry.point, u};
+  if (!pick_surface(inward, positions, triangles, flags, kTriangleCut, 0.5f * float(voxel), exit, scratch,
+                    Facing::kLeaving)) {
+    return pose;
+  }
+  const double need = double(entry.t) + double(exit.t) + kReachPastFarSide * voxel;
+  if (need <= length) return pose;
+  BladePose out = pose;
+  out.b = pose.a + std::min(need, length + max_extra) / length * d;
+  return out;
 }
 
 BladePose cover_crossed_path(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& from_pixel,
@@ -150,7 +176,7 @@ BladePose cover_crossed_path(const Camera& camera, const Viewport& viewport, con
     ++st.hits;
     const Vec3f entry = tissue.entry.point;
     const BladePose aim = scalpel_pose(camera, ray, entry, 1.0, 0.0);
-    const double reach = tissue.exits ? std::max(depth, double(tissue.exit.t) + voxel) : depth;
+    const double reach = tissue.exits ? std::max(depth, double(tissue.exit.t) + kReachPastFarSide * voxel) : depth;
     const Vec3d e = entry.cast<double>();
     const Vec3d reach_point = e + reach * (aim.b - aim.a).normalized();
     // Where along the sweep the blade passes this point: its projection on the top's path.

@@ -70,6 +70,22 @@ TissueUnderRay tissue_under_ray(const Camera& camera, const Ray& ray, const std:
                                 const std::vector<Tri>& triangles, const std::vector<uint8_t>& flags, bool dragging,
                                 float voxel, std::vector<Eigen::Vector2f>* scratch = nullptr);
 
+// How far past the far side of the tissue the blade reaches, in fine voxels. More than one: the aim
+// reads a snapshot a few frames old (input to cut ~3.5 frames) while a hanging lobe moves a voxel or
+// two, and a blade that stopped a voxel past the far side it saw left the far side's last voxels
+// uncut, a hairline that kept the lobe on (docs/cutting.md).
+constexpr float kReachPastFarSide = 3.0f;
+
+// A stroke whose cursor has left the tissue keeps its depth and reach (the window's aim), but tissue
+// can still lie along the blade's own line past the kept reach: a hanging lobe swinging under the
+// blade, or the far side of the tissue the stroke is leaving (the window left a lobe on by a hairline
+// there: docs/cutting.md). The pose lengthened along its line to kReachPastFarSide voxels past the far side of the
+// first tissue its line enters within its length (outer faces, cut faces skipped), by at most
+// `max_extra`; unchanged where its line enters no tissue within its length or already reaches past.
+BladePose reach_through_along_blade(const BladePose& pose, const std::vector<Vec3f>& positions,
+                                    const std::vector<Tri>& triangles, const std::vector<uint8_t>& flags, double voxel,
+                                    double max_extra, std::vector<Eigen::Vector2f>* scratch = nullptr);
+
 // A fast drag (issue 29): between two frames the blade sweeps the straight ruled quad from `from` to
 // `to`; under a curved surface its top dips below the tissue the cursor crossed between the frames,
 // which stays uncut (an incision of dashes). The screen path between `from_pixel` and `to_pixel` is

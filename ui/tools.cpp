@@ -146,6 +146,14 @@ void aim_scalpel(AppState& app, const Ray& ray, const Eigen::Vector2f& delta) {
   if (!app.tools.left_down && !app.tools.hover_hit) app.tools.reach_depth = app.tools.cut_depth;
   app.tools.blade_pose = scalpel_pose(app.view.camera, ray, entry, std::max(app.tools.cut_depth, app.tools.reach_depth),
                                       2.0 * app.view.voxel_size);
+  // Off the tissue during a stroke the kept reach can end inside tissue along the blade's line (a lobe
+  // swinging under it): the blade reaches through it (by at most its own length again).
+  if (app.tools.left_down && !app.tools.hover_hit && app.current) {
+    const BladePose& b = app.tools.blade_pose;
+    app.tools.blade_pose = reach_through_along_blade(b, app.current->positions, app.current->triangles,
+                                                     app.current->triangle_flags, app.view.voxel_size,
+                                                     (b.b - b.a).norm(), &app.tools.pick_scratch);
+  }
 }
 
 // The end of a scalpel stroke: the blade's last pose, not cutting; its cut is reported once the

@@ -34,7 +34,8 @@ sleep 1
 # Across the left lobe, a little in from its tip (window_input.sh's lobe case crosses the tip
 # itself), from under the lobe up to above it. At x 1050: since the liver's solver is converged
 # (5 x 2, issue 30) its lobe hangs higher, and the strokes at x 1000 and 1040 cut it through to a
-# hairline that keeps it on (5 of 9 and 0 of 3 runs took it off; tests/data/liver_hairline_x1040.jsonl
+# hairline that kept it on (5 of 9 and 0 of 3 runs took it off, before the blade reached three voxels
+# past the far side and through the tissue along its line off the tissue; tests/data/liver_hairline_x1040.jsonl
 # replays one: docs/cutting.md); at x 1050, 5 of 5.
 drag 1050 470 1055 170 16
 wait_for "^cut: " 60

@@ -187,6 +187,33 @@ TEST_CASE("scalpel: a fast drag's sweep covers the surface the cursor crossed") 
   CHECK(slow.b == to.b);
 }
 
+// A stroke off the tissue keeps its reach, but a lobe can lie along the blade's line past it: the blade
+// is lengthened to kReachPastFarSide voxels past the far side of the tissue its line enters, within
+// its length, by at most max_extra; else it is left as it is.
+TEST_CASE("scalpel: off the tissue the blade reaches through the tissue along its own line") {
+  const TriMesh sphere = make_icosphere(Vec3d::Zero(), 1.0, 4);
+  std::vector<Vec3f> positions;
+  for (const Vec3d& p : sphere.positions) positions.push_back(p.cast<float>());
+  const std::vector<uint8_t> flags(sphere.triangles.size(), 0);
+  const double voxel = 0.02;
+  // From above the sphere straight down, the tip inside it: lengthened to the far side (y = -1).
+  BladePose pose{Vec3d(0.0, 2.0, 0.0), Vec3d(0.0, 0.5, 0.0)};
+  const BladePose through = reach_through_along_blade(pose, positions, sphere.triangles, flags, voxel, 10.0);
+  CHECK(through.a == pose.a);
+  CHECK(std::abs(through.b.x()) < 1e-9);
+  CHECK(through.b.y() == doctest::Approx(-1.0 - kReachPastFarSide * voxel).epsilon(0.01));
+  // At most max_extra longer.
+  const BladePose capped = reach_through_along_blade(pose, positions, sphere.triangles, flags, voxel, 0.5);
+  CHECK((capped.b - capped.a).norm() == doctest::Approx(2.0));
+  // A blade whose line enters no tissue within its length, or that already reaches past: unchanged.
+  const BladePose short_pose{Vec3d(0.0, 3.0, 0.0), Vec3d(0.0, 1.5, 0.0)};
+  CHECK(reach_through_along_blade(short_pose, positions, sphere.triangles, flags, voxel, 10.0).b == short_pose.b);
+  const BladePose long_pose{Vec3d(0.0, 2.0, 0.0), Vec3d(0.0, -2.0, 0.0)};
+  CHECK(reach_through_along_blade(long_pose, positions, sphere.triangles, flags, voxel, 10.0).b == long_pose.b);
+  const BladePose beside{Vec3d(3.0, 2.0, 0.0), Vec3d(3.0, -2.0, 0.0)};
+  CHECK(reach_through_along_blade(beside, positions, sphere.triangles, flags, voxel, 10.0).b == beside.b);
+}
+
 TEST_CASE("camera: orbit keeps target and distance, pan keeps distance and angles, zoom keeps target") {
   Aabb box = unit_box();
   Camera c = frame_box(box, 1.5f);
