@@ -242,12 +242,14 @@ void elastic_section(Results& in, std::ostream& md, std::ostream& head) {
       }
       std::sort(rows.begin(), rows.end(), [](const json* a, const json* b) { return get(*a, "step_p50_ms") < get(*b, "step_p50_ms"); });
       double best = 1e300;
-      bool shipped_on_front = false, chosen_on_front = false;
+      // Whether the shipped and chosen settings have a row of the table yet.
+      bool shipped_listed = false, chosen_listed = false;
+      const bool shipped_is_chosen = pick.shipped && pick.chosen && elastic_setting(*pick.shipped) == elastic_setting(*pick.chosen);
       for (const json* row : rows) {
         if (get(*row, "rms_error") >= best) continue;
         best = get(*row, "rms_error");
-        shipped_on_front |= pick.shipped != nullptr && elastic_setting(*row) == elastic_setting(*pick.shipped);
-        chosen_on_front |= row == pick.chosen;
+        shipped_listed |= pick.shipped != nullptr && elastic_setting(*row) == elastic_setting(*pick.shipped);
+        chosen_listed |= row == pick.chosen;
         md << "| " << name << " | " << model << " | " << elastic_setting(*row) << (row == pick.chosen ? " **(chosen)**" : "")
            << " | " << num(get(*row, "step_p50_ms")) << " | " << pct(get(*row, "rms_error")) << " |\n";
       }
@@ -255,15 +257,14 @@ void elastic_section(Results& in, std::ostream& md, std::ostream& head) {
         md << "| " << name << " | " << model << " | no converged setting within 10 % RMS | | |\n";
       }
       // The chosen setting where a cheaper, more accurate but unconverged one hides it from the front.
-      if (pick.chosen && !chosen_on_front) {
+      if (pick.chosen && !chosen_listed) {
         md << "| " << name << " | " << model << " | " << elastic_setting(*pick.chosen)
-           << " **(chosen: converged, off the front)**"
-           << (pick.shipped && elastic_setting(*pick.shipped) == elastic_setting(*pick.chosen) ? ", shipped" : "") << " | " << num(get(*pick.chosen, "step_p50_ms")) << " | "
-           << pct(get(*pick.chosen, "rms_error")) << " |\n";
+           << " **(chosen: converged, off the front)**" << (shipped_is_chosen ? ", shipped" : "") << " | "
+           << num(get(*pick.chosen, "step_p50_ms")) << " | " << pct(get(*pick.chosen, "rms_error")) << " |\n";
+        shipped_listed |= shipped_is_chosen;
       }
       // The scene's own setting, where it is not on the front (the reader sees how far off it is).
-      const bool shipped_is_chosen = pick.shipped && pick.chosen && elastic_setting(*pick.shipped) == elastic_setting(*pick.chosen);
-      if (pick.shipped && !shipped_on_front && !(shipped_is_chosen && !chosen_on_front)) {
+      if (pick.shipped && !shipped_listed) {
         md << "| " << name << " | " << model << " | " << elastic_setting(*pick.shipped) << " (shipped, off the front) | "
            << num(get(*pick.shipped, "step_p50_ms")) << " | " << pct(get(*pick.shipped, "rms_error")) << " |\n";
       }

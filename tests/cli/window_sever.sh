@@ -36,7 +36,7 @@ sleep 1
 # (5 x 2, issue 30) its lobe hangs higher, and the strokes at x 1000 and 1040 cut it through to a
 # hairline that kept it on (5 of 9 and 0 of 3 runs took it off, before the blade reached three voxels
 # past the far side and through the tissue along its line off the tissue; tests/data/liver_hairline_x1040.jsonl
-# replays one: docs/cutting.md); at x 1050, 5 of 5.
+# replays one: docs/cutting.md); at x 1050, 7 of 7.
 drag 1050 470 1055 170 16
 wait_for "^cut: " 60
 xdotool mousemove 1200 700
