@@ -233,21 +233,27 @@ struct SurfacePoint {
   float reach = 0.0f;  // its piece's contact reach: a pair within the larger of its points' reaches may touch
 };
 
-// The broad phase's pair cache (a Verlet list): the pairs of candidate pieces of different bodies
-// whose bounds grown by their reach plus a margin overlapped when it was built, and those grown
-// bounds. While every candidate now was one then and its bounds grown by its reach now lie inside
-// its cached ones, every pair whose grown bounds overlap now is among the cached pairs, so testing
-// only those finds the same pairs as the grid (find_exposed_pieces). Built for one set of pieces and
-// bodies (`key`: the caller's; the PBD model's contact index updates), rebuilt when a candidate
-// leaves its bounds or a new one appears.
+// The broad phase's pair cache (a Verlet list): per piece slot, bounds grown by its reach plus a
+// margin and its body when cached (`member`: cached), and every pair of members of different bodies
+// whose cached bounds overlap. While a candidate is a member with the same body and its bounds grown
+// by its reach now lie inside its cached ones, every pair whose grown bounds overlap now is among the
+// cached pairs, so testing only those finds the same pairs as the grid (find_exposed_pieces). The
+// entries are geometric, per piece slot: a cut that adds pieces or reuses a slot only makes the
+// entries it invalidates stale. Stale candidates (new, moved out, body changed) are refreshed in
+// place, paired through a grid of the members' cached bounds; more than a quarter of the members
+// stale (a sever renumbers one side's body), the cache is rebuilt over the candidates.
 struct PairCache {
-  uint64_t key = ~uint64_t(0);
+  bool valid = false;
   uint32_t pieces = 0;
-  std::vector<uint8_t> member;  // (pieces) a candidate when built
-  std::vector<Vec3d> lo, hi;    // (pieces) grown bounds when built
-  std::vector<uint64_t> pairs;  // i << 32 | j, i < j
-  uint64_t builds = 0;          // diagnostics
+  std::vector<uint8_t> member;  // (pieces) cached
+  std::vector<uint32_t> body;   // (pieces) its body when cached
+  std::vector<Vec3d> lo, hi;    // (pieces) grown bounds when cached
+  std::vector<uint64_t> pairs;  // i << 32 | j, i < j, ascending
+  uint64_t builds = 0, updates = 0;  // diagnostics: rebuilds, refreshes of stale entries
 };
+
+// Below this many stale entries the pair cache refreshes them whatever the members' count.
+constexpr size_t kPairCachePartialMin = 64;
 
 // Scratch of the piece-piece phases (kept between steps: no allocation in steady state).
 struct PieceContactScratch {
@@ -267,6 +273,8 @@ struct PieceContactScratch {
   std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
   std::vector<uint64_t> both;                     // the exposed pairs (i < j)
   PairCache pair_cache;
+  std::vector<uint32_t> stale;                    // pair cache entries to refresh
+  std::vector<uint8_t> is_stale;                  // (pieces) the same, as flags
   std::vector<uint32_t> partner_begin, partners;
   std::vector<uint64_t> busy;                     // (particles) colour bits taken
   std::vector<uint32_t> touched;                  // particles whose busy bits are set
@@ -331,6 +339,16 @@ constexpr int kContactCells = 2;
 constexpr int kMinContactCell = 2;
 inline int contact_cells(int ratio) { return std::max(1, std::min(kContactCells, ratio / kMinContactCell)); }
 
+// The simulation voxels a block of quad slots touches (see PieceContacts::quad_blocks): up to
+// kQuadBlockVoxels listed, `all` once more were.
+constexpr uint32_t kQuadBlock = 16;
+constexpr uint32_t kQuadBlockVoxels = 6;
+struct QuadBlock {
+  uint32_t voxels[kQuadBlockVoxels];
+  uint8_t count = 0;
+  bool all = false;
+};
+
 // Everything a PBD model keeps for piece-piece contact between steps (contacts and scratch).
 struct PieceContacts {
   ContactSet set;               // batch = colour (kContactOverflow: serial)
@@ -353,6 +371,24 @@ struct PieceContacts {
   std::vector<Vec3d> rep_normal;        // rest normals of the slots of the pieces built at once, scratch
   std::vector<uint32_t> rep_offset;     // (pieces built at once + 1) offsets of their slots, scratch
   std::vector<uint32_t> rep_scratch;    // (surface vertex slots) entry of rep_normal while built, else ~0u
+  std::vector<uint64_t> rep_wanted;     // (parts x surface vertex slots, bits) the slots of a scan, scratch
+  std::vector<uint64_t> rep_sim_voxels; // (parts x simulation voxels, bits) those of their pieces, scratch
+  std::vector<uint32_t> rep_part;       // (pieces built at once) the part of the scan of each, scratch
+  std::vector<uint64_t> rep_rank;       // their coordinate << 32 | index, scratch
+  // Where the surface's quads lie, by blocks of kQuadBlock consecutive quad slots: the simulation
+  // voxels of the fine voxels around each live quad's lattice edge (its corners' vertices lie in
+  // those fine voxels, and their pieces in those simulation voxels). Added to as the cuts write
+  // quads (CutState::touched_quads), never taken from (a freed quad leaves its voxels listed: a scan
+  // then reads its block for nothing), so a scan of rest normals reads only the blocks of the
+  // pieces it builds. (A box per block does not do: the surface's first quads come in lattice
+  // order, and consecutive ones jump across the object from one row to the next.)
+  std::vector<QuadBlock> quad_blocks;
+  bool quad_blocks_valid = false;
+  // A batch of pieces to build whose slots exceed the surface's triangles / rep_slots_per_scan is
+  // built by scan_rest_normals, a smaller one through the quads around each slot (both give the
+  // same bits; why 4096: build_stale_reps in sim/contact_points.cpp).
+  uint32_t rep_slots_per_scan = 4096;
+  uint32_t rep_slots_per_part = 16384;  // a scanned batch of at least this many slots: two parts at once
   std::vector<uint32_t> slot_marks;     // (vertex slots) stamps, scratch
   uint32_t slot_stamp = 0;
   std::vector<uint32_t> rep_need;       // pieces a gather needs the points of, scratch
@@ -375,6 +411,7 @@ struct PieceContacts {
     uint64_t contact_pairs = 0; // pairs of pieces with contacts (their groups)
     uint64_t reps_built = 0;    // pieces whose contact points were (re)built
     uint64_t reps_scanned = 0;  // of those, built in a batch that found its triangles in one pass over the surface
+    uint64_t scans_split = 0;   // batches scanned in two parts at once
   } counters;
 };
 
@@ -397,9 +434,9 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* rea
                              PieceContactScratch& scratch, uint64_t* pairs_tested = nullptr);
 
 // find_exposed_pieces over the pieces marked in `candidate`, through the pair cache (PairCache:
-// built over the candidates with reach + margin, for `key`): the same result.
+// entries grown by reach + margin): the same result.
 uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
-                                    uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& scratch,
+                                    std::vector<uint8_t>& exposed, PieceContactScratch& scratch,
                                     uint64_t* pairs_tested = nullptr);
 
 // Whether x lies within the pair's reach (the larger of the two pieces') of the bounds of a partner

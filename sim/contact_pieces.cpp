@@ -228,6 +228,13 @@ bool overlapping_pairs(const Vec3d* lo, const Vec3d* hi, const double* reach, do
   return true;
 }
 
+// Sorts pairs and drops repeats (two of the 27 cells a query visits may share a hash, and then the
+// same cell is met twice).
+void sort_unique(std::vector<uint64_t>& pairs) {
+  std::sort(pairs.begin(), pairs.end());
+  pairs.erase(std::unique(pairs.begin(), pairs.end()), pairs.end());
+}
+
 // Marks both pieces of each pair (i << 32 | j, i < j, ascending) in `pairs` that passes `keep`, and
 // lists each piece's partners (g.partner_begin, g.partners), ascending: a piece p meets its partners
 // below it in pairs (i, p), ascending in i, before those above it in pairs (p, k), ascending in k.
@@ -268,39 +275,107 @@ uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* rea
     exposed.assign(piece_count, 0);
     return 0;
   }
-  std::sort(g.pairs.begin(), g.pairs.end());
+  sort_unique(g.pairs);
   return mark_exposed(g.pairs, piece_count, exposed, g, [](uint32_t, uint32_t) { return true; });
 }
 
 uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* candidate, const uint32_t* body, uint32_t piece_count, double margin,
-                                    uint64_t key, std::vector<uint8_t>& exposed, PieceContactScratch& g,
-                                    uint64_t* pairs_tested) {
+                                    std::vector<uint8_t>& exposed, PieceContactScratch& g, uint64_t* pairs_tested) {
   PairCache& cache = g.pair_cache;
-  // The grown bounds now, as grown_overlap computes them; the cache holds while each candidate was
-  // one when it was built and its bounds lie within the cached ones (NaN never does).
-  const auto inside = [&](uint32_t i) {
+  // The cached bounds of piece i from its bounds now: grown by its reach (as grown_overlap grows
+  // them) plus the margin.
+  const auto cache_piece = [&](uint32_t i) {
+    cache.lo[i] = lo[i] - Vec3d::Constant(reach[i] + margin);
+    cache.hi[i] = hi[i] + Vec3d::Constant(reach[i] + margin);
+    cache.body[i] = body[i];
+    cache.member[i] = 1;
+  };
+  // A candidate's entry holds while it was one when cached, with the same body, and its grown bounds
+  // now lie within the cached ones (NaN never does); the others are stale.
+  const auto holds = [&](uint32_t i) {
+    if (!cache.member[i] || cache.body[i] != body[i]) return false;
     const Vec3d a = lo[i] - Vec3d::Constant(reach[i]), b = hi[i] + Vec3d::Constant(reach[i]);
     return (cache.lo[i].array() <= a.array()).all() && (b.array() <= cache.hi[i].array()).all();
   };
-  bool valid = cache.key == key && cache.pieces == piece_count;
-  for (uint32_t i = 0; i < piece_count && valid; ++i) valid = !candidate[i] || (cache.member[i] && inside(i));
-  if (!valid) {
-    // Rebuild over the candidates, grown by the margin.
-    ++cache.builds;
-    cache.key = key;
+  std::vector<uint32_t>& stale = g.stale;
+  stale.clear();
+  uint32_t members = 0;
+  bool rebuild = !cache.valid || piece_count < cache.pieces;
+  if (!rebuild) {
+    // New piece slots join as non-members.
+    cache.member.resize(piece_count, 0);
+    cache.body.resize(piece_count, ~0u);
+    cache.lo.resize(piece_count, Vec3d::Zero());
+    cache.hi.resize(piece_count, Vec3d::Zero());
     cache.pieces = piece_count;
-    cache.member.assign(candidate, candidate + piece_count);
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      members += cache.member[i];
+      if (candidate[i] && !holds(i)) stale.push_back(i);
+    }
+    // Many stale entries (a sever renumbers half the pieces' body, everything moves): rebuild.
+    rebuild = stale.size() > std::max<size_t>(kPairCachePartialMin, members / 4);
+  }
+  if (rebuild) {
+    // Over the candidates, grown by the margin.
+    ++cache.builds;
+    cache.valid = true;
+    cache.pieces = piece_count;
+    cache.member.assign(piece_count, 0);
+    cache.body.assign(piece_count, ~0u);
     cache.lo.resize(piece_count);
     cache.hi.resize(piece_count);
     for (uint32_t i = 0; i < piece_count; ++i) {
       if (!candidate[i]) continue;
-      cache.lo[i] = lo[i] - Vec3d::Constant(reach[i] + margin);
-      cache.hi[i] = hi[i] + Vec3d::Constant(reach[i] + margin);
-      if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.key = ~uint64_t(0);  // not kept
+      cache_piece(i);
+      if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.valid = false;  // not kept
     }
     cache.pairs.clear();
     if (overlapping_pairs(lo, hi, reach, margin, candidate, body, piece_count, g, pairs_tested)) cache.pairs.swap(g.pairs);
-    std::sort(cache.pairs.begin(), cache.pairs.end());
+    sort_unique(cache.pairs);
+  } else if (!stale.empty()) {
+    // Refresh the stale entries: drop their pairs, cache their bounds now, and pair them with every
+    // member whose cached bounds overlap theirs (cells as large as the largest cached box, so two
+    // overlapping boxes have their low corners in neighbouring cells). The cache then again holds
+    // every pair of members of different bodies whose cached bounds overlap.
+    ++cache.updates;
+    g.is_stale.assign(piece_count, 0);
+    for (const uint32_t i : stale) {
+      g.is_stale[i] = 1;
+      cache_piece(i);
+    }
+    cache.pairs.erase(std::remove_if(cache.pairs.begin(), cache.pairs.end(),
+                                     [&](uint64_t pair) { return g.is_stale[pair >> 32] || g.is_stale[uint32_t(pair)]; }),
+                      cache.pairs.end());
+    double size = 0.0;
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (cache.member[i]) size = std::max(size, (cache.hi[i] - cache.lo[i]).maxCoeff());
+    }
+    if (!(size > 0.0) || !std::isfinite(size)) {
+      cache.valid = false;
+      return find_exposed_pieces_cached(lo, hi, reach, candidate, body, piece_count, margin, exposed, g, pairs_tested);
+    }
+    g.keys.clear();
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (!cache.member[i]) continue;
+      g.keys.push_back(cell_key(cell_coord(cache.lo[i].x(), size), cell_coord(cache.lo[i].y(), size), cell_coord(cache.lo[i].z(), size)) | i);
+    }
+    build_cells(g);
+    g.pairs.clear();
+    for (const uint32_t i : stale) {
+      const Vec3d& a = cache.lo[i];
+      for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
+        const uint32_t j = g.cell_items[n];
+        if (j == i || cache.body[j] == cache.body[i] || (g.is_stale[j] && j < i)) return;  // a stale pair once
+        if (pairs_tested) ++*pairs_tested;
+        if ((cache.lo[j].array() <= cache.hi[i].array()).all() && (cache.lo[i].array() <= cache.hi[j].array()).all()) {
+          g.pairs.push_back(i < j ? (uint64_t(i) << 32) | j : (uint64_t(j) << 32) | i);
+        }
+      });
+    }
+    sort_unique(g.pairs);
+    const size_t kept = cache.pairs.size();
+    cache.pairs.insert(cache.pairs.end(), g.pairs.begin(), g.pairs.end());
+    std::inplace_merge(cache.pairs.begin(), cache.pairs.begin() + kept, cache.pairs.end());
   }
   if (pairs_tested) *pairs_tested += cache.pairs.size();
   return mark_exposed(cache.pairs, piece_count, exposed, g, [&](uint32_t i, uint32_t j) {

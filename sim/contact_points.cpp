@@ -243,13 +243,6 @@ void piece_motions(const PbdModel& s, PbdData& data) {
   }
 }
 
-// A batch of pieces to build whose slots exceed the surface's triangles / kRepSlotsPerScan finds
-// their triangles in one pass over the surface (scan_rest_normals: ~15 instructions a triangle); a
-// smaller one through the half-edge map around each slot (vertex_quads: ~5 lookups a slot, mostly
-// cache misses, ~350 instructions). Per batch: a pass serves only the batch it was made for (the
-// pieces a later step needs, as things move, come a few at a time).
-constexpr uint32_t kRepSlotsPerScan = 128;
-
 // build_stale_reps hands its pieces to the workers in chunks of at least this many (a piece on a
 // cut face at 16 fine voxels per simulation voxel: ~300 slots, ~600 triangles).
 constexpr uint32_t kRepPiecesPerChunk = 4;
@@ -262,6 +255,57 @@ uint32_t next_stamp(std::vector<uint32_t>& marks, uint32_t& stamp) {
     stamp = 1;
   }
   return stamp;
+}
+
+// Adds to the list of quad `quad`'s block the simulation voxels of the four fine voxels around its
+// lattice edge (none when the slot is free).
+void note_quad_block(const CutState& cut, const PbdModel& s, std::vector<QuadBlock>& blocks, uint32_t quad) {
+  const uint64_t key = cut.surface.quad_half_edge[quad];
+  if (key == CutSurface::kFreeKey) return;
+  const Lattice& l = cut.lattice;
+  const uint32_t edge = uint32_t(key / 2);
+  const int axis = int(edge % 3);
+  int32_t n[3];
+  l.node_coords(edge / 3, n);
+  const int32_t dims[3] = {l.nx, l.ny, l.nz};
+  // The voxels around the edge: n - 1 and n across it, n along it (within the lattice), as
+  // simulation voxel coordinates.
+  int32_t lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) {
+    lo[a] = std::max(0, a == axis ? n[a] : n[a] - 1) / s.ratio;
+    hi[a] = std::min(dims[a] - 1, n[a]) / s.ratio;
+  }
+  QuadBlock& b = blocks[quad / kQuadBlock];
+  for (int32_t k = lo[2]; k <= hi[2] && !b.all; ++k) {
+    for (int32_t j = lo[1]; j <= hi[1] && !b.all; ++j) {
+      for (int32_t i = lo[0]; i <= hi[0] && !b.all; ++i) {
+        const uint32_t sv = sim_voxel_id(s, i, j, k);
+        if (std::find(b.voxels, b.voxels + b.count, sv) != b.voxels + b.count) continue;
+        if (b.count == kQuadBlockVoxels) {
+          b.all = true;
+        } else {
+          b.voxels[b.count++] = sv;
+        }
+      }
+    }
+  }
+}
+
+// Brings the quad blocks' lists up to the surface: all of them from scratch, or (incremental) the
+// blocks of the quads the last surface update wrote.
+void refresh_quad_blocks(const CutState& cut, const PbdModel& s, PieceContacts& pc, bool incremental) {
+  const uint32_t quads = uint32_t(cut.surface.quad_half_edge.size());
+  const size_t blocks = (size_t(quads) + kQuadBlock - 1) / kQuadBlock;
+  if (!incremental) {
+    pc.quad_blocks.assign(blocks, QuadBlock{});
+    for (uint32_t q = 0; q < quads; ++q) note_quad_block(cut, s, pc.quad_blocks, q);
+  } else {
+    pc.quad_blocks.resize(blocks, QuadBlock{});
+    for (const uint32_t q : cut.touched_quads) {
+      if (q < quads) note_quad_block(cut, s, pc.quad_blocks, q);
+    }
+  }
+  pc.quad_blocks_valid = true;
 }
 
 // Marks stale the contact points of the pieces whose points a cut may have changed, after the
@@ -287,8 +331,10 @@ void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data) {
     pc.rep_begin.assign(x.pieces, ~0u);
     pc.rep_count.assign(x.pieces, 0);
     pc.reps.clear();
+    refresh_quad_blocks(cut, s, pc, false);  // now, not in the step that first needs them (a sever)
     return;
   }
+  if (surface_changed && pc.quad_blocks_valid) refresh_quad_blocks(cut, s, pc, true);
   pc.rep_begin.resize(x.pieces, ~0u);
   pc.rep_count.resize(x.pieces, 0);
   const auto stale = [&](uint32_t piece) {
@@ -392,23 +438,45 @@ void piece_rest_normals(const CutState& cut, const ContactIndex& x, uint32_t pie
   for (uint32_t n = 0; n < count; ++n) slot_index[x.piece_slots[first + n]] = ~0u;
 }
 
-// The rest normals of the slots of many pieces at once, in one pass over the surface's triangles:
-// slot_index[v] is the entry of `normal` of each slot v to build (~0u: none); each live triangle
-// whose three corners are embedded adds its area vector to the entries of its corners that have one,
-// in ascending triangle order (the sums piece_rest_normals forms). A triangle none of whose corners
-// is to be built costs three reads of slot_index.
-void scan_rest_normals(const CutState& cut, const ContactIndex& x, const uint32_t* slot_index, Vec3d* normal) {
+// The rest normals of the slots of many pieces at once, in one pass over the surface's quads near
+// them: slot_index[v] is the entry of `normal` of each slot v to build (~0u: none), `wanted` the
+// slots to sum as bits (all of them, or one part's), `sim_wanted` the simulation voxels of their
+// pieces as bits. A block of quads whose
+// list (PieceContacts::quad_blocks) names none of those simulation voxels holds no triangle with a
+// corner to build and is passed over; in the others, a quad none of whose corners is to be built
+// costs six bit tests. Each live triangle whose three corners are embedded adds its area vector to
+// the entries of its wanted corners, in ascending triangle order (the sums
+// piece_rest_normals forms).
+void scan_rest_normals(const CutState& cut, const PieceContacts& pc, const uint32_t* slot_index,
+                       const uint64_t* wanted, const uint64_t* sim_wanted, Vec3d* normal) {
   const CutSurface& surface = cut.surface;
-  const uint32_t triangles = uint32_t(surface.triangles.size()), slots = x.slots;
-  for (uint32_t t = 0; t < triangles; ++t) {
-    const Tri& tri = surface.triangles[t];
-    // A free quad's triangles name kDeadIndex (>= slots); a corner beyond the index is not embedded.
-    const bool wanted = (tri[0] < slots && slot_index[tri[0]] != ~0u) || (tri[1] < slots && slot_index[tri[1]] != ~0u) ||
-                        (tri[2] < slots && slot_index[tri[2]] != ~0u);
-    if (!wanted || surface.quad_half_edge[t / 2] == CutSurface::kFreeKey || !embedded_triangle(x, tri)) continue;
-    const Vec3d area = triangle_area(surface, tri);
-    for (int k = 0; k < 3; ++k) {
-      if (slot_index[tri[k]] != ~0u) normal[slot_index[tri[k]]] += area;
+  const ContactIndex& x = pc.index;
+  const uint32_t quads = uint32_t(surface.triangles.size() / 2), slots = x.slots;
+  // A free quad's triangles name kDeadIndex (>= slots); a corner beyond the index is not embedded.
+  const auto is_wanted = [&](uint32_t v) { return v < slots && ((wanted[v >> 6] >> (v & 63)) & 1u); };
+  const auto block_wanted = [&](const QuadBlock& b) {
+    if (b.all) return true;
+    for (uint32_t k = 0; k < b.count; ++k) {
+      if ((sim_wanted[b.voxels[k] >> 6] >> (b.voxels[k] & 63)) & 1u) return true;
+    }
+    return false;
+  };
+  for (uint32_t block = 0; block * kQuadBlock < quads; ++block) {
+    if (!block_wanted(pc.quad_blocks[block])) continue;
+    const uint32_t end = std::min(quads, (block + 1) * kQuadBlock);
+    for (uint32_t q = block * kQuadBlock; q < end; ++q) {
+      const Tri& first = surface.triangles[2 * q];
+      const Tri& second = surface.triangles[2 * q + 1];
+      const bool any = is_wanted(first[0]) | is_wanted(first[1]) | is_wanted(first[2]) | is_wanted(second[0]) |
+                       is_wanted(second[1]) | is_wanted(second[2]);
+      if (!any || surface.quad_half_edge[q] == CutSurface::kFreeKey) continue;
+      for (const Tri* tri : {&first, &second}) {
+        if (!embedded_triangle(x, *tri)) continue;
+        const Vec3d area = triangle_area(surface, *tri);
+        for (int k = 0; k < 3; ++k) {
+          if (is_wanted((*tri)[k])) normal[slot_index[(*tri)[k]]] += area;  // this part's slots only
+        }
+      }
     }
   }
 }
@@ -472,7 +540,12 @@ std::pair<const ContactRep*, uint32_t> piece_reps(const PieceContacts& pc, uint3
 // staging area, the pieces in chunks through `tasks`; then appended to reps in the list's order.
 // A piece's points depend only on the model and the rest surface (the same bits whatever the
 // worker count, the batch or the way its triangles were found), and are chosen on its first need
-// after a cut changed it, so they never flicker between steps.
+// after a cut changed it, so they never flicker between steps. A batch holding more slots than the
+// surface's triangles / PieceContacts::rep_slots_per_scan (4096) is scanned: a few reads for each
+// block of 16 quads, ~15 instructions for each quad of the blocks near the batch; a smaller one goes
+// through the half-edge map around each slot (vertex_quads: ~5 lookups a slot, mostly cache misses,
+// ~870 ns a slot measured). At 256 (647 000 triangles, 20 000 blocks) the pass over the blocks costs
+// about what 150 slots cost through the map, and a piece has ~220: nearly every batch is scanned.
 void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks, const std::vector<uint32_t>& list) {
   PieceContacts& pc = data.piece_contacts;
   const ContactIndex& x = pc.index;
@@ -487,22 +560,85 @@ void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, con
   }
   if (build.empty()) return;
   const uint32_t n = uint32_t(build.size()), slots = offset.back();
-  const bool scan = slots > x.triangle_count / kRepSlotsPerScan;
+  const bool scan = slots > x.triangle_count / std::max(1u, pc.rep_slots_per_scan);
   if (pc.rep_scratch.size() < x.slots) pc.rep_scratch.resize(x.slots, ~0u);
   uint32_t* slot_index = pc.rep_scratch.data();
   std::vector<Vec3d>& normal = pc.rep_normal;  // of the batch's slots, by piece then slot
   normal.resize(slots);
   if (scan) {
-    std::fill(normal.begin(), normal.end(), Vec3d::Zero());
-    for (uint32_t i = 0; i < n; ++i) {
-      const uint32_t first = x.piece_begin[build[i]];
-      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) slot_index[x.piece_slots[first + k - offset[i]]] = k;
+    if (!pc.quad_blocks_valid) refresh_quad_blocks(cut, s, pc, false);
+    // A large batch is scanned in two parts at once, its pieces split at the median of their
+    // simulation voxels along the axis the batch spans most: each part reads the blocks near its
+    // own pieces and sums only their slots (a slot is in one piece, a piece in one part), each slot
+    // over its triangles in ascending order, so the bits do not depend on the split.
+    // (PieceContacts::rep_slots_per_part: 16 384; a sever at 256 builds ~100 000 slots, and their
+    // scan took ~3.5 ms in one part.)
+    const uint32_t parts = slots >= pc.rep_slots_per_part ? 2 : 1;
+    pc.counters.scans_split += parts == 2;
+    const size_t slot_words = (size_t(x.slots) + 63) / 64, voxel_words = (size_t(s.sx) * size_t(s.sy) * size_t(s.sz) + 63) / 64;
+    std::vector<uint64_t>& wanted = pc.rep_wanted;         // (parts x slot_words)
+    std::vector<uint64_t>& sim_wanted = pc.rep_sim_voxels;  // (parts x voxel_words)
+    wanted.assign(parts * slot_words, 0u);
+    sim_wanted.assign(parts * voxel_words, 0u);
+    std::vector<uint32_t>& part = pc.rep_part;  // of each piece of the batch
+    part.assign(n, 0u);
+    if (parts == 2) {
+      // Simulation voxel coordinates (i, j, k) of each piece, the axis of the largest extent, and the
+      // pieces ranked along it (ties by batch order).
+      std::vector<uint64_t>& rank = pc.rep_rank;
+      int32_t lo[3] = {s.sx, s.sy, s.sz}, hi[3] = {-1, -1, -1};
+      const auto coords = [&](uint32_t i, int32_t c[3]) {
+        const uint32_t sv = s.pieces[build[i]].sim_voxel;
+        c[0] = int32_t(sv % uint32_t(s.sx));
+        c[1] = int32_t(sv / uint32_t(s.sx) % uint32_t(s.sy));
+        c[2] = int32_t(sv / uint32_t(s.sx) / uint32_t(s.sy));
+      };
+      for (uint32_t i = 0; i < n; ++i) {
+        int32_t c[3];
+        coords(i, c);
+        for (int a = 0; a < 3; ++a) {
+          lo[a] = std::min(lo[a], c[a]);
+          hi[a] = std::max(hi[a], c[a]);
+        }
+      }
+      int axis = 0;
+      for (int a = 1; a < 3; ++a) axis = hi[a] - lo[a] > hi[axis] - lo[axis] ? a : axis;
+      rank.resize(n);
+      for (uint32_t i = 0; i < n; ++i) {
+        int32_t c[3];
+        coords(i, c);
+        rank[i] = uint64_t(uint32_t(c[axis])) << 32 | i;
+      }
+      std::nth_element(rank.begin(), rank.begin() + n / 2, rank.end());
+      for (uint32_t r = n / 2; r < n; ++r) part[uint32_t(rank[r])] = 1;
     }
-    scan_rest_normals(cut, x, slot_index, normal.data());
-    for (uint32_t i = 0; i < n; ++i) {
-      const uint32_t first = x.piece_begin[build[i]];
-      for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) slot_index[x.piece_slots[first + k - offset[i]]] = ~0u;
-    }
+    // Each part marks its slots, scans, and unmarks them (slot_index is read only through a part's
+    // own bits, so the parts share it).
+    const TaskBatch scans{parts, 1};
+    run_batches(tasks, &scans, 1, [&](uint32_t, uint32_t begin, uint32_t end) {
+      for (uint32_t p = begin; p < end; ++p) {
+        uint64_t* part_wanted = wanted.data() + p * slot_words;
+        uint64_t* part_voxels = sim_wanted.data() + p * voxel_words;
+        for (uint32_t i = 0; i < n; ++i) {
+          if (part[i] != p) continue;
+          const uint32_t sv = s.pieces[build[i]].sim_voxel;
+          part_voxels[sv >> 6] |= uint64_t(1) << (sv & 63);
+          const uint32_t first = x.piece_begin[build[i]];
+          std::fill(normal.begin() + offset[i], normal.begin() + offset[i + 1], Vec3d::Zero());
+          for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
+            const uint32_t slot = x.piece_slots[first + k - offset[i]];
+            slot_index[slot] = k;
+            part_wanted[slot >> 6] |= uint64_t(1) << (slot & 63);
+          }
+        }
+    scan_rest_normals(cut, pc, slot_index, part_wanted, part_voxels, normal.data());
+        for (uint32_t i = 0; i < n; ++i) {
+          if (part[i] != p) continue;
+          const uint32_t first = x.piece_begin[build[i]];
+          for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) slot_index[x.piece_slots[first + k - offset[i]]] = ~0u;
+        }
+      }
+    });
   }
   pc.rep_staged.resize(size_t(n) * kRepEntries);
   pc.rep_staged_count.resize(n);
@@ -715,13 +851,12 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
                             pieces, pc.scratch) == 0) {
     return;
   }
-  // Through the pair cache (sim/contact.h PairCache), kept while the pieces and bodies stay (the
-  // index's updates) and no candidate moves more than a margin of a quarter simulation voxel from
-  // where it was (a margin of a contact cell, half a simulation voxel at 8 fine voxels per simulation
-  // voxel, cost the default recording's broad phase 0.62 M instructions a step instead of 0.54).
+  // Through the pair cache (sim/contact.h PairCache), whose entries hold while a candidate moves no
+  // more than a margin of a quarter simulation voxel from where it was cached (a margin of a contact
+  // cell, half a simulation voxel at 8 fine voxels per simulation voxel, cost the default recording's
+  // broad phase 0.62 M instructions a step instead of 0.54).
   pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
-                                                 0.25 * s.sim_size, x.updates, pc.exposed, pc.scratch,
-                                                 &pc.counters.piece_pairs);
+                                                 0.25 * s.sim_size, pc.exposed, pc.scratch, &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
   gather_surface_points(cut, s, data, tasks);
   ++pc.counters.gathers;

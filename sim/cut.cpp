@@ -164,7 +164,7 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state.fronts.reserve(state.front_of.capacity());
 
   CutStepStats stats;
-  refresh_voxels(model, state, voxels, stats, nullptr);  // the whole surface is new: no list of changes
+  refresh_voxels(model, state, voxels, stats, nullptr, nullptr);  // the whole surface is new: no list of changes
   state.surface.clear_dirty();
 }
 
@@ -311,11 +311,14 @@ void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint3
 void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats) {
   state.changed_vertices.clear();
   std::vector<uint32_t>& corners = state.scratch.corners;
+  std::vector<uint32_t>& quads = state.scratch.quads;
   corners.clear();
-  refresh_voxels(model, state, state.pending_voxels, stats, &corners);
+  quads.clear();
+  refresh_voxels(model, state, state.pending_voxels, stats, &corners, &quads);
   if (!state.changed_vertices.empty() || !corners.empty()) {
     corners.insert(corners.end(), state.changed_vertices.begin(), state.changed_vertices.end());
     state.touched_vertices.swap(corners);
+    state.touched_quads.swap(quads);
     ++state.surface_changes;
   }
   state.changed_voxels.swap(state.pending_voxels);

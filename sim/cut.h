@@ -137,6 +137,7 @@ struct CutScratch {
   std::vector<uint32_t> blade_voxels;  // the blade edge's points' voxels and points (update_front)
   std::vector<Vec3f> blade_points;
   std::vector<uint32_t> corners;       // the next touched_vertices, as cut_update_surface fills it
+  std::vector<uint32_t> quads;         // the next touched_quads
   std::vector<uint64_t> listed;        // refresh_voxels' list as bits from a window's start: all zero
                                        // between calls (it clears the bits it set), grown, never shrunk
   CutScratch() = default;
@@ -170,8 +171,10 @@ struct CutState {
   // slots it wrote or freed and the corners, old and new, of the triangles it wrote or freed
   // (repeats): every vertex whose position or triangles changed, so the PBD model's contact points
   // (sim/contact.h) are rebuilt only for the pieces the cut touched. An update that changes nothing
-  // (a blade moving through air) leaves both alone.
+  // (a blade moving through air) leaves them alone. touched_quads: the quad slots it wrote or freed
+  // (where the contact points look for their triangles, sim/contact_points.cpp).
   std::vector<uint32_t> touched_vertices;
+  std::vector<uint32_t> touched_quads;
   uint64_t surface_changes = 0;
   Lattice lattice;                       // the fine lattice (vertex_quads without the model)
   std::vector<PatchShape> shapes;        // memo of divided voxels' shapes (see PatchShape)

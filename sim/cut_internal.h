@@ -224,9 +224,11 @@ struct EdgeQuads {
 void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t edge, const EdgeCut* cut,
                      const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out);
 
-// Recomputes pieces, patches, vertices and quads of the given voxels and of the edges they hold.
+// Recomputes pieces, patches, vertices and quads of the given voxels and of the edges they hold;
+// the corners (old and new) and the slots of the quads it changed go to changed_corners and
+// changed_quads when given.
 void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats,
-                    std::vector<uint32_t>* changed_corners);
+                    std::vector<uint32_t>* changed_corners, std::vector<uint32_t>* changed_quads);
 
 // Cuts on edges and the cut front (cut_edges.cpp).
 

@@ -73,11 +73,13 @@ void note_quad_corners(const CutSurface& s, uint32_t quad, std::vector<uint32_t>
   for (int t = 0; t < 2; ++t) corners->insert(corners->end(), s.triangles[2 * quad + t].begin(), s.triangles[2 * quad + t].end());
 }
 
-// Frees the quad of a half-edge; its corners go to `corners` (when given). Returns true when it had one.
-bool free_quad(CutSurface& s, uint64_t key, std::vector<uint32_t>* corners) {
+// Frees the quad of a half-edge; its corners go to `corners` and its slot to `quads` (when given).
+// Returns true when it had one.
+bool free_quad(CutSurface& s, uint64_t key, std::vector<uint32_t>* corners, std::vector<uint32_t>* quads) {
   const uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) return false;
   note_quad_corners(s, quad, corners);
+  if (quads != nullptr) quads->push_back(quad);
   s.quad_of_half_edge.erase(key);
   s.quad_half_edge[quad] = CutSurface::kFreeKey;
   s.triangles[2 * quad] = s.triangles[2 * quad + 1] = Tri{kDeadIndex, kDeadIndex, kDeadIndex};
@@ -89,9 +91,10 @@ bool free_quad(CutSurface& s, uint64_t key, std::vector<uint32_t>* corners) {
 
 // Writes the quad (v0 v1 v2 v3, counter-clockwise seen from outside) of a half-edge, split along
 // the shorter diagonal unless `diagonal` forces one (0: v0-v2, 1: v1-v3; -1: free). Returns true
-// when a slot changed; then its old and new corners go to `corners` (when given).
+// when a slot changed; then its old and new corners go to `corners` and the slot to `quads` (when
+// given).
 bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, int diagonal,
-                std::vector<uint32_t>* corners) {
+                std::vector<uint32_t>* corners, std::vector<uint32_t>* quads) {
   uint32_t quad = s.quad_of_half_edge.get(key);
   if (quad == kDeadIndex) {
     if (!take_free_slot(s.free_quads, quad)) {
@@ -117,6 +120,7 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, i
   if (s.triangles[2 * quad] == t0 && s.triangles[2 * quad + 1] == t1 && s.triangle_cut[2 * quad] == flag) return false;
   note_quad_corners(s, quad, corners);  // the old ones (a new slot holds dead triangles: none)
   if (corners != nullptr) corners->insert(corners->end(), v, v + 4);
+  if (quads != nullptr) quads->push_back(quad);
   s.triangles[2 * quad] = t0;
   s.triangles[2 * quad + 1] = t1;
   s.triangle_cut[2 * quad] = s.triangle_cut[2 * quad + 1] = flag;
@@ -710,7 +714,7 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
 // edges they hold; adds the voxels across their four-point faces (whose pairing may toggle with
 // them, see voxel_patches). Returns counts of changed slots through stats.
 void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats,
-                    std::vector<uint32_t>* changed_corners) {
+                    std::vector<uint32_t>* changed_corners, std::vector<uint32_t>* changed_quads) {
   const Lattice& l = model.lattice;
   CutSurface& s = state.surface;
   std::vector<uint32_t>& across = state.scratch.across;
@@ -788,10 +792,10 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       for (int side = 0; side < 2; ++side) {
         const uint64_t key = half_edge_key(edge, side);
         if (quads.exists[side]) {
-          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners)) {
+          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners, changed_quads)) {
             stats.triangles_changed += 2;
           }
-        } else if (free_quad(s, key, changed_corners)) {
+        } else if (free_quad(s, key, changed_corners, changed_quads)) {
           stats.triangles_changed += 2;
         }
       }

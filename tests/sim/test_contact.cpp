@@ -922,8 +922,9 @@ TEST_SUITE("contact") {
     // The block on a tray cut through horizontally, then vertically (a cut step per solver step).
     // `one` steps serially; `many` with three workers (every batch split); `fresh` with three
     // workers and its index rebuilt every step, so every piece it needs is built again in one batch
-    // (one scan of the surface) where the others build only what the last cut touched (through the
-    // quads around the slots). The contact points and the positions stay bit-identical.
+    // (one scan of the surface, in two parts at once) where the others build only what the last cut
+    // touched (`many` through the quads around the slots, `one` by scans). The contact points and
+    // the positions stay bit-identical.
     PbdParams params;
     params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
     Scene s;
@@ -931,6 +932,8 @@ TEST_SUITE("contact") {
     run(s, 30);
     PbdState many = s.pbd, fresh = s.pbd;
     many.data.chunk_work = fresh.data.chunk_work = 1;
+    many.data.piece_contacts.rep_slots_per_scan = 1;  // small batches through the quads around the slots
+    fresh.data.piece_contacts.rep_slots_per_part = 1;  // every scan in two parts
     ThreadRunner runner{3};
     BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
     const auto cut = [&](const BladePose& next) {
@@ -965,9 +968,80 @@ TEST_SUITE("contact") {
     // `fresh` built some batches in one pass over the surface, `many` some through the quads
     // around the slots.
     CHECK(fresh.data.piece_contacts.counters.reps_scanned > 0);
+    CHECK(fresh.data.piece_contacts.counters.scans_split > 0);
     CHECK(many.data.piece_contacts.counters.reps_built > many.data.piece_contacts.counters.reps_scanned);
     CHECK(s.pbd.data.piece_contacts.counters.contacts > 0);
     CHECK(compared > 1000);
     CHECK(runner.splits > 100);
+  }
+}
+
+TEST_SUITE("contact") {
+  TEST_CASE("the pair cache finds the pieces the grid finds while pieces move, appear, change body and die") {
+    // Random boxes of a simulation voxel's size in a 12-voxel cube, in a few bodies; each step some
+    // move a little (within the margin: their entries hold), a few jump (stale), a few are added or
+    // die, a few change body, and now and then many change body at once (as a sever renumbers one
+    // side: the cache is rebuilt). Every step the cached broad phase must mark the same pieces and list
+    // the same partners as find_exposed_pieces over the candidates.
+    SplitMix64 rng{20261206};
+    std::vector<Vec3d> lo, hi;
+    std::vector<double> reach;
+    std::vector<uint32_t> body;
+    std::vector<uint8_t> live;
+    const auto add_piece = [&]() {
+      const Vec3d a(rng.uniform(0.0, 12.0), rng.uniform(0.0, 12.0), rng.uniform(0.0, 12.0));
+      lo.push_back(a);
+      hi.push_back(a + Vec3d::Constant(rng.uniform(0.8, 1.2)));
+      reach.push_back(rng.uniform(0.05, 0.3));
+      body.push_back(uint32_t(rng.next() % 5));
+      live.push_back(1);
+    };
+    for (int i = 0; i < 400; ++i) add_piece();
+    PieceContactScratch cached, fresh;
+    std::vector<uint8_t> exposed_cached, exposed_fresh;
+    uint64_t builds_before = 0;
+    for (int step = 0; step < 120; ++step) {
+      const uint32_t n = uint32_t(lo.size());
+      for (uint32_t i = 0; i < n; ++i) {
+        if (!live[i]) continue;
+        const double r = rng.uniform();
+        Vec3d d = Vec3d::Zero();
+        if (r < 0.5) d = Vec3d(rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05));
+        else if (r < 0.53) d = Vec3d(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0));
+        lo[i] += d;
+        hi[i] += d;
+        if (rng.uniform() < 0.01) body[i] = uint32_t(rng.next() % 5);
+        if (rng.uniform() < 0.005) live[i] = 0;
+      }
+      if (step % 7 == 3) {
+        for (int k = 0; k < 5; ++k) add_piece();
+      }
+      if (step % 40 == 20) {  // a sever: one body's pieces in its upper half get a new body
+        for (uint32_t i = 0; i < n; ++i) body[i] = (body[i] == 1 && lo[i].y() > 6.0) ? 7u : body[i];
+      }
+      if (step == 90) {  // every body renumbered: more than a quarter stale, rebuilt
+        for (uint32_t& b : body) b += 10;
+      }
+      const uint32_t count = uint32_t(lo.size());
+      // Candidates: the live pieces (a random third left out now and then, as the body phase does).
+      std::vector<uint8_t> candidate(live);
+      if (step % 5 == 0) {
+        for (uint32_t i = 0; i < count; ++i) candidate[i] = candidate[i] && rng.uniform() < 0.67;
+      }
+      const uint32_t marked = find_exposed_pieces_cached(lo.data(), hi.data(), reach.data(), candidate.data(), body.data(), count,
+                                                         0.25, exposed_cached, cached);
+      const uint32_t expected = find_exposed_pieces(lo.data(), hi.data(), reach.data(), candidate.data(), body.data(), count,
+                                                    exposed_fresh, fresh);
+      REQUIRE(marked == expected);
+      REQUIRE(exposed_cached == exposed_fresh);
+      REQUIRE(cached.partner_begin == fresh.partner_begin);
+      REQUIRE(cached.partners == fresh.partners);
+      if (step == 89) builds_before = cached.pair_cache.builds;
+    }
+    // Most steps refreshed stale entries instead of rebuilding.
+    MESSAGE("pair cache: " << cached.pair_cache.builds << " rebuilds, " << cached.pair_cache.updates << " refreshes in 120 steps");
+    CHECK(builds_before < 20);
+    CHECK(cached.pair_cache.builds > builds_before);  // the renumbering rebuilt it
+    CHECK(cached.pair_cache.updates > 60);
   }
 }
