@@ -240,8 +240,11 @@ struct SurfacePoint {
 // cached pairs, so testing only those finds the same pairs as the grid (find_exposed_pieces). The
 // entries are geometric, per piece slot: a cut that adds pieces or reuses a slot only makes the
 // entries it invalidates stale. Stale candidates (new, moved out, body changed) are refreshed in
-// place, paired through a grid of the members' cached bounds; more than a quarter of the members
-// stale (a sever renumbers one side's body), the cache is rebuilt over the candidates.
+// place, paired through a grid of the members' cached bounds; more than three quarters of the
+// members stale, the cache is rebuilt over the candidates (it then also drops the entries of pieces
+// that are no longer candidates). On the sliced bunny at 256 (`divvox bench contact`, 168 steps)
+// the cache was rebuilt twice and refreshed 120 times (at a quarter: 15 rebuilds, ~0.6 ms each
+// against ~0.3 for a refresh; a sever costs either ~2 ms).
 struct PairCache {
   bool valid = false;
   uint32_t pieces = 0;

@@ -312,8 +312,8 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
       members += cache.member[i];
       if (candidate[i] && !holds(i)) stale.push_back(i);
     }
-    // Many stale entries (a sever renumbers half the pieces' body, everything moves): rebuild.
-    rebuild = stale.size() > std::max<size_t>(kPairCachePartialMin, members / 4);
+    // Nearly all stale (every body renumbered, everything moved): rebuild.
+    rebuild = stale.size() > std::max<size_t>(kPairCachePartialMin, 3 * members / 4);
   }
   if (rebuild) {
     // Over the candidates, grown by the margin.
