@@ -260,9 +260,10 @@ void renderer_blit(Renderer& r, uint32_t target_framebuffer, int width, int heig
 // The window's scene cache (single-sampled offscreen target): copies the image's colour into
 // framebuffer 0 at renderer_place's origin; until the next renderer_draw_surface the view is that
 // rectangle of framebuffer 0, with the scene's depth in ViewTarget::scene_depth (a depth blit cost
-// llvmpipe as much as the colour's, and the window's depth buffer only needs to order the overlays
-// among themselves). A window redraws an unchanged scene (no new snapshot, the camera still) by
-// this copy alone: on llvmpipe a fifth of drawing the surface again.
+// llvmpipe as much as the colour's; the window's overlays test against the texture and order
+// themselves far to near, so the window need not even clear its depth buffer). A window redraws an
+// unchanged scene (no new snapshot, the camera still) by this copy alone: on llvmpipe a fifth of
+// drawing the surface again.
 void renderer_present(Renderer& r);
 // Single-sampled offscreen mode: keeps a second target, the image shown, so an image can be drawn
 // over several frames (DrawOptions::pieces_begin / pieces_end) while the last one is presented.

@@ -128,6 +128,28 @@ void overlay_draw(LineOverlay& o, const ViewTarget& target, const Camera& camera
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
 }
 
+void sort_far_to_near(const std::vector<SolidVertex>& vertices, const Eigen::Matrix4f& view,
+                      std::vector<SolidVertex>& sorted, std::vector<std::pair<float, uint32_t>>& order) {
+  const size_t triangles = vertices.size() / 3;
+  order.resize(triangles);
+  // Eye space looks along -z: the farther, the more negative its z.
+  const Eigen::RowVector4f z_row = view.row(2);
+  for (size_t t = 0; t < triangles; ++t) {
+    float z = 0.0f;
+    for (size_t c = 0; c < 3; ++c) {
+      const float* p = vertices[3 * t + c].position;
+      z += z_row.dot(Eigen::Vector4f(p[0], p[1], p[2], 1.0f));
+    }
+    order[t] = {z, uint32_t(t)};
+  }
+  std::stable_sort(order.begin(), order.end(),
+                   [](const std::pair<float, uint32_t>& a, const std::pair<float, uint32_t>& b) { return a.first < b.first; });
+  sorted.resize(3 * triangles);
+  for (size_t k = 0; k < triangles; ++k) {
+    for (size_t c = 0; c < 3; ++c) sorted[3 * k + c] = vertices[3 * size_t(order[k].second) + c];
+  }
+}
+
 void overlay_destroy(OverlayProgram& o) {
   if (o.buffer) glDeleteBuffers(1, &o.buffer);
   if (o.vertex_array) glDeleteVertexArrays(1, &o.vertex_array);
@@ -144,9 +166,14 @@ bool solid_overlay_init(SolidOverlay& o, std::string& error) {
 void solid_overlay_draw(SolidOverlay& o, const ViewTarget& target, const Camera& camera,
                         const std::vector<SolidVertex>& vertices, float ghost_alpha) {
   if (vertices.empty() || o.program == 0) return;
-  upload_vertices(o.buffer, o.capacity, vertices.data(), vertices.size(), sizeof(SolidVertex));
   const Eigen::Matrix4f view = view_matrix(camera);
   const Eigen::Matrix4f mvp = projection_matrix(camera, float(target.width) / float(std::max(target.height, 1))) * view;
+  // Over a scene cache the window's depth buffer holds nothing of this frame (it is not cleared):
+  // the triangles go far to near and nothing is depth-tested in the depth buffer.
+  const bool painter = target.scene_depth != 0;
+  if (painter) sort_far_to_near(vertices, view, o.sorted, o.order);
+  const std::vector<SolidVertex>& drawn = painter ? o.sorted : vertices;
+  upload_vertices(o.buffer, o.capacity, drawn.data(), drawn.size(), sizeof(SolidVertex));
   glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
   glViewport(target.x, target.y, target.width, target.height);
   glDisable(GL_CULL_FACE);
@@ -164,20 +191,22 @@ void solid_overlay_draw(SolidOverlay& o, const ViewTarget& target, const Camera&
   glDisable(GL_DEPTH_TEST);
   glDepthMask(GL_FALSE);
   glUniform1f(alpha, ghost_alpha);
-  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
-  // Pass 2: the visible parts, opaque, depth-tested against the surface and themselves (against the
-  // surface in the shader when the scene's depth is a texture).
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(drawn.size()));
+  // Pass 2: the visible parts, opaque, depth-tested against the surface (in the shader when the
+  // scene's depth is a texture) and among themselves (the depth buffer, or the painter's order).
   glDisable(GL_BLEND);
-  if (target.scene_depth != 0) {
+  if (painter) {
     glBindTextureUnit(1, target.scene_depth);
     glUniform1i(depth_on, 1);
+  } else {
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LEQUAL);
+    glDepthMask(GL_TRUE);
   }
-  glEnable(GL_DEPTH_TEST);
-  glDepthFunc(GL_LEQUAL);
-  glDepthMask(GL_TRUE);
   glUniform1f(alpha, 1.0f);
-  glDrawArrays(GL_TRIANGLES, 0, GLsizei(vertices.size()));
-  if (target.scene_depth != 0) glBindTextureUnit(1, 0);
+  glDrawArrays(GL_TRIANGLES, 0, GLsizei(drawn.size()));
+  if (painter) glBindTextureUnit(1, 0);
+  glDepthMask(GL_TRUE);
   glBindVertexArray(0);
   glUseProgram(0);
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
