@@ -255,15 +255,21 @@ void replay_section(Results& in, std::ostream& md, std::ostream& head) {
      << "Deform: the PBD step's time (p50 and p99 of each run, medians over the runs); barriers: the task "
         "pool's stages per step (a barrier between two), waits: those a thread reached before they opened, per "
         "step and thread (summary.json `pool`).\n\n"
-     << "| recording | workers | runs | steps | wall s (median) | × real time (median) | step p99 ms | "
+     << "Per second: the steps of each simulated second over their compute time (× real time), the slowest "
+        "second and p1 over the runs' seconds (a second that severs a piece is the slowest).\n\n"
+     << "| recording | workers | runs | steps | wall s (median) | × real time (median) | per second min / p1 | step p99 ms | "
         "deform p50 ms | deform p99 ms | barriers / step | waits / step | deterministic |\n"
-        "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const json& r : replay["rows"]) {
     std::map<int, std::vector<const json*>> by_workers;
     for (const json& run : r["runs"]) by_workers[run["workers"].get<int>()].push_back(&run);
     for (auto& [workers, runs] : by_workers) {
-      std::vector<double> wall, factor, p99, deform50, deform99, stages, waits;
+      std::vector<double> wall, factor, p99, deform50, deform99, stages, waits, second_min, second_p1;
       for (const json* run : runs) {
+        if (run->contains("per_second") && !(*run)["per_second"].is_null()) {
+          second_min.push_back(get((*run)["per_second"], "min"));
+          second_p1.push_back(get((*run)["per_second"], "p1"));
+        }
         wall.push_back(get(*run, "wall_s"));
         factor.push_back(get(*run, "realtime_factor"));
         p99.push_back(get((*run)["step_ms"], "p99"));
@@ -276,7 +282,9 @@ void replay_section(Results& in, std::ostream& md, std::ostream& head) {
       }
       const auto median = [](const std::vector<double>& v) { return v.empty() ? std::string("–") : num(quantile(v, 0.5)); };
       md << "| " << r["recording"].get<std::string>() << " | " << workers << " | " << runs.size() << " | "
-         << (*runs[0])["steps"] << " | " << num(quantile(wall, 0.5)) << " | " << num(quantile(factor, 0.5))
+         << (*runs[0])["steps"] << " | " << num(quantile(wall, 0.5)) << " | " << num(quantile(factor, 0.5)) << " | "
+         << (second_min.empty() ? std::string("–")
+                                : num(*std::min_element(second_min.begin(), second_min.end())) + " / " + num(quantile(second_p1, 0.5)))
          << " | " << num(quantile(p99, 0.5)) << " | " << median(deform50) << " | " << median(deform99) << " | "
          << median(stages) << " | " << median(waits) << " | " << (r["deterministic"].get<bool>() ? "yes" : "**no**")
          << " |\n";

@@ -132,6 +132,24 @@ TEST_SUITE("replay") {
     CHECK(fs::file_size(dir.path / "timings.csv") > 1000);
   }
 
+  TEST_CASE("the shipped liver session takes a piece off with each of its three strokes and replays to its hashes") {
+    // assets/recordings/liver_strokes.jsonl: tests/cli/window_pace.sh's run in the window (the default
+    // scene, three strokes across the left lobe from below), recorded on a quiet machine.
+    TempDir dir;
+    ReplayOptions options = replay_of(dvx_test::source_path("assets/recordings/liver_strokes.jsonl"), dir.path);
+    options.workers = 2;
+    const ReplayResult r = run_replay(options);
+    CHECK(r.steps == 2537);
+    CHECK(r.hash_checked == 44);
+    CHECK(r.hash_mismatched == 0);
+    const nlohmann::json summary = nlohmann::json::parse(read_file(dir.path / "summary.json"));
+    REQUIRE(summary["strokes"].size() == 3);
+    for (const nlohmann::json& stroke : summary["strokes"]) CHECK(stroke["created"] == 1);
+    CHECK(summary["surface"]["components"] == 4);
+    CHECK(summary["surface"]["boundary_edges"] == 0);
+    CHECK(summary["nonfinite_values"] == 0);
+  }
+
   TEST_CASE("timings.csv ends with grab_force_n: the grab's force in newtons, non-zero while a grab holds") {
     TempDir dir;
     ReplayOptions options = replay_of(dvx_test::source_path("assets/recordings/bunny_grab.jsonl"), dir.path);
