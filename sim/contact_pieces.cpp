@@ -342,6 +342,11 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
     for (const uint32_t i : stale) {
       g.is_stale[i] = 1;
       cache_piece(i);
+      if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) {
+        // A non-finite piece (a blown-up step): the grid's rules for it, as find_exposed_pieces.
+        cache.valid = false;
+        return find_exposed_pieces_cached(lo, hi, reach, candidate, body, piece_count, margin, exposed, g, pairs_tested);
+      }
     }
     cache.pairs.erase(std::remove_if(cache.pairs.begin(), cache.pairs.end(),
                                      [&](uint64_t pair) { return g.is_stale[pair >> 32] || g.is_stale[uint32_t(pair)]; }),

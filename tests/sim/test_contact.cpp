@@ -1019,6 +1019,13 @@ TEST_SUITE("contact") {
       if (step % 40 == 20) {  // a sever: one body's pieces in its upper half get a new body
         for (uint32_t i = 0; i < n; ++i) body[i] = (body[i] == 1 && lo[i].y() > 6.0) ? 7u : body[i];
       }
+      if (step == 60 || step == 63) {  // a piece blown up (NaN) for three steps: the grid's rules for it
+        for (const uint32_t i : {17u, 18u}) {
+          const double v = step == 60 ? std::numeric_limits<double>::quiet_NaN() : 5.0 + i;
+          lo[i] = Vec3d::Constant(v);
+          hi[i] = lo[i] + Vec3d::Constant(1.0);
+        }
+      }
       if (step == 91) {  // every body renumbered: nearly all stale, rebuilt
         for (uint32_t& b : body) b += 10;
       }
