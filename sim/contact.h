@@ -273,7 +273,8 @@ struct PieceContactScratch {
   std::vector<uint32_t> item_rank;                // (cell_items) rank in body order
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
-  std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (overlapping_pairs)
+  std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (box_pairs)
+  std::vector<Vec3d> box_lo, box_hi;              // (pieces) bounds grown by their reach (find_exposed_pieces)
   std::vector<uint64_t> both;                     // the exposed pairs (i < j)
   PairCache pair_cache;
   std::vector<uint32_t> stale;                    // pair cache entries to refresh

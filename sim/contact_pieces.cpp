@@ -193,37 +193,44 @@ uint32_t find_candidate_pieces(const Vec3d* lo, const Vec3d* hi, const double* r
 
 namespace {
 
-// The pairs (i << 32 | j, i < j) of live pieces of different bodies whose bounds, grown by their
-// reach plus `margin`, overlap, in g.pairs (one direction, in the order met). Cells at least as large
-// as any grown piece: overlapping pieces have their grown low corners in neighbouring cells. Returns
-// false when no live piece has finite, non-empty grown bounds.
-bool overlapping_pairs(const Vec3d* lo, const Vec3d* hi, const double* reach, double margin, const uint8_t* live,
-                       const uint32_t* body, uint32_t piece_count, PieceContactScratch& g, uint64_t* pairs_tested) {
+// The pairs (i << 32 | j, i < j) of the pieces marked in `keyed` that belong to different bodies
+// and whose boxes [box_lo, box_hi] overlap, each pair with a piece of `queries` (nullptr: every keyed
+// piece; `queried` marks the same pieces), in g.pairs in the order met (repeats possible, see
+// sort_unique). Cells at least as large as any box: overlapping boxes have their low corners in
+// neighbouring cells. Returns false when no keyed piece has a finite, non-empty box. (A box with a
+// NaN overlaps every box in its cell, as grown_overlap has it.)
+bool box_pairs(const Vec3d* box_lo, const Vec3d* box_hi, const uint8_t* keyed, const uint32_t* body, uint32_t piece_count,
+               const std::vector<uint32_t>* queries, const uint8_t* queried, PieceContactScratch& g,
+               uint64_t* pairs_tested) {
   g.pairs.clear();
   double size = 0.0;
   for (uint32_t i = 0; i < piece_count; ++i) {
-    if (live[i]) size = std::max(size, (hi[i] - lo[i]).maxCoeff() + 2.0 * (reach[i] + margin));
+    if (keyed[i]) size = std::max(size, (box_hi[i] - box_lo[i]).maxCoeff());
   }
   if (!(size > 0.0) || !std::isfinite(size)) return false;
   g.keys.clear();
   for (uint32_t i = 0; i < piece_count; ++i) {
-    if (!live[i]) continue;
-    const double r = reach[i] + margin;
-    const uint64_t cell = cell_key(cell_coord(lo[i].x() - r, size), cell_coord(lo[i].y() - r, size),
-                                   cell_coord(lo[i].z() - r, size));
-    g.keys.push_back(cell | i);
+    if (!keyed[i]) continue;
+    g.keys.push_back(cell_key(cell_coord(box_lo[i].x(), size), cell_coord(box_lo[i].y(), size), cell_coord(box_lo[i].z(), size)) | i);
   }
   build_cells(g);
-  for (uint32_t i = 0; i < piece_count; ++i) {
-    if (!live[i]) continue;
-    const double r = reach[i] + margin;
-    const Vec3d a = lo[i] - Vec3d::Constant(r);
+  const auto query = [&](uint32_t i) {
+    const Vec3d& a = box_lo[i];
     for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
       const uint32_t j = g.cell_items[n];
-      if (j <= i || body[j] == body[i]) return;
+      // A pair of two queried pieces once, from the lower one.
+      if (j == i || body[j] == body[i] || ((queries == nullptr || queried[j]) && j < i)) return;
       if (pairs_tested) ++*pairs_tested;
-      if (grown_overlap(lo[i], hi[i], r, lo[j], hi[j], reach[j] + margin)) g.pairs.push_back((uint64_t(i) << 32) | j);
+      if ((box_lo[j].array() > box_hi[i].array()).any() || (box_hi[j].array() < box_lo[i].array()).any()) return;
+      g.pairs.push_back(i < j ? (uint64_t(i) << 32) | j : (uint64_t(j) << 32) | i);
     });
+  };
+  if (queries == nullptr) {
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (keyed[i]) query(i);
+    }
+  } else {
+    for (const uint32_t i : *queries) query(i);
   }
   return true;
 }
@@ -271,7 +278,14 @@ uint32_t mark_exposed(const std::vector<uint64_t>& pairs, uint32_t piece_count, 
 uint32_t find_exposed_pieces(const Vec3d* lo, const Vec3d* hi, const double* reach, const uint8_t* live,
                              const uint32_t* body, uint32_t piece_count, std::vector<uint8_t>& exposed,
                              PieceContactScratch& g, uint64_t* pairs_tested) {
-  if (!overlapping_pairs(lo, hi, reach, 0.0, live, body, piece_count, g, pairs_tested)) {
+  // The bounds grown by their reach.
+  g.box_lo.resize(piece_count);
+  g.box_hi.resize(piece_count);
+  for (uint32_t i = 0; i < piece_count; ++i) {
+    g.box_lo[i] = lo[i] - Vec3d::Constant(reach[i]);
+    g.box_hi[i] = hi[i] + Vec3d::Constant(reach[i]);
+  }
+  if (!box_pairs(g.box_lo.data(), g.box_hi.data(), live, body, piece_count, nullptr, nullptr, g, pairs_tested)) {
     exposed.assign(piece_count, 0);
     return 0;
   }
@@ -330,13 +344,15 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
       if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.valid = false;  // not kept
     }
     cache.pairs.clear();
-    if (overlapping_pairs(lo, hi, reach, margin, candidate, body, piece_count, g, pairs_tested)) cache.pairs.swap(g.pairs);
+    if (box_pairs(cache.lo.data(), cache.hi.data(), cache.member.data(), cache.body.data(), piece_count, nullptr, nullptr, g,
+                  pairs_tested)) {
+      cache.pairs.swap(g.pairs);
+    }
     sort_unique(cache.pairs);
   } else if (!stale.empty()) {
     // Refresh the stale entries: drop their pairs, cache their bounds now, and pair them with every
-    // member whose cached bounds overlap theirs (cells as large as the largest cached box, so two
-    // overlapping boxes have their low corners in neighbouring cells). The cache then again holds
-    // every pair of members of different bodies whose cached bounds overlap.
+    // member whose cached bounds overlap theirs. The cache then again holds every pair of members of
+    // different bodies whose cached bounds overlap.
     ++cache.updates;
     g.is_stale.assign(piece_count, 0);
     for (const uint32_t i : stale) {
@@ -351,31 +367,10 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
     cache.pairs.erase(std::remove_if(cache.pairs.begin(), cache.pairs.end(),
                                      [&](uint64_t pair) { return g.is_stale[pair >> 32] || g.is_stale[uint32_t(pair)]; }),
                       cache.pairs.end());
-    double size = 0.0;
-    for (uint32_t i = 0; i < piece_count; ++i) {
-      if (cache.member[i]) size = std::max(size, (cache.hi[i] - cache.lo[i]).maxCoeff());
-    }
-    if (!(size > 0.0) || !std::isfinite(size)) {
+    if (!box_pairs(cache.lo.data(), cache.hi.data(), cache.member.data(), cache.body.data(), piece_count, &stale,
+                   g.is_stale.data(), g, pairs_tested)) {
       cache.valid = false;
       return find_exposed_pieces_cached(lo, hi, reach, candidate, body, piece_count, margin, exposed, g, pairs_tested);
-    }
-    g.keys.clear();
-    for (uint32_t i = 0; i < piece_count; ++i) {
-      if (!cache.member[i]) continue;
-      g.keys.push_back(cell_key(cell_coord(cache.lo[i].x(), size), cell_coord(cache.lo[i].y(), size), cell_coord(cache.lo[i].z(), size)) | i);
-    }
-    build_cells(g);
-    g.pairs.clear();
-    for (const uint32_t i : stale) {
-      const Vec3d& a = cache.lo[i];
-      for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
-        const uint32_t j = g.cell_items[n];
-        if (j == i || cache.body[j] == cache.body[i] || (g.is_stale[j] && j < i)) return;  // a stale pair once
-        if (pairs_tested) ++*pairs_tested;
-        if ((cache.lo[j].array() <= cache.hi[i].array()).all() && (cache.lo[i].array() <= cache.hi[j].array()).all()) {
-          g.pairs.push_back(i < j ? (uint64_t(i) << 32) | j : (uint64_t(j) << 32) | i);
-        }
-      });
     }
     sort_unique(g.pairs);
     const size_t kept = cache.pairs.size();
