@@ -387,7 +387,7 @@ struct PieceContacts {
   // pieces it builds. (A box per block does not do: the surface's first quads come in lattice
   // order, and consecutive ones jump across the object from one row to the next.)
   std::vector<QuadBlock> quad_blocks;
-  bool quad_blocks_valid = false;
+  uint64_t quad_blocks_changes = ~uint64_t(0);  // the CutState::surface_changes they follow (~0: none yet)
   // A batch of pieces to build whose slots exceed the surface's triangles / rep_slots_per_scan is
   // built by scan_rest_normals, a smaller one through the quads around each slot (both give the
   // same bits; why 4096: build_stale_reps in sim/contact_points.cpp).

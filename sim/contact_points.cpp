@@ -182,6 +182,7 @@ void refresh_slots(const CutState& cut, const PbdModel& s, PbdData& data) {
 namespace {
 
 void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data);
+void refresh_quad_blocks(const CutState& cut, const PbdModel& s, PieceContacts& pc);
 
 // Brings the contact index (sim/contact.h) up to date when a cut changed the model or the surface:
 // the piece of each vertex slot and the slots of each piece (refresh_slots), which pieces can move,
@@ -189,6 +190,7 @@ void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data);
 void refresh_index(const CutState& cut, const PbdModel& s, PbdData& data) {
   refresh_slots(cut, s, data);
   refresh_reps(cut, s, data);
+  refresh_quad_blocks(cut, s, data.piece_contacts);
   ContactIndex& x = data.piece_contacts.index;
   PieceContacts& pc = data.piece_contacts;
   if (x.bodies_updates == x.updates) return;
@@ -291,21 +293,24 @@ void note_quad_block(const CutState& cut, const PbdModel& s, std::vector<QuadBlo
   }
 }
 
-// Brings the quad blocks' lists up to the surface: all of them from scratch, or (incremental) the
-// blocks of the quads the last surface update wrote.
-void refresh_quad_blocks(const CutState& cut, const PbdModel& s, PieceContacts& pc, bool incremental) {
+// Brings the quad blocks' lists up to the surface: from the quads the last surface update wrote when
+// they follow the update before it, else all of them from scratch (the first gather's, so not in the
+// step that first scans: a sever).
+void refresh_quad_blocks(const CutState& cut, const PbdModel& s, PieceContacts& pc) {
+  if (pc.quad_blocks_changes == cut.surface_changes) return;
+  const bool incremental = pc.quad_blocks_changes != ~uint64_t(0) && pc.quad_blocks_changes + 1 == cut.surface_changes;
+  pc.quad_blocks_changes = cut.surface_changes;
   const uint32_t quads = uint32_t(cut.surface.quad_half_edge.size());
   const size_t blocks = (size_t(quads) + kQuadBlock - 1) / kQuadBlock;
   if (!incremental) {
     pc.quad_blocks.assign(blocks, QuadBlock{});
     for (uint32_t q = 0; q < quads; ++q) note_quad_block(cut, s, pc.quad_blocks, q);
-  } else {
-    pc.quad_blocks.resize(blocks, QuadBlock{});
-    for (const uint32_t q : cut.touched_quads) {
-      if (q < quads) note_quad_block(cut, s, pc.quad_blocks, q);
-    }
+    return;
   }
-  pc.quad_blocks_valid = true;
+  pc.quad_blocks.resize(blocks, QuadBlock{});
+  for (const uint32_t q : cut.touched_quads) {
+    if (q < quads) note_quad_block(cut, s, pc.quad_blocks, q);
+  }
 }
 
 // Marks stale the contact points of the pieces whose points a cut may have changed, after the
@@ -331,10 +336,8 @@ void refresh_reps(const CutState& cut, const PbdModel& s, PbdData& data) {
     pc.rep_begin.assign(x.pieces, ~0u);
     pc.rep_count.assign(x.pieces, 0);
     pc.reps.clear();
-    refresh_quad_blocks(cut, s, pc, false);  // now, not in the step that first needs them (a sever)
     return;
   }
-  if (surface_changed && pc.quad_blocks_valid) refresh_quad_blocks(cut, s, pc, true);
   pc.rep_begin.resize(x.pieces, ~0u);
   pc.rep_count.resize(x.pieces, 0);
   const auto stale = [&](uint32_t piece) {
@@ -441,12 +444,11 @@ void piece_rest_normals(const CutState& cut, const ContactIndex& x, uint32_t pie
 // The rest normals of the slots of many pieces at once, in one pass over the surface's quads near
 // them: slot_index[v] is the entry of `normal` of each slot v to build (~0u: none), `wanted` the
 // slots to sum as bits (all of them, or one part's), `sim_wanted` the simulation voxels of their
-// pieces as bits. A block of quads whose
-// list (PieceContacts::quad_blocks) names none of those simulation voxels holds no triangle with a
-// corner to build and is passed over; in the others, a quad none of whose corners is to be built
-// costs six bit tests. Each live triangle whose three corners are embedded adds its area vector to
-// the entries of its wanted corners, in ascending triangle order (the sums
-// piece_rest_normals forms).
+// pieces as bits. A block of quads whose list (PieceContacts::quad_blocks) names none of those
+// simulation voxels holds no triangle with a corner to build and is passed over; in the others, a
+// quad none of whose corners is to be built costs six bit tests. Each live triangle whose three
+// corners are embedded adds its area vector to the entries of its wanted corners, in ascending
+// triangle order (the sums piece_rest_normals forms).
 void scan_rest_normals(const CutState& cut, const PieceContacts& pc, const uint32_t* slot_index,
                        const uint64_t* wanted, const uint64_t* sim_wanted, Vec3d* normal) {
   const CutSurface& surface = cut.surface;
@@ -566,7 +568,6 @@ void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, con
   std::vector<Vec3d>& normal = pc.rep_normal;  // of the batch's slots, by piece then slot
   normal.resize(slots);
   if (scan) {
-    if (!pc.quad_blocks_valid) refresh_quad_blocks(cut, s, pc, false);
     // A large batch is scanned in two parts at once, its pieces split at the median of their
     // simulation voxels along the axis the batch spans most: each part reads the blocks near its
     // own pieces and sums only their slots (a slot is in one piece, a piece in one part), each slot
@@ -619,24 +620,26 @@ void build_stale_reps(const CutState& cut, const PbdModel& s, PbdData& data, con
       for (uint32_t p = begin; p < end; ++p) {
         uint64_t* part_wanted = wanted.data() + p * slot_words;
         uint64_t* part_voxels = sim_wanted.data() + p * voxel_words;
+        // f(entry, slot) over the slots of the part's pieces.
+        const auto part_slots = [&](auto&& f) {
+          for (uint32_t i = 0; i < n; ++i) {
+            if (part[i] != p) continue;
+            const uint32_t first = x.piece_begin[build[i]];
+            for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) f(k, x.piece_slots[first + k - offset[i]]);
+          }
+        };
         for (uint32_t i = 0; i < n; ++i) {
           if (part[i] != p) continue;
           const uint32_t sv = s.pieces[build[i]].sim_voxel;
           part_voxels[sv >> 6] |= uint64_t(1) << (sv & 63);
-          const uint32_t first = x.piece_begin[build[i]];
-          std::fill(normal.begin() + offset[i], normal.begin() + offset[i + 1], Vec3d::Zero());
-          for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) {
-            const uint32_t slot = x.piece_slots[first + k - offset[i]];
-            slot_index[slot] = k;
-            part_wanted[slot >> 6] |= uint64_t(1) << (slot & 63);
-          }
         }
-    scan_rest_normals(cut, pc, slot_index, part_wanted, part_voxels, normal.data());
-        for (uint32_t i = 0; i < n; ++i) {
-          if (part[i] != p) continue;
-          const uint32_t first = x.piece_begin[build[i]];
-          for (uint32_t k = offset[i]; k < offset[i + 1]; ++k) slot_index[x.piece_slots[first + k - offset[i]]] = ~0u;
-        }
+        part_slots([&](uint32_t k, uint32_t slot) {
+          normal[k] = Vec3d::Zero();
+          slot_index[slot] = k;
+          part_wanted[slot >> 6] |= uint64_t(1) << (slot & 63);
+        });
+        scan_rest_normals(cut, pc, slot_index, part_wanted, part_voxels, normal.data());
+        part_slots([&](uint32_t, uint32_t slot) { slot_index[slot] = ~0u; });
       }
     });
   }
