@@ -19,10 +19,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include <algorithm>
-#include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -389,47 +386,6 @@ std::string bench_quality(const BenchQualityOptions& options) {
 
 // =============================================================================================
 
-namespace {
-
-// The simulation's pace in each second of a replay run, from its timings.csv: the steps of each
-// simulated second (round(1 / dt) steps; the last, shorter one left out unless it is the only one)
-// over the compute time of their steps (total_ms), as x real time: min, p1, p50 and how many.
-nlohmann::json per_second_pace(const fs::path& timings_csv, double dt) {
-  std::ifstream file(timings_csv);
-  std::string line;
-  if (!std::getline(file, line)) return nullptr;
-  // The column of total_ms in the header.
-  int column = -1, k = 0;
-  for (size_t start = 0; start <= line.size(); ++k) {
-    const size_t comma = std::min(line.find(',', start), line.size());
-    if (line.compare(start, comma - start, "total_ms") == 0) column = k;
-    start = comma + 1;
-  }
-  if (column < 0) return nullptr;
-  std::vector<double> total;
-  while (std::getline(file, line)) {
-    size_t start = 0;
-    for (int c = 0; c < column && start != std::string::npos; ++c) start = line.find(',', start) + 1;
-    total.push_back(std::atof(line.c_str() + start));
-  }
-  const size_t per_second = size_t(std::max(1.0, std::round(1.0 / dt)));
-  std::vector<double> pace;
-  for (size_t begin = 0; begin < total.size(); begin += per_second) {
-    const size_t end = std::min(total.size(), begin + per_second);
-    if (end - begin < per_second && !pace.empty()) break;
-    double ms = 0.0;
-    for (size_t i = begin; i < end; ++i) ms += total[i];
-    pace.push_back(ms > 0.0 ? double(end - begin) * dt / (ms / 1000.0) : 0.0);
-  }
-  if (pace.empty()) return nullptr;
-  return {{"min", *std::min_element(pace.begin(), pace.end())},
-          {"p1", quantile(pace, 0.01)},
-          {"p50", quantile(pace, 0.5)},
-          {"seconds", pace.size()}};
-}
-
-}  // namespace
-
 std::string bench_replay(const BenchReplayOptions& options) {
   std::vector<std::string> recordings = options.recordings;
   if (recordings.empty()) {
@@ -474,7 +430,7 @@ std::string bench_replay(const BenchReplayOptions& options) {
           worker_cpu += t.value("cpu_s", 0.0);
         }
         const double stages_per_step = pool.value("stages", 0.0) / steps;
-        const nlohmann::json pace = per_second_pace(fs::path(replay.out_dir) / "timings.csv", double(summary["dt"]));
+        const nlohmann::json pace = summary.value("pace_per_second", nlohmann::json());
         csv << file_name(recording) << ',' << workers << ',' << r + 1 << ',' << result.steps << ',' << simulated << ','
             << wall << ',' << result.steps / wall << ',' << simulated / wall << ',' << step["p50"] << ','
             << step["p99"] << ',' << result.final_hash << ',' << result.hash_checked << ',' << result.hash_mismatched

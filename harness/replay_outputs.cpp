@@ -171,6 +171,26 @@ nlohmann::json pool_json(const TaskPoolStats& stats) {
           {"late_workers", stats.late_workers}, {"threads", threads}};
 }
 
+// The simulation's pace in each simulated second of the run: the steps of each second (round(1 / dt)
+// steps; a last, shorter one left out unless it is the only one) over the compute time of their steps,
+// as x real time: min, p1, p50 and how many seconds (null without steps).
+nlohmann::json pace_per_second_json(const std::vector<double>& step_ms, double dt) {
+  const size_t per_second = size_t(std::max(1.0, std::round(1.0 / dt)));
+  std::vector<double> pace;
+  for (size_t begin = 0; begin < step_ms.size(); begin += per_second) {
+    const size_t end = std::min(step_ms.size(), begin + per_second);
+    if (end - begin < per_second && !pace.empty()) break;
+    double ms = 0.0;
+    for (size_t i = begin; i < end; ++i) ms += step_ms[i];
+    pace.push_back(ms > 0.0 ? double(end - begin) * dt / (ms / 1000.0) : 0.0);
+  }
+  if (pace.empty()) return nullptr;
+  return {{"min", *std::min_element(pace.begin(), pace.end())},
+          {"p1", quantile(pace, 0.01)},
+          {"p50", quantile(pace, 0.5)},
+          {"seconds", pace.size()}};
+}
+
 // summary.json (DESIGN §1 contract: the fields that apply without physics).
 nlohmann::json summary_json(const ReplayOptions& options, const Replay& replay, const ReplayResult& result, double wall_s,
                             const PhaseSamples& phases, const FrameSamples& frames, const FinalSurface& final) {
@@ -198,6 +218,7 @@ nlohmann::json summary_json(const ReplayOptions& options, const Replay& replay, 
         {"step", percentiles_json(phases.step)},
         {"render", percentiles_json(frames.render)},
         {"frame_interval", percentiles_json(frames.interval)}}},
+      {"pace_per_second", pace_per_second_json(phases.step, playback.dt)},
       {"frames", {{"rendered", frames.rendered}, {"written", result.frames_written}, {"size", {options.width, options.height}}}},
       {"interrupted", result.interrupted},
       {"wall_s", wall_s},

@@ -148,6 +148,10 @@ TEST_SUITE("replay") {
     CHECK(summary["surface"]["components"] == 4);
     CHECK(summary["surface"]["boundary_edges"] == 0);
     CHECK(summary["nonfinite_values"] == 0);
+    // 42 whole simulated seconds of 60 steps (the last 17 steps left out), each paced above 0.
+    CHECK(summary["pace_per_second"]["seconds"] == 42);
+    CHECK(summary["pace_per_second"]["min"].get<double>() > 0.0);
+    CHECK(summary["pace_per_second"]["min"].get<double>() <= summary["pace_per_second"]["p50"].get<double>());
   }
 
   TEST_CASE("timings.csv ends with grab_force_n: the grab's force in newtons, non-zero while a grab holds") {
