@@ -38,6 +38,13 @@ struct Rng {
       if (n > 0.1 && n < 1.0) return v / n;
     }
   }
+  // 0 .. n - 1 in a random order (Fisher-Yates).
+  std::vector<uint32_t> order(uint32_t n) {
+    std::vector<uint32_t> o(n);
+    for (uint32_t i = 0; i < n; ++i) o[i] = i;
+    for (uint32_t i = n > 0 ? n - 1 : 0; i > 0; --i) std::swap(o[i], o[uint32_t(uniform(0, i + 0.999))]);
+    return o;
+  }
 };
 
 // |a - b| relative to the larger magnitude (doctest's Approx adds 1 to the scale, which makes it an
@@ -677,10 +684,7 @@ TEST_SUITE("pbd_kernels") {
         const uint32_t rows_count = uint32_t(1 + trial % 37);
         std::vector<double> x(6 * rows_count), inv_mass(2 * rows_count);
         std::vector<StretchRow> rows;
-        std::vector<uint32_t> order(2 * rows_count);
-        for (uint32_t i = 0; i < order.size(); ++i) order[i] = i;
-        for (uint32_t i = uint32_t(order.size()) - 1; i > 0; --i)
-          std::swap(order[i], order[uint32_t(rng.uniform(0, i + 0.999))]);
+        const std::vector<uint32_t> order = rng.order(2 * rows_count);
         for (size_t k = 0; k < x.size(); ++k) x[k] = rng.uniform(-1, 1);
         for (uint32_t r = 0; r < rows_count; ++r) {
           const uint32_t a = order[2 * r], b = order[2 * r + 1];
@@ -720,10 +724,7 @@ TEST_SUITE("pbd_kernels") {
         const uint32_t rows_count = uint32_t(1 + trial % 19);
         const double side = rng.uniform(0.005, 0.05);
         std::vector<double> x(24 * rows_count), previous, inv_mass(8 * rows_count);
-        std::vector<uint32_t> order(8 * rows_count);
-        for (uint32_t i = 0; i < order.size(); ++i) order[i] = i;
-        for (uint32_t i = uint32_t(order.size()) - 1; i > 0; --i)
-          std::swap(order[i], order[uint32_t(rng.uniform(0, i + 0.999))]);
+        const std::vector<uint32_t> order = rng.order(8 * rows_count);
         std::vector<ElasticRow> rows(rows_count);
         std::vector<Quaterniond> rotation(rows_count + 3);
         for (uint32_t r = 0; r < rows_count; ++r) {
