@@ -101,17 +101,15 @@ struct SeverStep {
   StepTimings t;
 };
 
-// Every step of a sliced run: its total and its contact gathering (ms).
+// Every step of a sliced run: its phases and the bodies after it.
 struct SlicedSteps {
-  std::vector<double> total, contact;
   std::vector<StepTimings> timings;
   std::vector<uint32_t> bodies;
 };
 
-// A scene sliced by vertical through-cuts: every step that makes more bodies, with its phases; the
-// timings of all steps in `all`.
-std::vector<SeverStep> run_sever(const Scene& scene, int workers, const BenchContactOptions& o, uint32_t& steps_run,
-                                 SlicedSteps& all) {
+// A scene sliced by vertical through-cuts: every step that makes more bodies, with its phases; every
+// step in `all`.
+std::vector<SeverStep> run_sever(const Scene& scene, int workers, const BenchContactOptions& o, SlicedSteps& all) {
   Session session;
   open_session(scene, scene.pbd.dt, true, workers, session);
   Aabb box{Vec3d::Constant(1e300), Vec3d::Constant(-1e300)};
@@ -124,12 +122,8 @@ std::vector<SeverStep> run_sever(const Scene& scene, int workers, const BenchCon
   std::vector<SeverStep> out;
   std::vector<uint32_t> parent;
   uint32_t bodies = count_bodies(*session.state.pbd, parent);
-  steps_run = 0;
   const auto step = [&](uint32_t stroke, const StepCommands& c) {
     const StepReport report = session_step(session, c);
-    ++steps_run;
-    all.total.push_back(report.timings.total_ms);
-    all.contact.push_back(report.timings.contact_ms);
     all.timings.push_back(report.timings);
     const uint32_t now = count_bodies(*session.state.pbd, parent);
     all.bodies.push_back(now);
@@ -239,11 +233,13 @@ std::string bench_contact(const BenchContactOptions& options) {
     scene.pbd.sim_resolution = std::min(scene.pbd.sim_resolution, scene.pbd.resolution);
     const std::string name = fs::path(sever_path).filename().string() + " (sliced)";
     if (options.progress) std::fprintf(stderr, "divvox bench contact: %s at %d\n", name.c_str(), options.sever_resolution);
-    uint32_t steps_run = 0;
     SlicedSteps all;
-    const std::vector<SeverStep> severs = run_sever(scene, options.workers, options, steps_run, all);
+    const std::vector<SeverStep> severs = run_sever(scene, options.workers, options, all);
+    std::vector<double> all_total, all_contact;
     for (size_t k = 0; k < all.timings.size(); ++k) {
       const StepTimings& t = all.timings[k];
+      all_total.push_back(t.total_ms);
+      all_contact.push_back(t.contact_ms);
       sliced_csv << k << ',' << all.bodies[k] << ',' << t.total_ms << ',' << t.cut_ms - t.model_ms << ',' << t.surface_ms << ','
                  << t.model_ms << ',' << t.deform_ms << ',' << t.contact_ms << '\n';
     }
@@ -265,7 +261,7 @@ std::string bench_contact(const BenchContactOptions& options) {
              {"resolution", options.sever_resolution},
              {"sim_resolution", scene.pbd.sim_resolution},
              {"strokes", options.sever_strokes},
-             {"steps", steps_run},
+             {"steps", all.timings.size()},
              {"sever_steps", severs.size()},
              {"step_ms", percentiles_json(total)},
              {"phases_ms", {{"cut", percentiles_json(cut)},
@@ -273,7 +269,7 @@ std::string bench_contact(const BenchContactOptions& options) {
                             {"model", percentiles_json(model)},
                             {"contact", percentiles_json(contact)},
                             {"solve", percentiles_json(solve)}}},
-             {"all_steps_ms", {{"step", percentiles_json(all.total)}, {"contact", percentiles_json(all.contact)}}}};
+             {"all_steps_ms", {{"step", percentiles_json(all_total)}, {"contact", percentiles_json(all_contact)}}}};
   }
 
   const fs::path out(options.out_dir);
