@@ -235,6 +235,10 @@ SceneEdit scene_edit_of(const Scene& scene) {
   std::snprintf(e.mesh, sizeof e.mesh, "%s", scene.mesh.c_str());
   e.resolution = scene.pbd.resolution;
   e.sim_resolution = scene.pbd.sim_resolution;
+  e.physical = scene.pbd.elastic == ElasticModel::kNeoHookean;
+  e.youngs_modulus = scene.pbd.youngs_modulus;
+  e.poisson_ratio = scene.pbd.poisson_ratio;
+  e.stiffness_damping = scene.pbd.stiffness_damping;
   e.density = scene.pbd.density;
   e.stretch_compliance = scene.pbd.stretch_compliance;
   e.shape_stiffness = scene.pbd.shape_stiffness;
@@ -253,12 +257,21 @@ bool apply_scene_edit(const Scene& base, const SceneEdit& e, Scene& out, std::st
   j["mesh"] = std::string(e.mesh);
   j["resolution"] = e.resolution;
   j["sim_resolution"] = e.sim_resolution;
-  j["material"] = {{"density", e.density}, {"stretch_compliance", e.stretch_compliance}, {"shape_stiffness", e.shape_stiffness}};
+  // Only the chosen model's keys: the scene file rejects the other model's.
+  j["material"] = e.physical ? nlohmann::json{{"model", "neo_hookean"},
+                                              {"density", e.density},
+                                              {"youngs_modulus", e.youngs_modulus},
+                                              {"poisson_ratio", e.poisson_ratio},
+                                              {"stiffness_damping", e.stiffness_damping}}
+                             : nlohmann::json{{"model", "paper"},
+                                              {"density", e.density},
+                                              {"stretch_compliance", e.stretch_compliance},
+                                              {"shape_stiffness", e.shape_stiffness}};
   j["solver"] = {{"dt", e.dt}, {"substeps", e.substeps}, {"iterations", e.iterations}, {"damping", e.damping}};
   j["gravity"] = {e.gravity[0], e.gravity[1], e.gravity[2]};
   j["scalpel"] = {{"length", e.scalpel_length}};
-  for (double v : {e.density, e.stretch_compliance, e.shape_stiffness, e.dt, e.damping, e.scalpel_length, e.gravity[0],
-                   e.gravity[1], e.gravity[2]}) {
+  for (double v : {e.density, e.youngs_modulus, e.poisson_ratio, e.stiffness_damping, e.stretch_compliance,
+                   e.shape_stiffness, e.dt, e.damping, e.scalpel_length, e.gravity[0], e.gravity[1], e.gravity[2]}) {
     if (!std::isfinite(v)) {
       error = "values must be finite numbers";
       return false;

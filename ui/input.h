@@ -118,11 +118,15 @@ void camera_zoom(Camera& camera, float factor, float radius);
 // depth as `anchor` (the drag stays in the camera plane through the picked point).
 Vec3f drag_target(const Camera& camera, const Viewport& viewport, const Eigen::Vector2f& pixel, const Vec3f& anchor);
 
-// The scene panel's editable values.
+// The scene panel's editable values. The material is one of the scene file's two models: a physical
+// material (`physical`: E in Pa, nu, Rayleigh damping in s; the corotated hexahedra) or the paper's
+// stretch + shape matching (its solver knobs); the panel shows and writes the chosen model's keys.
 struct SceneEdit {
   char mesh[512] = {};
   int resolution = 128;
   int sim_resolution = 16;
+  bool physical = false;
+  double youngs_modulus = 5000.0, poisson_ratio = 0.45, stiffness_damping = 0.0;
   double density = 1000.0, stretch_compliance = 1e-6, shape_stiffness = 1.0;
   double dt = 1.0 / 60.0;
   int substeps = 1, iterations = 10;

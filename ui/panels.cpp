@@ -82,13 +82,26 @@ void scene_panel(AppState& app) {
   ImGui::InputText("mesh", e.mesh, sizeof e.mesh);
   ImGui::InputInt("resolution", &e.resolution);
   ImGui::InputInt("sim resolution", &e.sim_resolution);
-  ImGui::InputDouble("density", &e.density, 0, 0, "%.6g");
-  ImGui::InputDouble("stretch compliance", &e.stretch_compliance, 0, 0, "%.3g");
-  ImGui::InputDouble("shape stiffness", &e.shape_stiffness, 0, 0, "%.3g");
+  // The material: a physical one (SI units) or the paper's solver knobs, each with its own keys.
+  int model = e.physical ? 0 : 1;
+  ImGui::RadioButton("material (E, nu)", &model, 0);
+  ImGui::SameLine();
+  ImGui::RadioButton("paper's model", &model, 1);
+  e.physical = model == 0;
+  ImGui::InputDouble("density (kg/m^3)", &e.density, 0, 0, "%.6g");
+  if (e.physical) {
+    ImGui::InputDouble("Young's modulus (Pa)", &e.youngs_modulus, 0, 0, "%.6g");
+    ImGui::InputDouble("Poisson's ratio", &e.poisson_ratio, 0, 0, "%.4g");
+    ImGui::InputDouble("damping (s, Rayleigh)", &e.stiffness_damping, 0, 0, "%.3g");
+  } else {
+    ImGui::InputDouble("stretch compliance", &e.stretch_compliance, 0, 0, "%.3g");
+    ImGui::InputDouble("shape stiffness", &e.shape_stiffness, 0, 0, "%.3g");
+  }
   ImGui::InputDouble("dt", &e.dt, 0, 0, "%.6g");
   ImGui::InputInt("substeps", &e.substeps);
   ImGui::InputInt("iterations", &e.iterations);
-  ImGui::InputDouble("damping", &e.damping, 0, 0, "%.3g");
+  // The paper's velocity damping (the material model damps through its constraints instead).
+  if (!e.physical) ImGui::InputDouble("damping", &e.damping, 0, 0, "%.3g");
   ImGui::InputScalarN("gravity", ImGuiDataType_Double, e.gravity, 3);
   ImGui::InputDouble("cut depth", &e.scalpel_length, 0, 0, "%.4g");
   if (ImGui::Button("Apply (rebuild)")) {

@@ -306,3 +306,51 @@ TEST_CASE("scene panel: edits pass the scene file's validation, bad values are r
   nan_edit.gravity[0] = std::nan("");
   CHECK_FALSE(apply_scene_edit(base, nan_edit, out, error));
 }
+
+TEST_CASE("scene panel: a physical material stays one, its E, nu and damping are edited, the model can switch") {
+  const Scene base = parse_scene(
+      nlohmann::json{{"mesh", "m.obj"},
+                     {"material", {{"youngs_modulus", 5400.0}, {"poisson_ratio", 0.47}, {"density", 1060.0}, {"stiffness_damping", 0.01}}}},
+      "/tmp/scene.json");
+  REQUIRE(base.pbd.elastic == ElasticModel::kNeoHookean);
+  SceneEdit e = scene_edit_of(base);
+  CHECK(e.physical);
+  Scene out;
+  std::string error;
+  // Unchanged: the same material, not the paper's model (what the panel wrote before).
+  REQUIRE(apply_scene_edit(base, e, out, error));
+  CHECK(out.pbd.elastic == ElasticModel::kNeoHookean);
+  CHECK(out.pbd.youngs_modulus == 5400.0);
+  CHECK(out.pbd.poisson_ratio == 0.47);
+  CHECK(out.pbd.stiffness_damping == 0.01);
+  CHECK(out.pbd.density == 1060.0);
+  e.youngs_modulus = 20000.0;
+  e.poisson_ratio = 0.3;
+  e.stiffness_damping = 0.002;
+  REQUIRE(apply_scene_edit(base, e, out, error));
+  CHECK(out.pbd.youngs_modulus == 20000.0);
+  CHECK(out.pbd.poisson_ratio == 0.3);
+  CHECK(out.pbd.stiffness_damping == 0.002);
+  // Bad values are named by their key.
+  for (const auto& [change, key] : std::vector<std::pair<void (*)(SceneEdit&), const char*>>{
+           {[](SceneEdit& s) { s.poisson_ratio = 0.5; }, "poisson_ratio"},
+           {[](SceneEdit& s) { s.youngs_modulus = -1.0; }, "youngs_modulus"},
+           {[](SceneEdit& s) { s.stiffness_damping = 100.0; }, "stiffness_damping"}}) {
+    SceneEdit bad = scene_edit_of(base);
+    change(bad);
+    std::string why;
+    CHECK_FALSE(apply_scene_edit(base, bad, out, why));
+    CHECK_MESSAGE(why.find(key) != std::string::npos, why);
+  }
+  // Switching to the paper's model writes its keys (and back again).
+  e.physical = false;
+  e.shape_stiffness = 0.5;
+  REQUIRE(apply_scene_edit(base, e, out, error));
+  CHECK(out.pbd.elastic == ElasticModel::kPaper);
+  CHECK(out.pbd.shape_stiffness == 0.5);
+  SceneEdit back = scene_edit_of(out);
+  CHECK_FALSE(back.physical);
+  back.physical = true;
+  REQUIRE(apply_scene_edit(out, back, out, error));
+  CHECK(out.pbd.elastic == ElasticModel::kNeoHookean);
+}
