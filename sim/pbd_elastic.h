@@ -69,8 +69,8 @@ constexpr int kElasticConstraints = 9;
 // Solves rows [begin, end) in order, each one's 9 constraints in turn (Gauss-Seidel), with their
 // multipliers (kElasticConstraints per row). x: positions (3 per particle); previous: positions at
 // the substep's start (for the damping); rotation: per piece slot, warm start updated in place.
-// The scalar path: solve_elastic_blocks (pbd_kernels.h) solves a colour's rows four or eight at
-// once with the same bits.
+// The scalar path, defined in pbd_kernels.cpp as the lane code on one lane: solve_elastic_blocks
+// (pbd_kernels.h) solves a colour's rows four or eight at once with the same bits.
 void solve_elastic_rows(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
                         uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation);
 

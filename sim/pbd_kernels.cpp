@@ -130,6 +130,9 @@ typedef double V4 __attribute__((vector_size(32)));
 typedef int64_t M4 __attribute__((vector_size(32)));
 typedef double V8 __attribute__((vector_size(64)));
 typedef int64_t M8 __attribute__((vector_size(64)));
+// One lane: the hexahedra's scalar path (solve_elastic_rows) is their lane code on V1.
+typedef double V1 __attribute__((vector_size(8)));
+typedef int64_t M1 __attribute__((vector_size(8)));
 static_assert(kShapeLanes == 8, "a block is one V8, or two V4 halves");
 // Lanes of a vector type.
 template <class V>
@@ -137,7 +140,7 @@ constexpr int kWidth = int(sizeof(V) / sizeof(double));
 // The lane mask type of a vector type (spelled out: clang's comparisons give vectors of long long,
 // GCC's of long).
 template <class V>
-using MaskOf = std::conditional_t<sizeof(V) == sizeof(V8), M8, M4>;
+using MaskOf = std::conditional_t<sizeof(V) == sizeof(V8), M8, std::conditional_t<sizeof(V) == sizeof(V1), M1, M4>>;
 // Particle slots of a cluster.
 constexpr int kS = kShapeMaxParticles;
 
@@ -684,6 +687,12 @@ void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint
 void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uint32_t end, double stiffness,
                         Quaterniond* rotations, bool disjoint) {
   solve_shape_blocks(kernel_isa(), x, blocks, begin, end, stiffness, rotations, disjoint);
+}
+
+// The rows one at a time: the lane code on one lane (the same operations as every path's lanes).
+void solve_elastic_rows(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
+                        uint32_t end, const ElasticConstants& k, Quaterniond* rotation) {
+  lanes::elastic_rows_lanes<V1>(x, previous, rows, lambda, begin, end, k, rotation);
 }
 
 namespace {
