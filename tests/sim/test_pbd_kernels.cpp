@@ -726,7 +726,9 @@ TEST_SUITE("pbd_kernels") {
         std::vector<double> x(24 * rows_count), previous, inv_mass(8 * rows_count);
         const std::vector<uint32_t> order = rng.order(8 * rows_count);
         std::vector<ElasticRow> rows(rows_count);
-        std::vector<Quaterniond> rotation(rows_count + 3);
+        // Identity in the slots no row uses (Eigen leaves a default quaternion uninitialised: a NaN
+        // there compared unequal to its own copy, depending on what the heap held before).
+        std::vector<Quaterniond> rotation(rows_count + 3, Quaterniond::Identity());
         for (uint32_t r = 0; r < rows_count; ++r) {
           ElasticRow& row = rows[r];
           row.piece = rows_count + 2 - r;  // one slot per piece, not the row's index
