@@ -80,18 +80,21 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
                        uint32_t voxels[4], uint8_t pieces[4]) {
   uint8_t lower_corner[4];
   voxels_around_edge(model.lattice, edge, voxels, lower_corner);
-  return sharing_pieces(model, state, edge, side, voxels, lower_corner, pieces);
+  uint32_t divided[4];
+  for (int q = 0; q < 4; ++q) divided[q] = voxels[q] == kDeadIndex ? kDeadIndex : state.divided_of.get(voxels[q]);
+  return sharing_pieces(model, state, edge, side, voxels, lower_corner, divided, pieces);
 }
 
 bool sharing_pieces(const VoxelModel& model, const CutState& state, uint32_t edge, int side,
-                    const uint32_t voxels[4], const uint8_t lower_corner[4], uint8_t pieces[4]) {
+                    const uint32_t voxels[4], const uint8_t lower_corner[4], const uint32_t divided[4],
+                    uint8_t pieces[4]) {
   const int axis = int(edge % 3);
   const uint32_t node = side ? edge / 3 + node_stride(model.lattice, axis) : edge / 3;
   const bool node_inside = model.is_inside(node);
   for (int q = 0; q < 4; ++q) {
     if (voxels[q] == kDeadIndex) return false;
     // Uncut voxels are one piece of all their inside corners; divided ones say which piece.
-    const uint32_t d = state.divided_of.get(voxels[q]);
+    const uint32_t d = divided[q];
     const int corner = side ? (lower_corner[q] | (1 << axis)) : lower_corner[q];
     pieces[q] = d == kDeadIndex ? (node_inside ? 0 : kNoPiece) : state.divided[d].corner_piece[corner];
     if (pieces[q] == kNoPiece) return false;

@@ -143,6 +143,15 @@ struct CutScratch {
   std::vector<uint32_t> quads;         // the next touched_quads
   std::vector<uint64_t> listed;        // refresh_voxels' list as bits from a window's start: all zero
                                        // between calls (it clears the bits it set), grown, never shrunk
+  // The edges refresh_voxels handles, in order: listed before their quads are written, so the hash
+  // slots of the ones a few ahead are fetched while one is worked on.
+  struct ListedEdge {
+    uint32_t edge;
+    uint32_t around[4];   // the voxels around it (voxels_around_edge)
+    uint8_t corners[4];   // the edge's lower node's corner in each
+    bool cut;             // the edge is cut
+  };
+  std::vector<ListedEdge> listed_edges;
   CutScratch() = default;
   CutScratch(const CutScratch&) {}
   CutScratch& operator=(const CutScratch&) { return *this; }

@@ -117,7 +117,9 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, i
     t1 = {v[1], v[2], v[3]};
   }
   const uint8_t flag = on_cut ? 1 : 0;
-  if (s.triangles[2 * quad] == t0 && s.triangles[2 * quad + 1] == t1 && s.triangle_cut[2 * quad] == flag) return false;
+  // (compared element by element: Tri's operator== is a call to memcmp)
+  const auto same = [](const Tri& a, const Tri& b) { return a[0] == b[0] && a[1] == b[1] && a[2] == b[2]; };
+  if (same(s.triangles[2 * quad], t0) && same(s.triangles[2 * quad + 1], t1) && s.triangle_cut[2 * quad] == flag) return false;
   note_quad_corners(s, quad, corners);  // the old ones (a new slot holds dead triangles: none)
   if (corners != nullptr) corners->insert(corners->end(), v, v + 4);
   if (quads != nullptr) quads->push_back(quad);
@@ -635,6 +637,8 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
       if ((s.vertex_half_edges[slots[q][i]] >> h) & 1u) return slots[q][i];
     }
   };
+  uint32_t divided[4];
+  for (int q = 0; q < 4; ++q) divided[q] = around[q] == kDeadIndex ? kDeadIndex : state.divided_of.get(around[q]);
   for (int side = 0; side < 2; ++side) {
     double t;
     Vec3d normal;
@@ -642,7 +646,7 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     // (an uncut edge: the half-edge exists at an inside end of a sign change, never on the cut)
     const bool present = cut != nullptr ? half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side])
                                         : uncut_half_edge(model, edge, side);
-    if (!present || !sharing_pieces(model, state, edge, side, around, corners, pieces)) continue;
+    if (!present || !sharing_pieces(model, state, edge, side, around, corners, divided, pieces)) continue;
     bool ok = true;
     for (int q = 0; q < 4; ++q) {
       const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
@@ -744,7 +748,11 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     dv.piece_count = shape.piece_count;
     dv.partial_mask = shape.piece_partial;
   }
-  for (uint32_t voxel : voxels) {
+  // (the vertex slots of the voxel two ahead are fetched while this one is worked on: a miss each)
+  constexpr size_t kAhead = 2;
+  for (size_t i = 0; i < voxels.size(); ++i) {
+    const uint32_t voxel = voxels[i];
+    if (i + kAhead < voxels.size()) s.vertex_of_patch.prefetch(patch_key(voxels[i + kAhead], 0));
     const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
     if (faces == 0) continue;
     int32_t vc[3];
@@ -767,37 +775,51 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
 
   // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
-  // lowest voxel of the list around it.
+  // lowest voxel of the list around it; listed first, in the order they are handled.
+  std::vector<CutScratch::ListedEdge>& edges = state.scratch.listed_edges;
+  edges.clear();
   for (uint32_t voxel : voxels) {
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
     const uint32_t d = state.divided_of.get(voxel);
     const uint16_t cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
     // Only surface edges and cut edges ever hold a quad (cuts are never undone).
-    for (uint32_t edges = kSignChangeEdges[corner_inside_bits(model, vc)] | cut_edges; edges; edges &= edges - 1) {
-      const int e = std::countr_zero(edges);
-      const bool cut_edge = (cut_edges >> e) & 1u;
-      uint32_t around[4];
-      uint8_t corners[4];
-      voxels_around_voxel_edge(l, vc, e, around, corners);
+    for (uint32_t bits = kSignChangeEdges[corner_inside_bits(model, vc)] | cut_edges; bits; bits &= bits - 1) {
+      const int e = std::countr_zero(bits);
+      CutScratch::ListedEdge item;
+      voxels_around_voxel_edge(l, vc, e, item.around, item.corners);
       bool owner = true;
       for (int q = 0; q < 4 && owner; ++q) {
-        owner = !(around[q] < voxel && in_list(around[q]));
+        owner = !(item.around[q] < voxel && in_list(item.around[q]));
       }
       if (!owner) continue;
-      const uint32_t edge = voxel_edge_id(l, vc, e);
-      const EdgeCut* cut = cut_edge ? find_cut(state, edge) : nullptr;
-      EdgeQuads quads;
-      plan_edge_quads(model, state, edge, cut, around, corners, quads);
-      for (int side = 0; side < 2; ++side) {
-        const uint64_t key = half_edge_key(edge, side);
-        if (quads.exists[side]) {
-          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners, changed_quads)) {
-            stats.triangles_changed += 2;
-          }
-        } else if (free_quad(s, key, changed_corners, changed_quads)) {
+      item.edge = voxel_edge_id(l, vc, e);
+      item.cut = (cut_edges >> e) & 1u;
+      edges.push_back(item);
+    }
+  }
+  // (the quad slots and the ring's vertex slots of the edge a few ahead are fetched meanwhile)
+  constexpr size_t kEdgesAhead = 4;
+  for (size_t i = 0; i < edges.size(); ++i) {
+    if (i + kEdgesAhead < edges.size()) {
+      const CutScratch::ListedEdge& next = edges[i + kEdgesAhead];
+      s.quad_of_half_edge.prefetch(half_edge_key(next.edge, 0));
+      for (const uint32_t v : next.around) {
+        if (v != kDeadIndex) s.vertex_of_patch.prefetch(patch_key(v, 0));
+      }
+    }
+    const CutScratch::ListedEdge& item = edges[i];
+    const EdgeCut* cut = item.cut ? find_cut(state, item.edge) : nullptr;
+    EdgeQuads quads;
+    plan_edge_quads(model, state, item.edge, cut, item.around, item.corners, quads);
+    for (int side = 0; side < 2; ++side) {
+      const uint64_t key = half_edge_key(item.edge, side);
+      if (quads.exists[side]) {
+        if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners, changed_quads)) {
           stats.triangles_changed += 2;
         }
+      } else if (free_quad(s, key, changed_corners, changed_quads)) {
+        stats.triangles_changed += 2;
       }
     }
   }
