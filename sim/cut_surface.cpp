@@ -478,12 +478,10 @@ bool rule_patches(const CutState& state, const VoxelData& data, VoxelPatches& ou
   return shape->doubled;
 }
 
-// Patches by the face rule alone (no merges), with the Hermite data of every half-edge.
-bool base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+// The Hermite data of every half-edge the patches hold: the point on its edge and the outward normal.
+void hermite_data(const VoxelModel& model, const CutState& state, const int32_t vc[3], const VoxelData& data,
                   VoxelPatches& out) {
   const Lattice& l = model.lattice;
-  voxel_data(model, state, voxel, vc, data);
-  const bool doubled = rule_patches(state, data, out);
   const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
   for (uint32_t edges = present_edges(out.present); edges; edges &= edges - 1) {
     const int e = std::countr_zero(edges);
@@ -501,7 +499,6 @@ bool base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel
       out.point[h] = p;
     }
   }
-  return doubled;
 }
 
 // Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
@@ -518,19 +515,12 @@ int slot_across(int h, int f) {
   return 2 * edge_between(ve.c0 ^ flip, ve.c1 ^ flip) + h % 2;
 }
 
-}  // namespace
-
-// Half-edges, pieces and patches of a voxel. Where two consecutive curves on a face belong to one
-// patch on both sides of it, the dual edge between the two patches would be used by four quads
-// (not a manifold: a tunnel through the face, or a slit whose two sides meet again in both voxels);
-// those two curves are merged (their arcs meet across the face: for a face of four points, its
-// other pairing), which cannot double on either side (the arcs inside and outside cannot both be
-// connected through a voxel). Both voxels decide from the same base patches, so they agree.
-// Returns true when a face was changed.
-bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
-                   VoxelPatches& out) {
-  VoxelData data;
-  if (!base_patches(model, state, voxel, vc, data, out)) return false;
+// The patches of a voxel without their Hermite data (see voxel_patches): the face rule and the merges
+// of doubled curves. Returns true when a face was changed.
+bool patch_topology(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+                    VoxelPatches& out) {
+  voxel_data(model, state, voxel, vc, data);
+  if (!rule_patches(state, data, out)) return false;
   CurvePair pairs[36];
   const int count = doubled_curves(data, out, pairs);
   if (count == 0) return false;
@@ -565,6 +555,23 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
   }
   if (any) number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, merges, data.corner_piece, out);
   return any;
+}
+
+}  // namespace
+
+// Half-edges, pieces and patches of a voxel. Where two consecutive curves on a face belong to one
+// patch on both sides of it, the dual edge between the two patches would be used by four quads
+// (not a manifold: a tunnel through the face, or a slit whose two sides meet again in both voxels);
+// those two curves are merged (their arcs meet across the face: for a face of four points, its
+// other pairing), which cannot double on either side (the arcs inside and outside cannot both be
+// connected through a voxel). Both voxels decide from the same base patches, so they agree.
+// Returns true when a face was changed.
+bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                   VoxelPatches& out) {
+  VoxelData data;
+  const bool merged = patch_topology(model, state, voxel, vc, data, out);
+  hermite_data(model, state, vc, data, out);
+  return merged;
 }
 
 namespace {
@@ -712,6 +719,28 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
   return patches.present;
 }
 
+// Whether a voxel the step left alone (one across a four-point face of a listed voxel: its cuts,
+// pieces and front are as they were) keeps its vertices: its patches, merges included, hold the
+// half-edges and pieces its vertices hold. A vertex's position follows from those and the voxel's
+// own Hermite data and front, so it is the one refresh_voxel_vertices would compute (which then
+// writes nothing); that skips the Hermite data and the vertex rule of most such voxels.
+bool vertices_current(const VoxelModel& model, const CutState& state, uint32_t voxel) {
+  const CutSurface& s = state.surface;
+  int32_t vc[3];
+  model.lattice.voxel_coords(voxel, vc);
+  VoxelData data;
+  VoxelPatches patches;
+  patch_topology(model, state, voxel, vc, data, patches);
+  for (uint32_t p = 0; p < patches.patch_count; ++p) {
+    const uint32_t slot = s.vertex_of_patch.get(patch_key(voxel, p));
+    if (slot == kDeadIndex || s.vertex_half_edges[slot] != patches.patch_half_edges[p] ||
+        s.vertex_piece[slot] != piece_key(voxel, patches.patch_piece[p])) {
+      return false;
+    }
+  }
+  return !s.vertex_of_patch.contains(patch_key(voxel, patches.patch_count));
+}
+
 }  // namespace
 
 // Recomputes pieces, patches, vertices and quads of the given voxels (sorted, unique) and of the
@@ -767,7 +796,9 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
   if (!across.empty()) {
     sorted_unique(across);
-    for (uint32_t voxel : across) refresh_voxel_vertices(model, state, voxel, stats);
+    for (uint32_t voxel : across) {
+      if (!vertices_current(model, state, voxel)) refresh_voxel_vertices(model, state, voxel, stats);
+    }
     const size_t n = voxels.size();
     voxels.insert(voxels.end(), across.begin(), across.end());
     std::inplace_merge(voxels.begin(), voxels.begin() + std::ptrdiff_t(n), voxels.end());
