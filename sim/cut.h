@@ -116,8 +116,11 @@ struct CutSurface {
   std::vector<uint8_t> triangle_cut;     // (triangle slots) 1: on a cut face (its boundary is a blade crossing)
   std::vector<uint32_t> free_vertices;
   std::vector<uint32_t> free_quads;
-  FlatMap vertex_of_patch;   // patch key voxel*16+patch -> vertex slot (patches of a voxel: 0..n-1)
-  FlatMap quad_of_half_edge;  // half-edge key -> quad slot
+  // patch key voxel*16+patch -> vertex slot (patches of a voxel: 0..n-1), a voxel's first four in one
+  // cache line (read together: a voxel's patches, the patches around an edge)
+  GroupedFlatMap<4, 2> vertex_of_patch;
+  // half-edge key edge*2+side -> quad slot, an edge's two sides in one cache line (read together)
+  GroupedFlatMap<1, 1> quad_of_half_edge;
   // Slots written since the last clear_dirty(): [begin, end) (empty when begin >= end).
   uint32_t dirty_vertex_begin = 0, dirty_vertex_end = 0;
   uint32_t dirty_triangle_begin = 0, dirty_triangle_end = 0;
@@ -140,6 +143,15 @@ struct CutScratch {
   std::vector<uint32_t> quads;         // the next touched_quads
   std::vector<uint64_t> listed;        // refresh_voxels' list as bits from a window's start: all zero
                                        // between calls (it clears the bits it set), grown, never shrunk
+  // The edges refresh_voxels handles, in order: listed before their quads are written, so the hash
+  // slots of the ones a few ahead are fetched while one is worked on.
+  struct ListedEdge {
+    uint32_t edge;
+    uint32_t around[4];   // the voxels around it (voxels_around_edge)
+    uint8_t corners[4];   // the edge's lower node's corner in each
+    bool cut;             // the edge is cut
+  };
+  std::vector<ListedEdge> listed_edges;
   CutScratch() = default;
   CutScratch(const CutScratch&) {}
   CutScratch& operator=(const CutScratch&) { return *this; }

@@ -14,9 +14,11 @@
 
 namespace dvx {
 
-// The pieces around a half-edge given the voxels around its edge (see half_edge_sharing).
+// The pieces around a half-edge given the voxels around its edge (see half_edge_sharing) and their
+// indices in CutState::divided (kDeadIndex: uncut), looked up once for both sides of the edge.
 bool sharing_pieces(const VoxelModel& model, const CutState& state, uint32_t edge, int side,
-                    const uint32_t voxels[4], const uint8_t lower_corner[4], uint8_t pieces[4]);
+                    const uint32_t voxels[4], const uint8_t lower_corner[4], const uint32_t divided[4],
+                    uint8_t pieces[4]);
 
 namespace cut_internal {
 

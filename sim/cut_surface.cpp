@@ -117,7 +117,9 @@ bool write_quad(CutSurface& s, uint64_t key, const uint32_t v[4], bool on_cut, i
     t1 = {v[1], v[2], v[3]};
   }
   const uint8_t flag = on_cut ? 1 : 0;
-  if (s.triangles[2 * quad] == t0 && s.triangles[2 * quad + 1] == t1 && s.triangle_cut[2 * quad] == flag) return false;
+  // (compared element by element: Tri's operator== is a call to memcmp)
+  const auto same = [](const Tri& a, const Tri& b) { return a[0] == b[0] && a[1] == b[1] && a[2] == b[2]; };
+  if (same(s.triangles[2 * quad], t0) && same(s.triangles[2 * quad + 1], t1) && s.triangle_cut[2 * quad] == flag) return false;
   note_quad_corners(s, quad, corners);  // the old ones (a new slot holds dead triangles: none)
   if (corners != nullptr) corners->insert(corners->end(), v, v + 4);
   if (quads != nullptr) quads->push_back(quad);
@@ -476,12 +478,10 @@ bool rule_patches(const CutState& state, const VoxelData& data, VoxelPatches& ou
   return shape->doubled;
 }
 
-// Patches by the face rule alone (no merges), with the Hermite data of every half-edge.
-bool base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+// The Hermite data of every half-edge the patches hold: the point on its edge and the outward normal.
+void hermite_data(const VoxelModel& model, const CutState& state, const int32_t vc[3], const VoxelData& data,
                   VoxelPatches& out) {
   const Lattice& l = model.lattice;
-  voxel_data(model, state, voxel, vc, data);
-  const bool doubled = rule_patches(state, data, out);
   const Vec3d origin = l.node_position(vc[0], vc[1], vc[2]);
   for (uint32_t edges = present_edges(out.present); edges; edges &= edges - 1) {
     const int e = std::countr_zero(edges);
@@ -499,7 +499,6 @@ bool base_patches(const VoxelModel& model, const CutState& state, uint32_t voxel
       out.point[h] = p;
     }
   }
-  return doubled;
 }
 
 // Base patches without the Hermite data (no crossing lookups): enough to compare patch membership.
@@ -516,19 +515,12 @@ int slot_across(int h, int f) {
   return 2 * edge_between(ve.c0 ^ flip, ve.c1 ^ flip) + h % 2;
 }
 
-}  // namespace
-
-// Half-edges, pieces and patches of a voxel. Where two consecutive curves on a face belong to one
-// patch on both sides of it, the dual edge between the two patches would be used by four quads
-// (not a manifold: a tunnel through the face, or a slit whose two sides meet again in both voxels);
-// those two curves are merged (their arcs meet across the face: for a face of four points, its
-// other pairing), which cannot double on either side (the arcs inside and outside cannot both be
-// connected through a voxel). Both voxels decide from the same base patches, so they agree.
-// Returns true when a face was changed.
-bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
-                   VoxelPatches& out) {
-  VoxelData data;
-  if (!base_patches(model, state, voxel, vc, data, out)) return false;
+// The patches of a voxel without their Hermite data (see voxel_patches): the face rule and the merges
+// of doubled curves. Returns true when a face was changed.
+bool patch_topology(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3], VoxelData& data,
+                    VoxelPatches& out) {
+  voxel_data(model, state, voxel, vc, data);
+  if (!rule_patches(state, data, out)) return false;
   CurvePair pairs[36];
   const int count = doubled_curves(data, out, pairs);
   if (count == 0) return false;
@@ -563,6 +555,23 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
   }
   if (any) number_patches(data.in_bits, uint16_t(data.cut_edges | data.air_edges), data.cut_edges, merges, data.corner_piece, out);
   return any;
+}
+
+}  // namespace
+
+// Half-edges, pieces and patches of a voxel. Where two consecutive curves on a face belong to one
+// patch on both sides of it, the dual edge between the two patches would be used by four quads
+// (not a manifold: a tunnel through the face, or a slit whose two sides meet again in both voxels);
+// those two curves are merged (their arcs meet across the face: for a face of four points, its
+// other pairing), which cannot double on either side (the arcs inside and outside cannot both be
+// connected through a voxel). Both voxels decide from the same base patches, so they agree.
+// Returns true when a face was changed.
+bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                   VoxelPatches& out) {
+  VoxelData data;
+  const bool merged = patch_topology(model, state, voxel, vc, data, out);
+  hermite_data(model, state, vc, data, out);
+  return merged;
 }
 
 namespace {
@@ -635,6 +644,8 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
       if ((s.vertex_half_edges[slots[q][i]] >> h) & 1u) return slots[q][i];
     }
   };
+  uint32_t divided[4];
+  for (int q = 0; q < 4; ++q) divided[q] = around[q] == kDeadIndex ? kDeadIndex : state.divided_of.get(around[q]);
   for (int side = 0; side < 2; ++side) {
     double t;
     Vec3d normal;
@@ -642,7 +653,7 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     // (an uncut edge: the half-edge exists at an inside end of a sign change, never on the cut)
     const bool present = cut != nullptr ? half_edge_param(model, cut, edge, side, t, normal, &out.on_cut[side])
                                         : uncut_half_edge(model, edge, side);
-    if (!present || !sharing_pieces(model, state, edge, side, around, corners, pieces)) continue;
+    if (!present || !sharing_pieces(model, state, edge, side, around, corners, divided, pieces)) continue;
     bool ok = true;
     for (int q = 0; q < 4; ++q) {
       const int h = 2 * voxel_edge_index(axis, corners[q]) + side;
@@ -708,6 +719,28 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
   return patches.present;
 }
 
+// Whether a voxel the step left alone (one across a four-point face of a listed voxel: its cuts,
+// pieces and front are as they were) keeps its vertices: its patches, merges included, hold the
+// half-edges and pieces its vertices hold. A vertex's position follows from those and the voxel's
+// own Hermite data and front, so it is the one refresh_voxel_vertices would compute (which then
+// writes nothing); that skips the Hermite data and the vertex rule of most such voxels.
+bool vertices_current(const VoxelModel& model, const CutState& state, uint32_t voxel) {
+  const CutSurface& s = state.surface;
+  int32_t vc[3];
+  model.lattice.voxel_coords(voxel, vc);
+  VoxelData data;
+  VoxelPatches patches;
+  patch_topology(model, state, voxel, vc, data, patches);
+  for (uint32_t p = 0; p < patches.patch_count; ++p) {
+    const uint32_t slot = s.vertex_of_patch.get(patch_key(voxel, p));
+    if (slot == kDeadIndex || s.vertex_half_edges[slot] != patches.patch_half_edges[p] ||
+        s.vertex_piece[slot] != piece_key(voxel, patches.patch_piece[p])) {
+      return false;
+    }
+  }
+  return !s.vertex_of_patch.contains(patch_key(voxel, patches.patch_count));
+}
+
 }  // namespace
 
 // Recomputes pieces, patches, vertices and quads of the given voxels (sorted, unique) and of the
@@ -744,7 +777,11 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     dv.piece_count = shape.piece_count;
     dv.partial_mask = shape.piece_partial;
   }
-  for (uint32_t voxel : voxels) {
+  // (the vertex slots of the voxel two ahead are fetched while this one is worked on: a miss each)
+  constexpr size_t kAhead = 2;
+  for (size_t i = 0; i < voxels.size(); ++i) {
+    const uint32_t voxel = voxels[i];
+    if (i + kAhead < voxels.size()) s.vertex_of_patch.prefetch(patch_key(voxels[i + kAhead], 0));
     const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
     if (faces == 0) continue;
     int32_t vc[3];
@@ -759,7 +796,9 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
   if (!across.empty()) {
     sorted_unique(across);
-    for (uint32_t voxel : across) refresh_voxel_vertices(model, state, voxel, stats);
+    for (uint32_t voxel : across) {
+      if (!vertices_current(model, state, voxel)) refresh_voxel_vertices(model, state, voxel, stats);
+    }
     const size_t n = voxels.size();
     voxels.insert(voxels.end(), across.begin(), across.end());
     std::inplace_merge(voxels.begin(), voxels.begin() + std::ptrdiff_t(n), voxels.end());
@@ -767,37 +806,51 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
 
   // Edges of these voxels: one quad per existing half-edge. Each edge is handled once, by the
-  // lowest voxel of the list around it.
+  // lowest voxel of the list around it; listed first, in the order they are handled.
+  std::vector<CutScratch::ListedEdge>& edges = state.scratch.listed_edges;
+  edges.clear();
   for (uint32_t voxel : voxels) {
     int32_t vc[3];
     l.voxel_coords(voxel, vc);
     const uint32_t d = state.divided_of.get(voxel);
     const uint16_t cut_edges = d != kDeadIndex ? state.divided[d].cut_edges : 0;
     // Only surface edges and cut edges ever hold a quad (cuts are never undone).
-    for (uint32_t edges = kSignChangeEdges[corner_inside_bits(model, vc)] | cut_edges; edges; edges &= edges - 1) {
-      const int e = std::countr_zero(edges);
-      const bool cut_edge = (cut_edges >> e) & 1u;
-      uint32_t around[4];
-      uint8_t corners[4];
-      voxels_around_voxel_edge(l, vc, e, around, corners);
+    for (uint32_t bits = kSignChangeEdges[corner_inside_bits(model, vc)] | cut_edges; bits; bits &= bits - 1) {
+      const int e = std::countr_zero(bits);
+      CutScratch::ListedEdge item;
+      voxels_around_voxel_edge(l, vc, e, item.around, item.corners);
       bool owner = true;
       for (int q = 0; q < 4 && owner; ++q) {
-        owner = !(around[q] < voxel && in_list(around[q]));
+        owner = !(item.around[q] < voxel && in_list(item.around[q]));
       }
       if (!owner) continue;
-      const uint32_t edge = voxel_edge_id(l, vc, e);
-      const EdgeCut* cut = cut_edge ? find_cut(state, edge) : nullptr;
-      EdgeQuads quads;
-      plan_edge_quads(model, state, edge, cut, around, corners, quads);
-      for (int side = 0; side < 2; ++side) {
-        const uint64_t key = half_edge_key(edge, side);
-        if (quads.exists[side]) {
-          if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners, changed_quads)) {
-            stats.triangles_changed += 2;
-          }
-        } else if (free_quad(s, key, changed_corners, changed_quads)) {
+      item.edge = voxel_edge_id(l, vc, e);
+      item.cut = (cut_edges >> e) & 1u;
+      edges.push_back(item);
+    }
+  }
+  // (the quad slots and the ring's vertex slots of the edge a few ahead are fetched meanwhile)
+  constexpr size_t kEdgesAhead = 4;
+  for (size_t i = 0; i < edges.size(); ++i) {
+    if (i + kEdgesAhead < edges.size()) {
+      const CutScratch::ListedEdge& next = edges[i + kEdgesAhead];
+      s.quad_of_half_edge.prefetch(half_edge_key(next.edge, 0));
+      for (const uint32_t v : next.around) {
+        if (v != kDeadIndex) s.vertex_of_patch.prefetch(patch_key(v, 0));
+      }
+    }
+    const CutScratch::ListedEdge& item = edges[i];
+    const EdgeCut* cut = item.cut ? find_cut(state, item.edge) : nullptr;
+    EdgeQuads quads;
+    plan_edge_quads(model, state, item.edge, cut, item.around, item.corners, quads);
+    for (int side = 0; side < 2; ++side) {
+      const uint64_t key = half_edge_key(item.edge, side);
+      if (quads.exists[side]) {
+        if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners, changed_quads)) {
           stats.triangles_changed += 2;
         }
+      } else if (free_quad(s, key, changed_corners, changed_quads)) {
+        stats.triangles_changed += 2;
       }
     }
   }

@@ -16,6 +16,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 
 using namespace dvx;
@@ -449,6 +450,52 @@ TEST_SUITE("cut") {
     const SurfaceStats stats = check_invariants(model, state);
     CHECK(stats.components == 4);
     CHECK(std::abs(component_volume_sum(state) - uncut) / uncut < 0.01);
+  }
+
+  TEST_CASE("every vertex is its patch's vertex rule to the bit after every step, across four-point faces too") {
+    // refresh_voxels recomputes the voxels a step changed and checks the ones across their four-point
+    // faces by their patches alone (vertices_current): a voxel the step left alone keeps its vertices
+    // when its patches hold the same half-edges. Every live vertex must still be exactly what the
+    // vertex rule gives for its patch now (check_cut_state allows 1e-5 voxel), and the crossing cuts
+    // must make faces of four points (where those neighbours are checked).
+    const VoxelModel model = voxelized(test_box(), 28);
+    CutState state;
+    init_cut_state(model, state);
+    uint32_t four_point_voxels = 0;
+    const auto check_exact = [&] {
+      const CutSurface& s = state.surface;
+      uint32_t differ = 0;
+      for (uint32_t slot = 0; slot < s.positions.size(); ++slot) {
+        if (s.vertex_patch[slot] == CutSurface::kFreeKey) continue;
+        const uint32_t voxel = uint32_t(s.vertex_patch[slot] / 16), p = uint32_t(s.vertex_patch[slot] % 16);
+        int32_t vc[3];
+        model.lattice.voxel_coords(voxel, vc);
+        cut_internal::VoxelPatches patches;
+        cut_internal::voxel_patches(model, state, voxel, vc, patches);
+        const Vec3f want = cut_internal::patch_vertex_position(model, state, voxel, vc, patches, uint8_t(p));
+        differ += want != s.positions[slot] || s.vertex_half_edges[slot] != patches.patch_half_edges[p];
+      }
+      CHECK(differ == 0);
+      for (const uint32_t voxel : state.changed_voxels) {
+        int32_t vc[3];
+        model.lattice.voxel_coords(voxel, vc);
+        cut_internal::VoxelPatches patches;
+        cut_internal::voxel_patches(model, state, voxel, vc, patches);
+        for (int f = 0; f < 6; ++f) {
+          int points = 0;
+          for (int i = 0; i < 4; ++i) points += std::popcount((patches.present >> (2 * cut_internal::kFaceEdges.edge[f][i])) & 3u);
+          if (points >= 4) {
+            ++four_point_voxels;
+            break;
+          }
+        }
+      }
+    };
+    dvx_test::sweep_steps(model, state, z_blade(0.093, -1.0), z_blade(0.093, 1.0), 40, [&](int) { check_exact(); });
+    const BladePose from{Vec3d(-3, -1, -0.117), Vec3d(3, -1, -0.117)}, to{Vec3d(-3, 1, -0.117), Vec3d(3, 1, -0.117)};
+    dvx_test::sweep_steps(model, state, from, to, 40, [&](int) { check_exact(); });
+    CHECK(four_point_voxels > 0);
+    CHECK(check_invariants(model, state).components == 4);
   }
 
   TEST_CASE("a U-shaped object cut once across both arms gives three pieces") {

@@ -13,7 +13,8 @@ using namespace dvx;
 namespace {
 
 // Every live entry visited exactly once, nothing else; get/contains agree with the reference.
-void check_equal(const FlatMap& m, const std::map<uint64_t, uint32_t>& ref) {
+template <typename Map>
+void check_equal(const Map& m, const std::map<uint64_t, uint32_t>& ref) {
   REQUIRE(m.size() == ref.size());
   std::map<uint64_t, uint32_t> seen;
   bool twice = false;
@@ -104,6 +105,61 @@ TEST_SUITE("flat_map") {
       CHECK(visited == 0);
       for (const auto& [k, v] : ref) CHECK_FALSE(m.contains(k));
     }
+  }
+
+  TEST_CASE("grouped maps (a group's keys share a window of slots) against std::map under churn") {
+    // Keys as the surface makes them: groups of consecutive keys (a voxel's patches 0..n-1 with n
+    // mostly 1-3, up to 12; an edge's two sides), their groups dense ids. Small universes keep the
+    // windows crowded, so groups spill into each other's windows and wrap around the table's end.
+    std::mt19937_64 rng(20261207);
+    const auto churn = [&](auto& m, int group_shift, uint64_t groups) {
+      std::map<uint64_t, uint32_t> ref;
+      uint64_t erased = 0;
+      for (int op = 0; op < 100000; ++op) {
+        const uint64_t r = rng();
+        const uint64_t group = r % groups, size = uint64_t(1) << group_shift;
+        const uint64_t member = (r >> 40) % 4 == 0 ? (r >> 44) % size : (r >> 44) % std::min<uint64_t>(size, 3);
+        const uint64_t key = (group << group_shift) + member;
+        const int what = int((r >> 8) % 8);
+        if (what < 4) {
+          m.set(key, uint32_t(r >> 20));
+          ref[key] = uint32_t(r >> 20);
+        } else if (what < 7) {
+          const bool had = ref.erase(key) == 1;
+          CHECK(m.erase(key) == had);
+          erased += had;
+        } else {
+          const auto it = ref.find(key);
+          CHECK(m.get(key, 0xdeadu) == (it != ref.end() ? it->second : 0xdeadu));
+        }
+        REQUIRE(m.size() == ref.size());
+        if (op % 997 == 0) check_equal(m, ref);
+      }
+      check_equal(m, ref);
+      CHECK(erased > 5000);
+      for (const auto& [k, v] : ref) CHECK(m.erase(k));
+      CHECK(m.size() == 0);
+    };
+    for (uint64_t groups : {5ull, 17ull, 300ull, 20000ull}) {
+      CAPTURE(groups);
+      GroupedFlatMap<4, 2> patches(4);
+      churn(patches, 4, groups);
+      GroupedFlatMap<1, 1> sides(4);
+      churn(sides, 1, groups);
+    }
+  }
+
+  TEST_CASE("a grouped map keeps a group's first keys in consecutive slots of one window") {
+    // A voxel's patches 0, 1, 2 in an empty table: three slots in a row from a window start (the
+    // window's four slots are one cache line's worth), so a prefetch of patch 0 brings the others.
+    GroupedFlatMap<4, 2> m(1000);
+    for (uint32_t p = 0; p < 3; ++p) m.set(uint64_t(77) * 16 + p, p);
+    // for_each walks the table in slot order: the keys come out in patch order.
+    std::vector<uint64_t> order;
+    m.for_each([&](uint64_t k, uint32_t) { order.push_back(k); });
+    CHECK(order == std::vector<uint64_t>{77 * 16, 77 * 16 + 1, 77 * 16 + 2});
+    m.prefetch(uint64_t(77) * 16);  // a hint only: changes nothing
+    CHECK(m.get(uint64_t(77) * 16 + 2) == 2u);
   }
 
   TEST_CASE("every erase order of a full colliding cluster keeps the rest reachable") {
