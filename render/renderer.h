@@ -73,6 +73,12 @@ struct TrayPlane {
 TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec3f& plane_point,
                      const Vec3f& plane_normal);
 
+// The cells [x0, x1) x [y0, y1) of the shadow grid that the tray samples (tray_shadow_box): empty
+// when x0 >= x1.
+struct ShadowBox {
+  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+};
+
 // The tray shadow's working arrays (tray_shadow_grid).
 struct ShadowScratch {
   std::vector<Vec3f> projected;             // (vertex slots) cell x, cell y, height above the tray
@@ -146,8 +152,10 @@ struct Renderer {
   uint32_t wire_program = 0;
   // Trays and shadows (render/tray.cpp): the tray's quad comes from gl_VertexID (an empty vertex
   // array); the shadow re-draws the surface's index buffer, flattened onto the plane.
-  uint32_t tray_program = 0, empty_vertex_array = 0, shadow_texture = 0;
+  // tray_program samples the shadow, tray_flat_program does not (render/tray.cpp).
+  uint32_t tray_program = 0, tray_flat_program = 0, empty_vertex_array = 0, shadow_texture = 0;
   bool shadow_valid = false;  // shadow_texture holds the first tray's shadow for this frame
+  ShadowBox shadow_box;       // the cells around the shadow (tray_shadow_box); the rest of the tray is drawn flat
   std::vector<float> shadow_grid;
   ShadowScratch shadow_scratch;
   // The triangle slots of the last upload (dead ones {0,0,0}), for the shadow's projected areas.
@@ -247,6 +255,10 @@ void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, con
 // once marked every vertex's cell in full and dilated the marks, so a crumb of one voxel cast a
 // dark blob of 5 x 5 cells, a sixth of the organ's size.)
 constexpr int kTrayShadowGrid = 128;
+// The rectangle of a g x g grid of shadow bytes (row-major) around its nonzero cells, grown by one cell
+// (the bilinear fetch reaches half a cell past them) and cut to the grid; empty when all are 0.
+// Outside it the tray is drawn without sampling the shadow.
+ShadowBox tray_shadow_box(const uint8_t* cells, int g);
 constexpr float kTrayPenumbra = 0.15f;  // the penumbra's half-width per unit of height (a ~9 degree light)
 void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangles, uint32_t triangle_count,
                       const TrayPlane& tray, const Vec3f& light, std::vector<float>& grid, ShadowScratch& scratch);
