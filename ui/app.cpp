@@ -259,6 +259,7 @@ bool init_graphics(AppState& app, WindowContext& w) {
   app.renderer = &w.renderer;
   app.gl_renderer = w.gl_renderer;
   app.view.draw.cull_back_faces = true;
+  app.view.draw.vertex_lighting = w.software;  // DrawOptions::vertex_lighting (a GPU lights per pixel for free)
   app.view.draw.surface_pieces = w.software ? 4 : 1;  // DrawOptions::surface_pieces
   // DIVVOX_SHADOWS=0: start with the tray's shadow off (View panel: "shadow on the tray").
   if (env.shadows >= 0) app.view.draw.shadows = env.shadows == 1;
