@@ -475,8 +475,8 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
   // The program pair (outer, cut): smooth, flat (no normals) or smooth lit per vertex (kVertexShader:
   // only with back faces culled).
   const bool smooth = r.has_normals || r.gpu_normals;
-  const int flat = !smooth ? 2 : options.vertex_lighting && options.cull_back_faces ? 4 : 0;
-  glUseProgram(r.surface_programs[flat]);
+  const int pair = !smooth ? 2 : options.vertex_lighting && options.cull_back_faces ? 4 : 0;
+  glUseProgram(r.surface_programs[pair]);
   glVertexArrayElementBuffer(r.vertex_array, r.outer_index_buffer);
   // In pieces, each handed to the rasteriser at once (see DrawOptions::surface_pieces).
   const GLsizei pieces = GLsizei(std::clamp(options.surface_pieces, 1, 64));
@@ -488,7 +488,7 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
     if (pieces > 1) glFlush();
   }
   if (r.cut_count > 0 && last_part) {
-    glUseProgram(r.surface_programs[flat + 1]);
+    glUseProgram(r.surface_programs[pair + 1]);
     glVertexArrayElementBuffer(r.vertex_array, r.cut_index_buffer);
     glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(std::min<uint64_t>(r.cut_count, INT32_MAX / 3)) * 3,
                         GL_UNSIGNED_INT, nullptr);

@@ -259,13 +259,13 @@ void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, con
 // once marked every vertex's cell in full and dilated the marks, so a crumb of one voxel cast a
 // dark blob of 5 x 5 cells, a sixth of the organ's size.)
 constexpr int kTrayShadowGrid = 128;
+constexpr float kTrayPenumbra = 0.15f;  // the penumbra's half-width per unit of height (a ~9 degree light)
+void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangles, uint32_t triangle_count,
+                      const TrayPlane& tray, const Vec3f& light, std::vector<float>& grid, ShadowScratch& scratch);
 // The rectangle of a g x g grid of shadow bytes (row-major) around its nonzero cells, grown by one cell
 // (the bilinear fetch reaches half a cell past them) and cut to the grid; empty when all are 0.
 // Outside it the tray is drawn without sampling the shadow.
 ShadowBox tray_shadow_box(const uint8_t* cells, int g);
-constexpr float kTrayPenumbra = 0.15f;  // the penumbra's half-width per unit of height (a ~9 degree light)
-void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangles, uint32_t triangle_count,
-                      const TrayPlane& tray, const Vec3f& light, std::vector<float>& grid, ShadowScratch& scratch);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
 // Direct mode (and after renderer_present): the back buffer's rectangle, so before the swap
 // (including what was drawn over it since).
