@@ -244,7 +244,7 @@ bool renderer_init(Renderer& r, int width, int height, std::string& error, int s
   if (!create_target(r, error)) return false;
 
   bool surface_ok = true;
-  for (int k = 0; k < 4 && surface_ok; ++k) {
+  for (int k = 0; k < 6 && surface_ok; ++k) {
     const std::string preamble = kSurfacePreambles[k];
     r.surface_programs[k] = gl_link_program((preamble + kVertexShader).c_str(), (preamble + kSurfaceFragmentShader).c_str(), error);
     surface_ok = r.surface_programs[k] != 0;
@@ -421,9 +421,9 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
   const Eigen::Matrix4f projection = projection_matrix(camera, Viewport{r.width, r.height}.aspect());
   const float unproject[4] = {2.0f / float(r.width), 2.0f / float(r.height), 1.0f / projection(0, 0), 1.0f / projection(1, 1)};
   // Each variant gets only the uniforms it uses (setting an inactive one is a GL error).
-  for (int k = 0; k < 4; ++k) {
+  for (int k = 0; k < 6; ++k) {
     const uint32_t program = r.surface_programs[k];
-    const bool cut = (k & 1) != 0, flat = (k & 2) != 0;
+    const bool cut = (k & 1) != 0, flat = k == 2 || k == 3;
     glProgramUniformMatrix4fv(program, 0, 1, GL_FALSE, view_projection.data());
     glProgramUniformMatrix4fv(program, 1, 1, GL_FALSE, view.data());
     if (!cut) glProgramUniform3fv(program, 2, 1, options.surface_color.data());
@@ -472,8 +472,11 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
   // Pass 1: the lit surface, the outer surface then the cut faces (each from its own index buffer,
   // the other class's slots degenerate there; the cut pass only over the slots that hold cut faces).
   glPolygonMode(GL_FRONT_AND_BACK, GL_FILL);
-  const int flat = r.has_normals || r.gpu_normals ? 0 : 2;
-  glUseProgram(r.surface_programs[flat]);
+  // The program pair (outer, cut): smooth, flat (no normals) or smooth lit per vertex (kVertexShader:
+  // only with back faces culled).
+  const bool smooth = r.has_normals || r.gpu_normals;
+  const int pair = !smooth ? 2 : options.vertex_lighting && options.cull_back_faces ? 4 : 0;
+  glUseProgram(r.surface_programs[pair]);
   glVertexArrayElementBuffer(r.vertex_array, r.outer_index_buffer);
   // In pieces, each handed to the rasteriser at once (see DrawOptions::surface_pieces).
   const GLsizei pieces = GLsizei(std::clamp(options.surface_pieces, 1, 64));
@@ -485,7 +488,7 @@ void renderer_draw_surface(Renderer& r, const Camera& camera, const DrawOptions&
     if (pieces > 1) glFlush();
   }
   if (r.cut_count > 0 && last_part) {
-    glUseProgram(r.surface_programs[flat + 1]);
+    glUseProgram(r.surface_programs[pair + 1]);
     glVertexArrayElementBuffer(r.vertex_array, r.cut_index_buffer);
     glDrawRangeElements(GL_TRIANGLES, 0, last_index, GLsizei(std::min<uint64_t>(r.cut_count, INT32_MAX / 3)) * 3,
                         GL_UNSIGNED_INT, nullptr);

@@ -73,6 +73,12 @@ struct TrayPlane {
 TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec3f& plane_point,
                      const Vec3f& plane_normal);
 
+// The cells [x0, x1) x [y0, y1) of the shadow grid that the tray samples (tray_shadow_box): empty
+// when x0 >= x1.
+struct ShadowBox {
+  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
+};
+
 // The tray shadow's working arrays (tray_shadow_grid).
 struct ShadowScratch {
   std::vector<Vec3f> projected;             // (vertex slots) cell x, cell y, height above the tray
@@ -91,6 +97,10 @@ struct DrawOptions {
   // Skip back faces (the surface is closed, so none is visible from outside): on a software
   // rasteriser, where triangle setup dominates, it saves about half the draw.
   bool cull_back_faces = false;
+  // With cull_back_faces: the tissue's lights evaluated per vertex and interpolated, not per pixel
+  // (render/renderer_shaders.inc: VERTEX_LIT). For a software rasteriser, where the liver's triangles
+  // cover a few pixels and each is shaded in whole 4x4 blocks: a new image costs its threads ~10 % less.
+  bool vertex_lighting = false;
   // The outer surface drawn in this many pieces, each flushed to the rasteriser at once: a software
   // rasteriser (llvmpipe) sets triangles up on the calling thread and rasterises only on a flush,
   // so in one piece its rasteriser threads wait for the whole setup, in several they rasterise one
@@ -140,14 +150,16 @@ struct Renderer {
   uint32_t framebuffer = 0, color_renderbuffer = 0, depth_renderbuffer = 0;
   uint32_t depth_texture = 0;  // the depth attachment when single-sampled (instead of depth_renderbuffer)
   uint32_t resolve_framebuffer = 0, resolve_renderbuffer = 0;
-  // Programs: the lit surface's variants (index 2 * flat + cut faces: see kSurfaceFragmentShader),
-  // the wireframe overlay.
-  uint32_t surface_programs[4] = {0, 0, 0, 0};
+  // Programs: the lit surface's variants (index 2 * flat + cut faces, 4 + cut faces lit per vertex:
+  // see kSurfaceFragmentShader), the wireframe overlay.
+  uint32_t surface_programs[6] = {0, 0, 0, 0, 0, 0};
   uint32_t wire_program = 0;
   // Trays and shadows (render/tray.cpp): the tray's quad comes from gl_VertexID (an empty vertex
   // array); the shadow re-draws the surface's index buffer, flattened onto the plane.
-  uint32_t tray_program = 0, empty_vertex_array = 0, shadow_texture = 0;
+  // tray_program samples the shadow, tray_flat_program does not (render/tray.cpp).
+  uint32_t tray_program = 0, tray_flat_program = 0, empty_vertex_array = 0, shadow_texture = 0;
   bool shadow_valid = false;  // shadow_texture holds the first tray's shadow for this frame
+  ShadowBox shadow_box;       // the cells around the shadow (tray_shadow_box); the rest of the tray is drawn flat
   std::vector<float> shadow_grid;
   ShadowScratch shadow_scratch;
   // The triangle slots of the last upload (dead ones {0,0,0}), for the shadow's projected areas.
@@ -250,6 +262,10 @@ constexpr int kTrayShadowGrid = 128;
 constexpr float kTrayPenumbra = 0.15f;  // the penumbra's half-width per unit of height (a ~9 degree light)
 void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangles, uint32_t triangle_count,
                       const TrayPlane& tray, const Vec3f& light, std::vector<float>& grid, ShadowScratch& scratch);
+// The rectangle of a g x g grid of shadow bytes (row-major) around its nonzero cells, grown by one cell
+// (the bilinear fetch reaches half a cell past them) and cut to the grid; empty when all are 0.
+// Outside it the tray is drawn without sampling the shadow.
+ShadowBox tray_shadow_box(const uint8_t* cells, int g);
 // Reads the last image: width x height RGBA8, row 0 the top of the image. False on a GL error.
 // Direct mode (and after renderer_present): the back buffer's rectangle, so before the swap
 // (including what was drawn over it since).

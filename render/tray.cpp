@@ -22,38 +22,46 @@ TrayPlane tray_under(const Vec3f& bounds_min, const Vec3f& bounds_max, const Vec
 }
 namespace {
 
-// The tray: a square from gl_VertexID (a 4-vertex strip), lit by the camera's key light like the
-// surface, with a darker lip along its border.
+// The tray: a rectangle of its square from gl_VertexID (a 4-vertex strip): u_rect's corners in the
+// square's coordinates ([-1, 1] along each axis), lit by the camera's key light like the surface, with
+// a darker lip along its border. The square is drawn as a 3 x 3 grid of such rectangles (tray_draw):
+// rectangles that share an edge compute its corners from the same floats, so they meet without cracks.
 const char* kTrayVertexShader = R"(#version 450 core
 layout(location = 0) uniform mat4 u_view_projection;
-layout(location = 1) uniform mat4 u_view;
 layout(location = 2) uniform vec3 u_centre;
 layout(location = 3) uniform vec3 u_axis_u;
 layout(location = 4) uniform vec3 u_axis_v;
+layout(location = 5) uniform vec4 u_rect;  // (u0, v0, u1, v1)
 out vec2 v_uv;
-out vec3 v_eye_position;
 void main() {
-  vec2 c = vec2((gl_VertexID & 1) != 0 ? 1.0 : -1.0, (gl_VertexID & 2) != 0 ? 1.0 : -1.0);
+  vec2 c = vec2((gl_VertexID & 1) != 0 ? u_rect.z : u_rect.x, (gl_VertexID & 2) != 0 ? u_rect.w : u_rect.y);
   vec3 p = u_centre + c.x * u_axis_u + c.y * u_axis_v;
   v_uv = c;
-  v_eye_position = (u_view * vec4(p, 1.0)).xyz;
   gl_Position = u_view_projection * vec4(p, 1.0);
 }
 )";
 
 // Flat and directionally lit, so its shade is one colour per tray (u_shade, from the CPU); per pixel
-// only the lip and the shadow (one bilinear fetch of the shadow grid): the tray covers much of the
-// view and a software rasteriser pays per pixel.
-const char* kTrayFragmentShader = R"(#version 450 core
+// only the lip and, in the SHADOW variant, the shadow (one bilinear fetch of the shadow grid). The
+// tray covers much of the view and a software rasteriser pays per pixel: on llvmpipe the fetch over
+// the whole tray cost ~1.5 ms of the rasteriser's threads per image, so only the rectangle around
+// the shadow's cells (Renderer::shadow_box) samples it; outside, the grid is 0 and the flat variant
+// gives the same colour.
+const char* kTrayFragmentShader = R"(
 layout(location = 6) uniform vec3 u_shade;
-layout(location = 7) uniform float u_shadow_alpha;  // 0: no shadow on this tray
+#if SHADOW
+layout(location = 7) uniform float u_shadow_alpha;
 layout(binding = 0) uniform sampler2D u_shadow;
+#endif
 in vec2 v_uv;
-in vec3 v_eye_position;
 out vec4 frag_color;
 void main() {
   float r = max(abs(v_uv.x), abs(v_uv.y));
-  float shadow = u_shadow_alpha > 0.0 ? u_shadow_alpha * texture(u_shadow, 0.5 * v_uv + 0.5).r : 0.0;
+#if SHADOW
+  float shadow = u_shadow_alpha * texture(u_shadow, 0.5 * v_uv + 0.5).r;
+#else
+  float shadow = 0.0;
+#endif
   frag_color = vec4(u_shade * ((r > 0.94 ? 0.6 : 1.0) * (1.0 - shadow)), 1.0);
 }
 )";
@@ -207,8 +215,11 @@ void tray_shadow_grid(const Vec3f* positions, uint32_t count, const Tri* triangl
 }
 
 bool tray_init(Renderer& r, std::string& error) {
-  r.tray_program = gl_link_program(kTrayVertexShader, kTrayFragmentShader, error);
-  if (!r.tray_program) return false;
+  const std::string flat = std::string("#version 450 core\n#define SHADOW 0\n") + kTrayFragmentShader;
+  const std::string shadow = std::string("#version 450 core\n#define SHADOW 1\n") + kTrayFragmentShader;
+  r.tray_program = gl_link_program(kTrayVertexShader, shadow.c_str(), error);
+  if (r.tray_program) r.tray_flat_program = gl_link_program(kTrayVertexShader, flat.c_str(), error);
+  if (!r.tray_program || !r.tray_flat_program) return false;
   glCreateVertexArrays(1, &r.empty_vertex_array);
   glCreateTextures(GL_TEXTURE_2D, 1, &r.shadow_texture);
   glTextureStorage2D(r.shadow_texture, 1, GL_R8, kTrayShadowGrid, kTrayShadowGrid);
@@ -221,9 +232,10 @@ bool tray_init(Renderer& r, std::string& error) {
 
 void tray_destroy(Renderer& r) {
   if (r.tray_program) glDeleteProgram(r.tray_program);
+  if (r.tray_flat_program) glDeleteProgram(r.tray_flat_program);
   if (r.empty_vertex_array) glDeleteVertexArrays(1, &r.empty_vertex_array);
   if (r.shadow_texture) glDeleteTextures(1, &r.shadow_texture);
-  r.tray_program = r.empty_vertex_array = r.shadow_texture = 0;
+  r.tray_program = r.tray_flat_program = r.empty_vertex_array = r.shadow_texture = 0;
   r.shadow_valid = false;
 }
 
@@ -240,14 +252,31 @@ void tray_shadow_update(Renderer& r, const Vec3f* positions, uint32_t count, con
   for (size_t k = 0; k < r.shadow_grid.size(); ++k) {
     r.shadow_bytes[k] = uint8_t(std::lround(255.0f * std::clamp(r.shadow_grid[k], 0.0f, 1.0f)));
   }
+  r.shadow_box = tray_shadow_box(r.shadow_bytes.data(), kTrayShadowGrid);
   glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
   glTextureSubImage2D(r.shadow_texture, 0, 0, 0, kTrayShadowGrid, kTrayShadowGrid, GL_RED, GL_UNSIGNED_BYTE,
                       r.shadow_bytes.data());
   r.shadow_valid = true;
 }
 
+ShadowBox tray_shadow_box(const uint8_t* cells, int g) {
+  ShadowBox box{g, g, 0, 0};
+  for (int y = 0; y < g; ++y) {
+    for (int x = 0; x < g; ++x) {
+      if (cells[size_t(y) * size_t(g) + size_t(x)] == 0) continue;
+      box.x0 = std::min(box.x0, x);
+      box.y0 = std::min(box.y0, y);
+      box.x1 = std::max(box.x1, x + 1);
+      box.y1 = std::max(box.y1, y + 1);
+    }
+  }
+  if (box.x0 >= box.x1) return ShadowBox{};
+  // Bilinear filtering reaches half a cell past a shaded cell.
+  return ShadowBox{std::max(box.x0 - 1, 0), std::max(box.y0 - 1, 0), std::min(box.x1 + 1, g), std::min(box.y1 + 1, g)};
+}
+
 void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
-  if (options.trays.empty() || !r.tray_program) return;
+  if (options.trays.empty() || !r.tray_program || !r.tray_flat_program) return;
   const ViewTarget target = renderer_target(r);
   glBindFramebuffer(GL_FRAMEBUFFER, target.framebuffer);
   glViewport(target.x, target.y, target.width, target.height);
@@ -256,14 +285,11 @@ void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
   const Eigen::Matrix3f rotation = view.topLeftCorner<3, 3>();
   const Vec3f eye = camera_eye(camera);
   const Vec3f key_eye = Vec3f(-0.4f, 0.6f, 0.7f).normalized();  // the surface shader's key light
-  glProgramUniformMatrix4fv(r.tray_program, 0, 1, GL_FALSE, view_projection.data());
-  glProgramUniformMatrix4fv(r.tray_program, 1, 1, GL_FALSE, view.data());
   glEnable(GL_DEPTH_TEST);
   glDepthFunc(GL_LEQUAL);
   glDepthMask(GL_TRUE);
   glDisable(GL_CULL_FACE);
   glDisable(GL_BLEND);
-  glUseProgram(r.tray_program);
   glBindVertexArray(r.empty_vertex_array);
   glBindTextureUnit(0, r.shadow_texture);
   for (size_t k = 0; k < options.trays.size(); ++k) {
@@ -277,14 +303,32 @@ void tray_draw(Renderer& r, const Camera& camera, const DrawOptions& options) {
     // Its shade: ambient + the key light's diffuse.
     const Vec3f facing = rotation * n;
     const Vec3f shade = options.tray_color * (0.30f + 0.55f * std::max(facing.dot(key_eye), 0.0f));
-    // The shadow: the first tray's.
-    const bool shadow = k == 0 && r.shadow_valid && options.shadows;
-    glProgramUniform3fv(r.tray_program, 2, 1, tray.centre.data());
-    glProgramUniform3fv(r.tray_program, 3, 1, axis_u.data());
-    glProgramUniform3fv(r.tray_program, 4, 1, axis_v.data());
-    glProgramUniform3fv(r.tray_program, 6, 1, shade.data());
-    glProgramUniform1f(r.tray_program, 7, shadow ? options.shadow_alpha : 0.0f);
-    glDrawArrays(GL_TRIANGLE_STRIP, 0, 4);
+    for (const uint32_t program : {r.tray_program, r.tray_flat_program}) {
+      glProgramUniformMatrix4fv(program, 0, 1, GL_FALSE, view_projection.data());
+      glProgramUniform3fv(program, 2, 1, tray.centre.data());
+      glProgramUniform3fv(program, 3, 1, axis_u.data());
+      glProgramUniform3fv(program, 4, 1, axis_v.data());
+      glProgramUniform3fv(program, 6, 1, shade.data());
+    }
+    // The shadow (the first tray's) in the rectangle around its cells, the rest flat: a 3 x 3 grid
+    // of rectangles (the middle one shadowed), from the lines at the square's edges and the box's.
+    const ShadowBox& b = r.shadow_box;
+    const bool shadow = k == 0 && r.shadow_valid && options.shadows && b.x0 < b.x1 && b.y0 < b.y1;
+    const float g = float(kTrayShadowGrid);
+    const float us[4] = {-1.0f, shadow ? 2.0f * float(b.x0) / g - 1.0f : 1.0f,
+                         shadow ? 2.0f * float(b.x1) / g - 1.0f : 1.0f, 1.0f};
+    const float vs[4] = {-1.0f, shadow ? 2.0f * float(b.y0) / g - 1.0f : 1.0f,
+                         shadow ? 2.0f * float(b.y1) / g - 1.0f : 1.0f, 1.0f};
+    if (shadow) glProgramUniform1f(r.tray_program, 7, options.shadow_alpha);
+    for (int j = 0; j < 3; ++j) {
+      for (int i = 0; i < 3; ++i) {
+        if (us[i] >= us[i + 1] || vs[j] >= vs[j + 1]) continue;  // empty (no shadow: one rectangle)
+        const uint32_t program = shadow && i == 1 && j == 1 ? r.tray_program : r.tray_flat_program;
+        glUseProgram(program);
+        glProgramUniform4f(program, 5, us[i], vs[j], us[i + 1], vs[j + 1]);
+        glDrawArrays(GL_TRIANGLE_STRIP, 0, 4);
+      }
+    }
   }
   glBindTextureUnit(0, 0);
   glUseProgram(0);

@@ -23,6 +23,7 @@
 #include <atomic>
 #include <chrono>
 #include <csignal>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <thread>
@@ -259,10 +260,24 @@ bool init_graphics(AppState& app, WindowContext& w) {
   app.renderer = &w.renderer;
   app.gl_renderer = w.gl_renderer;
   app.view.draw.cull_back_faces = true;
+  app.view.draw.vertex_lighting = w.software;  // DrawOptions::vertex_lighting (a GPU lights per pixel for free)
   app.view.draw.surface_pieces = w.software ? 4 : 1;  // DrawOptions::surface_pieces
   // DIVVOX_SHADOWS=0: start with the tray's shadow off (View panel: "shadow on the tray").
   if (env.shadows >= 0) app.view.draw.shadows = env.shadows == 1;
   return true;
+}
+
+// The panel's font atlas sampled nearest instead of linear (ImGui's backend creates it on its first
+// frame): the default font is a bitmap font drawn at its size on whole pixels, so each pixel samples
+// a texel's centre and both give the same image, but llvmpipe's linear filter fetches and blends four
+// texels for each of the panel's pixels, every frame.
+void nearest_font_texture(WindowContext& w) {
+  if (w.font_nearest) return;
+  const GLuint texture = GLuint(reinterpret_cast<intptr_t>(ImGui::GetIO().Fonts->TexID));
+  if (texture == 0) return;
+  glTextureParameteri(texture, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+  glTextureParameteri(texture, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  w.font_nearest = true;
 }
 
 // One frame: input, the snapshot, the scene (only when something it shows changed), overlays,
@@ -290,6 +305,7 @@ void run_frame(AppState& app, WindowContext& w) {
     }
   }
   ImGui_ImplOpenGL3_NewFrame();
+  nearest_font_texture(w);
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
   handle_keys(app, g_events, w.window);

@@ -237,7 +237,7 @@ bool operator==(const SceneKey& a, const SceneKey& b) {
   return a.sequence == b.sequence && a.width == b.width && a.height == b.height && a.x == b.x && p.target == q.target &&
          p.distance == q.distance && p.yaw == q.yaw && p.pitch == q.pitch && p.fov_y == q.fov_y &&
          p.z_near == q.z_near && p.z_far == q.z_far && o.wireframe == u.wireframe && o.shadows == u.shadows &&
-         o.cull_back_faces == u.cull_back_faces && o.surface_color == u.surface_color && o.cut_color == u.cut_color &&
+         o.cull_back_faces == u.cull_back_faces && o.vertex_lighting == u.vertex_lighting && o.surface_color == u.surface_color && o.cut_color == u.cut_color &&
          o.wire_color == u.wire_color && o.background == u.background && o.tray_color == u.tray_color &&
          o.shadow_alpha == u.shadow_alpha && same_trays(o.trays, u.trays);
 }

@@ -65,6 +65,7 @@ struct WindowContext {
   std::vector<Vec3f> shadow_positions;  // the snapshot's vertices that cast the shadow (others NaN)
   float shadow_yaw = 0.0f, shadow_pitch = 0.0f;
   Eigen::Vector2f last_cursor = Eigen::Vector2f::Zero();
+  bool font_nearest = false;  // the panel's font atlas set to nearest sampling (ui/app.cpp)
 };
 
 // The camera framing the object's bounds; ViewState::radius from them.
