@@ -21,7 +21,7 @@ struct EnvOptions {
   int sim_nice = 4;                  // DIVVOX_SIM_NICE: the simulation thread's niceness, 0-19
   int msaa = -1;                     // DIVVOX_MSAA: samples 0-16 (-1: 4 on a GPU, 0 on llvmpipe)
   bool scene_cache = true;           // DIVVOX_SCENE_CACHE=0: off
-  bool split_frames = true;          // DIVVOX_SPLIT_FRAMES=0: off
+  bool split_frames = false;         // DIVVOX_SPLIT_FRAMES=1: on (docs/window.md: off since 2026-12-07)
   bool frame_profile = false;        // DIVVOX_FRAME_PROFILE=1: glFinish after each phase
   int gpu_normals = -1;              // DIVVOX_GPU_NORMALS=0/1 (-1: on a GPU only)
   int shadows = -1;                  // DIVVOX_SHADOWS=0/1 (-1: the default)

@@ -51,7 +51,7 @@ struct WindowContext {
   bool cache_scene = false;
   bool scene_valid = false;
   SceneKey scene_key;
-  // Double-buffered cache (DIVVOX_SPLIT_FRAMES=0: off): a new snapshot is drawn over two frames
+  // Double-buffered cache (DIVVOX_SPLIT_FRAMES=1: on; off by default): a new snapshot is drawn over two frames
   // (scene_draw_for); split_pending: the first half is drawn, for pending_key, and the frame
   // after draws the rest before a new snapshot is taken.
   bool split_frames = false, split_pending = false;
