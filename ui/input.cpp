@@ -252,24 +252,27 @@ SceneEdit scene_edit_of(const Scene& scene) {
 }
 
 bool apply_scene_edit(const Scene& base, const SceneEdit& e, Scene& out, std::string& error) {
-  // Through the scene file's own validation, so the panel accepts exactly what a file may hold.
-  nlohmann::json j = scene_to_json(base);
-  j["mesh"] = std::string(e.mesh);
-  j["resolution"] = e.resolution;
-  j["sim_resolution"] = e.sim_resolution;
-  // Only the chosen model's keys: the scene file rejects the other model's.
-  j["material"] = e.physical ? nlohmann::json{{"model", "neo_hookean"},
-                                              {"density", e.density},
-                                              {"youngs_modulus", e.youngs_modulus},
-                                              {"poisson_ratio", e.poisson_ratio},
-                                              {"stiffness_damping", e.stiffness_damping}}
-                             : nlohmann::json{{"model", "paper"},
-                                              {"density", e.density},
-                                              {"stretch_compliance", e.stretch_compliance},
-                                              {"shape_stiffness", e.shape_stiffness}};
-  j["solver"] = {{"dt", e.dt}, {"substeps", e.substeps}, {"iterations", e.iterations}, {"damping", e.damping}};
-  j["gravity"] = {e.gravity[0], e.gravity[1], e.gravity[2]};
-  j["scalpel"] = {{"length", e.scalpel_length}};
+  // Through the scene file's own writer and validation, so the panel accepts exactly what a file may
+  // hold (and writes only the chosen material model's keys, as a file does).
+  Scene edited = base;
+  edited.mesh = e.mesh;
+  PbdParams& p = edited.pbd;
+  p.resolution = e.resolution;
+  p.sim_resolution = e.sim_resolution;
+  p.elastic = e.physical ? ElasticModel::kNeoHookean : ElasticModel::kPaper;
+  p.density = e.density;
+  p.youngs_modulus = e.youngs_modulus;
+  p.poisson_ratio = e.poisson_ratio;
+  p.stiffness_damping = e.stiffness_damping;
+  p.stretch_compliance = e.stretch_compliance;
+  p.shape_stiffness = e.shape_stiffness;
+  p.dt = e.dt;
+  p.substeps = e.substeps;
+  p.iterations = e.iterations;
+  p.damping = e.damping;
+  p.gravity = Vec3d(e.gravity[0], e.gravity[1], e.gravity[2]);
+  edited.scalpel.length = e.scalpel_length;
+  const nlohmann::json j = scene_to_json(edited);
   for (double v : {e.density, e.youngs_modulus, e.poisson_ratio, e.stiffness_damping, e.stretch_compliance,
                    e.shape_stiffness, e.dt, e.damping, e.scalpel_length, e.gravity[0], e.gravity[1], e.gravity[2]}) {
     if (!std::isfinite(v)) {
