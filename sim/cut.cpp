@@ -81,7 +81,7 @@ bool half_edge_sharing(const VoxelModel& model, const CutState& state, uint32_t 
   uint8_t lower_corner[4];
   voxels_around_edge(model.lattice, edge, voxels, lower_corner);
   uint32_t divided[4];
-  for (int q = 0; q < 4; ++q) divided[q] = voxels[q] == kDeadIndex ? kDeadIndex : state.divided_of.get(voxels[q]);
+  divided_around(state, voxels, divided);
   return sharing_pieces(model, state, edge, side, voxels, lower_corner, divided, pieces);
 }
 

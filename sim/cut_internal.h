@@ -14,8 +14,13 @@
 
 namespace dvx {
 
+// The indices in CutState::divided of the voxels around an edge (kDeadIndex: uncut, or no voxel).
+inline void divided_around(const CutState& state, const uint32_t voxels[4], uint32_t divided[4]) {
+  for (int q = 0; q < 4; ++q) divided[q] = voxels[q] == kDeadIndex ? kDeadIndex : state.divided_of.get(voxels[q]);
+}
+
 // The pieces around a half-edge given the voxels around its edge (see half_edge_sharing) and their
-// indices in CutState::divided (kDeadIndex: uncut), looked up once for both sides of the edge.
+// indices in CutState::divided (divided_around), looked up once for both sides of the edge.
 bool sharing_pieces(const VoxelModel& model, const CutState& state, uint32_t edge, int side,
                     const uint32_t voxels[4], const uint8_t lower_corner[4], const uint32_t divided[4],
                     uint8_t pieces[4]);
