@@ -645,7 +645,7 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
     }
   };
   uint32_t divided[4];
-  for (int q = 0; q < 4; ++q) divided[q] = around[q] == kDeadIndex ? kDeadIndex : state.divided_of.get(around[q]);
+  divided_around(state, around, divided);
   for (int side = 0; side < 2; ++side) {
     double t;
     Vec3d normal;
@@ -683,13 +683,11 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
 
 namespace {
 
-// Patches and vertices of one voxel (its pieces already up to date). Returns its half-edge mask.
-uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, CutStepStats& stats) {
+// A voxel's vertices written from its patches (with their Hermite data): the changed ones marked,
+// the patches that no longer exist freed. Returns its half-edge mask.
+uint32_t write_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, const int32_t vc[3],
+                              const VoxelPatches& patches, CutStepStats& stats) {
   CutSurface& s = state.surface;
-  int32_t vc[3];
-  model.lattice.voxel_coords(voxel, vc);
-  VoxelPatches patches;
-  voxel_patches(model, state, voxel, vc, patches);
   uint32_t p = 0;
   for (; p < patches.patch_count; ++p) {
     const uint64_t key = patch_key(voxel, p);
@@ -719,18 +717,23 @@ uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32
   return patches.present;
 }
 
-// Whether a voxel the step left alone (one across a four-point face of a listed voxel: its cuts,
-// pieces and front are as they were) keeps its vertices: its patches, merges included, hold the
-// half-edges and pieces its vertices hold. A vertex's position follows from those and the voxel's
-// own Hermite data and front, so it is the one refresh_voxel_vertices would compute (which then
-// writes nothing); that skips the Hermite data and the vertex rule of most such voxels.
-bool vertices_current(const VoxelModel& model, const CutState& state, uint32_t voxel) {
-  const CutSurface& s = state.surface;
+// Patches and vertices of one voxel (its pieces already up to date). Returns its half-edge mask.
+uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, CutStepStats& stats) {
   int32_t vc[3];
   model.lattice.voxel_coords(voxel, vc);
-  VoxelData data;
   VoxelPatches patches;
-  patch_topology(model, state, voxel, vc, data, patches);
+  voxel_patches(model, state, voxel, vc, patches);
+  return write_voxel_vertices(model, state, voxel, vc, patches, stats);
+}
+
+// Whether a voxel the step left alone (one across a four-point face of a listed voxel: its cuts,
+// pieces and front are as they were) keeps its vertices, given its patch topology (patch_topology):
+// its patches, merges included, hold the half-edges and pieces its vertices hold. A vertex's position
+// follows from those and the voxel's own Hermite data and front, so it is the one
+// write_voxel_vertices would compute (which then writes nothing); that skips the Hermite data and the
+// vertex rule of most such voxels.
+bool vertices_current(const CutState& state, uint32_t voxel, const VoxelPatches& patches) {
+  const CutSurface& s = state.surface;
   for (uint32_t p = 0; p < patches.patch_count; ++p) {
     const uint32_t slot = s.vertex_of_patch.get(patch_key(voxel, p));
     if (slot == kDeadIndex || s.vertex_half_edges[slot] != patches.patch_half_edges[p] ||
@@ -796,8 +799,16 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   }
   if (!across.empty()) {
     sorted_unique(across);
+    // Their topology first; the Hermite data and the vertices only where it changed.
     for (uint32_t voxel : across) {
-      if (!vertices_current(model, state, voxel)) refresh_voxel_vertices(model, state, voxel, stats);
+      int32_t vc[3];
+      l.voxel_coords(voxel, vc);
+      VoxelData data;
+      VoxelPatches patches;
+      patch_topology(model, state, voxel, vc, data, patches);
+      if (vertices_current(state, voxel, patches)) continue;
+      hermite_data(model, state, vc, data, patches);
+      write_voxel_vertices(model, state, voxel, vc, patches, stats);
     }
     const size_t n = voxels.size();
     voxels.insert(voxels.end(), across.begin(), across.end());
