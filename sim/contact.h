@@ -395,6 +395,13 @@ struct PieceContacts {
   uint32_t rep_slots_per_part = 16384;  // a scanned batch of at least this many slots: two parts at once
   std::vector<uint32_t> slot_marks;     // (vertex slots) stamps, scratch
   uint32_t slot_stamp = 0;
+  // Pieces a cut made stale, built ahead of need once no cut has touched them for a gather
+  // (build_settled_reps): a stroke's pieces are built over its steps as the blade leaves them,
+  // not all in the step that severs (the points do not depend on when they are built).
+  std::vector<uint32_t> rep_pending;
+  std::vector<uint64_t> rep_stale_at;   // (pieces) the gather (rep_clock) that made each stale
+  uint64_t rep_clock = 0;               // gathers run
+  uint32_t rep_ahead_slots = 16384;     // the most slots built ahead in one gather
   std::vector<uint32_t> rep_need;       // pieces a gather needs the points of, scratch
   std::vector<uint32_t> rep_build;      // of those, the pieces to build (built at once), scratch
   std::vector<ContactRep> rep_staged;   // their points as built, a fixed stride a piece, scratch
@@ -416,6 +423,7 @@ struct PieceContacts {
     uint64_t reps_built = 0;    // pieces whose contact points were (re)built
     uint64_t reps_scanned = 0;  // of those, built in a batch that found its triangles in one pass over the surface
     uint64_t scans_split = 0;   // batches scanned in two parts at once
+    uint64_t reps_ahead = 0;    // pieces built ahead of need (build_settled_reps)
   } counters;
 };
 

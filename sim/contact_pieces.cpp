@@ -344,8 +344,29 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
       if (!(cache.lo[i].allFinite() && cache.hi[i].allFinite())) cache.valid = false;  // not kept
     }
     cache.pairs.clear();
-    if (box_pairs(cache.lo.data(), cache.hi.data(), cache.member.data(), cache.body.data(), piece_count, nullptr, nullptr, g,
-                  pairs_tested)) {
+    // Every pair has a piece outside the body with the most members: only those query the grid (a
+    // sever pairs a slice with the body it left, whose many pieces would mostly meet their own).
+    std::vector<uint64_t>& by_body = g.by_body;
+    by_body.clear();
+    for (uint32_t i = 0; i < piece_count; ++i) {
+      if (cache.member[i]) by_body.push_back(uint64_t(cache.body[i]) << 32 | i);
+    }
+    std::sort(by_body.begin(), by_body.end());
+    size_t most = 0, most_begin = 0;
+    for (size_t b = 0, e = 0; b < by_body.size(); b = e) {
+      for (e = b; e < by_body.size() && by_body[e] >> 32 == by_body[b] >> 32; ++e) {
+      }
+      if (e - b > most) most = e - b, most_begin = b;
+    }
+    g.stale.clear();
+    g.is_stale.assign(piece_count, 0);
+    for (size_t k = 0; k < by_body.size(); ++k) {
+      if (k >= most_begin && k < most_begin + most) continue;
+      g.stale.push_back(uint32_t(by_body[k]));
+      g.is_stale[uint32_t(by_body[k])] = 1;
+    }
+    if (box_pairs(cache.lo.data(), cache.hi.data(), cache.member.data(), cache.body.data(), piece_count, &g.stale,
+                  g.is_stale.data(), g, pairs_tested)) {
       cache.pairs.swap(g.pairs);
     }
     sort_unique(cache.pairs);

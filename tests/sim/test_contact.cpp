@@ -977,6 +977,57 @@ TEST_SUITE("contact") {
 }
 
 TEST_SUITE("contact") {
+  TEST_CASE("a stroke's pieces get their contact points as the blade leaves them, the same as built on need") {
+    // A block on a tray at 64 (16 simulation voxels across) cut through vertically in 16 steps, one
+    // solver step each, then left to rest. `lazy` builds contact points only on need (nothing ahead),
+    // the other also ahead (build_settled_reps). Their positions stay bit-identical and every piece
+    // both have built has the same points; in the step that severs, most of what the new pair of
+    // bodies needs was built ahead.
+    PbdParams params;
+    params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
+    Scene s;
+    dvx_test::make_pbd_scene(s, make_box(Vec3d(0.003, 0.0, 0.002), Vec3d(0.5, 0.5, 0.5), Eigen::Matrix3d::Identity(), 1), 64, 16,
+                             params);
+    run(s, 10);
+    PbdState lazy = s.pbd;
+    lazy.data.piece_contacts.rep_ahead_slots = 0;
+    BladePose previous{Vec3d(-0.21, 1.0, -2), Vec3d(-0.21, 1.0, 2)};
+    uint64_t compared = 0, built_at_sever = ~uint64_t(0), lazy_built_at_sever = ~uint64_t(0);
+    const auto step = [&]() {
+      const uint32_t bodies = s.pbd.data.piece_contacts.index.bodies;
+      const uint64_t built = s.pbd.data.piece_contacts.counters.reps_built;
+      const uint64_t lazy_built = lazy.data.piece_contacts.counters.reps_built;
+      pbd_step(s.cut, s.pbd.model, s.pbd.data);
+      pbd_step(s.cut, lazy.model, lazy.data);
+      CHECK(position_hash(s.pbd) == position_hash(lazy));
+      compared += check_same_reps(s.pbd.data.piece_contacts, lazy.data.piece_contacts);
+      if (bodies == 1 && s.pbd.data.piece_contacts.index.bodies == 2) {  // the step that severs
+        built_at_sever = s.pbd.data.piece_contacts.counters.reps_built - built;
+        lazy_built_at_sever = lazy.data.piece_contacts.counters.reps_built - lazy_built;
+      }
+    };
+    for (int k = 1; k <= 16; ++k) {
+      const BladePose next{Vec3d(-0.21, 1.0 - 2.0 * k / 16, -2), Vec3d(-0.21, 1.0 - 2.0 * k / 16, 2)};
+      cut_step(s.model, s.cut, previous, next);
+      for (PbdState* p : {&s.pbd, &lazy}) pbd_apply_cut(s.model, s.cut, p->model, p->data);
+      previous = next;
+      step();
+    }
+    for (int i = 0; i < 10; ++i) step();
+    const PieceContacts& pc = s.pbd.data.piece_contacts;
+    REQUIRE(built_at_sever != ~uint64_t(0));  // it severed
+    CHECK(pc.counters.reps_ahead > 0);
+    CHECK(lazy.data.piece_contacts.counters.reps_ahead == 0);
+    CHECK(lazy_built_at_sever > 40);
+    CHECK(4 * built_at_sever < lazy_built_at_sever);
+    CHECK(compared > 1000);
+    CHECK(pc.counters.contacts > 0);
+    MESSAGE("contact points built in the step that severs: " << built_at_sever << " (on need only: " << lazy_built_at_sever
+                                                              << "); built ahead over the run: " << pc.counters.reps_ahead);
+  }
+}
+
+TEST_SUITE("contact") {
   TEST_CASE("the pair cache finds the pieces the grid finds while pieces move, appear, change body and die") {
     // Random boxes of a simulation voxel's size in a 12-voxel cube, in a few bodies; each step some
     // move a little (within the margin: their entries hold), a few jump (stale), a few are added or
