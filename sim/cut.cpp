@@ -143,16 +143,23 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   for (size_t w = 0; w < marked.size(); ++w) {
     for (uint64_t bits = marked[w]; bits; bits &= bits - 1) voxels.push_back(uint32_t(64 * w) + uint32_t(std::countr_zero(bits)));
   }
-  // Headroom for cuts, so a step rarely pays for growing a table (a p99 spike otherwise).
+  // Headroom for cuts, so a step rarely pays for growing a table (a p99 spike otherwise). The maps
+  // are written across their whole table, so their headroom is memory: 1.5 times the surface. The
+  // arrays are written only up to their size, and their untouched capacity is address space, not
+  // memory (its pages are mapped as the surface grows into them, a few a step): 4 times the surface.
+  // At 1.5 times, four through-cuts of the bunny at 256 outgrew them in one step of 30 ms (a copy
+  // of every slot of eight arrays into fresh pages, and the embedding's arrays with them).
   const uint32_t vertices = uint32_t(voxels.size()), quads = uint32_t(model.crossings.size());
   state.surface.vertex_of_patch.reserve(vertices + vertices / 2 + 1024);
   state.surface.quad_of_half_edge.reserve(quads + quads / 2 + 1024);
-  state.surface.positions.reserve(vertices + vertices / 2 + 1024);
-  state.surface.vertex_piece.reserve(vertices + vertices / 2 + 1024);
-  state.surface.vertex_patch.reserve(vertices + vertices / 2 + 1024);
-  state.surface.vertex_half_edges.reserve(vertices + vertices / 2 + 1024);
-  state.surface.quad_half_edge.reserve(quads + quads / 2 + 1024);
-  state.surface.triangles.reserve(2 * (quads + quads / 2 + 1024));
+  const size_t vertex_slots = 4 * size_t(vertices) + 1024, quad_slots = 4 * size_t(quads) + 1024;
+  state.surface.positions.reserve(vertex_slots);
+  state.surface.vertex_piece.reserve(vertex_slots);
+  state.surface.vertex_patch.reserve(vertex_slots);
+  state.surface.vertex_half_edges.reserve(vertex_slots);
+  state.surface.quad_half_edge.reserve(quad_slots);
+  state.surface.triangles.reserve(2 * quad_slots);
+  state.surface.triangle_cut.reserve(2 * quad_slots);
   // The cut's maps and the arrays they index start at about two cross-sections of the model (1/8
   // of its surface vertices): a rehash or a reallocation inside a cut step copies the whole map or
   // array into fresh pages (a p99 spike: at 512 the edge cuts' array doubling at 65 536 cost 8 ms in

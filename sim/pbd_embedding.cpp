@@ -39,20 +39,15 @@ void embed_vertex(const VoxelModel& model, const CutState& cut, PbdModel& s, uin
 }
 
 // Grows the embedding with the surface's vertex slots. Capacity follows the surface's own (it keeps
-// headroom for cuts): growing past a capacity copies every slot, a p99 spike of the cut step.
-// The new capacity is touched right away (grown to it and shrunk back, which keeps the pages): the
-// surface grows by about a thousand vertices per cutting step at 512, and first touches of their
-// pages inside the steps cost ~0.1 ms each step on a virtual machine.
+// headroom for cuts, sim/cut.cpp): growing past a capacity copies every slot, a p99 spike of the
+// cut step. The capacity is reserved, not touched: its pages are mapped as the surface grows into
+// them, a few each cutting step, as the surface's own arrays are. (Touching all of it at once cost
+// the step that reserved it ~9 ms at 256.)
 void grow_embedding(const CutState& cut, PbdModel& s, PbdData& data) {
   if (s.embedding.size() < cut.surface.positions.size()) {
     if (s.embedding.capacity() < cut.surface.positions.capacity()) {
-      const size_t size = s.embedding.size(), capacity = cut.surface.positions.capacity();
-      s.embedding.reserve(capacity);
-      data.deformed.reserve(capacity);
-      s.embedding.resize(capacity, VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
-      data.deformed.resize(capacity, Vec3f::Zero());
-      s.embedding.resize(size);
-      data.deformed.resize(size);
+      s.embedding.reserve(cut.surface.positions.capacity());
+      data.deformed.reserve(cut.surface.positions.capacity());
     }
     s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
     data.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());

@@ -94,6 +94,38 @@ TEST_SUITE("pbd") {
     CHECK(total < uint64_t(cutting) * 2);
   }
 
+  TEST_CASE("through-cuts that double the surface move none of its arrays, nor the embedding's") {
+    // A block 1 x 2 x 1 at 32 sliced through by horizontal planes, a fine voxel's travel a step, until
+    // its surface vertices have doubled: the surface keeps 4 times its first vertex and quad slots
+    // (sim/cut.cpp), the embedding follows the surface's capacity, so no cut step copies them (the
+    // step that outgrew them at 1.5 times cost 30 ms at 256).
+    const TriMesh box = make_box(Vec3d(0.0013, 0.0021, 0.0007), Vec3d(0.5, 1.0, 0.5), Eigen::Matrix3d::Identity(), 1);
+    dvx_test::PbdScene s;
+    dvx_test::make_pbd_scene(s, box, 32, 8, PbdParams{});
+    const CutSurface& f = s.cut.surface;
+    const size_t first = f.positions.size();
+    const void* arrays[] = {f.positions.data(), f.vertex_piece.data(), f.vertex_patch.data(), f.vertex_half_edges.data(),
+                            f.triangles.data(), f.quad_half_edge.data(), f.triangle_cut.data(), s.pbd.model.embedding.data(),
+                            s.pbd.data.deformed.data()};
+    int cuts = 0;
+    for (double y = -0.8; y < 0.85 && f.positions.size() < 2 * first; y += 0.2, ++cuts) {
+      for (int i = 1; i <= 48; ++i) {
+        const double x0 = -0.8 + 1.6 * (i - 1) / 48, x = -0.8 + 1.6 * i / 48;
+        cut_step(s.model, s.cut, {Vec3d(x0, y, -2), Vec3d(x0, y, 2)}, {Vec3d(x, y, -2), Vec3d(x, y, 2)});
+        pbd_apply_cut(s.model, s.cut, s.pbd.model, s.pbd.data);
+        pbd_step(s.cut, s.pbd.model, s.pbd.data);
+      }
+    }
+    MESSAGE("surface vertex slots " << first << " -> " << f.positions.size() << " after " << cuts << " through-cuts");
+    REQUIRE(f.positions.size() >= 2 * first);
+    const void* now[] = {f.positions.data(), f.vertex_piece.data(), f.vertex_patch.data(), f.vertex_half_edges.data(),
+                         f.triangles.data(), f.quad_half_edge.data(), f.triangle_cut.data(), s.pbd.model.embedding.data(),
+                         s.pbd.data.deformed.data()};
+    for (size_t k = 0; k < std::size(arrays); ++k) CHECK_MESSAGE(arrays[k] == now[k], "array " << k << " moved");
+    std::string error;
+    CHECK_MESSAGE(check_pbd_state(s.model, s.cut, s.pbd.model, s.pbd.data, error), error);
+  }
+
   TEST_CASE("a cut step that changes no voxel leaves the PBD model alone without allocating") {
 #ifdef DVX_TSAN
     MESSAGE("skipped under ThreadSanitizer: its runtime owns operator new");
