@@ -275,6 +275,7 @@ struct PieceContactScratch {
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
   std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (box_pairs)
   std::vector<Vec3d> box_lo, box_hi;              // (pieces) bounds grown by their reach (find_exposed_pieces)
+  std::vector<Vec3d> cell_lo, cell_hi;            // (cell_items) a box_pairs item's bounds, by cell
   std::vector<uint64_t> both;                     // the exposed pairs (i < j)
   PairCache pair_cache;
   std::vector<uint32_t> stale;                    // pair cache entries to refresh

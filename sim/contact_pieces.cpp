@@ -214,14 +214,28 @@ bool box_pairs(const Vec3d* box_lo, const Vec3d* box_hi, const uint8_t* keyed, c
     g.keys.push_back(cell_key(cell_coord(box_lo[i].x(), size), cell_coord(box_lo[i].y(), size), cell_coord(box_lo[i].z(), size)) | i);
   }
   build_cells(g);
+  // Each item's body and bounds, in cell order: a query reads its 27 cells' items in a row.
+  const uint32_t items = uint32_t(g.cell_items.size());
+  g.item_body.resize(items);
+  g.cell_lo.resize(items);
+  g.cell_hi.resize(items);
+  for (uint32_t n = 0; n < items; ++n) {
+    const uint32_t j = g.cell_items[n];
+    g.item_body[n] = body[j];
+    g.cell_lo[n] = box_lo[j];
+    g.cell_hi[n] = box_hi[j];
+  }
+  uint64_t tested = 0;
   const auto query = [&](uint32_t i) {
-    const Vec3d& a = box_lo[i];
+    const Vec3d a = box_lo[i], b = box_hi[i];
+    const uint32_t own = body[i];
     for_neighbours(g, cell_coord(a.x(), size), cell_coord(a.y(), size), cell_coord(a.z(), size), [&](uint32_t n) {
+      if (g.item_body[n] == own) return;  // the same body (and i itself)
       const uint32_t j = g.cell_items[n];
       // A pair of two queried pieces once, from the lower one.
-      if (j == i || body[j] == body[i] || ((queries == nullptr || queried[j]) && j < i)) return;
-      if (pairs_tested) ++*pairs_tested;
-      if ((box_lo[j].array() > box_hi[i].array()).any() || (box_hi[j].array() < box_lo[i].array()).any()) return;
+      if ((queries == nullptr || queried[j]) && j < i) return;
+      ++tested;
+      if ((g.cell_lo[n].array() > b.array()).any() || (g.cell_hi[n].array() < a.array()).any()) return;
       g.pairs.push_back(i < j ? (uint64_t(i) << 32) | j : (uint64_t(j) << 32) | i);
     });
   };
@@ -232,6 +246,7 @@ bool box_pairs(const Vec3d* box_lo, const Vec3d* box_hi, const uint8_t* keyed, c
   } else {
     for (const uint32_t i : *queries) query(i);
   }
+  if (pairs_tested) *pairs_tested += tested;
   return true;
 }
 
