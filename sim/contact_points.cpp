@@ -855,33 +855,57 @@ void gather_surface_points(const CutState& cut, const PbdModel& s, PbdData& data
     if (pc.exposed[i]) pc.rep_need.push_back(i);
   }
   build_stale_reps(cut, s, data, tasks, pc.rep_need);
-  for (const uint32_t i : pc.rep_need) {
-    const auto [reps, count] = piece_reps(data.piece_contacts, i);
-    partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, pc.region_lo, pc.region_hi);
-    Vec3d corners[8];
-    piece_corner_positions(s, data, i, corners);
-    for (uint32_t r = 0; r < count; ++r) {
-      const uint32_t slot = reps[r].slot;
-      const Vec3f& local = s.embedding[slot].local;
-      SurfacePoint sp;
-      sp.allowance = pc.allowance[slot];
-      sp.slot = slot;
-      slot_point(corners, local, sp.position, sp.weights);
-      if (!in_regions(pc.region_lo, pc.region_hi, sp.position)) {
-        pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
-        continue;
+  // The pieces in chunks (PieceContacts::point_pieces_per_chunk) over the workers, each into its own lists,
+  // joined in chunk order: the arrays one pass in piece order makes, for any worker count. A slot is
+  // in one piece, so each chunk writes only its own slots' allowances.
+  const std::vector<uint32_t>& need = pc.rep_need;
+  const size_t per_chunk = std::max(1u, pc.point_pieces_per_chunk);
+  const uint32_t chunks = uint32_t((need.size() + per_chunk - 1) / per_chunk);
+  if (pc.point_chunks.size() < chunks) pc.point_chunks.resize(chunks);
+  const PbdModel& model = s;
+  const PbdData& state = data;
+  const TaskBatch batch{chunks, 1};
+  run_batches(tasks, &batch, chunks > 0 ? 1 : 0, [&](uint32_t, uint32_t begin, uint32_t end) {
+    for (uint32_t c = begin; c < end; ++c) {
+      PieceContacts::PointChunk& out = pc.point_chunks[c];
+      out.points.clear();
+      out.gathered.clear();
+      const size_t last = std::min(need.size(), size_t(c + 1) * per_chunk);
+      for (size_t k = size_t(c) * per_chunk; k < last; ++k) {
+        const uint32_t i = need[k];
+        const auto [reps, count] = piece_reps(pc, i);
+        partner_regions(pc.scratch, pc.lo.data(), pc.hi.data(), pc.reach.data(), i, out.region_lo, out.region_hi);
+        Vec3d corners[8];
+        piece_corner_positions(model, state, i, corners);
+        for (uint32_t r = 0; r < count; ++r) {
+          const uint32_t slot = reps[r].slot;
+          const Vec3f& local = model.embedding[slot].local;
+          SurfacePoint sp;
+          sp.allowance = pc.allowance[slot];
+          sp.slot = slot;
+          slot_point(corners, local, sp.position, sp.weights);
+          if (!in_regions(out.region_lo, out.region_hi, sp.position)) {
+            pc.allowance[slot] = 0.0f;  // out of reach of other bodies: out of contact (as unpaired below)
+            continue;
+          }
+          const Vec3d normal = deformed_normal(corners, local, reps[r].normal);
+          const double length = normal.norm();
+          out.gathered.push_back(slot);
+          if (!(length > 0.0)) continue;  // a degenerate map: no normal (no allowance, see the caller)
+          sp.normal = normal / length;
+          std::copy(model.pieces[i].particles, model.pieces[i].particles + 8, sp.particles);
+          sp.body = x.body_index[i];
+          sp.piece = i;
+          sp.reach = float(pc.reach[i]);
+          out.points.push_back(sp);
+        }
       }
-      const Vec3d normal = deformed_normal(corners, local, reps[r].normal);
-      const double length = normal.norm();
-      pc.gathered.push_back(slot);
-      if (!(length > 0.0)) continue;  // a degenerate map: no normal (no allowance, see the caller)
-      sp.normal = normal / length;
-      std::copy(s.pieces[i].particles, s.pieces[i].particles + 8, sp.particles);
-      sp.body = x.body_index[i];
-      sp.piece = i;
-      sp.reach = float(pc.reach[i]);
-      pc.points.push_back(sp);
     }
+  });
+  for (uint32_t c = 0; c < chunks; ++c) {
+    const PieceContacts::PointChunk& chunk = pc.point_chunks[c];
+    pc.points.insert(pc.points.end(), chunk.points.begin(), chunk.points.end());
+    pc.gathered.insert(pc.gathered.end(), chunk.gathered.begin(), chunk.gathered.end());
   }
 }
 

@@ -923,8 +923,9 @@ TEST_SUITE("contact") {
     // `one` steps serially; `many` with three workers (every batch split); `fresh` with three
     // workers and its index rebuilt every step, so every piece it needs is built again in one batch
     // (one scan of the surface, in two parts at once) where the others build only what the last cut
-    // touched (`many` through the quads around the slots, `one` by scans). The contact points and
-    // the positions stay bit-identical.
+    // touched (`many` through the quads around the slots, `one` by scans); `many` also gathers each
+    // piece's surface points as a chunk of its own. The contact points and the positions stay
+    // bit-identical.
     PbdParams params;
     params.planes.push_back(plane(Vec3d(0.0, -0.52, 0.0), Vec3d::UnitY(), 0.5));
     Scene s;
@@ -933,6 +934,7 @@ TEST_SUITE("contact") {
     PbdState many = s.pbd, fresh = s.pbd;
     many.data.chunk_work = fresh.data.chunk_work = 1;
     many.data.piece_contacts.rep_slots_per_scan = 1;  // small batches through the quads around the slots
+    many.data.piece_contacts.point_pieces_per_chunk = 1;  // each piece's surface points a chunk of its own
     fresh.data.piece_contacts.rep_slots_per_part = 1;  // every scan in two parts
     ThreadRunner runner{3};
     BladePose previous{Vec3d(-1, 0.013, -2), Vec3d(-1, 0.013, 2)};
@@ -941,7 +943,7 @@ TEST_SUITE("contact") {
       for (PbdState* p : {&s.pbd, &many, &fresh}) pbd_apply_cut(s.model, s.cut, p->model, p->data);
       previous = next;
     };
-    uint64_t compared = 0;
+    uint64_t compared = 0, points_compared = 0;
     const auto step = [&]() {
       pbd_step(s.cut, s.pbd.model, s.pbd.data);
       pbd_step(s.cut, many.model, many.data, runner.runner());
@@ -952,6 +954,12 @@ TEST_SUITE("contact") {
       CHECK(position_hash(fresh) == position_hash(s.pbd));
       for (const PbdState* other : {&many, &fresh}) {
         compared += check_same_reps(serial, other->data.piece_contacts);
+        // The step's surface points in the same order (by piece, then contact point).
+        const std::vector<SurfacePoint>& a = serial.points;
+        const std::vector<SurfacePoint>& b = other->data.piece_contacts.points;
+        REQUIRE(a.size() == b.size());
+        for (size_t k = 0; k < a.size(); ++k) REQUIRE(a[k].slot == b[k].slot);
+        points_compared += a.size();
       }
     };
     for (int i = 1; i <= 8; ++i) {
@@ -972,6 +980,7 @@ TEST_SUITE("contact") {
     CHECK(many.data.piece_contacts.counters.reps_built > many.data.piece_contacts.counters.reps_scanned);
     CHECK(s.pbd.data.piece_contacts.counters.contacts > 0);
     CHECK(compared > 1000);
+    CHECK(points_compared > 1000);
     CHECK(runner.splits > 100);
   }
 }
