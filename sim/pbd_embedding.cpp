@@ -45,10 +45,8 @@ void embed_vertex(const VoxelModel& model, const CutState& cut, PbdModel& s, uin
 // the step that reserved it ~9 ms at 256.)
 void grow_embedding(const CutState& cut, PbdModel& s, PbdData& data) {
   if (s.embedding.size() < cut.surface.positions.size()) {
-    if (s.embedding.capacity() < cut.surface.positions.capacity()) {
-      s.embedding.reserve(cut.surface.positions.capacity());
-      data.deformed.reserve(cut.surface.positions.capacity());
-    }
+    s.embedding.reserve(cut.surface.positions.capacity());  // no-ops unless the surface's grew
+    data.deformed.reserve(cut.surface.positions.capacity());
     s.embedding.resize(cut.surface.positions.size(), VertexEmbedding{kDeadIndex, 0, Vec3f::Zero()});
     data.deformed.resize(cut.surface.positions.size(), Vec3f::Zero());
   }
