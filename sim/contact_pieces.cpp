@@ -373,7 +373,7 @@ uint32_t find_exposed_pieces_cached(const Vec3d* lo, const Vec3d* hi, const doub
       }
       if (e - b > most) most = e - b, most_begin = b;
     }
-    g.stale.clear();
+    g.stale.clear();  // scratch here: the pieces that query, as a list and as flags
     g.is_stale.assign(piece_count, 0);
     for (size_t k = 0; k < by_body.size(); ++k) {
       if (k >= most_begin && k < most_begin + most) continue;
