@@ -196,7 +196,7 @@ void add_bench_geometry(CLI::App& bench, CliCommand& c, RawFlags& raw, Subcomman
   sub.bench_elastic->add_option("--sweep-cases", e.sweep_cases, "Cases swept over substeps x iterations (the others: shipped solver only)")
       ->delimiter(',')->check(CLI::IsMember(elastic_case_names()))->capture_default_str();
   sub.bench_elastic->add_option("--models", e.models, "Elastic models")->delimiter(',')
-      ->check(CLI::IsMember({"neo_hookean", "paper"}))->capture_default_str();
+      ->check(CLI::IsMember({"neo_hookean", "global", "paper"}))->capture_default_str();
   sub.bench_elastic->add_option("--sim-resolutions", e.sim_resolutions, "Simulation resolutions")->delimiter(',')
       ->check(CLI::Range(1, 1024))->capture_default_str();
   sub.bench_elastic->add_option("--substeps", e.substeps, "Substeps")->delimiter(',')->check(CLI::Range(1, 1000))->capture_default_str();

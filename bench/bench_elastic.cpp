@@ -148,6 +148,7 @@ PbdParams case_params(const ElasticCase& c, const ElasticRun& run, double dampin
   p.substeps = run.substeps;
   p.iterations = run.iterations;
   p.elastic = run.model;
+  p.global_step = run.global_step;
   p.youngs_modulus = c.youngs_modulus;
   p.poisson_ratio = c.poisson_ratio;
   p.density = c.density;
@@ -203,9 +204,14 @@ std::vector<std::string> elastic_case_names() {
 }
 
 ElasticModel elastic_model_of(const std::string& name) {
-  if (name == "neo_hookean") return ElasticModel::kNeoHookean;
+  if (name == "neo_hookean" || name == "global") return ElasticModel::kNeoHookean;
   if (name == "paper") return ElasticModel::kPaper;
-  throw_input("--models", "unknown model '" + name + "' (neo_hookean, paper)");
+  throw_input("--models", "unknown model '" + name + "' (neo_hookean, global, paper)");
+}
+
+const char* elastic_run_model_name(const ElasticRun& run) {
+  if (run.model == ElasticModel::kPaper) return "paper";
+  return run.global_step ? "global" : "neo_hookean";
 }
 
 ElasticCase make_elastic_case(const std::string& name, int resolution, double ref_scale) {
@@ -432,10 +438,11 @@ FrequencyMeasure measure_frequency(const ElasticCase& bar, const ElasticRun& run
 
 namespace {
 
-// The shipped solver's run of `model` at simulation resolution `sim`.
-ElasticRun shipped_run(ElasticModel model, int sim, const PbdParams& shipped, int workers) {
+// The shipped solver's run of the model named `model` at simulation resolution `sim`.
+ElasticRun shipped_run(const std::string& model, int sim, const PbdParams& shipped, int workers) {
   ElasticRun run;
-  run.model = model;
+  run.model = elastic_model_of(model);
+  run.global_step = model == "global";
   run.sim_resolution = sim;
   run.substeps = shipped.substeps;
   run.iterations = shipped.iterations;
@@ -448,10 +455,10 @@ ElasticRun shipped_run(ElasticModel model, int sim, const PbdParams& shipped, in
 // A case's configurations, each with its kind: the shipped solver at each simulation resolution that
 // fits the case ("defaults") and, with `sweep`, every other substeps x iterations of the options ("sweep").
 std::vector<std::pair<ElasticRun, std::string>> elastic_runs(const ElasticCase& c, const std::string& name, bool sweep,
-                                                             const std::vector<ElasticModel>& models,
+                                                             const std::vector<std::string>& models,
                                                              const PbdParams& shipped, const BenchElasticOptions& options) {
   std::vector<std::pair<ElasticRun, std::string>> runs;
-  for (ElasticModel model : models) {
+  for (const std::string& model : models) {
     for (int sim : options.sim_resolutions) {
       if (!fits(c.resolution, sim)) {
         std::fprintf(stderr, "divvox: bench elastic: %s: sim %d skipped (resolution %d is not sim x 2^l)\n",
@@ -477,17 +484,17 @@ std::vector<std::pair<ElasticRun, std::string>> elastic_runs(const ElasticCase& 
 
 // The cantilever's first natural frequency (damping off) at the shipped solver, per model and
 // simulation resolution; an empty array when the cantilever is not among the cases.
-nlohmann::json frequency_rows(const std::vector<std::string>& cases, const std::vector<ElasticModel>& models,
+nlohmann::json frequency_rows(const std::vector<std::string>& cases, const std::vector<std::string>& models,
                               const PbdParams& shipped, const BenchElasticOptions& options) {
   nlohmann::json frequency = nlohmann::json::array();
   if (std::find(cases.begin(), cases.end(), "cantilever") == cases.end()) return frequency;
   const ElasticCase bar = make_elastic_case("cantilever", options.resolution, options.ref_scale);
-  for (ElasticModel model : models) {
+  for (const std::string& model : models) {
     for (int sim : options.sim_resolutions) {
       if (!fits(bar.resolution, sim)) continue;
       const ElasticRun run = shipped_run(model, sim, shipped, options.workers);
       const FrequencyMeasure f = measure_frequency(bar, run);
-      frequency.push_back({{"model", model == ElasticModel::kNeoHookean ? "neo_hookean" : "paper"},
+      frequency.push_back({{"model", elastic_run_model_name(run)},
                            {"sim_resolution", sim}, {"substeps", run.substeps}, {"iterations", run.iterations},
                            {"measured_hz", f.measured_hz}, {"analytic_hz", f.analytic_hz},
                            {"crossings", f.crossings}});
@@ -505,8 +512,8 @@ std::string bench_elastic(const BenchElasticOptions& options) {
   make_output_dir(options.out_dir);
   const fs::path out(options.out_dir);
   const std::vector<std::string> cases = options.cases.empty() ? elastic_case_names() : options.cases;
-  std::vector<ElasticModel> models;
-  for (const std::string& m : options.models) models.push_back(elastic_model_of(m));
+  const std::vector<std::string>& models = options.models;
+  for (const std::string& m : models) elastic_model_of(m);  // a bad name fails before any work
   // The shipped solver (the liver scene's) is each case's "defaults" row.
   PbdParams shipped;
   try {
@@ -543,7 +550,7 @@ std::string bench_elastic(const BenchElasticOptions& options) {
     const bool sweep = std::find(options.sweep_cases.begin(), options.sweep_cases.end(), name) != options.sweep_cases.end();
     const std::vector<std::pair<ElasticRun, std::string>> runs = elastic_runs(c, name, sweep, models, shipped, options);
     for (const auto& [run, kind] : runs) {
-      const char* model = run.model == ElasticModel::kNeoHookean ? "neo_hookean" : "paper";
+      const char* model = elastic_run_model_name(run);
       if (options.progress) {
         std::fprintf(stderr, "divvox bench elastic: %s %s sim %d %dx%d\n", name.c_str(), model, run.sim_resolution,
                      run.substeps, run.iterations);

@@ -62,6 +62,7 @@ ElasticReference solve_reference(const ElasticCase& c, double timeout_seconds = 
 struct ElasticRun {
   int sim_resolution = 16, substeps = 5, iterations = 2;
   ElasticModel model = ElasticModel::kNeoHookean;
+  bool global_step = false;  // the material model with PbdParams::global_step (model "global")
   double stretch_compliance = 1e-6, shape_stiffness = 1.0;  // the paper model's knobs (kPaper only)
   int workers = 1;
 };
@@ -96,7 +97,7 @@ struct BenchElasticOptions {
   std::vector<int> sim_resolutions = {4, 8, 16};
   std::vector<int> substeps = {1, 2, 5};
   std::vector<int> iterations = {1, 2, 5, 10, 20};
-  std::vector<std::string> models = {"neo_hookean", "paper"};
+  std::vector<std::string> models = {"neo_hookean", "global", "paper"};
   int resolution = 0;         // fine resolution override (0: each case's)
   double ref_scale = 1.0;     // reference cells per axis x this
   double ccx_timeout = 60.0;  // seconds each CalculiX solve may run (finer references need more)
@@ -109,7 +110,9 @@ struct BenchElasticOptions {
 // bench_elastic.svg/.png (step time against error, Pareto front, defaults marked). Returns the CSV path.
 std::string bench_elastic(const BenchElasticOptions& options);
 
-// The models by name ("neo_hookean", "paper"); throws InputError naming --models otherwise.
+// The models by name ("neo_hookean", "global": the material model with its global step, "paper");
+// throws InputError naming --models otherwise. elastic_run_model_name: the name of a run's model.
 ElasticModel elastic_model_of(const std::string& name);
+const char* elastic_run_model_name(const ElasticRun& run);
 
 }  // namespace dvx

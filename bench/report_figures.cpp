@@ -124,7 +124,7 @@ Plot elastic_plot(const json& r) {
     for (auto& [key, s] : by_key) panel.series.push_back(s);
     PlotSeries shipped = chosen_series("shipped solver"), chosen = chosen_series("chosen (cheapest converged within 10 %)");
     chosen.point_type = 4;
-    for (const char* model : {"neo_hookean", "paper"}) {
+    for (const char* model : {"neo_hookean", "global", "paper"}) {
       const ElasticPick pick = elastic_pick(r, name, model);
       if (pick.shipped) {
         shipped.x.push_back(get(*pick.shipped, "step_p50_ms"));

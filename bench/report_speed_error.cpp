@@ -234,7 +234,7 @@ void elastic_section(Results& in, std::ostream& md, std::ostream& head) {
     }
   }
   for (const std::string& name : names) {
-    for (const char* model : {"neo_hookean", "paper"}) {
+    for (const char* model : {"neo_hookean", "global", "paper"}) {
       const ElasticPick pick = elastic_pick(r, name, model);
       std::vector<const json*> rows;
       for (const json& row : r["rows"]) {

@@ -234,11 +234,18 @@ Scene parse_scene(const json& root, const std::string& file) {
   if (root.contains("material")) parse_material(r, root["material"], pbd);
   if (root.contains("solver")) {
     const json& s = root["solver"];
-    r.check_keys(s, "solver", {"dt", "substeps", "iterations", "damping"});
+    r.check_keys(s, "solver", {"dt", "substeps", "iterations", "damping", "global_step"});
     if (s.contains("dt")) pbd.dt = r.number(s["dt"], "solver.dt", 1e-6, 1.0);
     if (s.contains("substeps")) pbd.substeps = r.integer(s["substeps"], "solver.substeps", 1, 1000);
     if (s.contains("iterations")) pbd.iterations = r.integer(s["iterations"], "solver.iterations", 1, 10000);
     if (s.contains("damping")) pbd.damping = r.number(s["damping"], "solver.damping", 0.0, 1.0);
+    if (s.contains("global_step")) {
+      if (!s["global_step"].is_boolean()) r.fail("solver.global_step", "must be true or false");
+      pbd.global_step = s["global_step"].get<bool>();
+      if (pbd.global_step && pbd.elastic != ElasticModel::kNeoHookean) {
+        r.fail("solver.global_step", "needs the material model (\"material\" with youngs_modulus / poisson_ratio)");
+      }
+    }
   }
   if (root.contains("gravity")) pbd.gravity = r.vec3(root["gravity"], "gravity", 1e6);
   if (root.contains("fixed")) parse_fixed(r, root["fixed"], pbd.fixed);
@@ -310,6 +317,7 @@ json scene_to_json(const Scene& scene) {
              {"scalpel", {{"length", scene.scalpel.length}}}};
   // Absent when empty / default: older recordings keep their header.
   if (scene.metres_per_unit != 1.0) out["units"] = {{"metres_per_unit", scene.metres_per_unit}, {"scene_lengths", "metres"}};
+  if (pbd.global_step) out["solver"]["global_step"] = true;
   if (!pbd.planes.empty()) out["planes"] = planes;
   if (scene.grab.given) {
     out["grab"] = {{"stiffness", scene.grab.stiffness}, {"radius", scene.grab.radius}, {"force_limit", scene.grab.force_limit}};

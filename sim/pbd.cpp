@@ -4,6 +4,7 @@
 // internals in pbd_internal.h; check_pbd_state in pbd_check.cpp.
 #include "sim/pbd.h"
 
+#include "sim/pbd_global.h"
 #include "sim/pbd_internal.h"
 #include "sim/pbd_kernels.h"
 
@@ -277,6 +278,8 @@ void build_step_batches(const PbdModel& s, PbdData& data, bool stretch_on, int s
   if (n == 0) return;
   // The first substep: its predict, then the rest of its batches (the body).
   add(StepBatch::kPredict, 0, n, particle_grain);
+  // The material's global step (sim/pbd_global.h), before the iterations correct it.
+  if (elastic && stretch_on && s.params.global_step) add(StepBatch::kGlobal, 0, 1, kSerial);
   for (int it = 0; it < s.params.iterations; ++it) {
     // The material's hexahedra (kNeoHookean), or the paper's stretch and shape matching.
     for (int c = 0; elastic && stretch_on && c < kColourGroups; ++c) {
@@ -522,6 +525,9 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
       case StepBatch::kPredict:
         if (begin == 0) begin_substep();
         advance(begin, end, false, true);
+        break;
+      case StepBatch::kGlobal:
+        global_elastic_step(s, data, material);
         break;
       case StepBatch::kStretch: {
         // Four at a time where a colour shares no particle (pbd_kernels.h); the overflow group in order.

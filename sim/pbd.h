@@ -55,6 +55,7 @@
 #include <Eigen/Geometry>
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -85,6 +86,8 @@ struct PbdParams {
   std::vector<Aabb> fixed;           // particles whose rest position lies in a box are anchored
   std::vector<ContactPlane> planes;  // static contact planes (sim/contact.h)
   bool piece_contact = true;         // pieces of different bodies do not interpenetrate (sim/contact.h)
+  bool global_step = false;          // kNeoHookean: a global linear solve each substep before the iterations
+                                     // (sim/pbd_global.h: stiff materials at any budget)
   double piece_friction = 0.5;       // Coulomb coefficient between pieces
 };
 
@@ -271,7 +274,7 @@ struct PbdModel {
 
 // One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
 struct StepBatch {
-  enum Kind : uint8_t { kPredict, kStretch, kShape, kElastic, kGrab, kPieceContact, kPlaneContact, kVelocity };
+  enum Kind : uint8_t { kPredict, kGlobal, kStretch, kShape, kElastic, kGrab, kPieceContact, kPlaneContact, kVelocity };
   uint8_t kind;
   uint32_t index;  // colour group, or contact batch; kVelocity: 1 when the next substep's predict follows in the pass
 };
@@ -279,6 +282,8 @@ struct StepBatch {
 // Work of the smallest chunk a step's batch is split into across workers, in instructions (the
 // grains in pbd.cpp follow from it): a batch with less than two such chunks runs on one thread.
 constexpr uint32_t kDefaultChunkWork = 40000;
+
+struct GlobalStepCache;  // sim/pbd_global.cpp
 
 // What the solver derives from the model and rebuilds from it (Jolt's SoftBodyUpdateContext, Box2D's
 // arena): never hashed, and never copied — a copy of the state (undo keeps copies) starts with an
@@ -302,6 +307,8 @@ struct PbdCache {
   // and their multipliers (kElasticConstraints per row, reset every substep).
   std::vector<ElasticRow> elastic_rows[kColourGroups];
   std::vector<double> elastic_lambda[kColourGroups];
+  // The global step's unknowns, matrices and factorisation (sim/pbd_global.h; PbdParams::global_step).
+  std::shared_ptr<GlobalStepCache> global;
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
   // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position, in
   // no particular order (each row writes its own slot), so a step without a cut looks up no labels.

@@ -58,6 +58,9 @@ ElasticConstants elastic_constants(double youngs_modulus, double poisson_ratio, 
   const double mu = E / (2.0 * (1.0 + nu));
   const double lambda = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
   k.inv_edge = 1.0 / sim_size;
+  k.mu = mu;
+  k.lame = lambda;
+  k.h = h;
   k.alpha_dev = 1.0 / (2.0 * mu * h * h);
   k.volume = lambda > 0.0;
   k.alpha_vol = k.volume ? 1.0 / (lambda * h * h) : 0.0;

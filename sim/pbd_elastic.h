@@ -41,6 +41,8 @@ struct ElasticConstants {
   double alpha_vol = 0.0;    // 1 / (lambda h^2): volume compliance per unit volume (lambda > 0)
   bool volume = true;        // lambda > 0 (nu > 0): the volume constraint acts
   double damping = 0.0;      // beta / h (XPBD constraint damping; beta: Rayleigh stiffness damping in s)
+  double mu = 0.0, lame = 0.0;  // Lame's mu and lambda (Pa), for the global step (sim/pbd_global.h)
+  double h = 0.0;               // the substep
   // The shape-function gradients at the 8 Gauss points and the centre times inv_edge, per corner:
   // scaled once here, not in each of the kernel's 9 deformation gradients a piece per iteration.
   double grad[9][8][3] = {};

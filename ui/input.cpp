@@ -239,6 +239,7 @@ SceneEdit scene_edit_of(const Scene& scene) {
   e.youngs_modulus = scene.pbd.youngs_modulus;
   e.poisson_ratio = scene.pbd.poisson_ratio;
   e.stiffness_damping = scene.pbd.stiffness_damping;
+  e.global_step = scene.pbd.global_step;
   e.density = scene.pbd.density;
   e.stretch_compliance = scene.pbd.stretch_compliance;
   e.shape_stiffness = scene.pbd.shape_stiffness;
@@ -264,6 +265,7 @@ bool apply_scene_edit(const Scene& base, const SceneEdit& e, Scene& out, std::st
   p.youngs_modulus = e.youngs_modulus;
   p.poisson_ratio = e.poisson_ratio;
   p.stiffness_damping = e.stiffness_damping;
+  p.global_step = e.physical && e.global_step;
   p.stretch_compliance = e.stretch_compliance;
   p.shape_stiffness = e.shape_stiffness;
   p.dt = e.dt;

@@ -127,6 +127,7 @@ struct SceneEdit {
   int sim_resolution = 16;
   bool physical = false;
   double youngs_modulus = 5000.0, poisson_ratio = 0.45, stiffness_damping = 0.0;
+  bool global_step = false;  // the material model's global step (stiff materials)
   double density = 1000.0, stretch_compliance = 1e-6, shape_stiffness = 1.0;
   double dt = 1.0 / 60.0;
   int substeps = 1, iterations = 10;

@@ -222,6 +222,25 @@ TEST_SUITE("scene") {
     CHECK(units({{"scene_lengths", "feet"}}).find("units.scene_lengths") != std::string::npos);
   }
 
+  TEST_CASE("solver.global_step: the material model's global step, validated, round-tripped, absent by default") {
+    const json base = {{"mesh", "m.obj"}, {"material", {{"youngs_modulus", 5e6}, {"poisson_ratio", 0.3}}}};
+    json on = base;
+    on["solver"] = {{"global_step", true}, {"substeps", 1}, {"iterations", 1}};
+    const Scene scene = parse_scene(on, "s.json");
+    CHECK(scene.pbd.global_step);
+    CHECK(parse_scene(scene_to_json(scene), "s.json").pbd.global_step);
+    // Off by default, and then absent from the JSON (recorded headers stay as they were).
+    const Scene off = parse_scene(base, "s.json");
+    CHECK_FALSE(off.pbd.global_step);
+    CHECK_FALSE(scene_to_json(off)["solver"].contains("global_step"));
+    // Bad values name the key: not a boolean, or the paper's model (it has no hexahedra to solve).
+    json bad = base;
+    bad["solver"] = {{"global_step", 1}};
+    CHECK(parse_error(bad).find("solver.global_step: must be true or false") != std::string::npos);
+    CHECK(parse_error(json{{"mesh", "m.obj"}, {"solver", {{"global_step", true}}}}).find("solver.global_step: needs the material model") !=
+          std::string::npos);
+  }
+
   TEST_CASE("the liver is a human liver in SI units: ~0.2 m, ~1-2 kg, it hangs from its box onto its tray") {
     const Scene scene = load_scene(dvx_test::source_path("assets/scenes/liver.json"));
     CHECK(scene.pbd.elastic == ElasticModel::kNeoHookean);

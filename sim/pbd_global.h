@@ -1,0 +1,62 @@
+// A global step for the material model (issue 30's stiff regime, PbdParams::global_step).
+//
+// Why: the XPBD hexahedra (sim/pbd_elastic.h) are solved one piece at a time, so support travels one
+// simulation voxel per iteration. A stiff material (MPa) or a tall stack of pieces needs hundreds of
+// substeps before gravity is carried to the anchors (a 5 MPa cantilever at the shipped 5 x 2 sags 36x
+// too far). This step solves the whole body's linearised backward-Euler system once per substep,
+//
+//   (M / h^2 + (1 + beta / h) K) delta = -grad Psi(x~) - (beta / h) K (x~ - x_prev),
+//
+// from the prediction x~, where Psi is the hexahedra's own energy (the XPBD constraints' quadratic
+// energy: mu V_g |F_g - R|^2 at the Gauss points, lambda V / 2 (det F - 1)^2 at the centre) and K its
+// Gauss-Newton Hessian (the shear part, 2 mu sum_g V_g G_g G_g^T per axis, does not depend on the
+// rotation; the volume part is lambda V c c^T with c = cof(F) G at the centre). Conjugate gradients
+// solve it, preconditioned by a Cholesky factorisation (Eigen's SimplicialLDLT) of the same matrix
+// with the volume part made isotropic (lambda V G G^T per axis): one scalar matrix for the three
+// axes, refactored only when the model or the substep changes (a cut, or init).
+//
+// The multipliers of the XPBD constraints are then set to what the new state implies (lambda =
+// -(C + gamma grad C . (x - x_prev)) / alpha~, the XPBD update's fixed point), so the substep's
+// usual iterations (contact, the grab, the hexahedra themselves) start from a consistent solution and
+// only correct what the global step left: a body at rest stays at the continuum's equilibrium
+// whatever its stiffness, and the iterations' results keep their meaning. Serial, one scalar order:
+// the same bits for any worker count.
+#pragma once
+
+#include "sim/pbd_elastic.h"
+
+#include <cstdint>
+#include <vector>
+
+namespace dvx {
+
+struct PbdModel;
+struct PbdData;
+
+// What the last global step did (for the bench and the tests).
+struct GlobalStepStats {
+  uint32_t unknowns = 0;     // particles solved (not anchored, in a hexahedron with material)
+  uint32_t iterations = 0;   // conjugate-gradient iterations of the last substep
+  double residual = 0.0;     // its final residual relative to max(|b|, the load)
+  uint64_t factorisations = 0;  // preconditioner factorisations so far
+};
+
+// Tolerance and cap of the conjugate gradients: the residual relative to the larger of the right-hand
+// side and the substep's load |M (x~ - x_prev)| / h^2 (gravity and inertia).
+constexpr double kGlobalTolerance = 1e-7;
+constexpr uint32_t kGlobalMaxIterations = 200;
+// The preconditioner is refactorised with the rows' current rotations when a solve needed more than
+// this many iterations (a body that has turned or bent far since the last factorisation). Measured on
+// the hanging liver at sim 16 (bench elastic, 1 x 1): never refactorising, 40-85 iterations a substep
+// and 324 ms a step; above 10 iterations, 18.5 ms; above 20 or 40, 25 and 39 ms.
+constexpr uint32_t kRefactorIterations = 10;
+
+// One global step of the current substep (h, the material's constants k, Lame's mu and lambda, the
+// Rayleigh beta in seconds) on data.position from data.previous, and the multipliers of
+// data.cache.elastic_lambda set to match. Needs refresh_blocks' rows (data.cache.elastic_rows).
+void global_elastic_step(const PbdModel& s, PbdData& data, const ElasticConstants& k);
+
+// The last global step's figures (zeros before the first).
+GlobalStepStats global_step_stats(const PbdData& data);
+
+}  // namespace dvx
