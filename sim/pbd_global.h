@@ -45,11 +45,14 @@ struct GlobalStepStats {
 // side and the substep's load |M (x~ - x_prev)| / h^2 (gravity and inertia).
 constexpr double kGlobalTolerance = 1e-7;
 constexpr uint32_t kGlobalMaxIterations = 200;
-// The preconditioner is refactorised with the rows' current rotations when a solve needed more than
-// this many iterations (a body that has turned or bent far since the last factorisation). Measured on
-// the hanging liver at sim 16 (bench elastic, 1 x 1): never refactorising, 40-85 iterations a substep
-// and 324 ms a step; above 10 iterations, 18.5 ms; above 20 or 40, 25 and 39 ms.
-constexpr uint32_t kRefactorIterations = 10;
+// The preconditioner is refactorised with the rows' current rotations when the iterations a solve
+// needed beyond kFreshIterations (what a fresh factorisation needs) have cost, summed since the last
+// factorisation, as many operations as a factorisation. Measured on the hanging liver at sim 16
+// (bench elastic, 1 x 1) with a fixed rule instead: never refactorising, 40-85 iterations a substep and
+// 324 ms a step; above 10 iterations a solve, 18.5 ms; above 20 or 40, 25 and 39 ms. A fixed 10
+// refactorised the 2 MPa liver in the window at every other step (13-29 iterations after each: a few
+// thin pieces' rotations move), 130 ms each.
+constexpr uint32_t kFreshIterations = 3;
 
 // One global step of the current substep (h, the material's constants k, Lame's mu and lambda, the
 // Rayleigh beta in seconds) on data.position from data.previous, and the multipliers of
