@@ -545,7 +545,7 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
         // (pbd_kernels.h).
         solve_elastic_blocks(x, data.previous[0].data(), data.cache.elastic_rows[b.index].data(),
                              data.cache.elastic_lambda[b.index].data(), begin, end, material, data.rotation.data(),
-                             b.index != kOverflowColour);
+                             params.global_step ? data.enhancement.data() : nullptr, b.index != kOverflowColour);
         break;
       case StepBatch::kGrab:
         solve_grab(s, data, h, grab_lambda);

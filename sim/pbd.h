@@ -340,6 +340,9 @@ struct PbdData {
   std::vector<Vec3d> position, velocity, previous;  // (particle slots)
   std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_groups
   std::vector<Eigen::Quaterniond> rotation;           // (piece slots) warm start of the rotation extraction
+  // (piece slots x 9) the incompatible modes' amplitudes of the material's hexahedra (pbd_elastic.h):
+  // written by the global step, held by the iterations; zero without it.
+  std::vector<double> enhancement;
   // Grab tool (see "Grab" at grab_begin): the held particles and, parallel to them, their offsets
   // from the target, the compliances (m/N) and force limits (N) of their attachments. Empty: no grab.
   std::vector<uint32_t> grab_particles;

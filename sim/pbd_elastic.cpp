@@ -2,6 +2,7 @@
 
 #include "sim/pbd_kernels.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 
@@ -61,6 +62,10 @@ ElasticConstants elastic_constants(double youngs_modulus, double poisson_ratio, 
   k.mu = mu;
   k.lame = lambda;
   k.h = h;
+  const double lame_points = std::min(lambda, kPointLameRatio * mu);
+  k.volume_ratio = mu > 0.0 ? lame_points / (2.0 * mu) : 0.0;
+  k.lame_centre = lambda > lame_points ? lambda - lame_points : 0.0;
+  k.alpha_vol_centre = k.lame_centre > 0.0 ? 1.0 / (k.lame_centre * h * h) : 0.0;
   k.alpha_dev = 1.0 / (2.0 * mu * h * h);
   k.volume = lambda > 0.0;
   k.alpha_vol = k.volume ? 1.0 / (lambda * h * h) : 0.0;

@@ -27,9 +27,14 @@ struct GlobalStepCache {
   // Each row's shear stiffness in its own frame (R = I), 24 x 24 column-major: apply_row on each
   // corner axis once per structure; the step's K is R K0 R^T per corner block plus the volume term.
   std::vector<double> stiffness;
+  // The incompatible modes (pbd_elastic.h) condensed out: the stiffness above is K_xx - K_xb K_bb^-1
+  // K_bx; per row T = K_bb^-1 K_bx (9 x 24, column-major) and K_bb^-1 (9 x 9) in its own frame, its
+  // modes' means (3), and per substep the modes' right-hand side -dPsi/dbeta at x_prev (9, world).
+  std::vector<double> mode_solve, mode_inverse, mode_mean, mode_rhs;
   // The preconditioner: the step's matrix with each row's rotation when it was factorised.
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> preconditioner;
-  // Per substep, per row: its rotation R (9, row-major) and volume gradient c_a (24) at x_prev.
+  // Per substep, per row: its rotation R (9, row-major) and the centre volume's gradient c_a (24) at
+  // x_prev.
   std::vector<double> rotation, cof;
   // The rows' rotations when the preconditioner was factorised (9 each), and per unknown the rotation
   // from those frames to the current ones (9 each; the warp below).
@@ -80,6 +85,36 @@ void mul3(const double M[9], const double v[3], double out[3]) {
   for (int i = 0; i < 3; ++i) out[i] = M[3 * i] * v[0] + M[3 * i + 1] * v[1] + M[3 * i + 2] * v[2];
 }
 
+// F_g += the incompatible modes' gradient at Gauss point q (pbd_elastic.h; the kernels' sum).
+void add_modes(int q, const double* mean, const double* beta, double F[9]) {
+  for (int m = 0; m < 3; ++m) {
+    const double sm = (((q >> m) & 1) ? 1.0 : -1.0) - mean[m];
+    for (int i = 0; i < 3; ++i) F[3 * i + m] += sm * beta[3 * m + i];
+  }
+}
+
+// A Gauss point of the enhanced element as the kernels compute it: S = sym(R^T F) - I; returns C^2 =
+// |S|^2 + volume_ratio tr(S)^2 and sets P = R (S + volume_ratio tr(S) I) (R row-major).
+double symmetric_strain(const double* R, const double F[9], double volume_ratio, double P[9]) {
+  double RtF[9], S[9], c2 = 0.0;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) RtF[3 * i + j] = R[i] * F[j] + R[3 + i] * F[3 + j] + R[6 + i] * F[6 + j];
+  }
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) {
+      S[3 * i + j] = 0.5 * (RtF[3 * i + j] + RtF[3 * j + i]) - (i == j ? 1.0 : 0.0);
+      c2 += S[3 * i + j] * S[3 * i + j];
+    }
+  }
+  const double trace = S[0] + S[4] + S[8];
+  c2 += volume_ratio * trace * trace;
+  for (int i = 0; i < 3; ++i) S[4 * i] += volume_ratio * trace;
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) P[3 * i + j] = R[3 * i] * S[j] + R[3 * i + 1] * S[3 + j] + R[3 * i + 2] * S[6 + j];
+  }
+  return c2;
+}
+
 // The rotation of F at the centre, from the piece's warm start (kept for the kernels' next solve).
 Eigen::Matrix3d centre_rotation(const double F[9], Eigen::Quaterniond& rotation) {
   Eigen::Matrix3d a;
@@ -94,72 +129,38 @@ const ElasticRow& row_of(const PbdData& data, const GlobalStepCache& g, size_t r
   return data.cache.elastic_rows[g.row_colour[r]][g.row_index[r]];
 }
 
-// A row's stiffness K applied to corner displacements d (times 1 + beta / h): the Hessian of the
-// hexahedron's energy at small strain about its rotation R. Shear: sum_g 2 mu V_g |R^T D_g - W|^2 with
-// D_g = sum_a d_a (x) G_g[a] and W = skew(R^T D_c) the rotation's own change (R follows F at the
-// centre), so a rigid rotation costs nothing (without W a bending beam crept towards its rest under
-// a stiffness made of rotations); volume: lambda V (c . d)^2 with c_a = cof(F) G_c[a].
-void apply_row(const ElasticRow& row, const ElasticConstants& k, const double* R, const double* c,
-               const double (&d)[8][3], double (&out)[8][3]) {
+// A row's stiffness K applied to corner displacements d (times 1 + beta / h), in the row's own frame
+// (R = I): the Hessian of the enhanced element's energy at small strain, sum_g V_g (2 mu |sym D_g|^2 +
+// lambda tr(D_g)^2) / 2 with D_g = sum_a d_a (x) G_g[a] plus the modes' db (add_modes), so a rotation
+// costs nothing. out_b gets the modes' part. (The centre's volume term, lame_centre V c c^T with c_a =
+// cof(F) G_c[a], is added where the rotation is known: factorise, apply_matrix.)
+void apply_row(const ElasticRow& row, const ElasticConstants& k, const double (&d)[8][3],
+               double (&out)[8][3], const double (&mean)[3], const double (&db)[3][3], double (&out_b)[3][3]) {
   const double scale = 1.0 + k.damping;
-  double Dc[9], W[9], RtD[9];
-  gradient_at(d, k.grad[8], Dc);
-  // W = skew(R^T D_c).
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) RtD[3 * i + j] = R[i] * Dc[j] + R[3 + i] * Dc[3 + j] + R[6 + i] * Dc[6 + j];
-  }
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) W[3 * i + j] = 0.5 * (RtD[3 * i + j] - RtD[3 * j + i]);
-  }
-  double S[9] = {};  // sum_g 2 mu V_g E_g
   for (int q = 0; q < 8; ++q) {
     if (!(row.octant[q] > 0.0)) continue;
-    double Dg[9], E[9], Y[9];
+    double Dg[9], E[9];
     gradient_at(d, k.grad[q], Dg);
+    add_modes(q, mean, &db[0][0], Dg);
     const double w = scale * 2.0 * k.mu * row.octant[q];
+    const double trace = k.volume_ratio * (Dg[0] + Dg[4] + Dg[8]);
     for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) {
-        E[3 * i + j] = w * (R[i] * Dg[j] + R[3 + i] * Dg[3 + j] + R[6 + i] * Dg[6 + j] - W[3 * i + j]);
-        S[3 * i + j] += E[3 * i + j];
-      }
-    }
-    // Y = R E: out_a += Y G_g[a].
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j) Y[3 * i + j] = R[3 * i] * E[j] + R[3 * i + 1] * E[3 + j] + R[3 * i + 2] * E[6 + j];
+      for (int j = 0; j < 3; ++j) E[3 * i + j] = w * (0.5 * (Dg[3 * i + j] + Dg[3 * j + i]) + (i == j ? trace : 0.0));
     }
     for (int a = 0; a < 8; ++a) {
       double f[3];
-      mul3(Y, k.grad[q][a], f);
+      mul3(E, k.grad[q][a], f);
       for (int e = 0; e < 3; ++e) out[a][e] += f[e];
     }
-  }
-  // W's own derivative: out_a -= R skew(S) G_c[a].
-  double Z[9], sk[9];
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) sk[3 * i + j] = 0.5 * (S[3 * i + j] - S[3 * j + i]);
-  }
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) Z[3 * i + j] = R[3 * i] * sk[j] + R[3 * i + 1] * sk[3 + j] + R[3 * i + 2] * sk[6 + j];
-  }
-  for (int a = 0; a < 8; ++a) {
-    double f[3];
-    mul3(Z, k.grad[8][a], f);
-    for (int e = 0; e < 3; ++e) out[a][e] -= f[e];
-  }
-  if (k.volume && c) {
-    double t = 0.0;
-    for (int a = 0; a < 8; ++a) {
-      for (int e = 0; e < 3; ++e) t += c[3 * a + e] * d[a][e];
-    }
-    t *= scale * k.lame * row.volume;
-    for (int a = 0; a < 8; ++a) {
-      for (int e = 0; e < 3; ++e) out[a][e] += t * c[3 * a + e];
+    for (int m = 0; m < 3; ++m) {
+      const double sm = (((q >> m) & 1) ? 1.0 : -1.0) - mean[m];
+      for (int i = 0; i < 3; ++i) out_b[m][i] += sm * E[3 * i + m];
     }
   }
 }
 
-// Each row's rotation R and volume gradient c_a at the substep's start (x_prev); kept for the
-// kernels' warm start too.
+// Each row's rotation R and centre volume gradient c_a at the substep's start (x_prev); R kept for
+// the kernels' warm start too.
 void row_frames(PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
   const size_t rows = g.row_colour.size();
   const double* prev = data.previous[0].data();
@@ -215,17 +216,39 @@ void build_structure(const PbdModel& s, PbdData& data, GlobalStepCache& g, const
   }
   g.mass_h2.resize(Eigen::Index(n));
   for (size_t u = 0; u < n; ++u) g.mass_h2[Eigen::Index(u)] = 1.0 / (s.inv_mass[g.particle[u]] * k.h * k.h);
-  // Each row's K0: apply_row with R = I and no volume term on each corner axis.
-  static const double kIdentity[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  // Each row's K0: apply_row with R = I and no volume term on each corner axis and mode amplitude,
+  // the modes then condensed out (they are the row's own: no other row sees them).
   g.stiffness.assign(576 * rows, 0.0);
+  g.mode_solve.assign(216 * rows, 0.0);
+  g.mode_inverse.assign(81 * rows, 0.0);
+  g.mode_mean.assign(3 * rows, 0.0);
   for (size_t r = 0; r < rows; ++r) {
     const ElasticRow& row = row_of(data, g, r);
-    for (int col = 0; col < 24; ++col) {
-      double d[8][3] = {}, out[8][3] = {};
-      d[col / 3][col % 3] = 1.0;
-      apply_row(row, k, kIdentity, nullptr, d, out);
-      for (int i = 0; i < 24; ++i) g.stiffness[576 * r + 24 * size_t(col) + size_t(i)] = out[i / 3][i % 3];
+    double mean[3];
+    enhanced_mode_means(row.octant, mean);
+    Eigen::Matrix<double, 33, 33> K;
+    for (int col = 0; col < 33; ++col) {
+      double d[8][3] = {}, out[8][3] = {}, db[3][3] = {}, out_b[3][3] = {};
+      if (col < 24) {
+        d[col / 3][col % 3] = 1.0;
+      } else {
+        db[(col - 24) / 3][(col - 24) % 3] = 1.0;
+      }
+      apply_row(row, k, d, out, mean, db, out_b);
+      for (int i = 0; i < 24; ++i) K(i, col) = out[i / 3][i % 3];
+      for (int i = 0; i < 9; ++i) K(24 + i, col) = out_b[i / 3][i % 3];
     }
+    // K_bb is singular for a mode whose weights are all zero (one filled octant along its axis):
+    // a small multiple of its scale keeps that mode still.
+    Eigen::Matrix<double, 9, 9> Kbb = K.block<9, 9>(24, 24);
+    const double scale = Kbb.trace() / 9.0;
+    Kbb.diagonal().array() += scale > 0.0 ? 1e-9 * scale : 1.0;
+    const Eigen::Matrix<double, 9, 9> inverse = Kbb.llt().solve(Eigen::Matrix<double, 9, 9>::Identity());
+    const Eigen::Matrix<double, 9, 24> T = inverse * K.block<9, 24>(24, 0);
+    Eigen::Map<Eigen::Matrix<double, 24, 24>>(&g.stiffness[576 * r]) = K.block<24, 24>(0, 0) - K.block<24, 9>(0, 24) * T;
+    Eigen::Map<Eigen::Matrix<double, 9, 24>>(&g.mode_solve[216 * r]) = T;
+    Eigen::Map<Eigen::Matrix<double, 9, 9>>(&g.mode_inverse[81 * r]) = inverse;
+    for (int m = 0; m < 3; ++m) g.mode_mean[3 * r + size_t(m)] = mean[m];
   }
   g.stats.unknowns = uint32_t(n);
 }
@@ -240,7 +263,7 @@ void factorise(GlobalStepCache& g, const ElasticConstants& k, const PbdData& dat
     const uint32_t* u = &g.row_unknown[8 * r];
     const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> R(&g.rotation[9 * r]);
     const Eigen::Map<const Eigen::Matrix<double, 24, 24>> K0(&g.stiffness[576 * r]);
-    const double volume_k = k.volume ? (1.0 + k.damping) * k.lame * row_of(data, g, r).volume : 0.0;
+    const double volume_k = (1.0 + k.damping) * k.lame_centre * row_of(data, g, r).volume;
     const double* c = &g.cof[24 * r];
     for (int a = 0; a < 8; ++a) {
       if (u[a] == kNone) continue;
@@ -355,6 +378,7 @@ void build_rhs(PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
     for (int e = 0; e < 3; ++e) g.b[3 * u + e] = g.mass_h2[u] * (x[i + e] - prev[i + e]);
   }
   g.load = g.b.norm();
+  g.mode_rhs.resize(9 * rows);
   for (size_t r = 0; r < rows; ++r) {
     const ElasticRow& row = row_of(data, g, r);
     const double* R = &g.rotation[9 * r];
@@ -362,24 +386,46 @@ void build_rhs(PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
     for (int a = 0; a < 8; ++a) {
       for (int e = 0; e < 3; ++e) ps[a][e] = prev[3 * size_t(row.p[a]) + e];
     }
-    // Shear: 2 mu V_g (F_g - R) G_g[a].
-    double F[9];
+    // Shear: 2 mu V_g R S_g G_g[a] (symmetric_strain), F_g with the modes' amplitudes; their own
+    // derivative in out_b.
+    const double* beta = &data.enhancement[9 * size_t(row.piece)];
+    const double* mean = &g.mode_mean[3 * r];
+    double F[9], out_b[3][3] = {};
     for (int q = 0; q < 8; ++q) {
       if (!(row.octant[q] > 0.0)) continue;
       gradient_at(ps, k.grad[q], F);
+      add_modes(q, mean, beta, F);
       double T[9];
-      for (int i = 0; i < 9; ++i) T[i] = 2.0 * k.mu * row.octant[q] * (F[i] - R[i]);
+      symmetric_strain(R, F, k.volume_ratio, T);
+      for (int i = 0; i < 9; ++i) T[i] *= 2.0 * k.mu * row.octant[q];
       for (int a = 0; a < 8; ++a) {
         double f[3];
         mul3(T, k.grad[q][a], f);
         for (int e = 0; e < 3; ++e) out[a][e] += f[e];
       }
+      for (int m = 0; m < 3; ++m) {
+        const double sm = (((q >> m) & 1) ? 1.0 : -1.0) - mean[m];
+        for (int i = 0; i < 3; ++i) out_b[m][i] += sm * T[3 * i + m];
+      }
     }
-    // Volume: lambda V (det F - 1) c_a.
-    if (k.volume) {
+    // The modes condensed out: b_x -= R T^T R^T b_b with b_b = -dPsi/dbeta (kept for the update).
+    double* rhs_b = &g.mode_rhs[9 * r];
+    Eigen::Matrix<double, 9, 1> local_b;
+    for (int m = 0; m < 3; ++m) {
+      for (int i = 0; i < 3; ++i) rhs_b[3 * m + i] = -out_b[m][i];
+      for (int e = 0; e < 3; ++e) local_b[3 * m + e] = -(R[e] * out_b[m][0] + R[3 + e] * out_b[m][1] + R[6 + e] * out_b[m][2]);
+    }
+    const Eigen::Matrix<double, 24, 1> through = Eigen::Map<const Eigen::Matrix<double, 9, 24>>(&g.mode_solve[216 * r]).transpose() * local_b;
+    for (int a = 0; a < 8; ++a) {
+      double f[3];
+      mul3(R, &through[3 * a], f);
+      for (int e = 0; e < 3; ++e) out[a][e] += f[e];
+    }
+    // Volume at the centre: lame_centre V (det F - 1) c_a.
+    if (k.lame_centre > 0.0) {
       gradient_at(ps, k.grad[8], F);
       double cof[9];
-      const double s = k.lame * row.volume * (cofactor(F, cof) - 1.0);
+      const double s = k.lame_centre * row.volume * (cofactor(F, cof) - 1.0);
       const double* c = &g.cof[24 * r];
       for (int a = 0; a < 8; ++a) {
         for (int e = 0; e < 3; ++e) out[a][e] += s * c[3 * a + e];
@@ -393,7 +439,7 @@ void build_rhs(PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
   }
 }
 
-// q = A p: M / h^2 p + per row R K0 R^T p + (1 + beta / h) lambda V c (c . p).
+// q = A p: M / h^2 p + per row R K0 R^T p + (1 + beta / h) lame_centre V c (c . p).
 void apply_matrix(const PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
   g.q.resize(g.p.size());
   for (Eigen::Index i = 0; i < g.p.size(); ++i) g.q[i] = g.mass_h2[i / 3] * g.p[i];
@@ -414,9 +460,9 @@ void apply_matrix(const PbdData& data, GlobalStepCache& g, const ElasticConstant
     const Eigen::Matrix<double, 24, 1> y = K0 * local;
     double t = 0.0;
     const double* c = &g.cof[24 * r];
-    if (k.volume) {
+    if (k.lame_centre > 0.0) {
       for (int i = 0; i < 24; ++i) t += c[i] * d[i];
-      t *= (1.0 + k.damping) * k.lame * row_of(data, g, r).volume;
+      t *= (1.0 + k.damping) * k.lame_centre * row_of(data, g, r).volume;
     }
     for (int a = 0; a < 8; ++a) {
       if (u[a] == kNone) continue;
@@ -475,19 +521,20 @@ void set_multipliers(PbdData& data, GlobalStepCache& g, const ElasticConstants& 
     load_corners(data, row, xs, ps);
     double F[9];
     gradient_at(xs, k.grad[8], F);
-    const Eigen::Matrix3d R = centre_rotation(F, data.rotation[row.piece]);
+    const Eigen::Matrix3d Rm = centre_rotation(F, data.rotation[row.piece]);
+    double R[9];
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) R[3 * i + j] = Rm(i, j);
+    }
+    const double* beta = &data.enhancement[9 * size_t(row.piece)];
     for (int q = 0; q < 8; ++q) {
       lambda[q] = 0.0;
       if (!(row.octant[q] > 0.0)) continue;
       gradient_at(xs, k.grad[q], F);
-      double c2 = 0.0;
-      for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-          F[3 * i + j] -= R(i, j);
-          c2 += F[3 * i + j] * F[3 * i + j];
-        }
-      }
-      const double c = std::sqrt(c2);
+      add_modes(q, &g.mode_mean[3 * r], beta, F);
+      double P[9];
+      const double c = std::sqrt(symmetric_strain(R, F, k.volume_ratio, P));
+      for (int i = 0; i < 9; ++i) F[i] = P[i];
       if (!(c > 1e-12)) continue;
       double rate = 0.0;
       for (int a = 0; a < 8; ++a) {
@@ -498,7 +545,7 @@ void set_multipliers(PbdData& data, GlobalStepCache& g, const ElasticConstants& 
       lambda[q] = -(c + k.damping * rate) * row.octant[q] / k.alpha_dev;
     }
     lambda[8] = 0.0;
-    if (k.volume) {
+    if (k.lame_centre > 0.0) {
       gradient_at(xs, k.grad[8], F);
       double cof[9];
       const double det = cofactor(F, cof);
@@ -508,7 +555,32 @@ void set_multipliers(PbdData& data, GlobalStepCache& g, const ElasticConstants& 
         mul3(cof, k.grad[8][a], grad);
         for (int e = 0; e < 3; ++e) rate += grad[e] * (xs[a][e] - ps[a][e]);
       }
-      lambda[8] = -((det - 1.0) + k.damping * rate) * row.volume / k.alpha_vol;
+      lambda[8] = -((det - 1.0) + k.damping * rate) * row.volume / k.alpha_vol_centre;
+    }
+  }
+}
+
+// The modes' amplitudes after the solve: db = K_bb^-1 R^T b_b - T R^T d per row (its own frame), back
+// to the world with R.
+void update_modes(PbdData& data, const GlobalStepCache& g) {
+  const size_t rows = g.row_colour.size();
+  for (size_t r = 0; r < rows; ++r) {
+    const ElasticRow& row = row_of(data, g, r);
+    const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> R(&g.rotation[9 * r]);
+    const uint32_t* u = &g.row_unknown[8 * r];
+    Eigen::Matrix<double, 24, 1> local_d;
+    for (int a = 0; a < 8; ++a) {
+      local_d.segment<3>(3 * a) =
+          u[a] == kNone ? Eigen::Vector3d::Zero() : Eigen::Vector3d(R.transpose() * g.d.segment<3>(3 * Eigen::Index(u[a])));
+    }
+    Eigen::Matrix<double, 9, 1> local_b;
+    for (int m = 0; m < 3; ++m) local_b.segment<3>(3 * m) = R.transpose() * Eigen::Map<const Eigen::Vector3d>(&g.mode_rhs[9 * r + 3 * size_t(m)]);
+    const Eigen::Matrix<double, 9, 1> db = Eigen::Map<const Eigen::Matrix<double, 9, 9>>(&g.mode_inverse[81 * r]) * local_b -
+                                           Eigen::Map<const Eigen::Matrix<double, 9, 24>>(&g.mode_solve[216 * r]) * local_d;
+    double* beta = &data.enhancement[9 * size_t(row.piece)];
+    for (int m = 0; m < 3; ++m) {
+      const Eigen::Vector3d world = R * db.segment<3>(3 * m);
+      for (int i = 0; i < 3; ++i) beta[3 * m + i] += world[i];
     }
   }
 }
@@ -548,6 +620,7 @@ void global_elastic_step(const PbdModel& s, PbdData& data, const ElasticConstant
     const size_t i = 3 * size_t(g.particle[u]);
     for (int e = 0; e < 3; ++e) x[i + e] = prev[i + e] + g.d[3 * Eigen::Index(u) + e];
   }
+  update_modes(data, g);
   set_multipliers(data, g, k);
 }
 

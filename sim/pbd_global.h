@@ -4,16 +4,18 @@
 // simulation voxel per iteration. A stiff material (MPa) or a tall stack of pieces needs hundreds of
 // substeps before gravity is carried to the anchors (a 5 MPa cantilever at the shipped 5 x 2 sags 36x
 // too far). This step solves the whole body's linearised backward-Euler system once per substep,
+// linearised at the substep's start x_prev (so a body at rest is at its fixed point exactly when
+// grad Psi = M g):
 //
-//   (M / h^2 + (1 + beta / h) K) delta = -grad Psi(x~) - (beta / h) K (x~ - x_prev),
+//   (M / h^2 + (1 + beta / h) K) delta = M (x~ - x_prev) / h^2 - grad Psi(x_prev),   x = x_prev + delta,
 //
-// from the prediction x~, where Psi is the hexahedra's own energy (the XPBD constraints' quadratic
-// energy: mu V_g |F_g - R|^2 at the Gauss points, lambda V / 2 (det F - 1)^2 at the centre) and K its
-// Gauss-Newton Hessian (the shear part, 2 mu sum_g V_g G_g G_g^T per axis, does not depend on the
-// rotation; the volume part is lambda V c c^T with c = cof(F) G at the centre). Conjugate gradients
-// solve it, preconditioned by a Cholesky factorisation (Eigen's SimplicialLDLT) of the same matrix
-// with the volume part made isotropic (lambda V G G^T per axis): one scalar matrix for the three
-// axes, refactored only when the model or the substep changes (a cut, or init).
+// where Psi is the XPBD constraints' quadratic energy of the enhanced element (pbd_elastic.h: the
+// incompatible modes' amplitudes are unknowns too, condensed out piece by piece and updated after the
+// solve) and K its small-strain Hessian about each piece's rotation R, R K0 R^T (K0 once per model,
+// rotation-free through the symmetric strain) plus the centre's volume term. Conjugate gradients solve
+// it, preconditioned by a Cholesky factorisation (Eigen's SimplicialLDLT) of the same matrix with the
+// rotations of the moment it was factorised, warped by each unknown's mean turn since, refactorised
+// with the model and when the stale factorisation's extra iterations have cost as much as a new one.
 //
 // The multipliers of the XPBD constraints are then set to what the new state implies (lambda =
 // -(C + gamma grad C . (x - x_prev)) / alpha~, the XPBD update's fixed point), so the substep's

@@ -288,6 +288,12 @@ bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdModel& s, Pb
 // particles, volume or colour yet.
 uint32_t new_piece(PbdModel& s, PbdData& data, uint32_t sv, uint8_t label);
 
+// A piece made from part of another (a cut) starts from its incompatible modes' amplitudes, as it
+// does from its rotation: the global step corrects them at its next substep.
+inline void inherit_enhancement(PbdData& data, uint32_t slot, uint32_t from) {
+  std::copy_n(data.enhancement.begin() + 9 * ptrdiff_t(from), 9, data.enhancement.begin() + 9 * ptrdiff_t(slot));
+}
+
 // Returns a piece slot to the free list.
 void free_piece(PbdModel& s, uint32_t slot);
 

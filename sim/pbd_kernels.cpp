@@ -691,27 +691,29 @@ void solve_shape_blocks(double* x, const ShapeBlock* blocks, uint32_t begin, uin
 
 // The rows one at a time: the lane code on one lane (the same operations as every path's lanes).
 void solve_elastic_rows(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
-                        uint32_t end, const ElasticConstants& k, Quaterniond* rotation) {
-  lanes::elastic_rows_lanes<V1>(x, previous, rows, lambda, begin, end, k, rotation);
+                        uint32_t end, const ElasticConstants& k, Quaterniond* rotation, const double* enhancement) {
+  lanes::elastic_rows_lanes<V1>(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 }
 
 namespace {
 
 void elastic_rows_baseline(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
-                           uint32_t end, const ElasticConstants& k, Quaterniond* rotation) {
-  lanes::elastic_rows_lanes<V4>(x, previous, rows, lambda, begin, end, k, rotation);
+                           uint32_t end, const ElasticConstants& k, Quaterniond* rotation,
+                           const double* enhancement) {
+  lanes::elastic_rows_lanes<V4>(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 }
 
 #if defined(__x86_64__)
 DVX_AVX2_PATH void elastic_rows_avx2(double* x, const double* previous, const ElasticRow* rows, double* lambda,
-                                     uint32_t begin, uint32_t end, const ElasticConstants& k, Quaterniond* rotation) {
-  avx2_lanes::elastic_rows_lanes<V4>(x, previous, rows, lambda, begin, end, k, rotation);
+                                     uint32_t begin, uint32_t end, const ElasticConstants& k, Quaterniond* rotation,
+                                     const double* enhancement) {
+  avx2_lanes::elastic_rows_lanes<V4>(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 }
 
 DVX_AVX512_PATH void elastic_rows_avx512(double* x, const double* previous, const ElasticRow* rows, double* lambda,
                                          uint32_t begin, uint32_t end, const ElasticConstants& k,
-                                         Quaterniond* rotation) {
-  avx512_lanes::elastic_rows_lanes<V8>(x, previous, rows, lambda, begin, end, k, rotation);
+                                         Quaterniond* rotation, const double* enhancement) {
+  avx512_lanes::elastic_rows_lanes<V8>(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 }
 #endif
 
@@ -719,18 +721,19 @@ DVX_AVX512_PATH void elastic_rows_avx512(double* x, const double* previous, cons
 
 void solve_elastic_blocks(KernelIsa isa, double* x, const double* previous, const ElasticRow* rows, double* lambda,
                           uint32_t begin, uint32_t end, const ElasticConstants& k, Quaterniond* rotation,
-                          bool disjoint) {
-  if (!disjoint) return solve_elastic_rows(x, previous, rows, lambda, begin, end, k, rotation);
+                          const double* enhancement, bool disjoint) {
+  if (!disjoint) return solve_elastic_rows(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 #if defined(__x86_64__)
-  if (isa == KernelIsa::kAvx512) return elastic_rows_avx512(x, previous, rows, lambda, begin, end, k, rotation);
-  if (isa == KernelIsa::kAvx2) return elastic_rows_avx2(x, previous, rows, lambda, begin, end, k, rotation);
+  if (isa == KernelIsa::kAvx512) return elastic_rows_avx512(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
+  if (isa == KernelIsa::kAvx2) return elastic_rows_avx2(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 #endif
-  elastic_rows_baseline(x, previous, rows, lambda, begin, end, k, rotation);
+  elastic_rows_baseline(x, previous, rows, lambda, begin, end, k, rotation, enhancement);
 }
 
 void solve_elastic_blocks(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
-                          uint32_t end, const ElasticConstants& k, Quaterniond* rotation, bool disjoint) {
-  solve_elastic_blocks(kernel_isa(), x, previous, rows, lambda, begin, end, k, rotation, disjoint);
+                          uint32_t end, const ElasticConstants& k, Quaterniond* rotation, const double* enhancement,
+                          bool disjoint) {
+  solve_elastic_blocks(kernel_isa(), x, previous, rows, lambda, begin, end, k, rotation, enhancement, disjoint);
 }
 
 void solve_shape_block(double* x, const ShapeBlock& b, double stiffness, Quaterniond* rotations) {

@@ -216,11 +216,13 @@ void solve_shape_blocks(KernelIsa isa, double* x, const ShapeBlock* blocks, uint
 // `disjoint` (one colour group: no two rows share a particle) solves eight rows (AVX-512) or four
 // (AVX2 and SSE2's pairs) at once, one per lane; otherwise (the overflow group) in order. Each row
 // does solve_elastic_rows' IEEE operations in its order either way: the same bits on every path.
+// enhancement: the incompatible modes' amplitudes per piece slot (pbd_elastic.h), null for none.
 void solve_elastic_blocks(double* x, const double* previous, const ElasticRow* rows, double* lambda, uint32_t begin,
-                          uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation, bool disjoint);
+                          uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation,
+                          const double* enhancement, bool disjoint);
 // The same on a named path (at most kernel_isa(): one this CPU has).
 void solve_elastic_blocks(KernelIsa isa, double* x, const double* previous, const ElasticRow* rows, double* lambda,
                           uint32_t begin, uint32_t end, const ElasticConstants& k, Eigen::Quaterniond* rotation,
-                          bool disjoint);
+                          const double* enhancement, bool disjoint);
 
 }  // namespace dvx

@@ -130,6 +130,7 @@ void assign_slots(PbdModel& s, PbdData& data, uint32_t sv, uint8_t count, const 
       if (was != kNoPiece && was < old_count) {
         std::copy(s.pieces[old_slots[was]].particles, s.pieces[old_slots[was]].particles + 8, s.pieces[slot].particles);
         data.rotation[slot] = data.rotation[old_slots[was]];
+        inherit_enhancement(data, slot, old_slots[was]);
       }
     }
     s.pieces[slot].eighths = eighths[p];
@@ -320,6 +321,7 @@ void apply_group_labels(const VoxelModel& model, PbdModel& s, PbdData& data, uin
       slot = new_piece(s, data, sv, to);
       std::copy(s.pieces[old].particles, s.pieces[old].particles + 8, s.pieces[slot].particles);
       data.rotation[slot] = data.rotation[old];
+      inherit_enhancement(data, slot, old);
     }
     s.pieces[s.label_slots[div.first_slot + from]].eighths -= e;
     s.pieces[slot].eighths += e;

@@ -52,6 +52,7 @@ uint32_t new_piece(PbdModel& s, PbdData& data, uint32_t sv, uint8_t label) {
     slot = uint32_t(s.pieces.size());
     s.pieces.emplace_back();
     data.rotation.push_back(Eigen::Quaterniond::Identity());
+    data.enhancement.resize(data.enhancement.size() + 9);
   }
   SimPiece& piece = s.pieces[slot];
   piece.sim_voxel = sv;
@@ -62,6 +63,7 @@ uint32_t new_piece(PbdModel& s, PbdData& data, uint32_t sv, uint8_t label) {
   piece.eighths = 0;
   std::fill(piece.octants, piece.octants + 8, 0u);
   data.rotation[slot] = Eigen::Quaterniond::Identity();
+  std::fill_n(data.enhancement.begin() + 9 * ptrdiff_t(slot), 9, 0.0);
   return slot;
 }
 

@@ -292,7 +292,7 @@ TEST_CASE("ccx: with the global step the stiff cantilever converges to CalculiX 
     const double error = std::abs(m.tip.y() / m.ref_tip.y() - 1.0);
     MESSAGE("sim " << sim << ": tip sag " << m.tip.y() << " m, CalculiX " << m.ref_tip.y() << " m (error " << error
                    << "), RMS error " << m.rms_error);
-    CHECK(m.tip.y() > m.ref_tip.y());  // too stiff, never too soft: the locking
+    CHECK(m.tip.y() > m.ref_tip.y());  // too stiff, never too soft: partly filled pieces at the surface
     CHECK(error < previous);
     previous = error;
     if (sim == 8) {
@@ -305,7 +305,9 @@ TEST_CASE("ccx: with the global step the stiff cantilever converges to CalculiX 
       CHECK(std::abs(measure_elastic(c, ref, more).tip.y() / m.tip.y() - 1.0) < 0.01);
     }
   }
-  CHECK(previous < 0.08);  // measured 0.064 at sim 32
+  // The issue's bound at the finest resolution: within 5 % (measured 1.9 % at sim 32; 21 / 12 % at sim 8
+  // / 16, where the trilinear hexahedra without incompatible modes locked: 45 / 24 / 6.4 %).
+  CHECK(previous < 0.05);
 }
 
 // The issue's bounds at the scene's defaults (sim 16, 5 x 2): within 10 % RMS of CalculiX (measured

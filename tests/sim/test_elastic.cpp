@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <cstring>
 #include <cstdlib>
+#include <string>
 #include <vector>
 
 using namespace dvx;
@@ -329,12 +330,13 @@ TEST_SUITE("elastic") {
       ratio[i] = cantilever_sag(r) / exact;
     }
     MESSAGE("global step, 1 x 1: sag / Timoshenko " << ratio[0] << ", " << ratio[1] << ", " << ratio[2] << " at sim 8, 16, 32");
-    // The iterations alone, converged (docs/material.md): 0.6307-0.6411, 0.8449-0.8503, 0.9925 (800 substeps).
-    CHECK(ratio[0] == doctest::Approx(0.64).epsilon(0.02));
-    CHECK(ratio[1] == doctest::Approx(0.85).epsilon(0.02));
-    CHECK(std::abs(ratio[2] - 1.0) < 0.02);  // measured 0.998
-    CHECK(std::abs(1.0 - ratio[2]) < std::abs(1.0 - ratio[1]));
-    CHECK(std::abs(1.0 - ratio[1]) < std::abs(1.0 - ratio[0]));
+    // The iterations alone, converged (docs/material.md): 0.6307-0.6411, 0.8449-0.8503, 0.9925 (800
+    // substeps): the trilinear hexahedra lock, most at one piece through the thickness. The global
+    // step's element (incompatible modes, pbd_elastic.h) does not: measured 1.007, 1.002, 1.049 (the
+    // 3D solution of this stubby 1 : 8 beam is softer than Timoshenko's: against CalculiX the bench's
+    // cantilever at sim 32 is within 2 %, tests/bench/test_ccx.cpp).
+    for (const double r : ratio) CHECK(std::abs(r - 1.0) < 0.06);
+    CHECK(std::abs(ratio[0] - 1.0) < 0.02);  // one piece thick: the trilinear hexahedra read 0.64
     // Budget: doubling iterations or substeps moves the sag by <= 1 % (sim 16).
     r.sim = 16;
     const double base = ratio[1];
@@ -356,36 +358,45 @@ TEST_SUITE("elastic") {
     }
   }
 
-  // The global step does not see contacts: the iterations after it carry a floor's support up the
-  // column, as without it (the budget the column needs is the iterations' own: at 2 x 2 the volume
-  // change is 2-6x too large with or without the global step).
-  TEST_CASE("global step: a column on a frictionless floor changes volume as nu says (the iterations carry the contact)") {
-    const double H = 0.5, rho = 1000.0, E = 2.5e5;
-    for (const double nu : {0.0, 0.25, 0.4}) {
-      dvx_test::WorldScene w;
-      PbdParams p = material(E, nu, rho);
-      p.substeps = 20;
-      p.iterations = 4;
-      p.global_step = true;
-      p.stiffness_damping = 0.002;
-      ContactPlane floor;
-      floor.point = Vec3d(0.0, -0.5 * H, 0.0);
-      floor.normal = Vec3d(0.0, 1.0, 0.0);
-      floor.kinetic_friction = floor.static_friction = 0.0;
-      p.planes.push_back(floor);
-      const TriMesh column = make_box(Vec3d::Zero(), Vec3d(0.5 * H, 0.5 * H, 0.5 * H), Eigen::Matrix3d::Identity(), 1);
-      make_aligned_world(w, column, 16, 4, p);
-      const double v0 = deformed_volume(w.pbd());
-      double change = 0.0;
-      for (int i = 0; i < 120; ++i) {
-        const double t = std::min(1.0, double(i + 1) / 60);
-        w.pbd().model.params.gravity = Vec3d(0.0, -kG * t * t * (3.0 - 2.0 * t), 0.0);
-        world_step(w.model, w.state, StepCommands(), StepContext());
-        if (i >= 90) change += (deformed_volume(w.pbd()) - v0) / v0 / 30.0;
+  // A column hanging from its anchored top face stretches under its weight: its volume grows by
+  // (1 - 2 nu) rho g H / (2 E) in uniaxial stress, a little more near the anchors, which hold the top
+  // face's lateral contraction (2 x 2 x 8 pieces). No contact: the element's own answer, with the
+  // global step (its incompatible modes, and lambda split between the Gauss points and the centre) and
+  // with the iterations' converged trilinear hexahedra. With all of lambda at the Gauss points the
+  // global step's nu 0.49 read -40 % (locking).
+  TEST_CASE("global step: a hanging column changes volume as nu says") {
+    const double H = 1.0, W = 0.25, rho = 1000.0, E = 2.5e5;
+    for (const bool global : {false, true}) {
+      double previous = 1e300;
+      for (const double nu : {0.0, 0.25, 0.4, 0.49}) {
+        dvx_test::WorldScene w;
+        PbdParams p = material(E, nu, rho);
+        p.substeps = global ? 2 : 40;
+        p.iterations = global ? 2 : 20;
+        p.global_step = global;
+        p.stiffness_damping = 0.002;
+        Aabb top;
+        top.grow(Vec3d(-1.0, 0.5 * H - 1e-3, -1.0));
+        top.grow(Vec3d(1.0, 1.0, 1.0));
+        p.fixed.push_back(top);
+        const TriMesh column = make_box(Vec3d::Zero(), Vec3d(0.5 * W, 0.5 * H, 0.5 * W), Eigen::Matrix3d::Identity(), 1);
+        make_aligned_world(w, column, 32, 8, p);
+        const double v0 = deformed_volume(w.pbd());
+        double change = 0.0;
+        for (int i = 0; i < 120; ++i) {
+          const double t = std::min(1.0, double(i + 1) / 60);
+          w.pbd().model.params.gravity = Vec3d(0.0, -kG * t * t * (3.0 - 2.0 * t), 0.0);
+          world_step(w.model, w.state, StepCommands(), StepContext());
+          if (i >= 90) change += (deformed_volume(w.pbd()) - v0) / v0 / 30.0;
+        }
+        const double expected = (1.0 - 2.0 * nu) * rho * kG * H / (2.0 * E);
+        MESSAGE(std::string(global ? "global step" : "iterations") << ", nu " << nu << ": volume change " << change
+                                                        << ", uniaxial stress " << expected);
+        CHECK(change > expected * 0.99);
+        CHECK(change < expected * 1.2);
+        CHECK(change < previous);
+        previous = change;
       }
-      const double expected = -(1.0 - 2.0 * nu) * rho * kG * H / (2.0 * E);
-      MESSAGE("global step, nu " << nu << ": volume change " << change << ", expected " << expected);
-      CHECK(std::abs(change / expected - 1.0) < 0.15);  // measured within 0.2 / 7 / 11.5 %
     }
   }
 

@@ -762,11 +762,15 @@ TEST_SUITE("pbd_kernels") {
         const uint32_t begin = uint32_t(trial % 3) % rows_count;
         std::vector<double> x_one = x, lambda_one = lambda;
         std::vector<Quaterniond> rotation_one = rotation;
+        // Every other trial with the incompatible modes' amplitudes (the global step's).
+        std::vector<double> enhancement(9 * rotation.size());
+        for (double& b : enhancement) b = rng.uniform(-0.05, 0.05);
+        const double* modes = (trial / 2) % 2 ? enhancement.data() : nullptr;
         for (int sweep = 0; sweep < 3; ++sweep) {
           solve_elastic_blocks(isa, x.data(), previous.data(), rows.data(), lambda.data(), begin, rows_count, k,
-                               rotation.data(), true);
+                               rotation.data(), modes, true);
           solve_elastic_rows(x_one.data(), previous.data(), rows.data(), lambda_one.data(), begin, rows_count, k,
-                             rotation_one.data());
+                             rotation_one.data(), modes);
         }
         CAPTURE(trial);
         for (size_t i = 0; i < x.size(); ++i) {
