@@ -98,6 +98,9 @@ struct ElasticRow {
 // +-1/sqrt(3), signs from g's bits like the corners) and at its centre (the 9th), per corner and axis.
 extern const double (&kHexGradients)[9][8][3];
 
+// s_m(g): the sign of xi_m at Gauss point g (its bit m, like the corners').
+inline double mode_sign(int g, int m) { return ((g >> m) & 1) ? 1.0 : -1.0; }
+
 // The incompatible modes' octant-weighted means over a row's Gauss points (see above): mean_m =
 // sum_g V_g s_m(g) / sum_g V_g, zero in a full piece.
 inline void enhanced_mode_means(const double (&octant)[8], double (&mean)[3]) {
@@ -105,7 +108,7 @@ inline void enhanced_mode_means(const double (&octant)[8], double (&mean)[3]) {
   for (int m = 0; m < 3; ++m) mean[m] = 0.0;
   for (int g = 0; g < 8; ++g) {
     total += octant[g];
-    for (int m = 0; m < 3; ++m) mean[m] += ((g >> m) & 1) ? octant[g] : -octant[g];
+    for (int m = 0; m < 3; ++m) mean[m] += mode_sign(g, m) * octant[g];
   }
   for (int m = 0; m < 3; ++m) mean[m] = total > 0.0 ? mean[m] / total : 0.0;
 }

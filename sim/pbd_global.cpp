@@ -24,8 +24,9 @@ struct GlobalStepCache {
   // The hexahedra with material, as (colour, index) into PbdCache::elastic_rows, and their corners'
   // unknowns (8 per row, kNone where anchored).
   std::vector<uint32_t> row_colour, row_index, row_unknown;
-  // Each row's shear stiffness in its own frame (R = I), 24 x 24 column-major: apply_row on each
-  // corner axis once per structure; the step's K is R K0 R^T per corner block plus the volume term.
+  // Each row's stiffness in its own frame (R = I), 24 x 24 column-major: apply_row on each corner axis
+  // and mode amplitude once per structure, the modes condensed out; the step's K is R K0 R^T per
+  // corner block plus the centre's volume term.
   std::vector<double> stiffness;
   // The incompatible modes (pbd_elastic.h) condensed out: the stiffness above is K_xx - K_xb K_bb^-1
   // K_bx; per row T = K_bb^-1 K_bx (9 x 24, column-major) and K_bb^-1 (9 x 9) in its own frame, its
@@ -88,7 +89,7 @@ void mul3(const double M[9], const double v[3], double out[3]) {
 // F_g += the incompatible modes' gradient at Gauss point q (pbd_elastic.h; the kernels' sum).
 void add_modes(int q, const double* mean, const double* beta, double F[9]) {
   for (int m = 0; m < 3; ++m) {
-    const double sm = (((q >> m) & 1) ? 1.0 : -1.0) - mean[m];
+    const double sm = mode_sign(q, m) - mean[m];
     for (int i = 0; i < 3; ++i) F[3 * i + m] += sm * beta[3 * m + i];
   }
 }
@@ -153,7 +154,7 @@ void apply_row(const ElasticRow& row, const ElasticConstants& k, const double (&
       for (int e = 0; e < 3; ++e) out[a][e] += f[e];
     }
     for (int m = 0; m < 3; ++m) {
-      const double sm = (((q >> m) & 1) ? 1.0 : -1.0) - mean[m];
+      const double sm = mode_sign(q, m) - mean[m];
       for (int i = 0; i < 3; ++i) out_b[m][i] += sm * E[3 * i + m];
     }
   }
@@ -404,7 +405,7 @@ void build_rhs(PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
         for (int e = 0; e < 3; ++e) out[a][e] += f[e];
       }
       for (int m = 0; m < 3; ++m) {
-        const double sm = (((q >> m) & 1) ? 1.0 : -1.0) - mean[m];
+        const double sm = mode_sign(q, m) - mean[m];
         for (int i = 0; i < 3; ++i) out_b[m][i] += sm * T[3 * i + m];
       }
     }
