@@ -94,6 +94,15 @@ void add_modes(int q, const double* mean, const double* beta, double F[9]) {
   }
 }
 
+// The transpose of add_modes: out_b[m] += the derivative through mode m of a stress-like X at Gauss
+// point q (column m of X times the mode's weight there).
+void add_modes_transposed(int q, const double* mean, const double X[9], double (&out_b)[3][3]) {
+  for (int m = 0; m < 3; ++m) {
+    const double sm = mode_sign(q, m) - mean[m];
+    for (int i = 0; i < 3; ++i) out_b[m][i] += sm * X[3 * i + m];
+  }
+}
+
 // A Gauss point of the enhanced element as the kernels compute it: S = sym(R^T F) - I; returns C^2 =
 // |S|^2 + volume_ratio tr(S)^2 and sets P = R (S + volume_ratio tr(S) I) (R row-major).
 double symmetric_strain(const double* R, const double F[9], double volume_ratio, double P[9]) {
@@ -153,10 +162,7 @@ void apply_row(const ElasticRow& row, const ElasticConstants& k, const double (&
       mul3(E, k.grad[q][a], f);
       for (int e = 0; e < 3; ++e) out[a][e] += f[e];
     }
-    for (int m = 0; m < 3; ++m) {
-      const double sm = mode_sign(q, m) - mean[m];
-      for (int i = 0; i < 3; ++i) out_b[m][i] += sm * E[3 * i + m];
-    }
+    add_modes_transposed(q, mean, E, out_b);
   }
 }
 
@@ -404,10 +410,7 @@ void build_rhs(PbdData& data, GlobalStepCache& g, const ElasticConstants& k) {
         mul3(T, k.grad[q][a], f);
         for (int e = 0; e < 3; ++e) out[a][e] += f[e];
       }
-      for (int m = 0; m < 3; ++m) {
-        const double sm = mode_sign(q, m) - mean[m];
-        for (int i = 0; i < 3; ++i) out_b[m][i] += sm * T[3 * i + m];
-      }
+      add_modes_transposed(q, mean, T, out_b);
     }
     // The modes condensed out: b_x -= R T^T R^T b_b with b_b = -dPsi/dbeta (kept for the update).
     double* rhs_b = &g.mode_rhs[9 * r];

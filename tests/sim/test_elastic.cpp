@@ -65,10 +65,6 @@ double timoshenko_sag(double E, double nu) {
   return euler_bernoulli_sag(E) + q * kLength * kLength / (2.0 * kappa * G * A);
 }
 
-// The relative volume change of w's pieces under gravity ramped smoothly over 60 steps, averaged over
-// steps 90-119.
-double ramped_volume_change(dvx_test::WorldScene& w);
-
 // A quasi-static load: gravity ramps up smoothly over `ramp` steps (much longer than the beam's
 // period, ~0.15 s, so no oscillation is excited), then holds for the rest of `steps`.
 struct SagRun {
@@ -153,6 +149,8 @@ double deformed_volume(const PbdState& s) {
   return volume;
 }
 
+// The relative volume change of w's pieces under gravity ramped smoothly over 60 steps, averaged over
+// steps 90-119.
 double ramped_volume_change(dvx_test::WorldScene& w) {
   const double v0 = deformed_volume(w.pbd());
   double change = 0.0;
