@@ -274,6 +274,7 @@ struct PieceContactScratch {
   // Broad-phase result: the pieces of other bodies whose grown bounds overlap piece i's are
   // partners[partner_begin[i] .. partner_begin[i + 1]) (ascending).
   std::vector<uint64_t> pairs;                    // i << 32 | j, i < j (box_pairs)
+  std::vector<uint64_t> sort_buffer;              // the pairs' radix sort and merge
   std::vector<Vec3d> box_lo, box_hi;              // (pieces) bounds grown by their reach (find_exposed_pieces)
   std::vector<Vec3d> cell_lo, cell_hi;            // (cell_items) a box_pairs item's bounds, by cell
   std::vector<uint64_t> both;                     // the exposed pairs (i < j)
