@@ -288,9 +288,11 @@ bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdModel& s, Pb
 // particles, volume or colour yet.
 uint32_t new_piece(PbdModel& s, PbdData& data, uint32_t sv, uint8_t label);
 
-// A piece made from part of another (a cut) starts from its incompatible modes' amplitudes, as it
-// does from its rotation: the global step corrects them at its next substep.
-inline void inherit_enhancement(PbdData& data, uint32_t slot, uint32_t from) {
+// A piece made from part of another (a cut) starts from its corner particles, its rotation's warm
+// start and its incompatible modes' amplitudes (the global step corrects these at its next substep).
+inline void inherit_piece(PbdModel& s, PbdData& data, uint32_t slot, uint32_t from) {
+  std::copy(s.pieces[from].particles, s.pieces[from].particles + 8, s.pieces[slot].particles);
+  data.rotation[slot] = data.rotation[from];
   std::copy_n(data.enhancement.begin() + 9 * ptrdiff_t(from), 9, data.enhancement.begin() + 9 * ptrdiff_t(slot));
 }
 

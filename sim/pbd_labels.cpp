@@ -128,9 +128,7 @@ void assign_slots(PbdModel& s, PbdData& data, uint32_t sv, uint8_t count, const 
     } else {
       slot = new_piece(s, data, sv, p);
       if (was != kNoPiece && was < old_count) {
-        std::copy(s.pieces[old_slots[was]].particles, s.pieces[old_slots[was]].particles + 8, s.pieces[slot].particles);
-        data.rotation[slot] = data.rotation[old_slots[was]];
-        inherit_enhancement(data, slot, old_slots[was]);
+        inherit_piece(s, data, slot, old_slots[was]);
       }
     }
     s.pieces[slot].eighths = eighths[p];
@@ -319,9 +317,7 @@ void apply_group_labels(const VoxelModel& model, PbdModel& s, PbdData& data, uin
     if (slot == kDeadIndex) {
       const uint32_t old = s.label_slots[div.first_slot + from];
       slot = new_piece(s, data, sv, to);
-      std::copy(s.pieces[old].particles, s.pieces[old].particles + 8, s.pieces[slot].particles);
-      data.rotation[slot] = data.rotation[old];
-      inherit_enhancement(data, slot, old);
+      inherit_piece(s, data, slot, old);
     }
     s.pieces[s.label_slots[div.first_slot + from]].eighths -= e;
     s.pieces[slot].eighths += e;
