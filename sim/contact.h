@@ -157,9 +157,10 @@ void project_particles_to_planes(double* x, const double* inv_mass, uint32_t beg
 // within the larger of its two reaches. (With the fastest particle's speed for everyone, a piece
 // falling at 3 m/s widened the reach of every piece at rest to ~6 fine voxels.)
 //
-// Broad phase: the bodies' bounds, grown by their pieces' largest reach, swept along x; the pieces of
-// bodies near another body, by their deformed bounds grown by their reach, in a uniform grid; a piece
-// is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
+// Broad phase: the bodies' bounds, grown by their pieces' largest broad growth, swept along x; the
+// pieces of bodies near another body, by their deformed bounds grown by their broad growth (reach
+// less half the least reach: two growths add up to at least the pair's reach), in a uniform grid; a
+// piece is *exposed* when its grown bounds overlap those of a piece of another body (the pairs come from a
 // cache of the pairs within reach plus a quarter simulation voxel, kept between steps while the
 // pieces stay within that margin: PairCache). Narrow phase: the
 // contact points of exposed pieces (near a partner's bounds) in a grid of cell = the largest reach
@@ -363,6 +364,7 @@ struct PieceContacts {
   std::vector<uint8_t> live, exposed;   // (pieces)
   std::vector<Vec3d> lo, hi;            // (pieces) deformed bounds
   std::vector<double> motion, reach;    // (pieces) how far it may move this step; its contact reach
+  std::vector<double> broad_reach;      // (pieces) the broad phase's growth (see "Broad phase")
   ContactIndex index;                   // also read by the plane gather
   std::vector<SurfacePoint> points;
   // Contact points (see "Contact points"): each piece's representative surface vertices, built on a

@@ -937,8 +937,17 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
       pc.hi[i] = pc.hi[i].cwiseMax(data.position[p]);
     }
   }
+  // The broad phase grows both boxes of a pair, each by its own growth, so it admits a pair within
+  // the sum of the two; a pair may touch only within the larger reach. Each grown by its reach less
+  // half the least reach any piece has (r_i + r_j - least >= max(r_i, r_j)) still admits every
+  // such pair, and at rest (every reach the least) exactly those. (Grown by the full reach, an
+  // exposed piece of the sliced bunny at 256 at rest had ~43 partners, each a region built and tested
+  // per point; grown so, ~12, and a fifth fewer pieces exposed. The same points and contacts.)
+  const double least = std::min(base, s.sim_size);
+  pc.broad_reach.resize(pieces);
+  for (uint32_t i = 0; i < pieces; ++i) pc.broad_reach[i] = pc.live[i] ? pc.reach[i] - 0.5 * least : 0.0;
   // Bodies near another body, then their pieces near another body's pieces.
-  if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.live.data(), x.body_index.data(), x.bodies,
+  if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.broad_reach.data(), pc.live.data(), x.body_index.data(), x.bodies,
                             pieces, pc.scratch) == 0) {
     return;
   }
@@ -946,7 +955,7 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
   // more than a margin of a quarter simulation voxel from where it was cached (a margin of a contact
   // cell, half a simulation voxel at 8 fine voxels per simulation voxel, cost the default recording's
   // broad phase 0.62 M instructions a step instead of 0.54).
-  pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
+  pc.exposed_pieces = find_exposed_pieces_cached(pc.lo.data(), pc.hi.data(), pc.broad_reach.data(), pc.scratch.candidate.data(), pc.body.data(), pieces,
                                                  0.25 * s.sim_size, pc.exposed, pc.scratch, &pc.counters.piece_pairs);
   if (pc.exposed_pieces == 0) return;
   gather_surface_points(cut, s, data, tasks);
