@@ -167,7 +167,7 @@ struct SpanScratch {
 // copies none of it, and no hash reads it.
 struct PbdScratch {
   std::vector<uint32_t> parent, parent2, sim, near, old_slots, relabelled;
-  std::vector<uint8_t> labels, mark;
+  std::vector<uint8_t> labels, mark, octant_counts;
   std::vector<uint64_t> corners;
   FaceCache face_cache;
   LocalSearch search;

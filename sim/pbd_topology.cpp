@@ -179,24 +179,38 @@ void piece_octants(const VoxelModel& model, PbdModel& s, uint32_t sv) {
   sim_voxel_coords(s, sv, c);
   const Lattice& l = model.lattice;
   const int32_t r = s.ratio, n[3] = {l.nx, l.ny, l.nz};
+  // The rule per axis: of a node's two voxels along axis e (below, v = t - 1; above, v = t), those
+  // in the block and the lattice, by the octant bit each gives (set when 4t +- 1 >= 2r). A voxel
+  // around the node is one choice per axis, so an octant's count is the product of the three axes'
+  // counts for its bits (the same integers as testing the node's 8 voxels one by one, ~8x fewer
+  // operations: this was ~85 % of the model update of a cutting step at 16 fine voxels per
+  // simulation voxel, ~140 us a relabelled voxel).
+  std::vector<uint8_t>& count = s.scratch.octant_counts;  // [axis][t][bit]
+  count.assign(3 * 2 * size_t(r + 1), 0);
+  for (int e = 0; e < 3; ++e) {
+    for (int32_t t = 0; t <= r; ++t) {
+      for (int up = 0; up < 2; ++up) {
+        const int32_t v = t - 1 + up;
+        if (v < 0 || v >= r || c[e] * r + v >= n[e]) continue;
+        ++count[(size_t(e) * (r + 1) + t) * 2 + (4 * t + (up ? 1 : -1) >= 2 * r)];
+      }
+    }
+  }
+  const uint8_t* cx = count.data();
+  const uint8_t* cy = cx + 2 * size_t(r + 1);
+  const uint8_t* cz = cy + 2 * size_t(r + 1);
   for (int32_t z = 0; z <= r; ++z) {
     for (int32_t y = 0; y <= r; ++y) {
+      // The y and z factors of the row's octants (octant bit 1: y, bit 2: z).
+      uint32_t wyz[4];
+      for (int o = 0; o < 4; ++o) wyz[o] = uint32_t(cy[2 * y + (o & 1)]) * cz[2 * z + (o >> 1)];
+      if ((wyz[0] | wyz[1] | wyz[2] | wyz[3]) == 0) continue;
       for (int32_t x = 0; x <= r; ++x) {
-        const int32_t node[3] = {x, y, z};
         const uint8_t label = label_at(model, s, sv, c, block_index(s, x, y, z), c[0] * r + x, c[1] * r + y, c[2] * r + z);
         const uint32_t slot = slot_of_label(s, sv, label);
         if (slot == kDeadIndex) continue;
-        for (int q = 0; q < 8; ++q) {
-          int octant = 0;
-          bool inside = true;
-          for (int e = 0; e < 3 && inside; ++e) {
-            const int up = (q >> e) & 1;  // the voxel above the node along e, else below
-            const int32_t v = node[e] - 1 + up;
-            inside = v >= 0 && v < r && c[e] * r + v < n[e];
-            if (4 * node[e] + (up ? 1 : -1) >= 2 * r) octant |= 1 << e;
-          }
-          if (inside) ++s.pieces[slot].octants[octant];
-        }
+        uint32_t* octants = s.pieces[slot].octants;
+        for (int o = 0; o < 8; ++o) octants[o] += uint32_t(cx[2 * x + (o & 1)]) * wyz[o >> 1];
       }
     }
   }

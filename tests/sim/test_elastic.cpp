@@ -3,6 +3,7 @@
 // free fall (g t^2 / 2), exact mass, and hard cases that must stay finite.
 #include "sim/pbd.h"
 #include "sim/pbd_elastic.h"
+#include "sim/pbd_internal.h"
 #include "sim/shapes.h"
 #include "sim/surface_metrics.h"
 #include "sim/voxelize.h"
@@ -13,6 +14,7 @@
 #include <doctest/doctest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -291,6 +293,49 @@ TEST_SUITE("elastic") {
       partial += piece.eighths < uint64_t(8 * 4 * 4 * 4) ? 1 : 0;
     }
     CHECK(partial > 0);
+    // And each octant holds what its rule gives, node by node and voxel by voxel (piece_octants
+    // counts per axis).
+    {
+      using namespace pbd_internal;
+      const PbdModel& m = a.pbd().model;
+      const Lattice& l = a.voxels().lattice;
+      const int32_t r = m.ratio, n[3] = {l.nx, l.ny, l.nz};
+      std::vector<std::array<uint32_t, 8>> expected(m.pieces.size(), std::array<uint32_t, 8>{});
+      for (uint32_t sv = 0; sv < uint32_t(m.sx * m.sy * m.sz); ++sv) {
+        if (!has_pieces(m, sv)) continue;
+        int32_t c[3];
+        sim_voxel_coords(m, sv, c);
+        for (int32_t z = 0; z <= r; ++z) {
+          for (int32_t y = 0; y <= r; ++y) {
+            for (int32_t x = 0; x <= r; ++x) {
+              const int32_t node[3] = {x, y, z};
+              const uint8_t label = label_at(a.voxels(), m, sv, c, block_index(m, x, y, z), c[0] * r + x, c[1] * r + y, c[2] * r + z);
+              const uint32_t slot = slot_of_label(m, sv, label);
+              if (slot == kDeadIndex) continue;
+              for (int q = 0; q < 8; ++q) {
+                int octant = 0;
+                bool inside = true;
+                for (int e = 0; e < 3 && inside; ++e) {
+                  const int up = (q >> e) & 1;
+                  const int32_t v = node[e] - 1 + up;
+                  inside = v >= 0 && v < r && c[e] * r + v < n[e];
+                  if (4 * node[e] + (up ? 1 : -1) >= 2 * r) octant |= 1 << e;
+                }
+                if (inside) ++expected[slot][octant];
+              }
+            }
+          }
+        }
+      }
+      uint32_t compared = 0, mismatched = 0;
+      for (uint32_t slot = 0; slot < m.pieces.size(); ++slot) {
+        if (m.pieces[slot].sim_voxel == kDeadIndex) continue;
+        ++compared;
+        mismatched += !std::equal(expected[slot].begin(), expected[slot].end(), m.pieces[slot].octants);
+      }
+      CHECK(compared > 100);
+      CHECK(mismatched == 0);
+    }
     CHECK(particle_hash(a.pbd()) == particle_hash(b.pbd()));
     CHECK(count_nonfinite(a.pbd().model, a.pbd().data) == 0);
     // The part below the cut falls freely (about g t^2 / 2 in 0.5 s), the top stays.
