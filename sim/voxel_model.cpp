@@ -6,15 +6,32 @@
 namespace dvx {
 
 const EdgeCrossing* VoxelModel::find_crossing(uint32_t edge) const {
-  auto it = std::lower_bound(crossings.begin(), crossings.end(), edge,
-                             [](const EdgeCrossing& c, uint32_t e) { return c.edge < e; });
-  if (it == crossings.end() || it->edge != edge) return nullptr;
+  auto first = crossings.begin(), last = crossings.end();
+  const uint64_t rows = uint64_t(lattice.ny + 1) * uint64_t(lattice.nz + 1);
+  const uint64_t row = edge / (3 * uint64_t(lattice.nx + 1));
+  if (crossing_rows.size() == rows + 1 && crossing_rows.back() == crossings.size() && row < rows) {
+    first = crossings.begin() + crossing_rows[row];
+    last = crossings.begin() + crossing_rows[row + 1];
+  }
+  auto it = std::lower_bound(first, last, edge, [](const EdgeCrossing& c, uint32_t e) { return c.edge < e; });
+  if (it == last || it->edge != edge) return nullptr;
   return &*it;
+}
+
+void VoxelModel::index_crossings() {
+  const uint64_t rows = uint64_t(lattice.ny + 1) * uint64_t(lattice.nz + 1);
+  const uint64_t row_edges = 3 * uint64_t(lattice.nx + 1);
+  crossing_rows.assign(rows + 1, 0);
+  size_t c = 0;
+  for (uint64_t r = 0; r <= rows; ++r) {
+    while (c < crossings.size() && crossings[c].edge / row_edges < r) ++c;
+    crossing_rows[r] = uint32_t(c);
+  }
 }
 
 uint64_t VoxelModel::memory_bytes() const {
   return uint64_t(sizeof(VoxelModel)) + uint64_t(inside.capacity()) * sizeof(uint64_t) +
-         uint64_t(crossings.capacity()) * sizeof(EdgeCrossing);
+         uint64_t(crossings.capacity()) * sizeof(EdgeCrossing) + uint64_t(crossing_rows.capacity()) * sizeof(uint32_t);
 }
 
 void encode_normal(const Vec3d& n, int16_t out[3]) {

@@ -597,6 +597,7 @@ bool run_voxelize(const TriMesh& mesh, const VoxelizeParams& params, VoxelModel*
     model->lattice = L;
     model->inside = std::move(inside);
     model->crossings = std::move(crossings);
+    model->index_crossings();
     model->occupied_voxels = uint32_t(occupied);
   }
   return true;
@@ -621,6 +622,7 @@ uint64_t estimate_voxelize_bytes(const Aabb& box, uint64_t triangle_count, const
   bytes += 5 * (slice + 8);
   bytes += hits * (2 * sizeof(Hit) + 2 * sizeof(EdgeCrossing));
   bytes += triangle_count * (3 * sizeof(Fixed3) + 16 + 4 + 1);
+  bytes += (ny1 * nz1 + 1) * sizeof(uint32_t);  // VoxelModel::crossing_rows
   bytes += sizeof(VoxelModel);
   return bytes;
 }

@@ -363,6 +363,25 @@ TEST_SUITE("voxelize") {
       off += d < r_in - 1e-5 * h || d > r + 1e-5 * h;
     }
     CHECK(off == 0);
+    // The row index finds what a search of all the crossings finds, on every edge of the lattice
+    // (crossings and not), and a model without it (or with a stale one) still finds them.
+    REQUIRE(m.crossing_rows.size() == uint64_t(l.ny + 1) * uint64_t(l.nz + 1) + 1);
+    VoxelModel plain = m;
+    plain.crossing_rows.clear();
+    VoxelModel stale = m;
+    stale.crossings.pop_back();
+    uint32_t found = 0, differ = 0, stale_differ = 0;
+    for (uint32_t e = 0; e < uint32_t(3 * l.node_count()) + 7; ++e) {
+      const EdgeCrossing* a = m.find_crossing(e);
+      const EdgeCrossing* b = plain.find_crossing(e);
+      found += a != nullptr;
+      differ += (a == nullptr) != (b == nullptr) || (a && a->edge != b->edge);
+      const EdgeCrossing* z = stale.find_crossing(e);
+      stale_differ += (z == nullptr) != (b == nullptr) && e != m.crossings.back().edge;
+    }
+    CHECK(found == m.crossings.size());
+    CHECK(differ == 0);
+    CHECK(stale_differ == 0);
     MESSAGE("icosphere res 64: " << m.crossings.size() << " crossings, " << m.occupied_voxels
                                  << " occupied voxels, " << double(m.memory_bytes()) / m.occupied_voxels
                                  << " bytes per occupied voxel; worst crossing error " << worst << " voxel");
