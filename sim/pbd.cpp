@@ -392,7 +392,8 @@ bool init_pbd(const VoxelModel& model, const CutState& cut, const PbdParams& par
   for (const DividedVoxel& dv : cut.divided) note_cut_voxel(model, s, dv);
   s.scratch.labels.resize(block_nodes(s));
   for (uint32_t sv = 0; sv < voxels; ++sv) {
-    const uint8_t count = label_block(model, cut, s, sv, s.scratch.parent, s.scratch.labels.data());
+    const uint8_t count = s.ratio <= kSpanRatio ? label_block_spans(model, cut, s, sv, s.scratch.spans, s.scratch.labels.data())
+                                                : label_block(model, cut, s, sv, s.scratch.parent, s.scratch.labels.data());
     if (count > 0) set_voxel_pieces(model, s, data, sv, s.scratch.labels.data(), count, nullptr, nullptr, 0);
   }
   // Octants of every piece (the material model's quadrature weights).

@@ -195,6 +195,12 @@ void note_cut_voxel(const VoxelModel& model, PbdModel& s, const DividedVoxel& dv
 // O(ratio^2) row masks plus the block's few diagonal voxels, instead of 8 lookups per fine voxel.
 void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w);
 
+// label_block's labels and count from the block's spans (ratio <= kSpanRatio): the same rule and
+// numbering, O(ratio^2) row masks instead of 8 lookups and a union per fine voxel (it was ~60 % of
+// world_init's instructions at 16 fine voxels per simulation voxel).
+uint8_t label_block_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w,
+                          uint8_t* labels);
+
 // Whether the last cut step left the material components of block sv (ratio <= 32) as they were,
 // shown by a short search: every pair of corners that one of its reshaped fine voxels
 // (cut.reshaped_voxels[reshaped[i]], with their pieces before the step) joined before and no longer
