@@ -51,32 +51,39 @@ uint64_t coord_bits(double x) {
 
 uint32_t weld_identical_vertices(TriMesh& mesh) {
   const size_t nv = mesh.positions.size();
-  struct Key {
-    uint64_t b[3];
-    uint32_t index;
-  };
-  std::vector<Key> keys(nv);
+  // Representative of each group of identical coordinates: its smallest original index, the first
+  // met in index order, through an open-addressing table of first indices keyed by the coordinates'
+  // bits (the groups, and so the result, do not depend on the hash). Sorting the keys did the same
+  // at ~20 % of `divvox bench cut`'s instructions on the armadillo (start-up of every command).
+  std::vector<uint64_t> bits(3 * nv);
   for (size_t i = 0; i < nv; ++i) {
-    for (int a = 0; a < 3; ++a) keys[i].b[a] = coord_bits(mesh.positions[i][a]);
-    keys[i].index = uint32_t(i);
+    for (int a = 0; a < 3; ++a) bits[3 * i + size_t(a)] = coord_bits(mesh.positions[i][a]);
   }
-  // Sort by coordinates (index as tie-break): deterministic, no hashing-order dependence.
-  std::sort(keys.begin(), keys.end(), [](const Key& x, const Key& y) {
-    if (x.b[0] != y.b[0]) return x.b[0] < y.b[0];
-    if (x.b[1] != y.b[1]) return x.b[1] < y.b[1];
-    if (x.b[2] != y.b[2]) return x.b[2] < y.b[2];
-    return x.index < y.index;
-  });
-  // Representative of each group: its smallest original index.
+  size_t capacity = 16;
+  while (capacity < 2 * nv) capacity <<= 1;
+  std::vector<uint32_t> table(capacity, UINT32_MAX);
+  const auto mix = [](uint64_t x) {  // splitmix64's finaliser
+    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+    return x ^ (x >> 31);
+  };
   std::vector<uint32_t> rep(nv);
-  for (size_t g = 0; g < nv;) {
-    size_t e = g + 1;
-    while (e < nv && keys[e].b[0] == keys[g].b[0] && keys[e].b[1] == keys[g].b[1] &&
-           keys[e].b[2] == keys[g].b[2]) {
-      ++e;
+  for (size_t i = 0; i < nv; ++i) {
+    const uint64_t* key = &bits[3 * i];
+    size_t slot = mix(key[0] ^ mix(key[1] ^ mix(key[2]))) & (capacity - 1);
+    for (;; slot = (slot + 1) & (capacity - 1)) {
+      const uint32_t j = table[slot];
+      if (j == UINT32_MAX) {
+        table[slot] = uint32_t(i);
+        rep[i] = uint32_t(i);
+        break;
+      }
+      const uint64_t* other = &bits[3 * size_t(j)];
+      if (other[0] == key[0] && other[1] == key[1] && other[2] == key[2]) {
+        rep[i] = j;
+        break;
+      }
     }
-    for (size_t i = g; i < e; ++i) rep[keys[i].index] = keys[g].index;
-    g = e;
   }
   // Compact: surviving vertices keep their relative order.
   std::vector<uint32_t> remap(nv, UINT32_MAX);

@@ -1,6 +1,11 @@
 #include "sim/mesh.h"
+#include "sim/random.h"
 
 #include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
 
 using namespace dvx;
 
@@ -80,6 +85,46 @@ TEST_SUITE("mesh") {
     CHECK(m.positions.size() == 4);  // (1,0,1e-300) is not (1,0,0)
     CHECK(m.triangles.size() == 3);
     CHECK(m.triangles[0] == m.triangles[1]);  // {0,1,3} and {2->0,1,3}
+  }
+
+  TEST_CASE("weld on many vertices: one vertex per distinct position, every triangle where it was") {
+    // 20 000 vertices drawn from 3 000 distinct positions (a few differing in one coordinate's last
+    // bit, some with -0.0), triangles over random vertices.
+    SplitMix64 rng{20261207};
+    std::vector<Vec3d> distinct;
+    for (int i = 0; i < 3000; ++i) {
+      Vec3d p(double(rng.next() % 50) * 0.25, double(rng.next() % 50) * 0.25, double(rng.next() % 50) * 0.25);
+      if (i % 100 == 7) p.x() = std::nextafter(distinct.back().x(), 1e9), p.y() = distinct.back().y(), p.z() = distinct.back().z();
+      distinct.push_back(p);
+    }
+    TriMesh m;
+    for (int i = 0; i < 20000; ++i) {
+      Vec3d p = distinct[rng.next() % distinct.size()];
+      if (p.x() == 0.0 && i % 2) p.x() = -0.0;
+      m.positions.push_back(p);
+    }
+    for (int t = 0; t < 30000; ++t) {
+      m.triangles.push_back({uint32_t(rng.next() % 20000), uint32_t(rng.next() % 20000), uint32_t(rng.next() % 20000)});
+    }
+    const TriMesh before = m;
+    const uint32_t dropped = weld_identical_vertices(m);
+    // Distinct positions (as values: -0.0 is 0.0) in first-seen order.
+    std::vector<Vec3d> expected;
+    for (const Vec3d& p : before.positions) {
+      if (std::find(expected.begin(), expected.end(), p) == expected.end()) expected.push_back(p);
+    }
+    REQUIRE(m.positions.size() == expected.size());
+    CHECK(m.positions == expected);
+    uint32_t kept = 0;
+    for (const Tri& t : before.triangles) {
+      const Vec3d &a = before.positions[t[0]], &b = before.positions[t[1]], &c = before.positions[t[2]];
+      if (a == b || b == c || a == c) continue;  // collapses
+      REQUIRE(kept < m.triangles.size());
+      const Tri& w = m.triangles[kept++];
+      CHECK((m.positions[w[0]] == a && m.positions[w[1]] == b && m.positions[w[2]] == c));
+    }
+    CHECK(kept == m.triangles.size());
+    CHECK(dropped == before.triangles.size() - kept);
   }
 
   TEST_CASE("watertight: closed box yes, holed box no, duplicated face no") {
