@@ -927,16 +927,6 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
   const double base = std::max(2.0 * fine, s.sim_size / contact_cells(s.ratio));
   pc.lo.resize(pieces);
   pc.hi.resize(pieces);
-  pc.reach.assign(pieces, 0.0);
-  for (uint32_t i = 0; i < pieces; ++i) {
-    if (!pc.live[i]) continue;
-    pc.reach[i] = std::min(s.sim_size, base + 2.0 * pc.motion[i]);
-    pc.lo[i] = pc.hi[i] = data.position[s.pieces[i].particles[0]];
-    for (uint32_t p : s.pieces[i].particles) {
-      pc.lo[i] = pc.lo[i].cwiseMin(data.position[p]);
-      pc.hi[i] = pc.hi[i].cwiseMax(data.position[p]);
-    }
-  }
   // The broad phase grows both boxes of a pair, each by its own growth, so it admits a pair within
   // the sum of the two; a pair may touch only within the larger reach. Each grown by its reach less
   // half the least reach any piece has (r_i + r_j - least >= max(r_i, r_j)) still admits every
@@ -944,8 +934,18 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
   // exposed piece of the sliced bunny at 256 at rest had ~43 partners, each a region built and tested
   // per point; grown so, ~12, and a fifth fewer pieces exposed. The same points and contacts.)
   const double least = std::min(base, s.sim_size);
-  pc.broad_reach.resize(pieces);
-  for (uint32_t i = 0; i < pieces; ++i) pc.broad_reach[i] = pc.live[i] ? pc.reach[i] - 0.5 * least : 0.0;
+  pc.reach.assign(pieces, 0.0);
+  pc.broad_reach.assign(pieces, 0.0);
+  for (uint32_t i = 0; i < pieces; ++i) {
+    if (!pc.live[i]) continue;
+    pc.reach[i] = std::min(s.sim_size, base + 2.0 * pc.motion[i]);
+    pc.broad_reach[i] = pc.reach[i] - 0.5 * least;
+    pc.lo[i] = pc.hi[i] = data.position[s.pieces[i].particles[0]];
+    for (uint32_t p : s.pieces[i].particles) {
+      pc.lo[i] = pc.lo[i].cwiseMin(data.position[p]);
+      pc.hi[i] = pc.hi[i].cwiseMax(data.position[p]);
+    }
+  }
   // Bodies near another body, then their pieces near another body's pieces.
   if (find_candidate_pieces(pc.lo.data(), pc.hi.data(), pc.broad_reach.data(), pc.live.data(), x.body_index.data(), x.bodies,
                             pieces, pc.scratch) == 0) {

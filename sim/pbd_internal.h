@@ -195,6 +195,12 @@ void note_cut_voxel(const VoxelModel& model, PbdModel& s, const DividedVoxel& dv
 // O(ratio^2) row masks plus the block's few diagonal voxels, instead of 8 lookups per fine voxel.
 void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w);
 
+// Numbers the components of the spans build_spans left in w (w.label per span), by their first span
+// in row order, x order within a row: a component's first span holds its first node, so they are
+// numbered in node order as label_block numbers them (past kMaxSimPieces, merged into the last).
+// Writes each label's first node (block index) to first_node when given. Returns the count.
+uint8_t number_spans(SpanScratch& w, uint32_t n, uint32_t* first_node);
+
 // label_block's labels and count from the block's spans (ratio <= kSpanRatio): the same rule and
 // numbering, O(ratio^2) row masks instead of 8 lookups and a union per fine voxel (it was ~60 % of
 // world_init's instructions at 16 fine voxels per simulation voxel).
@@ -233,23 +239,8 @@ bool relabel_spans(const VoxelModel& model, const CutState& cut, PbdModel& s, Pb
   for (uint32_t i = 0; i < spans; ++i) roots += w.parent[i] == i;
   if (roots == s.pieces_in_voxel[sv] && roots < kMaxSimPieces) return false;
   before_write();
-  // Components numbered by their first span (row order, x order within a row).
-  w.label.assign(spans, kNoPiece);
-  uint8_t count = 0;
   uint32_t first_node[256];
-  for (uint32_t row = 0; row < rows; ++row) {
-    for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
-      uint32_t root = i;
-      while (w.parent[root] != root) root = w.parent[root];
-      if (w.label[root] == kNoPiece && count < kMaxSimPieces) {
-        first_node[count] = row * uint32_t(n) + uint32_t(__builtin_ctzll(w.mask[i]));
-        w.label[root] = count++;
-      } else if (w.label[root] == kNoPiece) {
-        w.label[root] = uint8_t(kMaxSimPieces - 1);  // beyond the label range: merged into the last
-      }
-      w.label[i] = w.label[root];
-    }
-  }
+  const uint8_t count = number_spans(w, uint32_t(n), first_node);
   // The old pieces: slots, and the label each new label's first node had.
   const uint8_t old_count = s.pieces_in_voxel[sv];
   uint32_t old_slots[256];

@@ -696,21 +696,33 @@ void build_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s
   }
 }
 
+uint8_t number_spans(SpanScratch& w, uint32_t n, uint32_t* first_node) {
+  w.label.assign(w.mask.size(), kNoPiece);
+  uint8_t count = 0;
+  for (uint32_t row = 0; row < n * n; ++row) {
+    for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
+      uint32_t root = i;
+      while (w.parent[root] != root) root = w.parent[root];
+      if (w.label[root] == kNoPiece && count < kMaxSimPieces) {
+        if (first_node) first_node[count] = row * n + uint32_t(__builtin_ctzll(w.mask[i]));
+        w.label[root] = count++;
+      } else if (w.label[root] == kNoPiece) {
+        w.label[root] = uint8_t(kMaxSimPieces - 1);  // beyond the label range: merged into the last
+      }
+      w.label[i] = w.label[root];
+    }
+  }
+  return count;
+}
+
 uint8_t label_block_spans(const VoxelModel& model, const CutState& cut, const PbdModel& s, uint32_t sv, SpanScratch& w,
                           uint8_t* labels) {
   build_spans(model, cut, s, sv, w);
   const uint32_t n = uint32_t(s.ratio + 1), rows = n * n;
+  const uint8_t count = number_spans(w, n, nullptr);
   std::fill(labels, labels + size_t(rows) * n, kNoPiece);
-  // Components numbered by their first span in row order, x order within a row: a component's
-  // first span holds its first node (label_block numbers them by it).
-  w.label.assign(w.mask.size(), kNoPiece);
-  uint8_t count = 0;
   for (uint32_t row = 0; row < rows; ++row) {
     for (uint32_t i = w.row_begin[row]; i < w.row_begin[row + 1]; ++i) {
-      uint32_t root = i;
-      while (w.parent[root] != root) root = w.parent[root];
-      if (w.label[root] == kNoPiece) w.label[root] = count < kMaxSimPieces ? count++ : uint8_t(kMaxSimPieces - 1);
-      w.label[i] = w.label[root];
       for (uint64_t m = w.mask[i]; m != 0; m &= m - 1) labels[row * n + uint32_t(__builtin_ctzll(m))] = w.label[i];
     }
   }
