@@ -163,6 +163,7 @@ void add_bench_geometry(CLI::App& bench, CliCommand& c, RawFlags& raw, Subcomman
   sub.bench_cut->add_option("--repeats", k.repeats, "Whole cuts per resolution (median per step)")
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
+  sub.bench_cut->add_option("--workers", k.workers, "Threads of the surface update")->check(CLI::Range(1, 64))->capture_default_str();
   sub.bench_cut->add_option("--out,-o", k.out_dir, "Output folder")->capture_default_str();
 
   BenchDeformOptions& d = c.bench_deform;

@@ -36,6 +36,7 @@ struct BenchCutOptions {
   // The cut planes' normal axes (0 x, 1 y, 2 z; cut_pose in bench_common.h), one row each: y is the
   // plane the peers clip with, x and z sweep across the other ways.
   std::vector<int> directions = {0, 1, 2};
+  int workers = 2;                  // threads of the surface update (as a session runs it)
   std::string out_dir;
   bool progress = false;
 };

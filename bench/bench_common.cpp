@@ -45,14 +45,14 @@ void voxelize_for_bench(const TriMesh& mesh, const std::string& path, int resolu
 }
 
 std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const Aabb& box, int steps, int repeats,
-                                                CutState& state, std::vector<double>* init_ms, int axis) {
+                                                CutState& state, std::vector<double>* init_ms, int axis, const TaskRunner& tasks) {
   // Every repeat's phase times per step; the stats are the same in every repeat.
   const size_t n = size_t(steps);
   std::vector<CutStepSample> samples(n);
   std::vector<std::vector<double>> divide(n), surface(n), total(n);
   for (int r = 0; r < repeats; ++r) {
     const Clock::time_point t_init = Clock::now();
-    init_cut_state(model, state);
+    init_cut_state(model, state, {}, tasks);
     if (init_ms) init_ms->push_back(ms_between(t_init, Clock::now()));
     for (int s = 0; s < steps; ++s) {
       CutStepSample& sample = samples[size_t(s)];
@@ -61,7 +61,7 @@ std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const A
       const Clock::time_point t0 = Clock::now();
       cut_divide(model, state, cut_pose(box, s, steps, 0.55, axis), cut_pose(box, s + 1, steps, 0.55, axis), sample.stats);
       const Clock::time_point t1 = Clock::now();
-      cut_update_surface(model, state, sample.stats);
+      cut_update_surface(model, state, sample.stats, tasks);
       const Clock::time_point t2 = Clock::now();
       divide[size_t(s)].push_back(ms_between(t0, t1));
       surface[size_t(s)].push_back(ms_between(t1, t2));

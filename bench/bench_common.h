@@ -42,7 +42,8 @@ struct CutStepSample {
 // The benchmark cut path (cut_pose, plane normal `axis`) in `steps` steps, `repeats` times on a fresh
 // state, timed per phase (cut_divide, cut_update_surface). Returns the per-step medians; `state` holds the cut at the end, `init_ms` (when given) the time of each init_cut_state.
 std::vector<CutStepSample> time_progressive_cut(const VoxelModel& model, const Aabb& box, int steps, int repeats,
-                                                CutState& state, std::vector<double>* init_ms = nullptr, int axis = 1);
+                                                CutState& state, std::vector<double>* init_ms = nullptr, int axis = 1,
+                                                const TaskRunner& tasks = {});
 
 // Least-squares line y = intercept + slope * x and its coefficient of determination.
 struct LineFit {

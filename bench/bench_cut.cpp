@@ -3,6 +3,7 @@
 #include "engine/errors.h"
 #include "engine/mesh_io.h"
 #include "engine/output.h"
+#include "engine/task_pool.h"
 #include "engine/voxelize_job.h"
 #include "harness/plot.h"
 #include "sim/cut.h"
@@ -35,6 +36,7 @@ std::string bench_cut(const BenchCutOptions& options) {
   steps_csv << "mesh,resolution,step,divide_ms,surface_ms,total_ms,voxels_cut,edges_cut,triangles_changed,direction\n";
   nlohmann::json json_rows = nlohmann::json::array();
 
+  TaskPool pool(options.workers);  // the surface update runs over the workers, as in a session
   for (int resolution : options.resolutions) {
     VoxelModel model;
     voxelize_for_bench(input.mesh, mesh_path, resolution, model);
@@ -48,7 +50,7 @@ std::string bench_cut(const BenchCutOptions& options) {
     std::vector<double> init_ms;
     CutState state;
     const std::vector<CutStepSample> samples =
-        time_progressive_cut(model, box, options.steps, options.repeats, state, &init_ms, axis);
+        time_progressive_cut(model, box, options.steps, options.repeats, state, &init_ms, axis, pool.runner());
     std::vector<double> totals, divides, surfaces;
     double sum_surface = 0.0;
     double sum_total = 0.0;
@@ -113,7 +115,7 @@ std::string bench_cut(const BenchCutOptions& options) {
   write_text_file((out / "bench_cut.csv").string(), rows_csv.str());
   write_text_file((out / "bench_cut_steps.csv").string(), steps_csv.str());
   write_json_file((out / "bench_cut.json").string(),
-                  {{"benchmark", "cut"}, {"machine", machine_summary()}, {"mesh", name}, {"steps", options.steps}, {"repeats", options.repeats},
+                  {{"benchmark", "cut"}, {"machine", machine_summary()}, {"mesh", name}, {"steps", options.steps}, {"repeats", options.repeats}, {"workers", options.workers},
                    {"directions", directions_json},
                    {"statistic", "per-step median over repeats; p50/p99 over steps that cut"}, {"rows", json_rows}});
   return (out / "bench_cut.csv").string();

@@ -39,15 +39,16 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   if (!voxelize(s.input.mesh, params, s.world.voxels, error)) throw_input(scene.mesh_path, error);
   s.world.params = pbd_params(scene, dt);
   s.world.physics = physics;
+  // The workers build the surface and update it with each cut, and run the solver.
+  s.pool = std::make_unique<TaskPool>(workers);
   const Clock::time_point t0 = Clock::now();
-  if (!world_init(s.world, s.state, error)) throw_input(scene.file, error);
+  if (!world_init(s.world, s.state, error, s.pool->runner())) throw_input(scene.file, error);
   s.init_ms = ms_between(t0, Clock::now());
   if (physics) {
     // DIVVOX_CHUNK_WORK: the work per chunk of a step's shared batches (sim/pbd.h kDefaultChunkWork;
     // lower splits smaller batches across the workers, the same bits either way).
     if (const uint32_t chunk_work = read_env_options().chunk_work; chunk_work != 0)
       s.state.pbd->data.chunk_work = chunk_work;
-    s.pool = std::make_unique<TaskPool>(workers);
     s.initial_mass = total_mass(s.state.pbd->model);
   }
 }

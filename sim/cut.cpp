@@ -123,7 +123,7 @@ uint8_t voxel_material_joins(uint8_t corner_inside, uint16_t cut_edges) {
   return faces;
 }
 
-void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params) {
+void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params, const TaskRunner& tasks) {
   state = CutState{};
   state.contour = params;
   state.lattice = model.lattice;
@@ -176,7 +176,7 @@ void init_cut_state(const VoxelModel& model, CutState& state, const ContourParam
   state.fronts.reserve(state.front_of.capacity());
 
   CutStepStats stats;
-  refresh_voxels(model, state, voxels, stats, nullptr, nullptr);  // the whole surface is new: no list of changes
+  refresh_voxels(model, state, voxels, stats, nullptr, nullptr, tasks);  // the whole surface is new: no list of changes
   state.surface.clear_dirty();
 }
 
@@ -320,13 +320,13 @@ void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint3
 }
 
 
-void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats) {
+void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats, const TaskRunner& tasks) {
   state.changed_vertices.clear();
   std::vector<uint32_t>& corners = state.scratch.corners;
   std::vector<uint32_t>& quads = state.scratch.quads;
   corners.clear();
   quads.clear();
-  refresh_voxels(model, state, state.pending_voxels, stats, &corners, &quads);
+  refresh_voxels(model, state, state.pending_voxels, stats, &corners, &quads, tasks);
   if (!state.changed_vertices.empty() || !corners.empty()) {
     corners.insert(corners.end(), state.changed_vertices.begin(), state.changed_vertices.end());
     state.touched_vertices.swap(corners);

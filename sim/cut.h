@@ -47,6 +47,7 @@
 #include "sim/contour.h"
 #include "sim/flat_map.h"
 #include "sim/surface_mesh.h"
+#include "sim/tasks.h"
 #include "sim/voxel_model.h"
 
 #include <cstdint>
@@ -90,6 +91,28 @@ struct PatchShape {
   uint8_t piece_partial;           // bit p: piece p holds both ends of a cut edge
   bool doubled;                    // a face holds two curves of one patch (merges possible)
   uint16_t patch_partial;          // bit p: patch p holds both half-edges of a cut edge
+};
+
+// A voxel's surface vertices as refresh_voxels computes them from its patches, before it writes
+// them (computed apart so a block of voxels can be computed over the workers; written in order, so
+// the slots are the ones a single pass allocates).
+struct VoxelVertices {
+  uint32_t present;              // bit h: the half-edge exists (the voxel's half-edge mask)
+  uint8_t patch_count;
+  bool current;                  // (a voxel across a listed one) its vertices are already these
+  uint8_t patch_piece[12];       // piece each patch bounds
+  uint32_t patch_half_edges[12];  // bit h: patch p holds half-edge h
+  Vec3f position[12];            // each patch's vertex
+};
+
+// The quads of one lattice edge's two half-edges, as refresh_voxels writes them and
+// check_cut_state expects them.
+struct EdgeQuads {
+  bool exists[2] = {false, false};   // the half-edge exists and all its patches have vertices
+  bool missing[2] = {false, false};  // the half-edge exists but a sharing patch has no vertex
+  uint32_t v[2][4];                  // vertices, counter-clockwise seen from outside
+  int diagonal[2] = {-1, -1};        // forced split (see write_quad)
+  bool on_cut[2] = {false, false};
 };
 
 // Points where the cut front crosses the faces of one voxel (paper Fig. 5: the "face vertices").
@@ -152,6 +175,10 @@ struct CutScratch {
     bool cut;             // the edge is cut
   };
   std::vector<ListedEdge> listed_edges;
+  // refresh_voxels' blocks: the vertices of a block of voxels and the quads of a block of edges,
+  // computed over the workers, then written in list order (VoxelVertices, EdgeQuads).
+  std::vector<VoxelVertices> voxel_plans;
+  std::vector<EdgeQuads> edge_plans;
   CutScratch() = default;
   CutScratch(const CutScratch&) {}
   CutScratch& operator=(const CutScratch&) { return *this; }
@@ -211,7 +238,7 @@ struct CutStepStats {
 
 // Builds the initial state: no cuts, the closed dual-contoured surface of the uncut model (the
 // same surface dual_contour returns: it is built by this function).
-void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params = {});
+void init_cut_state(const VoxelModel& model, CutState& state, const ContourParams& params = {}, const TaskRunner& tasks = {});
 
 // Cuts with the quad swept by the blade from `from` to `to` and updates pieces and surface:
 // cut_divide then cut_update_surface (split so callers can time the two phases).
@@ -231,7 +258,7 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke_voxels,
                      CutStepStats& stats);
 // Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (moves them to changed_voxels).
-void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats);
+void cut_update_surface(const VoxelModel& model, CutState& state, CutStepStats& stats, const TaskRunner& tasks = {});
 
 // The live quads around vertex slot `slot`: those on the half-edges its patch holds (a quad joins the
 // patches holding its half-edge), in the order of its half-edges; each names the slot in one or both

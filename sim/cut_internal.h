@@ -217,16 +217,6 @@ bool voxel_patches(const VoxelModel& model, const CutState& state, uint32_t voxe
 Vec3f patch_vertex_position(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
                             const VoxelPatches& patches, uint8_t p);
 
-// The quads of one lattice edge's two half-edges, as refresh_voxels writes them and
-// check_cut_state expects them.
-struct EdgeQuads {
-  bool exists[2] = {false, false};  // the half-edge exists and all its patches have vertices
-  bool missing[2] = {false, false};  // the half-edge exists but a sharing patch has no vertex
-  uint32_t v[2][4];                 // vertices, counter-clockwise seen from outside
-  int diagonal[2] = {-1, -1};       // forced split (see write_quad)
-  bool on_cut[2] = {false, false};
-};
-
 // The quads of a lattice edge's two half-edges (slit quads that coincide cancel).
 void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t edge, const EdgeCut* cut,
                      const uint32_t around[4], const uint8_t corners[4], EdgeQuads& out);
@@ -234,8 +224,10 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
 // Recomputes pieces, patches, vertices and quads of the given voxels and of the edges they hold;
 // the corners (old and new) and the slots of the quads it changed go to changed_corners and
 // changed_quads when given.
+// What it computes (patches, vertices, quads) runs over `tasks`; what it writes, in list order.
 void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats,
-                    std::vector<uint32_t>* changed_corners, std::vector<uint32_t>* changed_quads);
+                    std::vector<uint32_t>* changed_corners, std::vector<uint32_t>* changed_quads,
+                    const TaskRunner& tasks = {});
 
 // Cuts on edges and the cut front (cut_edges.cpp).
 

@@ -683,23 +683,36 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
 
 namespace {
 
-// A voxel's vertices written from its patches (with their Hermite data): the changed ones marked,
-// the patches that no longer exist freed. Returns its half-edge mask.
-uint32_t write_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, const int32_t vc[3],
-                              const VoxelPatches& patches, CutStepStats& stats) {
+// A voxel's vertices computed from its patches (with their Hermite data): what write_voxel_vertices
+// writes. Reads the cut state only (every worker of a block computes its voxels at once).
+void plan_voxel_vertices(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
+                         const VoxelPatches& patches, VoxelVertices& out) {
+  out.present = patches.present;
+  out.patch_count = patches.patch_count;
+  out.current = false;
+  for (uint32_t p = 0; p < patches.patch_count; ++p) {
+    out.position[p] = patch_vertex_position(model, state, voxel, vc, patches, uint8_t(p));
+    out.patch_piece[p] = patches.patch_piece[p];
+    out.patch_half_edges[p] = patches.patch_half_edges[p];
+  }
+}
+
+// A voxel's planned vertices written: the changed ones marked, the patches that no longer exist
+// freed. Returns its half-edge mask.
+uint32_t write_voxel_vertices(CutState& state, uint32_t voxel, const VoxelVertices& plan, CutStepStats& stats) {
   CutSurface& s = state.surface;
   uint32_t p = 0;
-  for (; p < patches.patch_count; ++p) {
+  for (; p < plan.patch_count; ++p) {
     const uint64_t key = patch_key(voxel, p);
-    const Vec3f position = patch_vertex_position(model, state, voxel, vc, patches, uint8_t(p));
-    const uint64_t piece = piece_key(voxel, patches.patch_piece[p]);
+    const Vec3f& position = plan.position[p];
+    const uint64_t piece = piece_key(voxel, plan.patch_piece[p]);
     bool created = false;
     const uint32_t slot = ensure_vertex(s, key, created);
     if (created || s.positions[slot] != position || s.vertex_piece[slot] != piece ||
-        s.vertex_half_edges[slot] != patches.patch_half_edges[p]) {
+        s.vertex_half_edges[slot] != plan.patch_half_edges[p]) {
       s.positions[slot] = position;
       s.vertex_piece[slot] = piece;
-      s.vertex_half_edges[slot] = patches.patch_half_edges[p];
+      s.vertex_half_edges[slot] = plan.patch_half_edges[p];
       mark_vertex_dirty(s, slot);
       state.changed_vertices.push_back(slot);
       ++stats.vertices_changed;
@@ -714,16 +727,24 @@ uint32_t write_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t
     state.changed_vertices.push_back(slot);
     ++stats.vertices_changed;
   }
-  return patches.present;
+  return plan.present;
 }
 
-// Patches and vertices of one voxel (its pieces already up to date). Returns its half-edge mask.
-uint32_t refresh_voxel_vertices(const VoxelModel& model, CutState& state, uint32_t voxel, CutStepStats& stats) {
-  int32_t vc[3];
-  model.lattice.voxel_coords(voxel, vc);
-  VoxelPatches patches;
-  voxel_patches(model, state, voxel, vc, patches);
-  return write_voxel_vertices(model, state, voxel, vc, patches, stats);
+// refresh_voxels' blocks (CutScratch::voxel_plans, edge_plans: ~110 and ~50 KB) and the least work
+// a worker takes of one (a voxel's patches and vertices take a few microseconds, an edge's quads
+// a fraction of one).
+constexpr size_t kVoxelBlock = 512, kEdgeBlock = 1024;
+constexpr uint32_t kVoxelGrain = 32, kEdgeGrain = 128;
+
+// A list in blocks of `block` items: compute(k, i) for item i, slot k of its block, over the workers;
+// then write(k, i) for each in list order (refresh_voxels: what it writes is what one pass writes).
+template <typename Compute, typename Write>
+void in_blocks(const TaskRunner& tasks, size_t size, size_t block, uint32_t grain, Compute&& compute, Write&& write) {
+  for (size_t first = 0; first < size; first += block) {
+    const uint32_t count = uint32_t(std::min(block, size - first));
+    parallel(tasks, count, grain, [&](uint32_t k) { compute(k, first + k); });
+    for (uint32_t k = 0; k < count; ++k) write(k, first + k);
+  }
 }
 
 // Whether a voxel the step left alone (one across a four-point face of a listed voxel: its cuts,
@@ -750,7 +771,7 @@ bool vertices_current(const CutState& state, uint32_t voxel, const VoxelPatches&
 // edges they hold; adds the voxels across their four-point faces (whose pairing may toggle with
 // them, see voxel_patches). Returns counts of changed slots through stats.
 void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32_t>& voxels, CutStepStats& stats,
-                    std::vector<uint32_t>* changed_corners, std::vector<uint32_t>* changed_quads) {
+                    std::vector<uint32_t>* changed_corners, std::vector<uint32_t>* changed_quads, const TaskRunner& tasks) {
   const Lattice& l = model.lattice;
   CutSurface& s = state.surface;
   std::vector<uint32_t>& across = state.scratch.across;
@@ -780,36 +801,60 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
     dv.piece_count = shape.piece_count;
     dv.partial_mask = shape.piece_partial;
   }
-  // (the vertex slots of the voxel two ahead are fetched while this one is worked on: a miss each)
+  // The listed voxels' vertices, a block at a time: computed over the workers (their patches and
+  // vertices read the pieces, final above, and never the surface), then written in list order, so
+  // the slots are the ones one pass allocates, for any worker count.
+  std::vector<VoxelVertices>& plans = state.scratch.voxel_plans;
+  plans.resize(kVoxelBlock);
+  const CutState& read = state;
+  // (the vertex slots of the voxel two ahead are fetched while one is written: a miss each)
   constexpr size_t kAhead = 2;
-  for (size_t i = 0; i < voxels.size(); ++i) {
-    const uint32_t voxel = voxels[i];
-    if (i + kAhead < voxels.size()) s.vertex_of_patch.prefetch(patch_key(voxels[i + kAhead], 0));
-    const uint8_t faces = four_point_faces(refresh_voxel_vertices(model, state, voxel, stats));
-    if (faces == 0) continue;
-    int32_t vc[3];
-    l.voxel_coords(voxel, vc);
-    for (int f = 0; f < 6; ++f) {
-      int32_t nc[3] = {vc[0], vc[1], vc[2]};
-      nc[f / 2] += f % 2 ? 1 : -1;
-      if (!((faces >> f) & 1u) || nc[f / 2] < 0 || nc[f / 2] >= dims[f / 2]) continue;
-      const uint32_t other = l.voxel(nc[0], nc[1], nc[2]);
-      if (!in_list(other)) across.push_back(other);
-    }
-  }
+  in_blocks(
+      tasks, voxels.size(), kVoxelBlock, kVoxelGrain,
+      [&](uint32_t k, size_t i) {
+        const uint32_t voxel = voxels[i];
+        int32_t vc[3];
+        l.voxel_coords(voxel, vc);
+        VoxelPatches patches;
+        voxel_patches(model, read, voxel, vc, patches);
+        plan_voxel_vertices(model, read, voxel, vc, patches, plans[k]);
+      },
+      [&](uint32_t k, size_t i) {
+        const uint32_t voxel = voxels[i];
+        if (i + kAhead < voxels.size()) s.vertex_of_patch.prefetch(patch_key(voxels[i + kAhead], 0));
+        const uint8_t faces = four_point_faces(write_voxel_vertices(state, voxel, plans[k], stats));
+        if (faces == 0) return;
+        int32_t vc[3];
+        l.voxel_coords(voxel, vc);
+        for (int f = 0; f < 6; ++f) {
+          int32_t nc[3] = {vc[0], vc[1], vc[2]};
+          nc[f / 2] += f % 2 ? 1 : -1;
+          if (!((faces >> f) & 1u) || nc[f / 2] < 0 || nc[f / 2] >= dims[f / 2]) continue;
+          const uint32_t other = l.voxel(nc[0], nc[1], nc[2]);
+          if (!in_list(other)) across.push_back(other);
+        }
+      });
   if (!across.empty()) {
     sorted_unique(across);
-    // Their topology first; the Hermite data and the vertices only where it changed.
-    for (uint32_t voxel : across) {
-      int32_t vc[3];
-      l.voxel_coords(voxel, vc);
-      VoxelData data;
-      VoxelPatches patches;
-      patch_topology(model, state, voxel, vc, data, patches);
-      if (vertices_current(state, voxel, patches)) continue;
-      hermite_data(model, state, vc, data, patches);
-      write_voxel_vertices(model, state, voxel, vc, patches, stats);
-    }
+    // Their topology first; the Hermite data and the vertices only where it changed. (Each reads its
+    // own vertex slots, which the listed voxels' writes above never touch.)
+    in_blocks(
+        tasks, across.size(), kVoxelBlock, kVoxelGrain,
+        [&](uint32_t k, size_t i) {
+          const uint32_t voxel = across[i];
+          int32_t vc[3];
+          l.voxel_coords(voxel, vc);
+          VoxelData data;
+          VoxelPatches patches;
+          patch_topology(model, read, voxel, vc, data, patches);
+          plans[k].current = vertices_current(read, voxel, patches);
+          if (plans[k].current) return;
+          hermite_data(model, read, vc, data, patches);
+          plan_voxel_vertices(model, read, voxel, vc, patches, plans[k]);
+        },
+        [&](uint32_t k, size_t i) {
+          if (!plans[k].current) write_voxel_vertices(state, across[i], plans[k], stats);
+        });
     const size_t n = voxels.size();
     voxels.insert(voxels.end(), across.begin(), across.end());
     std::inplace_merge(voxels.begin(), voxels.begin() + std::ptrdiff_t(n), voxels.end());
@@ -840,31 +885,40 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       edges.push_back(item);
     }
   }
-  // (the quad slots and the ring's vertex slots of the edge a few ahead are fetched meanwhile)
+  // Their quads, a block at a time: planned over the workers (they read the vertices, final above),
+  // then written in list order.
+  std::vector<EdgeQuads>& quads = state.scratch.edge_plans;
+  quads.resize(kEdgeBlock);
+  // (the ring's vertex slots of the edge a few ahead are fetched while one is planned, its quad
+  // slots while one is written)
   constexpr size_t kEdgesAhead = 4;
-  for (size_t i = 0; i < edges.size(); ++i) {
-    if (i + kEdgesAhead < edges.size()) {
-      const CutScratch::ListedEdge& next = edges[i + kEdgesAhead];
-      s.quad_of_half_edge.prefetch(half_edge_key(next.edge, 0));
-      for (const uint32_t v : next.around) {
-        if (v != kDeadIndex) s.vertex_of_patch.prefetch(patch_key(v, 0));
-      }
-    }
-    const CutScratch::ListedEdge& item = edges[i];
-    const EdgeCut* cut = item.cut ? find_cut(state, item.edge) : nullptr;
-    EdgeQuads quads;
-    plan_edge_quads(model, state, item.edge, cut, item.around, item.corners, quads);
-    for (int side = 0; side < 2; ++side) {
-      const uint64_t key = half_edge_key(item.edge, side);
-      if (quads.exists[side]) {
-        if (write_quad(s, key, quads.v[side], quads.on_cut[side], quads.diagonal[side], changed_corners, changed_quads)) {
-          stats.triangles_changed += 2;
+  in_blocks(
+      tasks, edges.size(), kEdgeBlock, kEdgeGrain,
+      [&](uint32_t k, size_t i) {
+        if (i + kEdgesAhead < edges.size()) {
+          for (const uint32_t v : edges[i + kEdgesAhead].around) {
+            if (v != kDeadIndex) s.vertex_of_patch.prefetch(patch_key(v, 0));
+          }
         }
-      } else if (free_quad(s, key, changed_corners, changed_quads)) {
-        stats.triangles_changed += 2;
-      }
-    }
-  }
+        const CutScratch::ListedEdge& item = edges[i];
+        const EdgeCut* cut = item.cut ? find_cut(read, item.edge) : nullptr;
+        quads[k] = EdgeQuads();
+        plan_edge_quads(model, read, item.edge, cut, item.around, item.corners, quads[k]);
+      },
+      [&](uint32_t k, size_t i) {
+        if (i + kEdgesAhead < edges.size()) s.quad_of_half_edge.prefetch(half_edge_key(edges[i + kEdgesAhead].edge, 0));
+        const EdgeQuads& plan = quads[k];
+        for (int side = 0; side < 2; ++side) {
+          const uint64_t key = half_edge_key(edges[i].edge, side);
+          if (plan.exists[side]) {
+            if (write_quad(s, key, plan.v[side], plan.on_cut[side], plan.diagonal[side], changed_corners, changed_quads)) {
+              stats.triangles_changed += 2;
+            }
+          } else if (free_quad(s, key, changed_corners, changed_quads)) {
+            stats.triangles_changed += 2;
+          }
+        }
+      });
   for (uint32_t v : voxels) listed[(v - window) >> 6] = 0;
 }
 

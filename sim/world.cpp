@@ -75,9 +75,9 @@ void remember_stroke_voxels(const std::vector<uint32_t>& changed, WorldState& s)
 
 }  // namespace
 
-bool world_init(const WorldModel& model, WorldState& state, std::string& error) {
+bool world_init(const WorldModel& model, WorldState& state, std::string& error, const TaskRunner& tasks) {
   state = WorldState();
-  init_cut_state(model.voxels, state.cut);
+  init_cut_state(model.voxels, state.cut, {}, tasks);
   if (!model.physics) return true;
   state.pbd.emplace();
   return init_pbd(model.voxels, state.cut, model.params, state.pbd->model, state.pbd->data, error);
@@ -124,7 +124,7 @@ void world_step(const WorldModel& model, WorldState& s, const StepCommands& comm
       cut_divide(model.voxels, s.cut, previous, s.blade, report.cut);
     }
     const double t1 = clock.now();
-    cut_update_surface(model.voxels, s.cut, report.cut);
+    cut_update_surface(model.voxels, s.cut, report.cut, context.tasks);
     if (s.pbd && !stroke_ends) remember_stroke_voxels(s.cut.changed_voxels, s);
     const double t2 = clock.now();
     if (s.pbd) report.sim_voxels_cut = pbd_apply_cut(model.voxels, s.cut, s.pbd->model, s.pbd->data, &report.pbd);

@@ -100,8 +100,9 @@ struct StepContext {
 };
 
 // Builds the uncut state (and, with physics, the PBD model) of `model`. Returns false with a reason
-// when the parameters do not fit the lattice (sim_resolution not dividing it into 2^l blocks).
-bool world_init(const WorldModel& model, WorldState& state, std::string& error);
+// when the parameters do not fit the lattice (sim_resolution not dividing it into 2^l blocks). The
+// surface is built over `tasks` (the same bits for any worker count).
+bool world_init(const WorldModel& model, WorldState& state, std::string& error, const TaskRunner& tasks = {});
 
 // One step at the fixed dt: the grab, the blade's sweep mapped to rest space and cut (when cutting),
 // the surface update, the PBD model update, then the PBD step. Fills `report` when given.

@@ -6,6 +6,7 @@
 #include "sim/mesh_distance.h"
 #include "sim/random.h"
 #include "sim/shapes.h"
+#include "sim/state_hash.h"
 #include "sim/surface_metrics.h"
 #include "sim/voxelize.h"
 
@@ -450,6 +451,50 @@ TEST_SUITE("cut") {
     const SurfaceStats stats = check_invariants(model, state);
     CHECK(stats.components == 4);
     CHECK(std::abs(component_volume_sum(state) - uncut) / uncut < 0.01);
+  }
+
+  TEST_CASE("the surface built and updated over workers is the serial one, to the bit") {
+    // refresh_voxels computes a block of voxels' vertices and a block of edges' quads over the
+    // workers and writes them in list order: the slots, the changed lists and the stats must be the
+    // ones of one serial pass, for lists of many blocks (the whole surface at init, a one-step
+    // cut across the box) and with crossing cuts (the voxels across four-point faces).
+    const VoxelModel model = voxelized(test_box(), 40);
+    dvx_test::ThreadRunner three{3};
+    CutState serial, shared;
+    init_cut_state(model, serial);
+    init_cut_state(model, shared, {}, three.runner());
+    CHECK(serial.surface.positions.size() > 2048);  // several blocks of 512 voxels
+    CHECK(cut_state_hash(shared) == cut_state_hash(serial));
+    const BladePose z_from = z_blade(0.093, -1.0), z_to = z_blade(0.093, 1.0);
+    const BladePose x_from{Vec3d(-3, -1, -0.117), Vec3d(3, -1, -0.117)}, x_to{Vec3d(-3, 1, -0.117), Vec3d(3, 1, -0.117)};
+    const struct {
+      BladePose from, to;
+      int steps;
+    } strokes[] = {{z_from, z_to, 1}, {x_from, x_to, 3}, {{Vec3d(-3, 0.21, -3), Vec3d(3, 0.21, 3)}, {Vec3d(-3, 0.21, 3), Vec3d(3, 0.21, -3)}, 2}};
+    uint32_t largest = 0;
+    for (const auto& stroke : strokes) {
+      BladePose previous = stroke.from;
+      for (int k = 1; k <= stroke.steps; ++k) {
+        const double f = double(k) / stroke.steps;
+        const BladePose next{stroke.from.a + f * (stroke.to.a - stroke.from.a), stroke.from.b + f * (stroke.to.b - stroke.from.b)};
+        CutStepStats a, b;
+        cut_divide(model, serial, previous, next, a);
+        cut_divide(model, shared, previous, next, b);
+        largest = std::max(largest, uint32_t(serial.pending_voxels.size()));
+        cut_update_surface(model, serial, a);
+        cut_update_surface(model, shared, b, three.runner());
+        CHECK(cut_state_hash(shared) == cut_state_hash(serial));
+        CHECK(shared.changed_vertices == serial.changed_vertices);
+        CHECK(shared.touched_vertices == serial.touched_vertices);
+        CHECK(shared.touched_quads == serial.touched_quads);
+        CHECK(b.vertices_changed == a.vertices_changed);
+        CHECK(b.triangles_changed == a.triangles_changed);
+        previous = next;
+      }
+    }
+    CHECK(largest > 512);  // a step's list of several blocks
+    CHECK(three.splits > 0);
+    CHECK(check_invariants(model, shared).components == 6);
   }
 
   TEST_CASE("every vertex is its patch's vertex rule to the bit after every step, across four-point faces too") {
