@@ -730,11 +730,18 @@ uint32_t write_voxel_vertices(CutState& state, uint32_t voxel, const VoxelVertic
   return plan.present;
 }
 
-// refresh_voxels' blocks (CutScratch::voxel_plans, edge_plans: ~110 and ~50 KB) and the least work
+// refresh_voxels' blocks (CutScratch::voxel_plans, edge_plans: at most ~0.9 and ~0.4 MB, grown to
+// the largest list met; most steps' lists are one block: one wake-up of the workers) and the least work
 // a worker takes of one (a voxel's patches and vertices take a few microseconds, an edge's quads
 // a fraction of one).
-constexpr size_t kVoxelBlock = 512, kEdgeBlock = 1024;
+constexpr size_t kVoxelBlock = 4096, kEdgeBlock = 8192;
 constexpr uint32_t kVoxelGrain = 32, kEdgeGrain = 128;
+
+// Grows a block's buffer to hold `n` items (never shrinks: scratch kept between steps).
+template <typename T>
+void at_least(std::vector<T>& buffer, size_t n) {
+  if (buffer.size() < n) buffer.resize(n);
+}
 
 // A list in blocks of `block` items: compute(k, i) for item i, slot k of its block, over the workers;
 // then write(k, i) for each in list order (refresh_voxels: what it writes is what one pass writes).
@@ -805,7 +812,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   // vertices read the pieces, final above, and never the surface), then written in list order, so
   // the slots are the ones one pass allocates, for any worker count.
   std::vector<VoxelVertices>& plans = state.scratch.voxel_plans;
-  plans.resize(kVoxelBlock);
+  at_least(plans, std::min(kVoxelBlock, voxels.size()));
   const CutState& read = state;
   // (the vertex slots of the voxel two ahead are fetched while one is written: a miss each)
   constexpr size_t kAhead = 2;
@@ -836,6 +843,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
       });
   if (!across.empty()) {
     sorted_unique(across);
+    at_least(plans, std::min(kVoxelBlock, across.size()));
     // Their topology first; the Hermite data and the vertices only where it changed. (Each reads its
     // own vertex slots, which the listed voxels' writes above never touch.)
     in_blocks(
@@ -888,7 +896,7 @@ void refresh_voxels(const VoxelModel& model, CutState& state, std::vector<uint32
   // Their quads, a block at a time: planned over the workers (they read the vertices, final above),
   // then written in list order.
   std::vector<EdgeQuads>& quads = state.scratch.edge_plans;
-  quads.resize(kEdgeBlock);
+  at_least(quads, std::min(kEdgeBlock, edges.size()));
   // (the ring's vertex slots of the edge a few ahead are fetched while one is planned, its quad
   // slots while one is written)
   constexpr size_t kEdgesAhead = 4;
