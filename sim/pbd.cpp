@@ -573,7 +573,13 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
     }
   }
   ++data.steps;
-  if (embed) pbd_embed(cut, s, data, tasks);
+  // Without the embedding, its rows still follow the cut (a few slots a step), so the next
+  // pbd_embed interpolates without rebuilding them.
+  if (embed) {
+    pbd_embed(cut, s, data, tasks);
+  } else {
+    pbd_internal::refresh_embed_rows(cut, s, data);
+  }
 }
 
 void pbd_forget_caches(PbdData& data) {

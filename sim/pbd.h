@@ -385,7 +385,9 @@ uint32_t pbd_apply_cut(const VoxelModel& model, const CutState& cut, PbdModel& p
 
 // One time step (substeps x iterations), then (with `embed`) the deformed surface positions. A
 // caller that reads PbdData::deformed only now and then (a headless replay: the state hash and
-// contact read the particles, not the surface) passes false and calls pbd_embed before it reads.
+// contact read the particles, not the surface; the window, which embeds for the snapshots the
+// renderer takes) passes false and calls pbd_embed before it reads; the embedding's rows are kept
+// up to date either way.
 // With a clock, `contact_ms` gets the time gathering the contacts took (StepTimings::contact_ms).
 void pbd_step(const CutState& cut, const PbdModel& pbd, PbdData& data, const TaskRunner& tasks = {}, bool embed = true,
               const StepClock* clock = nullptr, double* contact_ms = nullptr);

@@ -162,6 +162,7 @@ void SimRunner::publish(const StepTimings& timings, bool force) {
   Session& s = *session_;
   const uint32_t step = s.state.step == 0 ? 0 : s.state.step - 1;
   const bool normals = cpu_normals_.load();
+  session_embed(s);  // the deformed surface of this state (the steps held back skipped it)
   exchange_.publish(
       [&](Snapshot& slot, uint64_t slot_sequence) {
         fill_snapshot(slot, slot_sequence, s.state.cut.surface, s.state.pbd ? &s.state.pbd->data.deformed : nullptr,
@@ -186,6 +187,9 @@ void SimRunner::do_open(OpenRequest& request) {
   std::unique_ptr<SessionRecorder> recorder;
   try {
     open_session(request.scene, request.dt, true, default_workers(), *session);
+    // The surface is embedded when a snapshot goes out (publish), not every step: the renderer takes
+    // one every frame or two.
+    session->embed_surface = false;
     if (!request.record_path.empty()) {
       recorder = std::make_unique<SessionRecorder>(request.record_path, request.scene, request.dt, true);
     }
