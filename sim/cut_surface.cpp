@@ -683,6 +683,8 @@ void plan_edge_quads(const VoxelModel& model, const CutState& state, uint32_t ed
 
 namespace {
 
+static_assert(sizeof(VoxelVertices::position) / sizeof(Vec3f) == kMaxPatches, "a plan holds every patch of a voxel");
+
 // A voxel's vertices computed from its patches (with their Hermite data): what write_voxel_vertices
 // writes. Reads the cut state only (every worker of a block computes its voxels at once).
 void plan_voxel_vertices(const VoxelModel& model, const CutState& state, uint32_t voxel, const int32_t vc[3],
