@@ -15,6 +15,8 @@
 // order differs.
 #pragma once
 
+#include "sim/random.h"
+
 #include <cstdint>
 #include <vector>
 
@@ -131,12 +133,7 @@ class GroupedFlatMap {
   // splitmix64 finaliser: good spread for lattice ids, which are dense integers. Grouped: the group's
   // mixed id picks a window, the key's low bits its place from the window's start.
   uint64_t slot_of(uint64_t key) const {
-    uint64_t g = key >> GroupShift;
-    g ^= g >> 30;
-    g *= 0xbf58476d1ce4e5b9ull;
-    g ^= g >> 27;
-    g *= 0x94d049bb133111ebull;
-    g ^= g >> 31;
+    const uint64_t g = mix64(key >> GroupShift);
     return ((g << WindowShift) + (key & ((uint64_t(1) << GroupShift) - 1))) & mask_;
   }
 

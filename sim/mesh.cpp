@@ -1,5 +1,7 @@
 #include "sim/mesh.h"
 
+#include "sim/random.h"
+
 #include <Eigen/Geometry>
 
 #include <algorithm>
@@ -62,15 +64,10 @@ uint32_t weld_identical_vertices(TriMesh& mesh) {
   size_t capacity = 16;
   while (capacity < 2 * nv) capacity <<= 1;
   std::vector<uint32_t> table(capacity, UINT32_MAX);
-  const auto mix = [](uint64_t x) {  // splitmix64's finaliser
-    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-    return x ^ (x >> 31);
-  };
   std::vector<uint32_t> rep(nv);
   for (size_t i = 0; i < nv; ++i) {
     const uint64_t* key = &bits[3 * i];
-    size_t slot = mix(key[0] ^ mix(key[1] ^ mix(key[2]))) & (capacity - 1);
+    size_t slot = mix64(key[0] ^ mix64(key[1] ^ mix64(key[2]))) & (capacity - 1);
     for (;; slot = (slot + 1) & (capacity - 1)) {
       const uint32_t j = table[slot];
       if (j == UINT32_MAX) {

@@ -1,5 +1,7 @@
 #include "sim/state_hash.h"
 
+#include "sim/random.h"
+
 #include <cstdio>
 #include <vector>
 
@@ -7,20 +9,10 @@ namespace dvx {
 
 namespace {
 
-// splitmix64 finaliser: spreads a 64-bit value over all bits.
-uint64_t mix(uint64_t x) {
-  x ^= x >> 30;
-  x *= 0xbf58476d1ce4e5b9ull;
-  x ^= x >> 27;
-  x *= 0x94d049bb133111ebull;
-  x ^= x >> 31;
-  return x;
-}
-
 uint64_t position_hash(const Vec3f& p) {
   Fnv1a h;
   h.bytes(p.data(), 3 * sizeof(float));
-  return mix(h.value);
+  return mix64(h.value);
 }
 
 }  // namespace
@@ -48,7 +40,7 @@ uint64_t cut_state_hash(const CutState& state) {
     // Rotate so the smallest corner hash comes first (keeps the orientation).
     const uint64_t c[3] = {corner[t[0]], corner[t[1]], corner[t[2]]};
     const int first = c[0] <= c[1] && c[0] <= c[2] ? 0 : (c[1] <= c[2] ? 1 : 2);
-    triangles += mix(c[first] ^ mix(c[(first + 1) % 3] ^ mix(c[(first + 2) % 3])));
+    triangles += mix64(c[first] ^ mix64(c[(first + 1) % 3] ^ mix64(c[(first + 2) % 3])));
   }
   h.add(vertices);
   h.add(triangles);
