@@ -7,9 +7,11 @@
 #include "sim/pbd_global.h"
 #include "sim/pbd_internal.h"
 #include "sim/pbd_kernels.h"
+#include "sim/union_find.h"
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 namespace dvx {
@@ -160,6 +162,8 @@ void sort_shape_lanes(PbdData& data) {
   }
 }
 
+void refresh_halves(const PbdModel& s, PbdData& data);
+
 // The solver's blocks, when the model changed: the shape-matching blocks from the recorded cuts when
 // they can follow them, else from scratch; the stretch constraints' rows (with the particles'
 // masses: O(constraints), a copy each), those of the parallel colours in particle order (as the
@@ -213,6 +217,7 @@ void refresh_blocks(const CutState& cut, const PbdModel& s, PbdData& data) {
       }
       data.cache.elastic_lambda[c].assign(rows.size() * kElasticConstraints, 0.0);
     }
+    refresh_halves(s, data);
     data.cache.blocks_revision = s.revision;
   }
   data.cache.blocks_edits = s.edits.count();
@@ -233,6 +238,152 @@ void refresh_blocks(const CutState& cut, const PbdModel& s, PbdData& data) {
 constexpr uint32_t kParticleCost = 30, kStretchCost = 36, kShapeBlockCost = kShapeLanes * 350, kContactGroupCost = 4000;
 constexpr uint32_t kElasticCost = 2500;  // a hexahedron's 9 constraints (estimated from its operations)
 constexpr uint32_t kSerial = ~0u;
+
+// The smaller half's least share of the work for the split (PbdCache::halves): below it, one thread
+// would wait at every iteration's barrier for most of the step.
+constexpr double kMinHalfShare = 0.15;
+
+// Appends lane `from` of `src` to `blocks` (a new block when the last is full).
+void append_lane(std::vector<ShapeBlock>& blocks, const ShapeBlock& src, int from) {
+  if (blocks.empty() || blocks.back().lanes == kShapeLanes) blocks.emplace_back();
+  ShapeBlock& b = blocks.back();
+  copy_lane(b, b.lanes++, src, from);
+}
+
+// The solver's halves (PbdCache::halves) from the model and the blocks just built: the bodies by
+// union-find over the live pieces' corners, each body's work per iteration (the grains' costs), the
+// bodies largest first (ties: the lowest particle) each to the half with less work so far; then each
+// half's particle runs and its part of every colour's rows and blocks, in the colour's order (the
+// overflow colour's blocks whole: one cluster each, solved in order). Off when the bodies do not
+// split with kMinHalfShare in the smaller half, or with the material's global step (it solves all
+// particles at once between the predict and the iterations).
+void refresh_halves(const PbdModel& s, PbdData& data) {
+  PbdCache& c = data.cache;
+  c.halves_on = false;
+  for (SolverHalf& h : c.halves) h = SolverHalf();
+  const uint32_t n = uint32_t(data.position.size());
+  const bool elastic = s.params.elastic == ElasticModel::kNeoHookean;
+  if (n == 0 || (elastic && s.params.global_step)) return;
+  // Bodies: particles joined through the corners of each live piece.
+  std::vector<uint32_t>& root = c.body_root;
+  root.resize(n);
+  for (uint32_t p = 0; p < n; ++p) root[p] = p;
+  for (const SimPiece& piece : s.pieces) {
+    if (piece.sim_voxel == kDeadIndex) continue;
+    for (int k = 1; k < 8; ++k) uf_unite(root.data(), piece.particles[0], piece.particles[k]);
+  }
+  for (uint32_t p = 0; p < n; ++p) root[p] = uf_find(root.data(), p);
+  // Work per body (at its root): particles, clusters or hexahedra, stretch rows; its low bit marks a
+  // body with a piece (every cost is even).
+  static_assert(kParticleCost % 2 == 0 && kElasticCost % 2 == 0 && kShapeBlockCost / kShapeLanes % 2 == 0 &&
+                    kStretchCost % 2 == 0,
+                "even costs: the low bit is a mark");
+  std::vector<uint64_t>& work = c.body_work;
+  work.assign(n, 0);
+  for (uint32_t p = 0; p < n; ++p) work[root[p]] += kParticleCost;
+  uint32_t solid_bodies = 0;
+  for (const SimPiece& piece : s.pieces) {
+    if (piece.sim_voxel == kDeadIndex) continue;
+    uint64_t& w = work[root[piece.particles[0]]];
+    if ((w & 1) == 0) ++solid_bodies;
+    w |= 1;
+    w += elastic ? kElasticCost : kShapeBlockCost / kShapeLanes;
+  }
+  if (solid_bodies < 2) return;
+  for (int k = 0; k < kColourGroups && !elastic; ++k) {
+    for (const StretchRow& r : c.stretch_rows[k]) work[root[r.a]] += kStretchCost;
+  }
+  // The bodies largest first, each to the lighter half.
+  std::vector<std::pair<uint64_t, uint32_t>> order;
+  for (uint32_t p = 0; p < n; ++p) {
+    if (root[p] == p) order.emplace_back(work[p], p);
+  }
+  std::sort(order.begin(), order.end(),
+            [](const auto& a, const auto& b) { return a.first != b.first ? a.first > b.first : a.second < b.second; });
+  uint64_t total = 0;
+  for (const auto& [w, r] : order) {
+    const int h = c.halves[1].work < c.halves[0].work ? 1 : 0;
+    c.halves[h].work += w;
+    total += w;
+    work[r] = uint64_t(h);  // from here on: the body's half
+  }
+  if (double(std::min(c.halves[0].work, c.halves[1].work)) < kMinHalfShare * double(total)) return;
+  const auto half_of = [&](uint32_t particle) -> SolverHalf& { return c.halves[work[root[particle]]]; };
+  // Particle runs.
+  for (uint32_t p = 0; p < n; ++p) {
+    std::vector<uint32_t>& runs = half_of(p).runs;
+    if (!runs.empty() && runs.back() == p) {
+      runs.back() = p + 1;
+    } else {
+      runs.push_back(p);
+      runs.push_back(p + 1);
+    }
+  }
+  // Each half's numbering of its particles (ascending: a colour's rows keep their order).
+  std::vector<uint32_t>& number = c.half_number;
+  number.resize(std::max<size_t>(n, s.pieces.size()));
+  for (uint32_t p = 0; p < n; ++p) {
+    SolverHalf& h = half_of(p);
+    number[p] = uint32_t(h.particles.size());
+    h.particles.push_back(p);
+  }
+  // Each colour's rows and blocks, in its order.
+  for (int k = 0; k < kColourGroups; ++k) {
+    for (const StretchRow& r : c.stretch_rows[k]) half_of(r.a).stretch_rows[k].push_back(r);
+    for (const ElasticRow& r : c.elastic_rows[k]) half_of(r.p[0]).elastic_rows[k].push_back(r);
+    for (const ShapeBlock& b : c.shape_blocks[k]) {
+      if (k == kOverflowColour) {
+        half_of(b.index[0][0]).shape_blocks[k].push_back(b);
+        continue;
+      }
+      for (int l = 0; l < b.lanes; ++l) append_lane(half_of(b.index[0][l]).shape_blocks[k], b, l);
+    }
+    for (SolverHalf& h : c.halves) {
+      h.stretch_lambda[k].assign(h.stretch_rows[k].size(), 0.0);
+      h.elastic_lambda[k].assign(h.elastic_rows[k].size() * kElasticConstraints, 0.0);
+      if (h.shape_blocks[k].empty() || k == kOverflowColour) continue;
+      ShapeBlock& last = h.shape_blocks[k].back();  // its unused lanes repeat its last (shape_block_add)
+      for (int l = last.lanes; l < kShapeLanes; ++l) copy_lane(last, l, last, last.lanes - 1);
+    }
+  }
+  // The rows and blocks in the halves' numbers: particles, then pieces (numbered as first met).
+  for (SolverHalf& h : c.halves) {
+    for (int k = 0; k < kColourGroups; ++k) {
+      for (StretchRow& r : h.stretch_rows[k]) {
+        r.a = number[r.a];
+        r.b = number[r.b];
+      }
+      for (ElasticRow& r : h.elastic_rows[k]) {
+        for (uint32_t& p : r.p) p = number[p];
+      }
+      for (ShapeBlock& b : h.shape_blocks[k]) {
+        for (int q = 0; q < kShapeMaxParticles; ++q) {
+          for (int l = 0; l < kShapeLanes; ++l) b.index[q][l] = number[b.index[q][l]];
+        }
+      }
+    }
+  }
+  std::fill(number.begin(), number.end(), kDeadIndex);
+  const auto piece_number = [&](SolverHalf& h, uint32_t& piece) {
+    if (number[piece] == kDeadIndex) {
+      number[piece] = uint32_t(h.pieces.size());
+      h.pieces.push_back(piece);
+    }
+    piece = number[piece];
+  };
+  for (SolverHalf& h : c.halves) {
+    for (int k = 0; k < kColourGroups; ++k) {
+      for (ElasticRow& r : h.elastic_rows[k]) piece_number(h, r.piece);
+      for (ShapeBlock& b : h.shape_blocks[k]) {
+        for (int l = 0; l < kShapeLanes; ++l) piece_number(h, b.piece[l]);
+      }
+    }
+    h.x.resize(3 * h.particles.size());
+    h.previous.resize(elastic ? h.x.size() : 0);
+    h.rotation.resize(h.pieces.size());
+  }
+  c.halves_on = true;
+}
 
 // Grab: whether held particle i is solved (a region grab skips particles a cut freed; the
 // single-particle grab keeps its former rule, a particle with mass).
@@ -276,20 +427,29 @@ void build_step_batches(const PbdModel& s, PbdData& data, bool stretch_on, int s
   };
   const uint32_t n = uint32_t(data.position.size());
   if (n == 0) return;
+  // With the halves (PbdCache::halves), each half's particles and constraints in one batch of two
+  // items: the first iteration's with the predict (and, after the first substep, the velocities).
+  const bool halves = data.body_halves && data.cache.halves_on;
+  const auto add_halves = [&](uint32_t work) { add(StepBatch::kHalves, work, 2, 1); };
   // The first substep: its predict, then the rest of its batches (the body).
-  add(StepBatch::kPredict, 0, n, particle_grain);
+  if (halves) {
+    add_halves(StepBatch::kHalfPredict | StepBatch::kHalfSolve);
+  } else {
+    add(StepBatch::kPredict, 0, n, particle_grain);
+  }
   // The material's global step (sim/pbd_global.h), before the iterations correct it.
   if (elastic && stretch_on && s.params.global_step) add(StepBatch::kGlobal, 0, 1, kSerial);
   for (int it = 0; it < s.params.iterations; ++it) {
+    if (halves && it > 0) add_halves(StepBatch::kHalfSolve);
     // The material's hexahedra (kNeoHookean), or the paper's stretch and shape matching.
-    for (int c = 0; elastic && stretch_on && c < kColourGroups; ++c) {
+    for (int c = 0; !halves && elastic && stretch_on && c < kColourGroups; ++c) {
       add(StepBatch::kElastic, uint32_t(c), uint32_t(data.cache.elastic_rows[c].size()),
           c == kOverflowColour ? kSerial : elastic_grain);
     }
-    for (int c = 0; !elastic && stretch_on && c < kColourGroups; ++c) {
+    for (int c = 0; !halves && !elastic && stretch_on && c < kColourGroups; ++c) {
       add(StepBatch::kStretch, uint32_t(c), uint32_t(s.stretch_groups[c].size()), c == kOverflowColour ? kSerial : stretch_grain);
     }
-    for (int c = 0; !elastic && c < kColourGroups; ++c) {
+    for (int c = 0; !halves && !elastic && c < kColourGroups; ++c) {
       add(StepBatch::kShape, uint32_t(c), uint32_t(data.cache.shape_blocks[c].size()),
           c == kOverflowColour ? kSerial : shape_grain);
     }
@@ -310,7 +470,11 @@ void build_step_batches(const PbdModel& s, PbdData& data, bool stretch_on, int s
   // The other substeps: velocities fused with the next predict, then the body again.
   const size_t body = steps.size() - 1;
   for (int sub = 1; sub < substeps; ++sub) {
-    add(StepBatch::kVelocity, 1, n, particle_grain);
+    if (halves) {
+      add_halves(StepBatch::kHalfVelocity | StepBatch::kHalfPredict | StepBatch::kHalfSolve);
+    } else {
+      add(StepBatch::kVelocity, 1, n, particle_grain);
+    }
     for (size_t i = 1; i <= body; ++i) {
       const StepBatch step = steps[i];
       const TaskBatch batch = batches[i];
@@ -318,7 +482,11 @@ void build_step_batches(const PbdModel& s, PbdData& data, bool stretch_on, int s
       batches.push_back(batch);
     }
   }
-  add(StepBatch::kVelocity, 0, n, particle_grain);
+  if (halves) {
+    add_halves(StepBatch::kHalfVelocity);
+  } else {
+    add(StepBatch::kVelocity, 0, n, particle_grain);
+  }
 }
 
 // Grab: each held particle's compliant attachment to target + offset (XPBD, per axis), in order. A
@@ -475,12 +643,16 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
   double* grab_lambda = data.cache.grab_lambda.data();
   // A substep starts with zero multipliers (the first chunk of its predict pass resets them; nothing
   // else reads them then).
-  const auto begin_substep = [&] {
-    for (std::vector<double>& lambda : data.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
-    for (std::vector<double>& lambda : data.cache.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+  // (With the halves: each half resets its own multipliers, the first the shared ones.)
+  const auto begin_shared_substep = [&] {
     contacts_begin_substep(data.contacts);
     contacts_begin_substep(data.piece_contacts.set);
     std::fill(data.cache.grab_lambda.begin(), data.cache.grab_lambda.end(), 0.0);
+  };
+  const auto begin_substep = [&] {
+    for (std::vector<double>& lambda : data.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    for (std::vector<double>& lambda : data.cache.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+    begin_shared_substep();
   };
   // Per particle: the end of a substep (the planes' backstop, velocities), then the start of the next
   // (previous positions, gravity, prediction), in one pass over the particles (raw arrays: Eigen's
@@ -519,10 +691,51 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
       }
     }
   };
+  // One half's particles, then its constraints colour by colour, as the batches above would solve
+  // them (PbdCache::halves).
+  const auto run_half = [&](uint32_t index, uint32_t work) {
+    SolverHalf& half = data.cache.halves[index];
+    const bool velocity = (work & StepBatch::kHalfVelocity) != 0, predict = (work & StepBatch::kHalfPredict) != 0;
+    if (predict) {
+      for (std::vector<double>& lambda : half.stretch_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+      for (std::vector<double>& lambda : half.elastic_lambda) std::fill(lambda.begin(), lambda.end(), 0.0);
+      if (index == 0) begin_shared_substep();
+    }
+    if (velocity || predict) {
+      for (size_t r = 0; r < half.runs.size(); r += 2) advance(half.runs[r], half.runs[r + 1], velocity, predict);
+    }
+    if ((work & StepBatch::kHalfSolve) == 0) return;
+    // Its own copy of its positions and rotations (SolverHalf), then back.
+    const size_t count = half.particles.size();
+    double* hx = half.x.data();
+    for (size_t i = 0; i < count; ++i) std::memcpy(hx + 3 * i, xp + 3 * size_t(half.particles[i]), 3 * sizeof(double));
+    for (size_t i = 0; i < half.previous.size() / 3; ++i) {
+      std::memcpy(&half.previous[3 * i], pp + 3 * size_t(half.particles[i]), 3 * sizeof(double));
+    }
+    for (size_t j = 0; j < half.pieces.size(); ++j) half.rotation[j] = data.rotation[half.pieces[j]];
+    for (int c = 0; elastic && stretch_on && c < kColourGroups; ++c) {
+      solve_elastic_blocks(hx, half.previous.data(), half.elastic_rows[c].data(), half.elastic_lambda[c].data(), 0,
+                           uint32_t(half.elastic_rows[c].size()), material, half.rotation.data(), nullptr,
+                           c != kOverflowColour);
+    }
+    for (int c = 0; !elastic && stretch_on && c < kColourGroups; ++c) {
+      solve_stretch_rows(hx, half.stretch_rows[c].data(), half.stretch_lambda[c].data(), 0,
+                         uint32_t(half.stretch_rows[c].size()), alpha, c != kOverflowColour);
+    }
+    for (int c = 0; !elastic && c < kColourGroups; ++c) {
+      solve_shape_blocks(hx, half.shape_blocks[c].data(), 0, uint32_t(half.shape_blocks[c].size()), params.shape_stiffness,
+                         half.rotation.data(), c != kOverflowColour);
+    }
+    for (size_t i = 0; i < count; ++i) std::memcpy(xp + 3 * size_t(half.particles[i]), hx + 3 * i, 3 * sizeof(double));
+    for (size_t j = 0; j < half.pieces.size(); ++j) data.rotation[half.pieces[j]] = half.rotation[j];
+  };
   // One job for the whole step: the batches of build_step_batches in order (a barrier between batches).
   const auto run = [&](uint32_t batch, uint32_t begin, uint32_t end) {
     const StepBatch& b = data.cache.step_batches[batch];
     switch (b.kind) {
+      case StepBatch::kHalves:
+        for (uint32_t h = begin; h < end; ++h) run_half(h, b.index);
+        break;
       case StepBatch::kPredict:
         if (begin == 0) begin_substep();
         advance(begin, end, false, true);

@@ -274,9 +274,34 @@ struct PbdModel {
 
 // One batch of a solver step (pbd_step runs them through TaskRunner::run_batches): what it solves.
 struct StepBatch {
-  enum Kind : uint8_t { kPredict, kGlobal, kStretch, kShape, kElastic, kGrab, kPieceContact, kPlaneContact, kVelocity };
+  enum Kind : uint8_t { kPredict, kGlobal, kStretch, kShape, kElastic, kGrab, kPieceContact, kPlaneContact, kVelocity, kHalves };
+  // kHalves' index: what each half does (SolverHalf), in this order.
+  enum HalfWork : uint32_t { kHalfVelocity = 1, kHalfPredict = 2, kHalfSolve = 4 };
   uint8_t kind;
-  uint32_t index;  // colour group, or contact batch; kVelocity: 1 when the next substep's predict follows in the pass
+  uint32_t index;  // colour group, or contact batch; kVelocity: 1 when the next substep's predict follows in the pass; kHalves: HalfWork bits
+};
+
+// One of the solver's two halves (PbdCache::halves): a set of bodies (pieces joined through shared
+// particles) with its particles and its part of every colour's constraints, in the colour's order.
+// A body's constraints move only its own particles, so one thread solves a half through all its
+// colours with no barrier between them while another solves the other half: the same operations on
+// every particle, in the same order, as colour by colour over both.
+// Its constraints name its own numbering of its particles and pieces (particles, pieces): a half
+// solves on its own copy of their positions and rotations (x, previous, rotation), gathered before
+// and scattered after each of its batches, so the two threads never write to one cache line while
+// they solve (after a few cuts the bodies' particles interleave; sharing the lines where they meet
+// cost what the split gained).
+struct SolverHalf {
+  std::vector<uint32_t> runs;  // its particles as ranges [runs[2i], runs[2i + 1]), ascending
+  std::vector<uint32_t> particles, pieces;  // the particle and piece slot of each of its own numbers
+  std::vector<double> x, previous;          // (its particles x 3) positions, and previous ones (material)
+  std::vector<Eigen::Quaterniond> rotation;  // (its pieces)
+  std::vector<StretchRow> stretch_rows[kColourGroups];
+  std::vector<double> stretch_lambda[kColourGroups];  // parallel to stretch_rows, reset every substep
+  std::vector<ShapeBlock> shape_blocks[kColourGroups];
+  std::vector<ElasticRow> elastic_rows[kColourGroups];
+  std::vector<double> elastic_lambda[kColourGroups];  // kElasticConstraints per row, reset every substep
+  uint64_t work = 0;                                  // instructions an iteration, estimated (pbd.cpp costs)
 };
 
 // Work of the smallest chunk a step's batch is split into across workers, in instructions (the
@@ -318,6 +343,16 @@ struct PbdCache {
   std::vector<EmbedRow> embed_rows;
   std::vector<uint32_t> embed_row_of;  // (surface vertex slots) index in embed_rows, ~0u: none
   uint64_t embed_revision = ~uint64_t(0), embed_updates = ~uint64_t(0);
+  // The solver's two halves, rebuilt with the blocks (pbd.cpp refresh_halves): in use (halves_on)
+  // when the pieces form two or more bodies whose work splits with at least kMinHalfShare in the
+  // smaller half, and the material has no global step. Then a step's iterations solve the halves
+  // side by side, one barrier before the contacts, instead of one batch per colour (which, below a
+  // chunk's work, runs on one thread: the sliced bunny at sim 16 solved its 6 bodies on one core).
+  SolverHalf halves[2];
+  bool halves_on = false;
+  std::vector<uint32_t> body_root;  // scratch (particles): union-find of the bodies
+  std::vector<uint64_t> body_work;  // scratch (particles): the work of the body each roots, then its half
+  std::vector<uint32_t> half_number;  // scratch (particles, then piece slots): number within its half
   // The grab's multipliers (held particles x 3), reset every substep.
   std::vector<double> grab_lambda;
   // The batches of one step (parallel arrays), rebuilt every step: constraints change between steps.
@@ -361,6 +396,9 @@ struct PbdData {
   // Work per chunk of a shared batch (kDefaultChunkWork). A solver setting, not physics: the results
   // are the same bits for any value. Tests lower it so that small scenes split every batch.
   uint32_t chunk_work = kDefaultChunkWork;
+  // Whether the solver may split its bodies into two halves (PbdCache::halves). A solver setting,
+  // not physics: the same bits either way. Tests turn it off to compare.
+  bool body_halves = true;
   PbdCache cache;  // derived from the model; a copy starts empty (see PbdCache)
 };
 
