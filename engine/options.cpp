@@ -40,6 +40,7 @@ EnvOptions read_env_options() {
   if (const char* t = value_of("DIVVOX_CHUNK_WORK")) {
     o.chunk_work = uint32_t(integer("DIVVOX_CHUNK_WORK", t, 1, 0xffffffffLL));
   }
+  if (const char* t = value_of("DIVVOX_BODY_HALVES")) o.body_halves = flag("DIVVOX_BODY_HALVES", t) ? 1 : 0;
   if (const char* t = value_of("DIVVOX_MEMORY_LIMIT")) {
     char* end = nullptr;
     double value = std::strtod(t, &end);

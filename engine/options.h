@@ -11,6 +11,7 @@ namespace dvx {
 struct EnvOptions {
   // Engine.
   uint32_t chunk_work = 0;       // DIVVOX_CHUNK_WORK: instructions per chunk of a shared batch (0: the solver's default)
+  int body_halves = -1;          // DIVVOX_BODY_HALVES=0/1: bodies solved side by side (-1: with 2 or more workers)
   uint64_t memory_limit = 0;     // DIVVOX_MEMORY_LIMIT: bytes (K/M/G suffix) a model may take (0: 80 % of available)
   bool progress = false;         // DIVVOX_PROGRESS=1: progress lines on a pipe too
   std::string gnuplot;           // DIVVOX_GNUPLOT: the gnuplot executable (empty: `gnuplot` on PATH)

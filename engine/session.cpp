@@ -47,8 +47,11 @@ void open_session(const Scene& scene, double dt, bool physics, int workers, Sess
   if (physics) {
     // DIVVOX_CHUNK_WORK: the work per chunk of a step's shared batches (sim/pbd.h kDefaultChunkWork;
     // lower splits smaller batches across the workers, the same bits either way).
-    if (const uint32_t chunk_work = read_env_options().chunk_work; chunk_work != 0)
-      s.state.pbd->data.chunk_work = chunk_work;
+    const EnvOptions env = read_env_options();
+    if (env.chunk_work != 0) s.state.pbd->data.chunk_work = env.chunk_work;
+    // The bodies side by side (sim/pbd.h PbdCache::halves) only where a second thread can take a
+    // half; DIVVOX_BODY_HALVES forces it (the same bits either way).
+    s.state.pbd->data.body_halves = env.body_halves >= 0 ? env.body_halves == 1 : s.pool->workers() > 1;
     s.initial_mass = total_mass(s.state.pbd->model);
   }
 }

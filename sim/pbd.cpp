@@ -241,7 +241,7 @@ constexpr uint32_t kSerial = ~0u;
 
 // The smaller half's least share of the work for the split (PbdCache::halves): below it, one thread
 // would wait at every iteration's barrier for most of the step.
-constexpr double kMinHalfShare = 0.15;
+constexpr double kMinHalfShare = 0.25;
 
 // Appends lane `from` of `src` to `blocks` (a new block when the last is full).
 void append_lane(std::vector<ShapeBlock>& blocks, const ShapeBlock& src, int from) {
