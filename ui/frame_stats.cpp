@@ -174,10 +174,12 @@ void FrameStats::print(const AppState& app) const {
       pace.rate(), static_cast<unsigned long long>(pace.steps), pace.sim_seconds, pace.run_seconds);
   if (!pace.per_second.empty()) {
     std::vector<double> rates(pace.per_second.begin(), pace.per_second.end());
-    std::printf("window: simulation pace per second of running: min x%.2f p1 x%.2f p50 x%.2f over %zu s (seconds under "
-                "x1.0: %zu)\n",
+    // Under x0.995, not x1.0: a second that keeps up reads x0.99996 with the scenes' dt of 0.016666 s
+    // (60 steps a second), and the per-second figures are floats.
+    std::printf("window: simulation pace per second of running: min x%.3f p1 x%.3f p50 x%.3f over %zu s (seconds under "
+                "x0.995: %zu)\n",
                 *std::min_element(rates.begin(), rates.end()), quantile(rates, 0.01), quantile(rates, 0.5),
-                rates.size(), size_t(std::count_if(rates.begin(), rates.end(), [](double r) { return r < 1.0; })));
+                rates.size(), size_t(std::count_if(rates.begin(), rates.end(), [](double r) { return r < 0.995; })));
   }
   if (!app.history.latency_frames.empty()) {
     double latency = 0.0;

@@ -6,7 +6,7 @@
 # took nothing off), 4 s after each, then shift+Esc. The strokes are timed in wall-clock time: under
 # load (the simulation slower than real time) they cut differently. Prints the window's exit statistics — fps p50 / p5, the
 # frames that showed a new snapshot, the simulation's pace overall and per second of running (min,
-# p1, p50, the seconds under x1.0), input-to-cut latency — and, from the --record file replayed
+# p1, p50, the seconds under x0.995), input-to-cut latency — and, from the --record file replayed
 # headless, the components each stroke created (summary.json "strokes") and whether its hashes match.
 # Usage: tests/cli/window_pace.sh DIVVOX [OUTDIR]   (OUTDIR keeps the recording and screenshots)
 set -u
