@@ -335,11 +335,13 @@ struct PbdCache {
   // The global step's unknowns, matrices and factorisation (sim/pbd_global.h; PbdParams::global_step).
   std::shared_ptr<GlobalStepCache> global;
   std::vector<float> piece_corners;  // (piece slots x 8 corners x 4: x, y, z, 0)
-  // (surface vertex slots) Each slot's embedding as pbd_embed reads it: its piece slot and local
-  // position, so a step without a cut looks up no labels. Kept in step with the contact index's slot
-  // pieces (ContactIndex::updates): after its update only the slots it revisited are, else all.
-  // Unembedded slots are written (their rest position) when they are revisited or rebuilt.
+  // The embedded surface vertices as pbd_embed reads them: slot, piece slot and local position, in
+  // no particular order (each row writes its own slot), so a step without a cut looks up no labels.
+  // Kept in step with the contact index's slot pieces (ContactIndex::updates): after its update
+  // only the slots it revisited are, else rebuilt. Unembedded slots are written (their rest
+  // position) when they are revisited or rebuilt.
   std::vector<EmbedRow> embed_rows;
+  std::vector<uint32_t> embed_row_of;  // (surface vertex slots) index in embed_rows, ~0u: none
   uint64_t embed_revision = ~uint64_t(0), embed_updates = ~uint64_t(0);
   // The solver's two halves, rebuilt with the blocks (pbd.cpp refresh_halves): in use (halves_on)
   // when the pieces form two or more bodies whose work splits with at least kMinHalfShare in the

@@ -117,34 +117,53 @@ void record_edits(const CutState& cut, PbdModel& s, const PbdData& data, const s
 namespace {
 
 // Sets the row of a vertex slot from its piece in the contact index (none: the slot keeps its rest
-// position).
+// position), swapping the last row into a removed one.
 void set_embed_row(const CutState& cut, const PbdModel& s, PbdData& data, uint32_t slot) {
   const uint32_t piece = data.piece_contacts.index.slot_piece[slot];
-  EmbedRow& row = data.cache.embed_rows[slot];
+  uint32_t& row = data.cache.embed_row_of[slot];
   if (piece != kDeadIndex) {
     const VertexEmbedding& e = s.embedding[slot];
-    row = EmbedRow{piece, e.local.x(), e.local.y(), e.local.z()};
+    const EmbedRow r{slot, piece, e.local.x(), e.local.y(), e.local.z()};
+    if (row == kDeadIndex) {
+      row = uint32_t(data.cache.embed_rows.size());
+      data.cache.embed_rows.push_back(r);
+    } else {
+      data.cache.embed_rows[row] = r;
+    }
     return;
   }
-  row.piece = kDeadIndex;
   data.deformed[slot] = cut.surface.positions[slot];
+  if (row == kDeadIndex) return;
+  const EmbedRow last = data.cache.embed_rows.back();
+  data.cache.embed_rows[row] = last;
+  data.cache.embed_row_of[last.slot] = row;
+  data.cache.embed_rows.pop_back();
+  row = kDeadIndex;
 }
 
 }  // namespace
 
-// The rows of the slots, following the contact index's slot pieces (labels are looked up once per
-// model, cut or slot count, by refresh_slots): after one update of the index only the slots it
-// revisited, else all.
+// The rows of the embedded slots, following the contact index's slot pieces (labels are looked up
+// once per model, cut or slot count, by refresh_slots): after one update of the index only the
+// slots it revisited, else all (grouped by piece, so the interpolation reads each piece's corners
+// in a run).
 void refresh_embed_rows(const CutState& cut, const PbdModel& s, PbdData& data) {
   refresh_slots(cut, s, data);
   const ContactIndex& x = data.piece_contacts.index;
   const bool valid = data.cache.embed_revision != kNoRows;
   if (valid && data.cache.embed_updates == x.updates) return;
-  data.cache.embed_rows.resize(x.slots, EmbedRow{kDeadIndex, 0.0f, 0.0f, 0.0f});
+  data.cache.embed_row_of.resize(x.slots, kDeadIndex);
   if (valid && data.cache.embed_updates + 1 == x.updates && !x.rebuilt) {
     for (uint32_t slot : x.revisited) set_embed_row(cut, s, data, slot);
   } else {
-    for (uint32_t slot = 0; slot < x.slots; ++slot) set_embed_row(cut, s, data, slot);
+    data.cache.embed_rows.clear();
+    std::fill(data.cache.embed_row_of.begin(), data.cache.embed_row_of.end(), kDeadIndex);
+    for (uint32_t i = 0; i < x.pieces; ++i) {
+      for (uint32_t n = x.piece_begin[i]; n < x.piece_begin[i + 1]; ++n) set_embed_row(cut, s, data, x.piece_slots[n]);
+    }
+    for (uint32_t slot = 0; slot < x.slots; ++slot) {
+      if (x.slot_piece[slot] == kDeadIndex) data.deformed[slot] = cut.surface.positions[slot];
+    }
   }
   data.cache.embed_revision = s.revision;
   data.cache.embed_updates = x.updates;

@@ -565,7 +565,6 @@ void embed_rows(const float* corners, const EmbedRow* rows, uint32_t begin, uint
   typedef float F4 __attribute__((vector_size(16)));
   for (uint32_t i = begin; i < end; ++i) {
     const EmbedRow& e = rows[i];
-    if (e.piece == ~0u) continue;
     const float* c = corners + 32 * size_t(e.piece);
     const auto p = [c](int k) {  // one corner (loads straight into a register, no copy)
       F4 r;
@@ -578,7 +577,7 @@ void embed_rows(const float* corners, const EmbedRow* rows, uint32_t begin, uint
     const F4 x2 = p4 + u * (p(5) - p4), x3 = p6 + u * (p(7) - p6);
     const F4 y0 = x0 + v * (x1 - x0), y1 = x2 + v * (x3 - x2);
     const F4 r = y0 + w * (y1 - y0);
-    float* o = out + 3 * size_t(i);
+    float* o = out + 3 * size_t(e.slot);
     o[0] = r[0];
     o[1] = r[1];
     o[2] = r[2];

@@ -116,18 +116,15 @@ void solve_stretch_rows(double* x, const StretchRow* rows, double* lambda, uint3
 void solve_stretch_rows(KernelIsa isa, double* x, const StretchRow* rows, double* lambda, uint32_t begin, uint32_t end,
                         double alpha, bool disjoint);
 
-// How a surface vertex slot is embedded (one row per slot, in slot order): the piece slot it is in
-// (kDeadIndex: none) and its local position in [0,1]^3.
+// A surface vertex embedded in a piece: its slot, the piece slot and its local position in [0,1]^3.
 struct EmbedRow {
-  uint32_t piece;
+  uint32_t slot, piece;
   float u, v, w;
 };
 
-// Trilinear interpolation of slots [begin, end): out[slot] from its piece's 8 corners (corners:
+// Trilinear interpolation of rows [begin, end): out[slot] from the piece's 8 corners (corners:
 // 32 floats a piece slot, corner c at 4c: x, y, z, 0), in float by lerps along x, then y, then z,
-// the three axes at once in a 4-float vector; one clone per instruction set (the same bits). A slot
-// in no piece is left as it is. (In slot order the positions are written in sequence: in piece
-// order each went to a line of its own, ~3x the memory traffic of the whole pass.)
+// the three axes at once in a 4-float vector; one clone per instruction set (the same bits).
 void embed_rows(const float* corners, const EmbedRow* rows, uint32_t begin, uint32_t end, float* out);
 
 // One shape-matching constraint (Müller et al. 2005) over `count` (<= kShapeMaxParticles) particles (indices), rest positions

@@ -36,13 +36,11 @@ uint64_t position_hash(const PbdState& s) {
   return f.value;
 }
 
-// The embedded slots' rows (slot, piece, local position); a slot in no piece has none.
+// The embedding rows as a set (their order is free: each row writes its own slot).
 std::vector<std::tuple<uint32_t, uint32_t, float, float, float>> row_set(const PbdState& s) {
   std::vector<std::tuple<uint32_t, uint32_t, float, float, float>> rows;
-  for (uint32_t slot = 0; slot < s.data.cache.embed_rows.size(); ++slot) {
-    const EmbedRow& r = s.data.cache.embed_rows[slot];
-    if (r.piece != dvx::kDeadIndex) rows.emplace_back(slot, r.piece, r.u, r.v, r.w);
-  }
+  for (const EmbedRow& r : s.data.cache.embed_rows) rows.emplace_back(r.slot, r.piece, r.u, r.v, r.w);
+  std::sort(rows.begin(), rows.end());
   return rows;
 }
 
