@@ -2,6 +2,8 @@
 // each point's nearest facing point of another body, and the grouped, coloured contacts they make.
 #include "sim/contact.h"
 
+#include "sim/union_find.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -89,19 +91,12 @@ void find_bodies(const uint32_t* corners, const uint8_t* live, uint32_t piece_co
   std::vector<uint32_t>& parent = scratch.parent;
   parent.resize(particle_count);
   for (uint32_t p = 0; p < particle_count; ++p) parent[p] = p;
-  const auto find = [&](uint32_t x) {
-    while (parent[x] != x) x = parent[x] = parent[parent[x]];
-    return x;
-  };
   for (uint32_t i = 0; i < piece_count; ++i) {
     if (!live[i]) continue;
-    for (int c = 1; c < 8; ++c) {
-      const uint32_t a = find(corners[8 * i]), b = find(corners[8 * i + c]);
-      if (a != b) parent[std::max(a, b)] = std::min(a, b);
-    }
+    for (int c = 1; c < 8; ++c) uf_unite(parent.data(), corners[8 * i], corners[8 * i + c]);
   }
   body.resize(piece_count);
-  for (uint32_t i = 0; i < piece_count; ++i) body[i] = live[i] ? find(corners[8 * i]) : ~0u;
+  for (uint32_t i = 0; i < piece_count; ++i) body[i] = live[i] ? uf_find(parent.data(), corners[8 * i]) : ~0u;
 }
 
 namespace {
