@@ -256,14 +256,15 @@ void append_lane(std::vector<ShapeBlock>& blocks, const ShapeBlock& src, int fro
 // half's particle runs and its part of every colour's rows and blocks, in the colour's order (the
 // overflow colour's blocks whole: one cluster each, solved in order). Off when the bodies do not
 // split with kMinHalfShare in the smaller half, or with the material's global step (it solves all
-// particles at once between the predict and the iterations).
+// particles at once between the predict and the iterations), and not built at all where the solver
+// may not use them (PbdData::body_halves: one worker), so a cut step there does not pay for them.
 void refresh_halves(const PbdModel& s, PbdData& data) {
   PbdCache& c = data.cache;
   c.halves_on = false;
   for (SolverHalf& h : c.halves) h = SolverHalf();
   const uint32_t n = uint32_t(data.position.size());
   const bool elastic = s.params.elastic == ElasticModel::kNeoHookean;
-  if (n == 0 || (elastic && s.params.global_step)) return;
+  if (!data.body_halves || n == 0 || (elastic && s.params.global_step)) return;
   // Bodies: particles joined through the corners of each live piece.
   std::vector<uint32_t>& root = c.body_root;
   root.resize(n);

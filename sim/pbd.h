@@ -397,7 +397,8 @@ struct PbdData {
   // are the same bits for any value. Tests lower it so that small scenes split every batch.
   uint32_t chunk_work = kDefaultChunkWork;
   // Whether the solver may split its bodies into two halves (PbdCache::halves). A solver setting,
-  // not physics: the same bits either way. Tests turn it off to compare.
+  // not physics: the same bits either way. Tests turn it off to compare. Turned on, it takes effect
+  // when the blocks are next rebuilt (a cut, or a copy of the state); off, at once.
   bool body_halves = true;
   PbdCache cache;  // derived from the model; a copy starts empty (see PbdCache)
 };
