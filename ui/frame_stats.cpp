@@ -193,7 +193,7 @@ void FrameStats::print(const AppState& app) const {
 }
 
 double sim_pace_position(uint32_t step, double dt, double since_step_done) {
-  return double(step) * dt + std::clamp(since_step_done, 0.0, dt);
+  return double(step) * dt + std::clamp(since_step_done, -dt, dt);
 }
 
 void sim_pace_sample(SimPace& pace, double now, uint32_t step, double dt, double since_step_done, bool running,

@@ -38,7 +38,9 @@ struct SimPace {
 // at one step. Steps done alone are quantised: a simulation paced at exactly real time has 59 or 61
 // step boundaries in some one-second windows (x0.98, x1.02) though it never fell behind; with the
 // time since the last step it reads x1.00 there, and a stall still shows (the position stops one
-// step after the last step finished until the next one does).
+// step after the last step finished until the next one does). A step run up to a step ahead of
+// the clock for a command reports its finish at its time on the clock (SimStatus::step_done): until
+// then `since_step_done` is negative, down to -dt, and the position stays on the clock.
 double sim_pace_position(uint32_t step, double dt, double since_step_done);
 
 // One sample (each frame): `now` wall-clock seconds, `step` the next step to run, `dt` the step's

@@ -103,6 +103,7 @@ void SimRunner::push(const StampedCommands& c) {
   auto at = std::upper_bound(queue_.begin(), queue_.end(), c.step,
                              [](uint32_t step, const StampedCommands& q) { return step < q.step; });
   queue_.insert(at, c);
+  wake_.notify_all();  // its step may run at once (run)
 }
 
 void SimRunner::push_now(const StepCommands& commands) { push({next_step_.load(), commands}); }
@@ -258,7 +259,7 @@ void SimRunner::do_open(OpenRequest& request) {
   publish(StepTimings(), true);
 }
 
-void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
+void SimRunner::do_step(std::unique_lock<std::mutex>& lock, Clock::duration early) {
   Session& s = *session_;
   const uint32_t step = s.state.step;
   // This step's commands: the played recording's, then every queued entry stamped up to it (later win).
@@ -300,7 +301,7 @@ void SimRunner::do_step(std::unique_lock<std::mutex>& lock) {
   lock.lock();
   next_step_.store(s.state.step);
   status_.step = s.state.step;
-  status_.step_done = step_done;
+  status_.step_done = step_done + early;  // when it would have finished on the clock
   status_.timings.push_back(report.timings);
   if (status_.timings.size() > kTimingHistory) status_.timings.erase(status_.timings.begin());
   status_.grab_force_n.push_back(float(report.grab_force_n));
@@ -431,6 +432,7 @@ void SimRunner::run() {
   if (nice_value > 0) setpriority(PRIO_PROCESS, id_t(syscall(SYS_gettid)), nice_value);
   std::unique_lock<std::mutex> lock(mutex_);
   Clock::time_point next_time = Clock::now();
+  Clock::duration early = Clock::duration::zero();  // how far ahead of the clock this step runs
   while (!quit_) {
     if (open_request_) {
       std::unique_ptr<OpenRequest> request = std::move(open_request_);
@@ -498,20 +500,27 @@ void SimRunner::run() {
       next_time = Clock::now();
       continue;
     }
+    early = Clock::duration::zero();
     if (single_steps_ > 0 && paused_) {
       --single_steps_;
     } else {
-      // Real time: one step per dt; a simulation that falls behind drops the lost time.
+      // Real time: one step per dt; a simulation that falls behind drops the lost time. A command
+      // queued for the next step (the blade, a grab) runs it at once, up to one step ahead of the
+      // clock: on the clock alone it waited up to a dt for its step, a frame's worth of the input-to-
+      // cut latency (issue 31). The steps keep their times on the clock (next_time), so the pace is
+      // the same; the step's finish is reported at its time on the clock (status_.step_done).
       const Clock::time_point now = Clock::now();
-      if (now < next_time) {
+      const auto dt = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(session_->dt));
+      const bool command_waits = !queue_.empty() && queue_.front().step <= session_->state.step;
+      if (now < next_time && !(command_waits && now + dt >= next_time)) {
         wake_.wait_until(lock, next_time);
         continue;
       }
-      const auto dt = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(session_->dt));
+      early = now < next_time ? next_time - now : Clock::duration::zero();
       next_time += dt;
       if (now > next_time + 5 * dt) next_time = now;
     }
-    do_step(lock);
+    do_step(lock, early);
   }
   finish_recording();
   lock.unlock();

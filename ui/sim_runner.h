@@ -31,7 +31,8 @@ struct StampedCommands {
 struct SimStatus {
   bool loading = false, ready = false, paused = false;
   uint32_t step = 0;  // the next step to run
-  // When the step before `step` finished (SimPace: the simulated time between step boundaries).
+  // When the step before `step` finished (SimPace: the simulated time between step boundaries); for
+  // a step run ahead of the clock for a command, when it would have finished on the clock (later).
   Clock::time_point step_done = Clock::now();
   double dt = 1.0 / 60.0;
   Scene scene;
@@ -131,7 +132,7 @@ class SimRunner {
   };
   void run();
   void do_open(OpenRequest& request);
-  void do_step(std::unique_lock<std::mutex>& lock);
+  void do_step(std::unique_lock<std::mutex>& lock, Clock::duration early);
   // force: publish even if the renderer has not taken the previous snapshot (a new session, a restore).
   void publish(const StepTimings& timings, bool force);
   void finish_recording();

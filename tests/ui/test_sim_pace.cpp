@@ -4,6 +4,7 @@
 
 #include "ui/sim_pace.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -151,5 +152,37 @@ TEST_SUITE("ui") {
     CHECK(quantised_off);  // what the position's time since the last step corrects
     CHECK(counted.rate() == doctest::Approx(counted.sim_seconds / counted.run_seconds));
     CHECK(counted.sim_seconds == doctest::Approx(counted.run_seconds - 0.5).epsilon(0.01));
+  }
+
+  TEST_CASE("sim pace: steps run ahead of the clock for a command read x1.00 when they report their time on the clock") {
+    // The window during a stroke: each frame's blade command runs its step at once, up to one step
+    // ahead of the real-time schedule (ui/sim_runner.cpp run), here every other step 0.7 dt early.
+    // Reported at their actual finish, a second that starts just after early steps and ends just
+    // before one reads up to a step short (x0.983); reported at their time on the clock
+    // (SimStatus::step_done), every second reads x1.00.
+    const double dt = 1.0 / 60.0;
+    std::vector<double> actual, clocked;  // each step's finish time (s): as it ran, and on the clock
+    for (int k = 0; k < 60 * 12; ++k) {
+      const double on_clock = k * dt + 0.005 + 0.002 * std::sin(1.3 * k);
+      const double early = (k / 7) % 2 == 1 ? 0.7 * dt : 0.0;  // runs of 7 steps early, 7 on time
+      actual.push_back(on_clock - early);
+      clocked.push_back(on_clock);
+    }
+    SimPace reported_on_clock, reported_actual;
+    size_t steps = 0;
+    for (double t = 0.01; t < 11.9; t += 1.0 / 43.7) {
+      while (steps < actual.size() && actual[steps] <= t) ++steps;
+      sim_pace_sample(reported_on_clock, t, uint32_t(steps), dt, steps > 0 ? t - clocked[steps - 1] : 0.0, true, 1, 0);
+      sim_pace_sample(reported_actual, t, uint32_t(steps), dt, steps > 0 ? t - actual[steps - 1] : 0.0, true, 1, 0);
+    }
+    REQUIRE(reported_on_clock.per_second.size() == 11);
+    REQUIRE(reported_actual.per_second.size() == 11);
+    float worst_actual = 1.0f;
+    for (size_t i = 0; i < 11; ++i) {
+      CHECK(reported_on_clock.per_second[i] == doctest::Approx(1.0).epsilon(0.005));
+      worst_actual = std::min(worst_actual, reported_actual.per_second[i]);
+    }
+    CHECK(worst_actual < 0.995f);  // what reporting the time on the clock corrects
+    CHECK(reported_on_clock.rate() == doctest::Approx(1.0).epsilon(0.005));
   }
 }
