@@ -974,11 +974,15 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
 
 // This step's contacts with the planes and between pieces, from one index and the pieces' motions;
 // the contact points the gathers need are built first, the pieces spread over `tasks`.
+void refresh_contact_index(const CutState& cut, const PbdModel& s, PbdData& data) { refresh_index(cut, s, data); }
+
+bool contacts_on(const PbdModel& s) { return !s.params.planes.empty() || s.params.piece_contact; }
+
 void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   contacts_clear(data.contacts);
   contacts_clear(data.piece_contacts.set);
   data.piece_contacts.exposed_pieces = 0;
-  if (s.params.planes.empty() && !s.params.piece_contact) return;
+  if (!contacts_on(s)) return;
   refresh_index(cut, s, data);
   piece_motions(s, data);
   gather_plane_contacts(cut, s, data, tasks);

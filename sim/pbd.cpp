@@ -624,8 +624,23 @@ void pbd_step(const CutState& cut, const PbdModel& s, PbdData& data, const TaskR
   const double h = params.dt / substeps;
   double* x = data.position.empty() ? nullptr : data.position[0].data();
   const double* w = s.inv_mass.data();
-  // The constraint blocks change only with the model (a cut, or init).
-  refresh_blocks(cut, s, data);
+  // The constraint blocks change only with the model (a cut, or init). After a cut the contact index
+  // follows it too: the two touch disjoint caches (data.cache, data.piece_contacts) and each runs on
+  // one thread, so they go side by side, one item each (with one worker, one after the other).
+  if (data.cache.blocks_revision != s.revision && contacts_on(s)) {
+    const TaskBatch both{2, 1};
+    run_batches(tasks, &both, 1, [&](uint32_t, uint32_t begin, uint32_t end) {
+      for (uint32_t item = begin; item < end; ++item) {
+        if (item == 0) {
+          refresh_blocks(cut, s, data);
+        } else {
+          refresh_contact_index(cut, s, data);
+        }
+      }
+    });
+  } else {
+    refresh_blocks(cut, s, data);
+  }
   // A soft constraint without a time step does nothing (solve_distance's rule).
   const bool stretch_on = !(params.stretch_compliance > 0.0) || h > 0.0;
   const double alpha = params.stretch_compliance > 0.0 && h > 0.0 ? params.stretch_compliance / (h * h) : 0.0;

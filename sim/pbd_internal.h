@@ -380,6 +380,12 @@ void refresh_embed_rows(const CutState& cut, const PbdModel& s, PbdData& data);
 // surface (after init and every cut), and gathers this step's plane and piece contacts (the
 // contact points to build spread over `tasks`: the same bits whatever the worker count).
 void refresh_slots(const CutState& cut, const PbdModel& s, PbdData& data);
+// The contact index (slots, contact points made stale, the bodies) brought up to the model; touches
+// only data.piece_contacts, so it may run beside refresh_blocks (which touches only data.cache).
+// gather_contacts calls it first (a no-op when it is up to date).
+void refresh_contact_index(const CutState& cut, const PbdModel& s, PbdData& data);
+// Whether gather_contacts gathers anything (planes or piece contact).
+bool contacts_on(const PbdModel& s);
 void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks);
 
 }  // namespace pbd_internal
