@@ -972,12 +972,12 @@ void collect_piece_contacts(const CutState& cut, const PbdModel& s, PbdData& dat
 
 }  // namespace
 
-// This step's contacts with the planes and between pieces, from one index and the pieces' motions;
-// the contact points the gathers need are built first, the pieces spread over `tasks`.
 void refresh_contact_index(const CutState& cut, const PbdModel& s, PbdData& data) { refresh_index(cut, s, data); }
 
 bool contacts_on(const PbdModel& s) { return !s.params.planes.empty() || s.params.piece_contact; }
 
+// This step's contacts with the planes and between pieces, from one index and the pieces' motions;
+// the contact points the gathers need are built first, the pieces spread over `tasks`.
 void gather_contacts(const CutState& cut, const PbdModel& s, PbdData& data, const TaskRunner& tasks) {
   contacts_clear(data.contacts);
   contacts_clear(data.piece_contacts.set);

@@ -432,7 +432,6 @@ void SimRunner::run() {
   if (nice_value > 0) setpriority(PRIO_PROCESS, id_t(syscall(SYS_gettid)), nice_value);
   std::unique_lock<std::mutex> lock(mutex_);
   Clock::time_point next_time = Clock::now();
-  Clock::duration early = Clock::duration::zero();  // how far ahead of the clock this step runs
   while (!quit_) {
     if (open_request_) {
       std::unique_ptr<OpenRequest> request = std::move(open_request_);
@@ -500,7 +499,7 @@ void SimRunner::run() {
       next_time = Clock::now();
       continue;
     }
-    early = Clock::duration::zero();
+    Clock::duration early = Clock::duration::zero();  // how far ahead of the clock this step runs
     if (single_steps_ > 0 && paused_) {
       --single_steps_;
     } else {
