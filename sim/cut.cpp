@@ -15,10 +15,6 @@ using namespace cut_internal;
 
 namespace {
 
-// The cosine of the largest angle between the blade normals of one voxel's cuts for cut_close_seams
-// to take them as one plane (a seam between two strips of one stroke: nearly parallel).
-constexpr double kSeamPlanarity = 0.8;
-
 // The same for a vector whose first `sorted` elements are sorted and unique already (the pending
 // voxels of earlier cut_divide calls in a step, one call per rest quad): the tail is sorted, its
 // repeats and the values the prefix holds already (binary search) dropped, and only a tail left
@@ -273,13 +269,16 @@ void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint3
     const auto corner_position = [&](int c) {
       return l.node_position(vc[0] + (c & 1), vc[1] + ((c >> 1) & 1), vc[2] + ((c >> 2) & 1));
     };
-    // The plane of the voxel's cuts: through their crossings, normal to their mean blade normal; a
-    // voxel cut along two directions (crossing strokes, a corner) has no one plane and is left alone.
+    // The plane of the voxel's cuts: through their crossings, normal to their mean blade normal (each
+    // oriented along the first). Whether or not the cuts lie in one plane: where the tissue turned as
+    // the stroke cut it (a hanging lobe swings), its strips' normals in rest space differ by up to
+    // ~70 degrees in one voxel, and those voxels were the hairline that kept the lobe's tip on
+    // (docs/cutting.md). Until 2026-12-08 a voxel whose normals differed by more than ~37 degrees
+    // was left alone.
     Vec3d centre = Vec3d::Zero(), normal = Vec3d::Zero();
     int points = 0;
-    bool planar = true;
     Vec3d first = Vec3d::Zero();
-    for (int e = 0; e < 12 && planar; ++e) {
+    for (int e = 0; e < 12; ++e) {
       if (!((dv.cut_edges >> e) & 1u)) continue;
       const uint32_t edge = Lattice::edge(corner_node(kVoxelEdges[e].c0), kVoxelEdges[e].axis);
       const uint32_t i = state.edge_cut_of.get(edge);
@@ -291,13 +290,12 @@ void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint3
         Vec3d n = (side ? cut.normal_hi : cut.normal_lo).cast<double>();
         if (points == 0) first = n;
         if (n.dot(first) < 0.0) n = -n;
-        planar = n.dot(first) >= kSeamPlanarity;
         normal += n;
         centre += p0 + double(side ? cut.t_hi : cut.t_lo) * along;
         ++points;
       }
     }
-    if (!planar || points == 0 || !(normal.squaredNorm() > 0.0)) continue;
+    if (points == 0 || !(normal.squaredNorm() > 0.0)) continue;
     centre /= points;
     normal.normalize();
     // The voxel's material edges that plane crosses and no sweep did.

@@ -251,9 +251,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 // At the end of a stroke through moving tissue: closes its seams. Where the tissue moved and deformed
 // between steps, a strip's start and the last one's end can disagree by up to a fine voxel, leaving
 // holes in the cut surface that keep the sides joined. Each voxel the stroke left partly cut
-// (`stroke_voxels`, any order and repeats; partial_mask) whose cuts lie in one plane has the material
-// edges that plane crosses cut too: a hole a voxel wide closes; a real edge of the cut (a blade tip
-// inside the tissue) moves by at most a voxel. Leaves its voxels in state.pending_voxels (then
+// (`stroke_voxels`, any order and repeats; partial_mask) has the material edges cut that the plane of
+// its cuts (through their crossings, normal to their mean normal) crosses: a hole a voxel wide closes;
+// a real edge of the cut (a blade tip inside the tissue) moves by at most a voxel. Leaves its voxels in state.pending_voxels (then
 // cut_update_surface); sorts `stroke_voxels` and drops its repeats.
 void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke_voxels,
                      CutStepStats& stats);

@@ -154,6 +154,21 @@ TEST_SUITE("replay") {
     CHECK(summary["pace_per_second"]["min"].get<double>() <= summary["pace_per_second"]["p50"].get<double>());
   }
 
+  TEST_CASE("a stroke across the liver's lobe tip that left a hairline takes the tip off") {
+    // tests/data/liver_tip_hairline.jsonl: the commands of window_pace.sh's first stroke (across the
+    // lobe's tip, the tissue swinging as it is cut), each shifted by up to a step at random, that left
+    // the tip on a hairline: voxels the stroke left partly cut whose cuts turned with the tip (blade
+    // normals up to ~70 degrees apart), which the stroke's end did not close while it closed only
+    // voxels whose cuts lie in one plane (sim/cut.cpp cut_close_seams, docs/cutting.md).
+    TempDir dir;
+    const ReplayResult r = run_replay(replay_of(dvx_test::source_path("tests/data/liver_tip_hairline.jsonl"), dir.path));
+    CHECK(r.steps == 700);
+    const nlohmann::json summary = nlohmann::json::parse(read_file(dir.path / "summary.json"));
+    REQUIRE(summary["strokes"].size() == 1);
+    CHECK(summary["strokes"][0]["created"] == 1);
+    CHECK(summary["surface"]["boundary_edges"] == 0);
+  }
+
   TEST_CASE("timings.csv ends with grab_force_n: the grab's force in newtons, non-zero while a grab holds") {
     TempDir dir;
     ReplayOptions options = replay_of(dvx_test::source_path("assets/recordings/bunny_grab.jsonl"), dir.path);
