@@ -254,6 +254,135 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
   ++state.steps;
 }
 
+namespace {
+
+// The least angle around a hole's edge that the stroke's crossings must leave no gap of (below: the
+// edge lies inside the cut, not beyond its rim, where the crossings lie on one side: a gap of at
+// least half a turn).
+constexpr double kHoleMaxGap = 0.75 * 3.14159265358979323846;
+
+// After the partly cut voxels are closed: holes in the stroke's cut surface a voxel or two wide
+// that no voxel's own cuts reach (where the tissue turned as it was cut, strips of different
+// directions leave ragged gaps; the closing above cuts into them from their rims and leaves them
+// joined). Each uncut material edge of the voxels around the partly cut ones and the ones the
+// closing touched (`state.pending_voxels` from `first`), that crosses the plane of the cut crossings
+// near it (within 1.5 voxels of its middle: through their mean, normal to their mean normal) inside
+// them (the crossings around the crossing point leave no angular gap over kHoleMaxGap) is cut there.
+void close_holes(const VoxelModel& model, CutState& state, const std::vector<uint32_t>& stroke, size_t first,
+                 CutStepStats& stats) {
+  const Lattice& l = model.lattice;
+  const double h = l.voxel_size;
+  // The core: the stroke's partly cut voxels and those the closing touched; their edges and their
+  // neighbours' edges are the candidates.
+  std::vector<uint32_t> core(state.pending_voxels.begin() + std::ptrdiff_t(first), state.pending_voxels.end());
+  for (const uint32_t v : stroke) {
+    const uint32_t d = state.divided_of.get(v);
+    if (d != kDeadIndex && state.divided[d].partial_mask != 0) core.push_back(v);
+  }
+  sorted_unique(core);
+  std::vector<uint32_t> edges;
+  for (const uint32_t v : core) {
+    int32_t vc[3];
+    l.voxel_coords(v, vc);
+    for (int dz = -1; dz <= 1; ++dz) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int32_t c[3] = {vc[0] + dx, vc[1] + dy, vc[2] + dz};
+          if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= l.nx || c[1] >= l.ny || c[2] >= l.nz) continue;
+          for (int e = 0; e < 12; ++e) {
+            const uint8_t c0 = kVoxelEdges[e].c0;
+            edges.push_back(Lattice::edge(l.node(c[0] + (c0 & 1), c[1] + ((c0 >> 1) & 1), c[2] + ((c0 >> 2) & 1)),
+                                          kVoxelEdges[e].axis));
+          }
+        }
+      }
+    }
+  }
+  sorted_unique(edges);
+  std::vector<uint32_t> near;  // cut edges near a candidate
+  std::vector<double> angles;
+  for (const uint32_t edge : edges) {
+    if (state.edge_cut_of.get(edge) != kDeadIndex) continue;
+    const uint32_t n0 = edge / 3;
+    const int axis = int(edge % 3);
+    int32_t a[3];
+    l.node_coords(n0, a);
+    int32_t b[3] = {a[0], a[1], a[2]};
+    ++b[axis];
+    if (b[axis] > (axis == 0 ? l.nx : axis == 1 ? l.ny : l.nz)) continue;
+    const uint32_t n1 = l.node(b[0], b[1], b[2]);
+    if (!model.is_inside(n0) || !model.is_inside(n1)) continue;
+    const Vec3d x0 = l.node_position(a[0], a[1], a[2]), x1 = l.node_position(b[0], b[1], b[2]);
+    const Vec3d middle = 0.5 * (x0 + x1);
+    // The cut edges of the voxels within two of the edge's lower node.
+    near.clear();
+    for (int32_t z = a[2] - 2; z <= a[2] + 1; ++z) {
+      for (int32_t y = a[1] - 2; y <= a[1] + 1; ++y) {
+        for (int32_t x = a[0] - 2; x <= a[0] + 1; ++x) {
+          if (x < 0 || y < 0 || z < 0 || x >= l.nx || y >= l.ny || z >= l.nz) continue;
+          const uint32_t d = state.divided_of.get(l.voxel(x, y, z));
+          if (d == kDeadIndex) continue;
+          const uint16_t cut = state.divided[d].cut_edges;
+          for (int e = 0; e < 12; ++e) {
+            if (!((cut >> e) & 1u)) continue;
+            const uint8_t c0 = kVoxelEdges[e].c0;
+            near.push_back(Lattice::edge(l.node(x + (c0 & 1), y + ((c0 >> 1) & 1), z + ((c0 >> 2) & 1)), kVoxelEdges[e].axis));
+          }
+        }
+      }
+    }
+    sorted_unique(near);
+    // Their crossings within 1.5 voxels: the local plane.
+    Vec3d centre = Vec3d::Zero(), normal = Vec3d::Zero(), reference = Vec3d::Zero();
+    int count = 0;
+    const auto crossing = [&](uint32_t cut_edge, const EdgeCut& ec) {
+      int32_t c[3];
+      l.node_coords(cut_edge / 3, c);
+      return Vec3d(l.node_position(c[0], c[1], c[2]) + double(0.5f * (ec.t_lo + ec.t_hi)) * h * Vec3d::Unit(int(cut_edge % 3)));
+    };
+    for (uint32_t& cut_edge : near) {
+      const uint32_t i = state.edge_cut_of.get(cut_edge);
+      const Vec3d p = i == kDeadIndex ? Vec3d::Constant(1e300) : crossing(cut_edge, state.edge_cuts[i]);
+      if (i == kDeadIndex || (p - middle).squaredNorm() > 2.25 * h * h) {
+        cut_edge = kDeadIndex;
+        continue;
+      }
+      Vec3d n = state.edge_cuts[i].normal_lo.cast<double>();
+      if (count == 0) reference = n;
+      if (n.dot(reference) < 0.0) n = -n;
+      normal += n;
+      centre += p;
+      ++count;
+    }
+    if (count < 4 || !(normal.squaredNorm() > 0.0)) continue;
+    centre /= count;
+    normal.normalize();
+    const double d0 = normal.dot(x0 - centre), d1 = normal.dot(x1 - centre);
+    if ((d0 > 0.0) == (d1 > 0.0) || d0 == d1) continue;
+    const double t = std::clamp(d0 / (d0 - d1), 0.0, 1.0);
+    const Vec3d q = x0 + t * (x1 - x0);
+    // Inside the crossings: no angular gap around q over kHoleMaxGap (in the plane).
+    const Vec3d u = normal.unitOrthogonal(), w = normal.cross(u);
+    angles.clear();
+    for (const uint32_t cut_edge : near) {
+      if (cut_edge == kDeadIndex) continue;
+      const Vec3d r = crossing(cut_edge, state.edge_cuts[state.edge_cut_of.get(cut_edge)]) - q;
+      const double ru = r.dot(u), rw = r.dot(w);
+      if (ru * ru + rw * rw < 0.01 * h * h) continue;
+      angles.push_back(std::atan2(rw, ru));
+    }
+    if (angles.size() < 3) continue;
+    std::sort(angles.begin(), angles.end());
+    double gap = angles.front() + 2.0 * 3.14159265358979323846 - angles.back();
+    for (size_t k = 1; k < angles.size(); ++k) gap = std::max(gap, angles[k] - angles[k - 1]);
+    if (gap > kHoleMaxGap) continue;
+    divide_at(model, state, EdgeHit{edge, float(t), normal.cast<float>()}, stats);
+    ++stats.hole_edges;
+  }
+}
+
+}  // namespace
+
 void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke, CutStepStats& stats) {
   const Lattice& l = model.lattice;
   sorted_unique(stroke);
@@ -312,6 +441,7 @@ void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint3
       ++stats.seam_edges;
     }
   }
+  close_holes(model, state, stroke, pending_before, stats);
   merge_sorted_unique(voxels, pending_before);
   stats.voxels_cut = uint32_t(voxels.size());
   stats.voxels_divided = uint32_t(state.divided.size());

@@ -233,7 +233,8 @@ struct CutStepStats {
   uint32_t voxels_divided = 0;      // divided voxels in total after the step
   uint32_t vertices_changed = 0;    // vertex slots written or freed
   uint32_t triangles_changed = 0;   // triangle slots written or freed
-  uint32_t seam_edges = 0;          // edges cut_close_seams cut
+  uint32_t seam_edges = 0;          // edges cut_close_seams cut closing partly cut voxels
+  uint32_t hole_edges = 0;          // edges cut_close_seams cut closing holes in the stroke's cut
 };
 
 // Builds the initial state: no cuts, the closed dual-contoured surface of the uncut model (the
@@ -253,7 +254,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 // holes in the cut surface that keep the sides joined. Each voxel the stroke left partly cut
 // (`stroke_voxels`, any order and repeats; partial_mask) has the material edges cut that the plane of
 // its cuts (through their crossings, normal to their mean normal) crosses: a hole a voxel wide closes;
-// a real edge of the cut (a blade tip inside the tissue) moves by at most a voxel. Leaves its voxels in state.pending_voxels (then
+// a real edge of the cut (a blade tip inside the tissue) moves by at most a voxel. Then the holes up
+// to ~3.6 voxels wide that closing leaves inside the cut (where its crossings surround them) are cut
+// through (CutStepStats::hole_edges). Leaves its voxels in state.pending_voxels (then
 // cut_update_surface); sorts `stroke_voxels` and drops its repeats.
 void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke_voxels,
                      CutStepStats& stats);

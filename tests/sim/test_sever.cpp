@@ -516,6 +516,34 @@ TEST_SUITE("sever") {
       CHECK(stats.seam_edges > 0);
       CHECK(pieces(s) == 2);
     }
+    SUBCASE("a hole 3.2 voxels wide inside the stroke's cut: its end closes the hole and the block is in two") {
+      // Four strips around a square the blade never crossed (strips of different directions leave
+      // such ragged holes where the tissue turned as it was cut). Closing the partly cut voxels
+      // around it narrows it by a voxel from each side and leaves its middle; the hole pass cuts it.
+      CutState s;
+      init_cut_state(model, s);
+      const auto strip = [&](double ya, double yb, double z_low, double z_high) {
+        CutStepStats stats;
+        cut_divide(model, s, {Vec3d(0.0137, ya, z_high), Vec3d(0.0137, ya, z_low)},
+                   {Vec3d(0.0137, yb, z_high), Vec3d(0.0137, yb, z_low)}, stats);
+        cut_update_surface(model, s, stats);
+        stroke.insert(stroke.end(), s.changed_voxels.begin(), s.changed_voxels.end());
+      };
+      const double y1 = 0.05, y2 = y1 + 3.2 * h, z1 = -0.03, z2 = z1 + 3.2 * h;
+      strip(-1.0, y1, -1.0, 1.0);
+      strip(y2, 1.0, -1.0, 1.0);
+      strip(y1, y2, z2, 1.0);
+      strip(y1, y2, -1.0, z1);
+      REQUIRE(check_cut_state(model, s, error));
+      CHECK(pieces(s) == 1);
+      CutStepStats closing;
+      cut_close_seams(model, s, stroke, closing);
+      cut_update_surface(model, s, closing);
+      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
+      MESSAGE("seam edges cut: " << closing.seam_edges << ", hole edges cut: " << closing.hole_edges);
+      CHECK(closing.hole_edges > 0);
+      CHECK(pieces(s) == 2);
+    }
     SUBCASE("a blade that stops inside the block: still one piece, the cut's edge at most a voxel deeper") {
       CutState s;
       init_cut_state(model, s);
