@@ -354,9 +354,40 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
       centre += p;
       ++count;
     }
-    if (count < 4 || !(normal.squaredNorm() > 0.0)) continue;
-    centre /= count;
+    if (count == 0 || !(normal.squaredNorm() > 0.0)) continue;
     normal.normalize();
+    // Where the cut runs within a few tenths of a voxel of a plane of nodes, its strips pass on either
+    // side of them, node by node, or overlap there with those nodes between them (the liver tip's last
+    // hairline: two strips 0.3 voxel apart), and its crossings' plane does not show it between two of
+    // them. So along the axis nearest its normal: a node whose edge down that axis is cut lies above
+    // the cut (between two strips: above the lower, so it goes with the upper side), one whose edge
+    // up alone is cut lies below it; an edge across that axis between a node below and a node above
+    // is cut. Where the cut ends inside the tissue, the nodes beyond its edge have no cut along the
+    // axis and are left joined.
+    int k = 0;
+    for (int c = 1; c < 3; ++c) k = std::abs(normal[c]) > std::abs(normal[k]) ? c : k;
+    if (k != axis) {
+      // The distance from a node to the cut along k, in voxels: positive above, negative below; 0:
+      // neither edge along k cut.
+      const auto height = [&](const int32_t c[3]) -> double {
+        const uint32_t node = l.node(c[0], c[1], c[2]);
+        const uint32_t up = c[k] < (k == 0 ? l.nx : k == 1 ? l.ny : l.nz) ? state.edge_cut_of.get(Lattice::edge(node, k)) : kDeadIndex;
+        int32_t below[3] = {c[0], c[1], c[2]};
+        --below[k];
+        const uint32_t down = below[k] >= 0 ? state.edge_cut_of.get(Lattice::edge(l.node(below[0], below[1], below[2]), k)) : kDeadIndex;
+        if (down != kDeadIndex) return 1.0 - double(0.5f * (state.edge_cuts[down].t_lo + state.edge_cuts[down].t_hi));
+        if (up != kDeadIndex) return -double(0.5f * (state.edge_cuts[up].t_lo + state.edge_cuts[up].t_hi));
+        return 0.0;
+      };
+      const double s0 = height(a), s1 = height(b);
+      if (s0 * s1 < 0.0) {
+        divide_at(model, state, EdgeHit{edge, float(std::clamp(s0 / (s0 - s1), 0.0, 1.0)), normal.cast<float>()}, stats);
+        ++stats.hole_edges;
+        continue;
+      }
+    }
+    if (count < 4) continue;
+    centre /= count;
     const double d0 = normal.dot(x0 - centre), d1 = normal.dot(x1 - centre);
     if ((d0 > 0.0) == (d1 > 0.0) || d0 == d1) continue;
     const double t = std::clamp(d0 / (d0 - d1), 0.0, 1.0);

@@ -255,8 +255,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 // (`stroke_voxels`, any order and repeats; partial_mask) has the material edges cut that the plane of
 // its cuts (through their crossings, normal to their mean normal) crosses: a hole a voxel wide closes;
 // a real edge of the cut (a blade tip inside the tissue) moves by at most a voxel. Then the holes up
-// to ~3.6 voxels wide that closing leaves inside the cut (where its crossings surround them) are cut
-// through (CutStepStats::hole_edges). Leaves its voxels in state.pending_voxels (then
+// to ~3.6 voxels wide that closing leaves inside the cut (where its crossings surround them), and the
+// edges between nodes on either side of it along its normal's axis (strips that pass a plane of
+// nodes on either side, or overlap across it), are cut through (CutStepStats::hole_edges). Leaves its voxels in state.pending_voxels (then
 // cut_update_surface); sorts `stroke_voxels` and drops its repeats.
 void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke_voxels,
                      CutStepStats& stats);

@@ -544,6 +544,31 @@ TEST_SUITE("sever") {
       CHECK(closing.hole_edges > 0);
       CHECK(pieces(s) == 2);
     }
+    SUBCASE("two strips offset across a plane of nodes, overlapping by two voxels: its end joins them") {
+      // The first strip 0.2 voxel before a plane of nodes, the second 0.2 voxel after it, overlapping
+      // in y: the nodes between them join the sides around the overlap's ends (the liver tip's last
+      // hairline). Each voxel's own plane runs parallel to both; only the nodes' sides along x show
+      // the cut passing between two of them.
+      CutState s;
+      init_cut_state(model, s);
+      const double node_x = model.lattice.node_position(model.lattice.nx / 2, 0, 0).x();
+      const auto strip = [&](double x, double ya, double yb) {
+        CutStepStats stats;
+        cut_divide(model, s, {Vec3d(x, ya, 1.0), Vec3d(x, ya, -1.0)}, {Vec3d(x, yb, 1.0), Vec3d(x, yb, -1.0)}, stats);
+        cut_update_surface(model, s, stats);
+        stroke.insert(stroke.end(), s.changed_voxels.begin(), s.changed_voxels.end());
+      };
+      strip(node_x - 0.2 * h, -1.0, 0.0517 + 2.0 * h);
+      strip(node_x + 0.2 * h, 0.0517, 1.0);
+      REQUIRE(check_cut_state(model, s, error));
+      CHECK(pieces(s) == 1);
+      CutStepStats closing;
+      cut_close_seams(model, s, stroke, closing);
+      cut_update_surface(model, s, closing);
+      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
+      MESSAGE("seam edges cut: " << closing.seam_edges << ", hole edges cut: " << closing.hole_edges);
+      CHECK(pieces(s) == 2);
+    }
     SUBCASE("a blade that stops inside the block: still one piece, the cut's edge at most a voxel deeper") {
       CutState s;
       init_cut_state(model, s);
