@@ -491,16 +491,25 @@ TEST_SUITE("sever") {
     const VoxelModel model = dvx_test::voxelized(box, 32);
     const double h = model.lattice.voxel_size;
     std::vector<uint32_t> stroke;  // the stroke's voxels (as world_step keeps them)
-    const auto cut = [&](CutState& s, double y0, double y1, double z_tip) {
-      // A blade along z (from above the block down to z_tip) at x = 0.0137, swept in y from y0 to y1.
+    const auto strip = [&](CutState& s, double x, double y0, double y1, double z_low, double z_high) {
+      // A blade along z (from z_high down to z_low) at x, swept in y from y0 to y1.
       CutStepStats stats;
-      cut_divide(model, s, {Vec3d(0.0137, y0, 1.0), Vec3d(0.0137, y0, z_tip)}, {Vec3d(0.0137, y1, 1.0), Vec3d(0.0137, y1, z_tip)},
-                 stats);
+      cut_divide(model, s, {Vec3d(x, y0, z_high), Vec3d(x, y0, z_low)}, {Vec3d(x, y1, z_high), Vec3d(x, y1, z_low)}, stats);
       cut_update_surface(model, s, stats);
       stroke.insert(stroke.end(), s.changed_voxels.begin(), s.changed_voxels.end());
     };
+    const auto cut = [&](CutState& s, double y0, double y1, double z_tip) { strip(s, 0.0137, y0, y1, z_tip, 1.0); };
     const auto pieces = [&](const CutState& s) { return int(surface_stats(compact_surface(s.surface)).components); };
     std::string error;
+    // The stroke's end: its seams closed and the surface updated (a valid cut state); the closing's counts.
+    const auto end_stroke = [&](CutState& s) {
+      CutStepStats closing;
+      cut_close_seams(model, s, stroke, closing);
+      cut_update_surface(model, s, closing);
+      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
+      MESSAGE("seam edges cut: " << closing.seam_edges << ", hole edges cut: " << closing.hole_edges);
+      return closing;
+    };
     SUBCASE("through the block: the seam closes and the block is in two") {
       CutState s;
       init_cut_state(model, s);
@@ -508,12 +517,7 @@ TEST_SUITE("sever") {
       cut(s, 0.1 + 0.3 * h, 1.0, -1.0);   // ...the second starts half a voxel on
       REQUIRE(check_cut_state(model, s, error));
       CHECK(pieces(s) == 1);  // the seam joins the sides
-      CutStepStats stats;
-      cut_close_seams(model, s, stroke, stats);
-      cut_update_surface(model, s, stats);
-      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
-      MESSAGE("seam edges cut: " << stats.seam_edges);
-      CHECK(stats.seam_edges > 0);
+      CHECK(end_stroke(s).seam_edges > 0);
       CHECK(pieces(s) == 2);
     }
     SUBCASE("a hole 3.2 voxels wide inside the stroke's cut: its end closes the hole and the block is in two") {
@@ -522,26 +526,14 @@ TEST_SUITE("sever") {
       // around it narrows it by a voxel from each side and leaves its middle; the hole pass cuts it.
       CutState s;
       init_cut_state(model, s);
-      const auto strip = [&](double ya, double yb, double z_low, double z_high) {
-        CutStepStats stats;
-        cut_divide(model, s, {Vec3d(0.0137, ya, z_high), Vec3d(0.0137, ya, z_low)},
-                   {Vec3d(0.0137, yb, z_high), Vec3d(0.0137, yb, z_low)}, stats);
-        cut_update_surface(model, s, stats);
-        stroke.insert(stroke.end(), s.changed_voxels.begin(), s.changed_voxels.end());
-      };
       const double y1 = 0.05, y2 = y1 + 3.2 * h, z1 = -0.03, z2 = z1 + 3.2 * h;
-      strip(-1.0, y1, -1.0, 1.0);
-      strip(y2, 1.0, -1.0, 1.0);
-      strip(y1, y2, z2, 1.0);
-      strip(y1, y2, -1.0, z1);
+      strip(s, 0.0137, -1.0, y1, -1.0, 1.0);
+      strip(s, 0.0137, y2, 1.0, -1.0, 1.0);
+      strip(s, 0.0137, y1, y2, z2, 1.0);
+      strip(s, 0.0137, y1, y2, -1.0, z1);
       REQUIRE(check_cut_state(model, s, error));
       CHECK(pieces(s) == 1);
-      CutStepStats closing;
-      cut_close_seams(model, s, stroke, closing);
-      cut_update_surface(model, s, closing);
-      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
-      MESSAGE("seam edges cut: " << closing.seam_edges << ", hole edges cut: " << closing.hole_edges);
-      CHECK(closing.hole_edges > 0);
+      CHECK(end_stroke(s).hole_edges > 0);
       CHECK(pieces(s) == 2);
     }
     SUBCASE("two strips offset across a plane of nodes, overlapping by two voxels: its end joins them") {
@@ -552,21 +544,11 @@ TEST_SUITE("sever") {
       CutState s;
       init_cut_state(model, s);
       const double node_x = model.lattice.node_position(model.lattice.nx / 2, 0, 0).x();
-      const auto strip = [&](double x, double ya, double yb) {
-        CutStepStats stats;
-        cut_divide(model, s, {Vec3d(x, ya, 1.0), Vec3d(x, ya, -1.0)}, {Vec3d(x, yb, 1.0), Vec3d(x, yb, -1.0)}, stats);
-        cut_update_surface(model, s, stats);
-        stroke.insert(stroke.end(), s.changed_voxels.begin(), s.changed_voxels.end());
-      };
-      strip(node_x - 0.2 * h, -1.0, 0.0517 + 2.0 * h);
-      strip(node_x + 0.2 * h, 0.0517, 1.0);
+      strip(s, node_x - 0.2 * h, -1.0, 0.0517 + 2.0 * h, -1.0, 1.0);
+      strip(s, node_x + 0.2 * h, 0.0517, 1.0, -1.0, 1.0);
       REQUIRE(check_cut_state(model, s, error));
       CHECK(pieces(s) == 1);
-      CutStepStats closing;
-      cut_close_seams(model, s, stroke, closing);
-      cut_update_surface(model, s, closing);
-      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
-      MESSAGE("seam edges cut: " << closing.seam_edges << ", hole edges cut: " << closing.hole_edges);
+      CHECK(end_stroke(s).hole_edges > 0);
       CHECK(pieces(s) == 2);
     }
     SUBCASE("a blade that stops inside the block: still one piece, the cut's edge at most a voxel deeper") {
@@ -574,10 +556,7 @@ TEST_SUITE("sever") {
       init_cut_state(model, s);
       const double tip = 0.05;  // the block spans z -0.5..0.5: the blade reaches its middle only
       cut(s, -1.0, 1.0, tip);
-      CutStepStats stats;
-      cut_close_seams(model, s, stroke, stats);
-      cut_update_surface(model, s, stats);
-      REQUIRE_MESSAGE(check_cut_state(model, s, error), error);
+      end_stroke(s);
       CHECK(pieces(s) == 1);
       // Every cut edge lies above the tip less one voxel.
       double lowest = 1e30;
