@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <numbers>
 #include <bit>
 
 namespace dvx {
@@ -259,7 +260,7 @@ namespace {
 // The least angle around a hole's edge that the stroke's crossings must leave no gap of (below: the
 // edge lies inside the cut, not beyond its rim, where the crossings lie on one side: a gap of at
 // least half a turn).
-constexpr double kHoleMaxGap = 0.75 * 3.14159265358979323846;
+constexpr double kHoleMaxGap = 0.75 * std::numbers::pi;
 
 // After the partly cut voxels are closed: holes in the stroke's cut surface a voxel or two wide
 // that no voxel's own cuts reach (where the tissue turned as it was cut, strips of different
@@ -272,6 +273,11 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
                  CutStepStats& stats) {
   const Lattice& l = model.lattice;
   const double h = l.voxel_size;
+  const int32_t voxels_along[3] = {l.nx, l.ny, l.nz};
+  const auto in_lattice = [&](const int32_t c[3]) {
+    return c[0] >= 0 && c[1] >= 0 && c[2] >= 0 && c[0] < l.nx && c[1] < l.ny && c[2] < l.nz;
+  };
+  const auto middle_t = [](const EdgeCut& cut) { return double(0.5f * (cut.t_lo + cut.t_hi)); };
   // The core: the stroke's partly cut voxels and those the closing touched; their edges and their
   // neighbours' edges are the candidates.
   std::vector<uint32_t> core(state.pending_voxels.begin() + std::ptrdiff_t(first), state.pending_voxels.end());
@@ -288,45 +294,40 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dx = -1; dx <= 1; ++dx) {
           const int32_t c[3] = {vc[0] + dx, vc[1] + dy, vc[2] + dz};
-          if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= l.nx || c[1] >= l.ny || c[2] >= l.nz) continue;
-          for (int e = 0; e < 12; ++e) {
-            const uint8_t c0 = kVoxelEdges[e].c0;
-            edges.push_back(Lattice::edge(l.node(c[0] + (c0 & 1), c[1] + ((c0 >> 1) & 1), c[2] + ((c0 >> 2) & 1)),
-                                          kVoxelEdges[e].axis));
-          }
+          if (!in_lattice(c)) continue;
+          for (int e = 0; e < 12; ++e) edges.push_back(voxel_edge_id(l, c, e));
         }
       }
     }
   }
   sorted_unique(edges);
   std::vector<uint32_t> near;  // cut edges near a candidate
+  std::vector<Vec3d> points;   // their crossings within 1.5 voxels of its middle
   std::vector<double> angles;
   for (const uint32_t edge : edges) {
-    if (state.edge_cut_of.get(edge) != kDeadIndex) continue;
+    if (find_cut(state, edge) != nullptr) continue;
     const uint32_t n0 = edge / 3;
     const int axis = int(edge % 3);
     int32_t a[3];
     l.node_coords(n0, a);
     int32_t b[3] = {a[0], a[1], a[2]};
-    ++b[axis];
-    if (b[axis] > (axis == 0 ? l.nx : axis == 1 ? l.ny : l.nz)) continue;
-    const uint32_t n1 = l.node(b[0], b[1], b[2]);
+    if (++b[axis] > voxels_along[axis]) continue;
+    const uint32_t n1 = n0 + node_stride(l, axis);
     if (!model.is_inside(n0) || !model.is_inside(n1)) continue;
     const Vec3d x0 = l.node_position(a[0], a[1], a[2]), x1 = l.node_position(b[0], b[1], b[2]);
     const Vec3d middle = 0.5 * (x0 + x1);
     // The cut edges of the voxels within two of the edge's lower node.
     near.clear();
-    for (int32_t z = a[2] - 2; z <= a[2] + 1; ++z) {
-      for (int32_t y = a[1] - 2; y <= a[1] + 1; ++y) {
-        for (int32_t x = a[0] - 2; x <= a[0] + 1; ++x) {
-          if (x < 0 || y < 0 || z < 0 || x >= l.nx || y >= l.ny || z >= l.nz) continue;
-          const uint32_t d = state.divided_of.get(l.voxel(x, y, z));
+    int32_t c[3];
+    for (c[2] = a[2] - 2; c[2] <= a[2] + 1; ++c[2]) {
+      for (c[1] = a[1] - 2; c[1] <= a[1] + 1; ++c[1]) {
+        for (c[0] = a[0] - 2; c[0] <= a[0] + 1; ++c[0]) {
+          if (!in_lattice(c)) continue;
+          const uint32_t d = state.divided_of.get(l.voxel(c[0], c[1], c[2]));
           if (d == kDeadIndex) continue;
           const uint16_t cut = state.divided[d].cut_edges;
           for (int e = 0; e < 12; ++e) {
-            if (!((cut >> e) & 1u)) continue;
-            const uint8_t c0 = kVoxelEdges[e].c0;
-            near.push_back(Lattice::edge(l.node(x + (c0 & 1), y + ((c0 >> 1) & 1), z + ((c0 >> 2) & 1)), kVoxelEdges[e].axis));
+            if ((cut >> e) & 1u) near.push_back(voxel_edge_id(l, c, e));
           }
         }
       }
@@ -334,27 +335,22 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
     sorted_unique(near);
     // Their crossings within 1.5 voxels: the local plane.
     Vec3d centre = Vec3d::Zero(), normal = Vec3d::Zero(), reference = Vec3d::Zero();
-    int count = 0;
-    const auto crossing = [&](uint32_t cut_edge, const EdgeCut& ec) {
-      int32_t c[3];
-      l.node_coords(cut_edge / 3, c);
-      return Vec3d(l.node_position(c[0], c[1], c[2]) + double(0.5f * (ec.t_lo + ec.t_hi)) * h * Vec3d::Unit(int(cut_edge % 3)));
-    };
-    for (uint32_t& cut_edge : near) {
-      const uint32_t i = state.edge_cut_of.get(cut_edge);
-      const Vec3d p = i == kDeadIndex ? Vec3d::Constant(1e300) : crossing(cut_edge, state.edge_cuts[i]);
-      if (i == kDeadIndex || (p - middle).squaredNorm() > 2.25 * h * h) {
-        cut_edge = kDeadIndex;
-        continue;
-      }
-      Vec3d n = state.edge_cuts[i].normal_lo.cast<double>();
-      if (count == 0) reference = n;
+    points.clear();
+    for (const uint32_t cut_edge : near) {
+      const EdgeCut* cut = find_cut(state, cut_edge);
+      if (cut == nullptr) continue;
+      int32_t p0[3];
+      l.node_coords(cut_edge / 3, p0);
+      const Vec3d p = l.node_position(p0[0], p0[1], p0[2]) + middle_t(*cut) * h * Vec3d::Unit(int(cut_edge % 3));
+      if ((p - middle).squaredNorm() > 2.25 * h * h) continue;
+      Vec3d n = cut->normal_lo.cast<double>();
+      if (points.empty()) reference = n;
       if (n.dot(reference) < 0.0) n = -n;
       normal += n;
       centre += p;
-      ++count;
+      points.push_back(p);
     }
-    if (count == 0 || !(normal.squaredNorm() > 0.0)) continue;
+    if (points.empty() || !(normal.squaredNorm() > 0.0)) continue;
     normal.normalize();
     // Where the cut runs within a few tenths of a voxel of a plane of nodes, its strips pass on either
     // side of them, node by node, or overlap there with those nodes between them (the liver tip's last
@@ -365,19 +361,16 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
     // is cut. Where the cut ends inside the tissue, the nodes beyond its edge have no cut along the
     // axis and are left joined.
     int k = 0;
-    for (int c = 1; c < 3; ++c) k = std::abs(normal[c]) > std::abs(normal[k]) ? c : k;
+    for (int q = 1; q < 3; ++q) k = std::abs(normal[q]) > std::abs(normal[k]) ? q : k;
     if (k != axis) {
       // The distance from a node to the cut along k, in voxels: positive above, negative below; 0:
       // neither edge along k cut.
-      const auto height = [&](const int32_t c[3]) -> double {
-        const uint32_t node = l.node(c[0], c[1], c[2]);
-        const uint32_t up = c[k] < (k == 0 ? l.nx : k == 1 ? l.ny : l.nz) ? state.edge_cut_of.get(Lattice::edge(node, k)) : kDeadIndex;
-        int32_t below[3] = {c[0], c[1], c[2]};
-        --below[k];
-        const uint32_t down = below[k] >= 0 ? state.edge_cut_of.get(Lattice::edge(l.node(below[0], below[1], below[2]), k)) : kDeadIndex;
-        if (down != kDeadIndex) return 1.0 - double(0.5f * (state.edge_cuts[down].t_lo + state.edge_cuts[down].t_hi));
-        if (up != kDeadIndex) return -double(0.5f * (state.edge_cuts[up].t_lo + state.edge_cuts[up].t_hi));
-        return 0.0;
+      const auto height = [&](const int32_t n[3]) -> double {
+        const uint32_t node = l.node(n[0], n[1], n[2]);
+        const EdgeCut* down = n[k] > 0 ? find_cut(state, Lattice::edge(node - node_stride(l, k), k)) : nullptr;
+        if (down != nullptr) return 1.0 - middle_t(*down);
+        const EdgeCut* up = n[k] < voxels_along[k] ? find_cut(state, Lattice::edge(node, k)) : nullptr;
+        return up != nullptr ? -middle_t(*up) : 0.0;
       };
       const double s0 = height(a), s1 = height(b);
       if (s0 * s1 < 0.0) {
@@ -386,8 +379,8 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
         continue;
       }
     }
-    if (count < 4) continue;
-    centre /= count;
+    if (points.size() < 4) continue;
+    centre /= double(points.size());
     const double d0 = normal.dot(x0 - centre), d1 = normal.dot(x1 - centre);
     if ((d0 > 0.0) == (d1 > 0.0) || d0 == d1) continue;
     const double t = std::clamp(d0 / (d0 - d1), 0.0, 1.0);
@@ -395,17 +388,14 @@ void close_holes(const VoxelModel& model, CutState& state, const std::vector<uin
     // Inside the crossings: no angular gap around q over kHoleMaxGap (in the plane).
     const Vec3d u = normal.unitOrthogonal(), w = normal.cross(u);
     angles.clear();
-    for (const uint32_t cut_edge : near) {
-      if (cut_edge == kDeadIndex) continue;
-      const Vec3d r = crossing(cut_edge, state.edge_cuts[state.edge_cut_of.get(cut_edge)]) - q;
-      const double ru = r.dot(u), rw = r.dot(w);
-      if (ru * ru + rw * rw < 0.01 * h * h) continue;
-      angles.push_back(std::atan2(rw, ru));
+    for (const Vec3d& p : points) {
+      const double ru = (p - q).dot(u), rw = (p - q).dot(w);
+      if (ru * ru + rw * rw >= 0.01 * h * h) angles.push_back(std::atan2(rw, ru));
     }
     if (angles.size() < 3) continue;
     std::sort(angles.begin(), angles.end());
-    double gap = angles.front() + 2.0 * 3.14159265358979323846 - angles.back();
-    for (size_t k = 1; k < angles.size(); ++k) gap = std::max(gap, angles[k] - angles[k - 1]);
+    double gap = angles.front() + 2.0 * std::numbers::pi - angles.back();
+    for (size_t i = 1; i < angles.size(); ++i) gap = std::max(gap, angles[i] - angles[i - 1]);
     if (gap > kHoleMaxGap) continue;
     divide_at(model, state, EdgeHit{edge, float(t), normal.cast<float>()}, stats);
     ++stats.hole_edges;

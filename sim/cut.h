@@ -257,8 +257,9 @@ void cut_divide(const VoxelModel& model, CutState& state, const BladePose& from,
 // a real edge of the cut (a blade tip inside the tissue) moves by at most a voxel. Then the holes up
 // to ~3.6 voxels wide that closing leaves inside the cut (where its crossings surround them), and the
 // edges between nodes on either side of it along its normal's axis (strips that pass a plane of
-// nodes on either side, or overlap across it), are cut through (CutStepStats::hole_edges). Leaves its voxels in state.pending_voxels (then
-// cut_update_surface); sorts `stroke_voxels` and drops its repeats.
+// nodes on either side, or overlap across it), are cut through (CutStepStats::hole_edges). Leaves
+// its voxels in state.pending_voxels (then cut_update_surface); sorts `stroke_voxels` and drops its
+// repeats.
 void cut_close_seams(const VoxelModel& model, CutState& state, std::vector<uint32_t>& stroke_voxels,
                      CutStepStats& stats);
 // Phase 2: refreshes pieces, vertices and quads of state.pending_voxels (moves them to changed_voxels).
